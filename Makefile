@@ -1,0 +1,20 @@
+# Two commands a user needs: `make demo` and `make test`. Both set everything up first.
+PY := .venv/bin/python
+export PYTHONDONTWRITEBYTECODE := 1
+
+.PHONY: setup demo test bench clean
+
+setup:
+	@bash tools/setup.sh
+
+demo: setup
+	$(PY) -m hybrid_shadow_addon info forest
+
+test: setup
+	$(PY) -m pytest -q tests
+
+bench: setup
+	$(PY) benchmarks/run_all.py
+
+clean:
+	rm -rf .venv dist build out .pytest_cache

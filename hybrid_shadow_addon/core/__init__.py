@@ -1,0 +1,1 @@
+"""bpy-free core: scene model, bake, GPU passes, reference tracers."""

@@ -1,0 +1,474 @@
+"""The bpy-free scene model: plain dataclasses over numpy arrays.
+
+Conventions (Blender's): right-handed, Z up, metres. Matrices are 4x4 float64, column vectors
+(``p_world = M @ [x, y, z, 1]``), exactly as ``Object.matrix_world`` reads in numpy.
+
+- :class:`Model`: one unique mesh (model space): float32 vertices, uint32 triangles, bounds and a
+  bounding sphere. Many instances share one model.
+- :class:`Instances`: every placed object as a structure of arrays (one row per instance), so
+  100k instances cost arrays, not Python objects.
+- :class:`Light`: sun, point, spot, area (Blender's parameters and units).
+- :class:`Camera`: perspective or orthographic with Blender's sensor fit, shift and clip range.
+- :class:`Scene`: all of the above plus the world colour and the render resolution.
+
+``Scene.validate()`` rejects NaN/inf (and other unusable values) with a message naming the object.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+from .errors import SceneError
+
+LIGHT_TYPES = ("SUN", "POINT", "SPOT", "AREA")
+CAMERA_TYPES = ("PERSP", "ORTHO")
+SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
+
+
+def _f32(a, shape_tail=None) -> np.ndarray:
+    a = np.ascontiguousarray(a, dtype=np.float32)
+    if shape_tail is not None:
+        a = a.reshape((-1,) + tuple(shape_tail))
+    return a
+
+
+# --------------------------------------------------------------------------------------------
+# Models
+# --------------------------------------------------------------------------------------------
+@dataclass
+class Model:
+    """One unique triangle mesh in model space.
+
+    ``bounds_min``/``bounds_max`` and the bounding sphere (``sphere_center``, ``sphere_radius``)
+    are derived from the vertices when not given. The sphere is centred on the box centre, its
+    radius the farthest vertex from it (cheap, vectorised, and never smaller than needed).
+    """
+
+    name: str
+    vertices: np.ndarray  # (V, 3) float32
+    triangles: np.ndarray  # (T, 3) uint32, indices into vertices
+    bounds_min: np.ndarray = None  # (3,) float32
+    bounds_max: np.ndarray = None  # (3,) float32
+    sphere_center: np.ndarray = None  # (3,) float32
+    sphere_radius: float = None
+
+    def __post_init__(self):
+        self.vertices = _f32(self.vertices, (3,))
+        self.triangles = np.ascontiguousarray(self.triangles, dtype=np.uint32).reshape(-1, 3)
+        if self.bounds_min is None or self.bounds_max is None:
+            if len(self.vertices):
+                finite = self.vertices
+                self.bounds_min = finite.min(axis=0)
+                self.bounds_max = finite.max(axis=0)
+            else:
+                self.bounds_min = np.zeros(3, np.float32)
+                self.bounds_max = np.zeros(3, np.float32)
+        self.bounds_min = _f32(self.bounds_min).reshape(3)
+        self.bounds_max = _f32(self.bounds_max).reshape(3)
+        if self.sphere_center is None or self.sphere_radius is None:
+            c = (self.bounds_min.astype(np.float64) + self.bounds_max) * 0.5
+            if len(self.vertices):
+                d = self.vertices.astype(np.float64) - c
+                r = float(np.sqrt((d * d).sum(axis=1).max()))
+            else:
+                r = 0.0
+            # round the radius up so float32 storage never shrinks the sphere
+            self.sphere_center = c.astype(np.float32)
+            self.sphere_radius = float(np.nextafter(np.float32(r), np.float32(np.inf)))
+        self.sphere_center = _f32(self.sphere_center).reshape(3)
+        self.sphere_radius = float(self.sphere_radius)
+
+    @property
+    def triangle_count(self) -> int:
+        return int(self.triangles.shape[0])
+
+    @property
+    def vertex_count(self) -> int:
+        return int(self.vertices.shape[0])
+
+    def validate(self) -> None:
+        if not np.isfinite(self.vertices).all():
+            raise SceneError(f"mesh '{self.name}' has NaN or infinite vertex coordinates")
+        if len(self.triangles) and int(self.triangles.max()) >= len(self.vertices):
+            raise SceneError(f"mesh '{self.name}' has triangle indices beyond its {len(self.vertices)} vertices")
+
+
+# --------------------------------------------------------------------------------------------
+# Instances (structure of arrays)
+# --------------------------------------------------------------------------------------------
+@dataclass
+class Instances:
+    """All placed objects, one row each.
+
+    ``matrices`` are world matrices; ``inverse`` their inverses (derived when not given).
+    ``model_ids`` index ``Scene.models``. ``sphere`` marks analytic sphere primitives: the
+    instance is traced as its model's bounding sphere (model space, then the world matrix),
+    with no triangles.
+    """
+
+    names: list = field(default_factory=list)  # list[str], len N
+    model_ids: np.ndarray = None  # (N,) int32
+    matrices: np.ndarray = None  # (N, 4, 4) float64
+    inverse: np.ndarray = None  # (N, 4, 4) float64
+    casts_shadow: np.ndarray = None  # (N,) bool
+    base_color: np.ndarray = None  # (N, 4) float32, linear RGBA
+    specular: np.ndarray = None  # (N,) float32, 0..1 (Principled "Specular IOR Level" * 2 clamp)
+    roughness: np.ndarray = None  # (N,) float32
+    sphere: np.ndarray = None  # (N,) bool
+
+    def __post_init__(self):
+        n = len(self.names)
+        self.model_ids = np.zeros(n, np.int32) if self.model_ids is None else np.ascontiguousarray(self.model_ids, np.int32).reshape(n)
+        self.matrices = (np.tile(np.eye(4), (n, 1, 1)) if self.matrices is None
+                         else np.ascontiguousarray(self.matrices, np.float64).reshape(n, 4, 4))
+        if self.inverse is None:
+            self.inverse = _safe_inverse(self.matrices)
+        else:
+            self.inverse = np.ascontiguousarray(self.inverse, np.float64).reshape(n, 4, 4)
+        self.casts_shadow = np.ones(n, bool) if self.casts_shadow is None else np.ascontiguousarray(self.casts_shadow, bool).reshape(n)
+        self.base_color = (np.tile(np.float32([0.8, 0.8, 0.8, 1.0]), (n, 1)) if self.base_color is None
+                           else _f32(self.base_color, (4,)))
+        self.specular = np.full(n, 0.5, np.float32) if self.specular is None else _f32(self.specular).reshape(n)
+        self.roughness = np.full(n, 0.5, np.float32) if self.roughness is None else _f32(self.roughness).reshape(n)
+        self.sphere = np.zeros(n, bool) if self.sphere is None else np.ascontiguousarray(self.sphere, bool).reshape(n)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    @classmethod
+    def concatenate(cls, parts: Sequence["Instances"]) -> "Instances":
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            return cls()
+        return cls(
+            names=[n for p in parts for n in p.names],
+            model_ids=np.concatenate([p.model_ids for p in parts]),
+            matrices=np.concatenate([p.matrices for p in parts]),
+            inverse=np.concatenate([p.inverse for p in parts]),
+            casts_shadow=np.concatenate([p.casts_shadow for p in parts]),
+            base_color=np.concatenate([p.base_color for p in parts]),
+            specular=np.concatenate([p.specular for p in parts]),
+            roughness=np.concatenate([p.roughness for p in parts]),
+            sphere=np.concatenate([p.sphere for p in parts]),
+        )
+
+    def max_scale(self) -> np.ndarray:
+        """(N,) largest axis scale of each world matrix (length of the 3x3 columns)."""
+        return np.sqrt((self.matrices[:, :3, :3] ** 2).sum(axis=1)).max(axis=1)
+
+    def set_matrices(self, index, matrices) -> None:
+        """Move instances: new world matrices (and inverses) for rows ``index``."""
+        m = np.asarray(matrices, np.float64).reshape(-1, 4, 4)
+        self.matrices[index] = m
+        self.inverse[index] = _safe_inverse(m)
+
+
+def _safe_inverse(m: np.ndarray) -> np.ndarray:
+    """Inverse of a stack of 4x4 matrices; singular ones (zero scale) give NaN rows, which
+    ``Scene.validate`` then reports by name."""
+    if len(m) == 0:
+        return np.zeros((0, 4, 4))
+    out = np.full_like(m, np.nan)
+    det = np.linalg.det(m[:, :3, :3])
+    ok = np.isfinite(det) & (np.abs(det) > 0) & np.isfinite(m).all(axis=(1, 2))
+    if ok.any():
+        out[ok] = np.linalg.inv(m[ok])
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Lights
+# --------------------------------------------------------------------------------------------
+@dataclass
+class Light:
+    """A Blender light. Lights shine along their local -Z axis.
+
+    ``power``: watts for point/spot/area (Blender's ``energy``), irradiance in W/m^2 for a sun
+    (Blender's ``energy`` of a sun is its strength). ``radius`` is ``shadow_soft_size`` (point,
+    spot); ``angle`` the sun's angular diameter; ``size``/``size_y`` the area light's extent.
+    ``spot_size`` is the full cone angle in radians, ``spot_blend`` 0..1.
+    """
+
+    name: str
+    type: str
+    color: np.ndarray = field(default_factory=lambda: np.ones(3, np.float32))
+    power: float = 1000.0
+    matrix: np.ndarray = field(default_factory=lambda: np.eye(4))
+    use_shadow: bool = True
+    radius: float = 0.0
+    angle: float = 0.0
+    spot_size: float = np.pi / 4
+    spot_blend: float = 0.15
+    size: float = 0.0
+    size_y: float = 0.0
+    area_shape: str = "SQUARE"
+
+    def __post_init__(self):
+        self.type = str(self.type).upper()
+        self.color = _f32(self.color).reshape(3)
+        self.matrix = np.asarray(self.matrix, np.float64).reshape(4, 4)
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.matrix[:3, 3].copy()
+
+    @property
+    def direction(self) -> np.ndarray:
+        """Unit world direction the light shines towards (local -Z)."""
+        d = -self.matrix[:3, 2]
+        n = np.linalg.norm(d)
+        return d / n if n > 0 else np.array([0.0, 0.0, -1.0])
+
+    def validate(self) -> None:
+        if self.type not in LIGHT_TYPES:
+            raise SceneError(f"light '{self.name}' has unsupported type {self.type!r}")
+        for label, v in (("colour", self.color), ("matrix", self.matrix), ("power", self.power),
+                         ("radius", self.radius), ("spot size", self.spot_size),
+                         ("spot blend", self.spot_blend), ("angle", self.angle)):
+            if not np.isfinite(np.asarray(v, np.float64)).all():
+                raise SceneError(f"light '{self.name}' has a NaN or infinite {label}")
+        if not np.linalg.norm(self.matrix[:3, 2]) > 0:
+            raise SceneError(f"light '{self.name}' has a zero-scale matrix (no direction)")
+
+
+# --------------------------------------------------------------------------------------------
+# Camera
+# --------------------------------------------------------------------------------------------
+@dataclass
+class Camera:
+    """A Blender camera. Looks down its local -Z, +Y up. ``lens`` and the sensor are in mm."""
+
+    name: str = "Camera"
+    matrix: np.ndarray = field(default_factory=lambda: np.eye(4))
+    type: str = "PERSP"
+    lens: float = 50.0
+    sensor_width: float = 36.0
+    sensor_height: float = 24.0
+    sensor_fit: str = "AUTO"
+    ortho_scale: float = 7.0
+    shift_x: float = 0.0
+    shift_y: float = 0.0
+    clip_start: float = 0.1
+    clip_end: float = 1000.0
+
+    def __post_init__(self):
+        self.matrix = np.asarray(self.matrix, np.float64).reshape(4, 4)
+        self.type = str(self.type).upper()
+        self.sensor_fit = str(self.sensor_fit).upper()
+
+    def validate(self) -> None:
+        vals = [self.matrix, self.lens, self.sensor_width, self.sensor_height, self.ortho_scale,
+                self.shift_x, self.shift_y, self.clip_start, self.clip_end]
+        if not all(np.isfinite(np.asarray(v, np.float64)).all() for v in vals):
+            raise SceneError(f"camera '{self.name}' has NaN or infinite values")
+        if self.type not in CAMERA_TYPES:
+            raise SceneError(f"camera '{self.name}' has unsupported type {self.type!r} (perspective or orthographic only)")
+        if self.sensor_fit not in SENSOR_FITS:
+            raise SceneError(f"camera '{self.name}' has unknown sensor fit {self.sensor_fit!r}")
+        if not (0 < self.clip_start < self.clip_end):
+            raise SceneError(f"camera '{self.name}' needs 0 < clip start < clip end")
+        if abs(np.linalg.det(self.matrix[:3, :3])) == 0:
+            raise SceneError(f"camera '{self.name}' has a zero-scale matrix")
+
+    # -- Blender's conventions (BKE_camera_params_compute_viewplane) --------------------------
+    def world_matrix_normalized(self) -> np.ndarray:
+        """Camera-to-world with unit axes (Blender normalises the camera matrix for rendering)."""
+        m = self.matrix.copy()
+        m[:3, :3] /= np.linalg.norm(m[:3, :3], axis=0, keepdims=True)
+        return m
+
+    def view_matrix(self) -> np.ndarray:
+        """World-to-camera (camera looks down -Z)."""
+        return np.linalg.inv(self.world_matrix_normalized())
+
+    def viewplane(self, width: int, height: int, pixel_aspect: float = 1.0):
+        """(xmin, xmax, ymin, ymax) of the view plane: at distance ``clip_start`` for a
+        perspective camera, in world units for an orthographic one."""
+        winx, winy = float(width), float(height)
+        xasp, yasp = 1.0, float(pixel_aspect)
+        ycor = yasp / xasp
+        fit = self.sensor_fit
+        sensor = self.sensor_height if fit == "VERTICAL" else self.sensor_width
+        if fit == "AUTO":
+            fit = "HORIZONTAL" if xasp * winx >= yasp * winy else "VERTICAL"
+        if self.type == "ORTHO":
+            pixsize = self.ortho_scale
+        else:
+            pixsize = sensor * self.clip_start / self.lens
+        viewfac = winx if fit == "HORIZONTAL" else ycor * winy
+        pixsize /= viewfac
+        dx = self.shift_x * viewfac
+        dy = self.shift_y * viewfac
+        xmin = (-0.5 * winx + dx) * pixsize
+        xmax = (0.5 * winx + dx) * pixsize
+        ymin = (-0.5 * ycor * winy + dy) * pixsize
+        ymax = (0.5 * ycor * winy + dy) * pixsize
+        return xmin, xmax, ymin, ymax
+
+    def projection_matrix(self, width: int, height: int) -> np.ndarray:
+        """OpenGL clip-from-camera matrix (NDC z in -1..1) matching Blender's render."""
+        l, r, b, t = self.viewplane(width, height)
+        n, f = float(self.clip_start), float(self.clip_end)
+        p = np.zeros((4, 4))
+        if self.type == "ORTHO":
+            p[0, 0] = 2 / (r - l)
+            p[1, 1] = 2 / (t - b)
+            p[2, 2] = -2 / (f - n)
+            p[0, 3] = -(r + l) / (r - l)
+            p[1, 3] = -(t + b) / (t - b)
+            p[2, 3] = -(f + n) / (f - n)
+            p[3, 3] = 1
+        else:
+            p[0, 0] = 2 * n / (r - l)
+            p[1, 1] = 2 * n / (t - b)
+            p[0, 2] = (r + l) / (r - l)
+            p[1, 2] = (t + b) / (t - b)
+            p[2, 2] = -(f + n) / (f - n)
+            p[2, 3] = -2 * f * n / (f - n)
+            p[3, 2] = -1
+        return p
+
+    def pixel_rays(self, width: int, height: int):
+        """World-space primary rays through pixel centres, row 0 = top row of the image.
+
+        Returns ``(origins, directions)``, each (H, W, 3) float64; directions are unit length.
+        For an orthographic camera origins lie on the view plane at ``clip_start``.
+        """
+        l, r, b, t = self.viewplane(width, height)
+        xs = l + (np.arange(width) + 0.5) * (r - l) / width
+        ys = t - (np.arange(height) + 0.5) * (t - b) / height
+        X, Y = np.meshgrid(xs, ys)
+        cam = self.world_matrix_normalized()
+        R, o = cam[:3, :3], cam[:3, 3]
+        if self.type == "ORTHO":
+            local = np.stack([X, Y, np.full_like(X, -self.clip_start)], axis=-1)
+            origins = local @ R.T + o
+            d = -R[:, 2] / np.linalg.norm(R[:, 2])
+            dirs = np.broadcast_to(d, origins.shape).copy()
+        else:
+            local = np.stack([X, Y, np.full_like(X, -self.clip_start)], axis=-1)
+            dirs = local @ R.T
+            dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+            origins = np.broadcast_to(o, dirs.shape).copy()
+        return origins, dirs
+
+
+# --------------------------------------------------------------------------------------------
+# Scene
+# --------------------------------------------------------------------------------------------
+@dataclass
+class Scene:
+    name: str = "Scene"
+    models: list = field(default_factory=list)  # list[Model]
+    instances: Instances = field(default_factory=Instances)
+    lights: list = field(default_factory=list)  # list[Light]
+    camera: Optional[Camera] = None
+    world_color: np.ndarray = field(default_factory=lambda: np.float32([0.05, 0.05, 0.05]))
+    resolution: tuple = (1920, 1080)
+    frame: int = 1
+
+    def __post_init__(self):
+        self.world_color = _f32(self.world_color).reshape(3)
+        self.resolution = (int(self.resolution[0]), int(self.resolution[1]))
+
+    # -- counts -------------------------------------------------------------------------------
+    @property
+    def triangle_count(self) -> int:
+        """Triangles placed in the world (instanced triangles counted once per instance)."""
+        if not len(self.instances):
+            return 0
+        per_model = np.array([m.triangle_count for m in self.models], np.int64)
+        return int(per_model[self.instances.model_ids].sum())
+
+    @property
+    def unique_triangle_count(self) -> int:
+        return int(sum(m.triangle_count for m in self.models))
+
+    def lights_by_type(self) -> dict:
+        out = {t: 0 for t in LIGHT_TYPES}
+        for light in self.lights:
+            out[light.type] = out.get(light.type, 0) + 1
+        return out
+
+    def instance_spheres(self):
+        """World bounding spheres of all instances: centres (N, 3) and radii (N,), float64."""
+        inst = self.instances
+        if not len(inst):
+            return np.zeros((0, 3)), np.zeros(0)
+        centers_m = np.array([m.sphere_center for m in self.models], np.float64).reshape(-1, 3)
+        radii_m = np.array([m.sphere_radius for m in self.models], np.float64)
+        c = centers_m[inst.model_ids]
+        centers = np.einsum("nij,nj->ni", inst.matrices[:, :3, :3], c) + inst.matrices[:, :3, 3]
+        radii = radii_m[inst.model_ids] * inst.max_scale()
+        return centers, radii
+
+    def world_bounds(self):
+        """(min, max) of the world-space boxes of all instances (exact box transform), or
+        ``None`` for an empty scene."""
+        inst = self.instances
+        if not len(inst):
+            return None
+        bmin = np.array([m.bounds_min for m in self.models], np.float64).reshape(-1, 3)[inst.model_ids]
+        bmax = np.array([m.bounds_max for m in self.models], np.float64).reshape(-1, 3)[inst.model_ids]
+        center = (bmin + bmax) * 0.5
+        half = (bmax - bmin) * 0.5
+        R = inst.matrices[:, :3, :3]
+        wc = np.einsum("nij,nj->ni", R, center) + inst.matrices[:, :3, 3]
+        wh = np.einsum("nij,nj->ni", np.abs(R), half)
+        return (wc - wh).min(axis=0), (wc + wh).max(axis=0)
+
+    # -- validation ---------------------------------------------------------------------------
+    def validate(self, require_camera: bool = True) -> "Scene":
+        """Raise :class:`SceneError` naming the first unusable object; return self."""
+        for m in self.models:
+            m.validate()
+        inst = self.instances
+        n = len(inst)
+        if n:
+            if inst.model_ids.min() < 0 or inst.model_ids.max() >= len(self.models):
+                bad = int(np.nonzero((inst.model_ids < 0) | (inst.model_ids >= len(self.models)))[0][0])
+                raise SceneError(f"object '{inst.names[bad]}' refers to a missing mesh")
+            bad_m = ~np.isfinite(inst.matrices).all(axis=(1, 2))
+            if bad_m.any():
+                raise SceneError(f"object '{inst.names[int(np.argmax(bad_m))]}' has a NaN or infinite transform")
+            bad_i = ~np.isfinite(inst.inverse).all(axis=(1, 2))
+            if bad_i.any():
+                raise SceneError(f"object '{inst.names[int(np.argmax(bad_i))]}' has a zero scale (its transform cannot be inverted)")
+            for label, arr in (("colour", inst.base_color), ("specular", inst.specular)):
+                bad = ~np.isfinite(arr.reshape(n, -1)).all(axis=1)
+                if bad.any():
+                    raise SceneError(f"object '{inst.names[int(np.argmax(bad))]}' has a NaN or infinite {label}")
+        for light in self.lights:
+            light.validate()
+        if self.camera is None:
+            if require_camera:
+                raise SceneError(f"scene '{self.name}' has no camera")
+        else:
+            self.camera.validate()
+        if not np.isfinite(self.world_color).all():
+            raise SceneError(f"scene '{self.name}' has a NaN or infinite world colour")
+        w, h = self.resolution
+        if w <= 0 or h <= 0:
+            raise SceneError(f"scene '{self.name}' has resolution {w}x{h}; both sides must be at least 1")
+        return self
+
+    # -- summary (CLI `info`) -----------------------------------------------------------------
+    def summary(self) -> dict:
+        b = self.world_bounds()
+        return {
+            "scene": self.name,
+            "frame": self.frame,
+            "resolution": list(self.resolution),
+            "instances": len(self.instances),
+            "shadow_casters": int(self.instances.casts_shadow.sum()) if len(self.instances) else 0,
+            "sphere_primitives": int(self.instances.sphere.sum()) if len(self.instances) else 0,
+            "models": len(self.models),
+            "triangles": self.triangle_count,
+            "unique_triangles": self.unique_triangle_count,
+            "lights": self.lights_by_type(),
+            "shadowed_lights": sum(1 for l in self.lights if l.use_shadow),
+            "camera": None if self.camera is None else {"name": self.camera.name, "type": self.camera.type},
+            "world_bounds": None if b is None else {"min": [float(x) for x in b[0]], "max": [float(x) for x in b[1]]},
+        }
