@@ -59,26 +59,31 @@ class Model:
         self.triangles = np.ascontiguousarray(self.triangles, dtype=np.uint32).reshape(-1, 3)
         if self.bounds_min is None or self.bounds_max is None:
             if len(self.vertices):
-                finite = self.vertices
-                self.bounds_min = finite.min(axis=0)
-                self.bounds_max = finite.max(axis=0)
+                self.bounds_min = self.vertices.min(axis=0)
+                self.bounds_max = self.vertices.max(axis=0)
             else:
                 self.bounds_min = np.zeros(3, np.float32)
                 self.bounds_max = np.zeros(3, np.float32)
         self.bounds_min = _f32(self.bounds_min).reshape(3)
         self.bounds_max = _f32(self.bounds_max).reshape(3)
         if self.sphere_center is None or self.sphere_radius is None:
+            self._derive_sphere()
+        self.sphere_center = _f32(self.sphere_center).reshape(3)
+        self.sphere_radius = float(self.sphere_radius)
+
+    def _derive_sphere(self) -> None:
+        with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf meshes are reported by validate()
             c = (self.bounds_min.astype(np.float64) + self.bounds_max) * 0.5
             if len(self.vertices):
                 d = self.vertices.astype(np.float64) - c
                 r = float(np.sqrt((d * d).sum(axis=1).max()))
             else:
                 r = 0.0
-            # round the radius up so float32 storage never shrinks the sphere
-            self.sphere_center = c.astype(np.float32)
-            self.sphere_radius = float(np.nextafter(np.float32(r), np.float32(np.inf)))
-        self.sphere_center = _f32(self.sphere_center).reshape(3)
-        self.sphere_radius = float(self.sphere_radius)
+        # float32 storage must never shrink the sphere: add the centre's rounding, round r up
+        c32 = c.astype(np.float32)
+        r += float(np.linalg.norm(c - c32))
+        self.sphere_center = c32
+        self.sphere_radius = float(np.nextafter(np.float32(r), np.float32(np.inf)))
 
     @property
     def triangle_count(self) -> int:

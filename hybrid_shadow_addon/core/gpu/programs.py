@@ -1,0 +1,179 @@
+"""GLSL programs from ``shaders/<name>.glsl``: one file holds all stages.
+
+Each stage is compiled from the same file with ``#define VERTEX_SHADER``, ``FRAGMENT_SHADER``
+(or ``GEOMETRY_SHADER``) prepended, moderngl-window style; a stage is built only when its name
+appears in the file. The source gets ``#version 410 core`` and the sorted defines first, and
+``#include "common/x.glsl"`` lines (relative to ``shaders/``) are resolved recursively, each file
+once. A ``#line`` directive per file makes the driver's log name file numbers, which are mapped
+back to ``file:line`` in the error.
+
+Programs are cached by (name, defines, varyings).
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import moderngl
+
+from ..errors import GPUError
+
+GLSL_VERSION = "#version 410 core"
+STAGES = ("VERTEX_SHADER", "GEOMETRY_SHADER", "FRAGMENT_SHADER")
+_INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"\s*(?://.*)?$')
+
+
+def default_shader_dir() -> Path:
+    """``<root>/shaders``: ``hybrid_shadow_addon/`` and ``shaders/`` are siblings."""
+    pkg = Path(__file__).resolve().parents[2]  # hybrid_shadow_addon/
+    for cand in (pkg.parent / "shaders", pkg / "shaders"):
+        if cand.is_dir():
+            return cand
+    return pkg.parent / "shaders"
+
+
+class ShaderError(GPUError):
+    """A shader is missing or does not compile/link."""
+
+
+class ProgramCache:
+    """Compiles and caches the programs of one context."""
+
+    def __init__(self, ctx: moderngl.Context, shader_dir: str | Path | None = None):
+        self.ctx = ctx
+        self.shader_dir = Path(shader_dir) if shader_dir is not None else default_shader_dir()
+        self._programs: dict = {}
+        self._vaos: dict = {}
+
+    # -- public ----------------------------------------------------------------------------
+    def get(self, name: str, defines: dict | None = None, varyings=None) -> moderngl.Program:
+        frozen = tuple(sorted((str(k), _define_value(v)) for k, v in (defines or {}).items()))
+        key = (name, frozen, tuple(varyings) if varyings else ())
+        prog = self._programs.get(key)
+        if prog is None:
+            prog = self._build(name, frozen, varyings)
+            self._programs[key] = prog
+        return prog
+
+    def fullscreen(self, name: str, defines: dict | None = None):
+        """``(program, vao)`` for a full-screen pass: draw with ``vao.render(vertices=3)``.
+
+        The shader's vertex stage should ``#include "common/fullscreen.glsl"`` (a buffer-less
+        triangle from ``gl_VertexID``)."""
+        prog = self.get(name, defines)
+        vao = self._vaos.get(id(prog))
+        if vao is None:
+            vao = self.ctx.vertex_array(prog, [])
+            self._vaos[id(prog)] = vao
+        return prog, vao
+
+    def __len__(self) -> int:
+        return len(self._programs)
+
+    def release(self) -> None:
+        for vao in self._vaos.values():
+            vao.release()
+        for prog in self._programs.values():
+            prog.release()
+        self._vaos.clear()
+        self._programs.clear()
+
+    # -- source assembly ---------------------------------------------------------------------
+    def source(self, name: str, stage: str, defines=()) -> tuple[str, list]:
+        """The full source of one stage and the file table (index = GLSL source-string number)."""
+        files: list[str] = []
+        body = self._expand(self._path(name), files, set())
+        head = [GLSL_VERSION, f"#define {stage}"]
+        head += [f"#define {k} {v}".rstrip() for k, v in defines]
+        return "\n".join(head) + "\n" + body, files
+
+    def _path(self, rel: str) -> Path:
+        p = self.shader_dir / (rel if rel.endswith(".glsl") else rel + ".glsl")
+        return p
+
+    def _expand(self, path: Path, files: list, seen: set, includer: str | None = None) -> str:
+        rel = path.relative_to(self.shader_dir).as_posix() if path.is_relative_to(self.shader_dir) else str(path)
+        if not path.is_file():
+            where = f" (included from {includer})" if includer else ""
+            raise ShaderError(f"shader file '{rel}' not found in {self.shader_dir}{where}")
+        seen.add(path.resolve())
+        idx = len(files)
+        files.append(rel)
+        out = [f"#line 1 {idx}"]
+        for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+            m = _INCLUDE.match(line)
+            if not m:
+                out.append(line)
+                continue
+            inc = (self.shader_dir / m.group(1))
+            if inc.resolve() in seen:
+                out.append(f"// {m.group(1)} already included")
+                continue
+            out.append(self._expand(inc, files, seen, f"{rel}:{lineno}"))
+            out.append(f"#line {lineno + 1} {idx}")
+        return "\n".join(out)
+
+    # -- compile -----------------------------------------------------------------------------
+    def _build(self, name: str, defines: tuple, varyings) -> moderngl.Program:
+        path = self._path(name)
+        if not path.is_file():
+            raise ShaderError(f"shader '{name}' not found: {path} does not exist")
+        text = path.read_text(encoding="utf-8")
+        stages = {}
+        files = []
+        for stage in STAGES:
+            if stage in text:
+                stages[stage], files = self.source(name, stage, defines)
+        if "VERTEX_SHADER" not in stages:
+            raise ShaderError(f"shader '{name}' has no VERTEX_SHADER section")
+        kwargs = dict(vertex_shader=stages["VERTEX_SHADER"],
+                      geometry_shader=stages.get("GEOMETRY_SHADER"),
+                      fragment_shader=stages.get("FRAGMENT_SHADER"))
+        if varyings:
+            kwargs["varyings"] = list(varyings)
+        try:
+            return self.ctx.program(**kwargs)
+        except Exception as exc:
+            log = _map_log(str(exc), files)
+            dtxt = ", ".join(f"{k}={v}" if v else k for k, v in defines) or "none"
+            raise ShaderError(f"shader '{name}' failed to build (defines: {dtxt}):\n{log}") from None
+
+
+def _define_value(v) -> str:
+    if isinstance(v, bool):
+        return "1" if v else "0"
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return repr(v) if ("." in repr(v) or "e" in repr(v)) else repr(v) + ".0"
+    return str(v)
+
+
+_LOG_PATTERNS = (
+    re.compile(r"\b(\d+):(\d+)\((\d+)\)"),  # Mesa:   0:12(3): error
+    re.compile(r"\b(\d+):(\d+):"),  # AMD/Apple: ERROR: 0:12: ...
+    re.compile(r"\b(\d+)\((\d+)\)\s*:"),  # NVIDIA: 0(12) : error
+)
+
+
+def _map_log(log: str, files: list) -> str:
+    """Replace GLSL source-string numbers by file names: ``0:12(3)`` -> ``gbuffer.glsl:12(3)``."""
+    def name(i):
+        i = int(i)
+        return files[i] if 0 <= i < len(files) else i
+
+    lines = []
+    for line in log.splitlines():
+        m = _LOG_PATTERNS[0].search(line)
+        if m:
+            line = line[:m.start()] + f"{name(m.group(1))}:{m.group(2)}({m.group(3)})" + line[m.end():]
+        else:
+            m = _LOG_PATTERNS[1].search(line)
+            if m:
+                line = line[:m.start()] + f"{name(m.group(1))}:{m.group(2)}:" + line[m.end():]
+            else:
+                m = _LOG_PATTERNS[2].search(line)
+                if m:
+                    line = line[:m.start()] + f"{name(m.group(1))}:{m.group(2)}:" + line[m.end():]
+        lines.append(line)
+    return "\n".join(lines)
