@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test bench extension clean
 
 setup:
 	@bash tools/setup.sh
@@ -12,6 +12,9 @@ demo: setup
 
 test: setup
 	$(PY) -m pytest -q tests
+
+extension: setup
+	$(PY) tools/build_extension.py
 
 bench: setup
 	$(PY) benchmarks/run_all.py

@@ -1,0 +1,162 @@
+"""Per-light shadow visibility and the position pass from Cycles: the reference we measure against.
+
+For each light: only that light renders, ``max_bounces = 0``, ``filter_width = 0.01`` (samples
+at the pixel centre), no world light, film transparent; the Diffuse Direct pass with the light's
+``use_shadow`` on and off; visibility = shadowed / unshadowed. Pixels without full geometry
+coverage, or that the light does not reach even unshadowed (facing away, outside a spot cone),
+are invalid (NaN).
+
+The user's scene is restored afterwards, whatever happens. Works with bpy 4.5 and 5.0 (which
+name and split the EXR layers differently).
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+UNSHADOWED_MIN = 1e-4
+
+
+@dataclass
+class CyclesReference:
+    visibility: dict = field(default_factory=dict)  # light name -> (H, W) float32, NaN invalid
+    position: np.ndarray = None  # (H, W, 3) float32 world position, NaN where no geometry
+    render_ms: dict = field(default_factory=dict)  # light name -> ms for both renders
+
+
+def _read_exr(path: str) -> dict:
+    """All channels of a (multi-part, multi-layer) EXR as ``{name: (H, W[, C]) float32}``."""
+    import OpenEXR
+
+    out = {}
+    with OpenEXR.File(path, separate_channels=False) as f:
+        for part in f.parts:
+            for name, ch in part.channels.items():
+                out[name] = np.asarray(ch.pixels, dtype=np.float32)
+    return out
+
+
+def _find(channels: dict, *suffixes) -> np.ndarray:
+    for name, px in channels.items():
+        if any(name.endswith(s) for s in suffixes):
+            return px
+    raise KeyError(f"none of {suffixes} in EXR channels {sorted(channels)}")
+
+
+def _position(channels: dict) -> np.ndarray:
+    try:
+        return _find(channels, ".Position", "Position")[..., :3]
+    except KeyError:
+        return np.stack([_find(channels, f"Position.{c}") for c in "XYZ"], axis=-1)
+
+
+class _Saved:
+    """Remember attributes and restore them in reverse order."""
+
+    def __init__(self):
+        self._items = []
+
+    def set(self, obj, attr, value):
+        self._items.append((obj, attr, getattr(obj, attr)))
+        setattr(obj, attr, value)
+
+    def restore(self):
+        for obj, attr, value in reversed(self._items):
+            try:
+                setattr(obj, attr, value)
+            except (AttributeError, TypeError, ReferenceError):
+                pass
+        self._items.clear()
+
+
+def _configure(bscene, saved: _Saved, resolution, samples: int, filepath: str) -> None:
+    r = bscene.render
+    saved.set(r, "engine", "CYCLES")
+    if resolution is not None:
+        saved.set(r, "resolution_x", int(resolution[0]))
+        saved.set(r, "resolution_y", int(resolution[1]))
+        saved.set(r, "resolution_percentage", 100)
+    saved.set(r, "film_transparent", True)
+    saved.set(r, "filepath", filepath)
+    saved.set(r, "use_compositing", False)
+    saved.set(r, "use_sequencer", False)
+    c = bscene.cycles
+    saved.set(c, "device", "CPU")
+    saved.set(c, "samples", int(samples))
+    saved.set(c, "max_bounces", 0)
+    saved.set(c, "use_denoising", False)
+    saved.set(c, "use_adaptive_sampling", False)
+    saved.set(c, "filter_width", 0.01)
+    saved.set(c, "seed", 0)
+    saved.set(bscene, "world", None)
+    vl = bscene.view_layers[0]
+    saved.set(vl, "use_pass_diffuse_direct", True)
+    saved.set(vl, "use_pass_position", True)
+    im = r.image_settings
+    if hasattr(im, "media_type"):  # Blender 5.0
+        saved.set(im, "media_type", "MULTI_LAYER_IMAGE")
+    else:
+        saved.set(im, "file_format", "OPEN_EXR_MULTILAYER")
+    saved.set(im, "color_depth", "32")
+    saved.set(im, "exr_codec", "ZIP")
+
+
+def render_reference(bscene, light_names=None, *, resolution=None, samples: int = 1,
+                     progress=None) -> CyclesReference:
+    """Render the Cycles visibility of each named light (default: every shadow-casting light
+    visible in render) and the position pass. ``progress(done, total, label)`` is called
+    between renders."""
+    import bpy
+
+    lights = [o for o in bscene.objects if o.type == "LIGHT" and not o.hide_render]
+    if light_names is None:
+        light_names = [o.name for o in lights if o.data.use_shadow]
+    targets = [bscene.objects[n] for n in light_names]
+    ref = CyclesReference()
+    saved, per_light = _Saved(), _Saved()
+
+    def render(path):
+        bpy.ops.render.render(write_still=True, scene=bscene.name)
+        return _read_exr(path)
+
+    def keep_position(channels):
+        if ref.position is None:
+            pos = _position(channels).copy()
+            pos[_find(channels, ".Combined", "Combined")[..., 3] < 1.0 - 1e-6] = np.nan
+            ref.position = pos
+
+    with tempfile.TemporaryDirectory(prefix="hs-cycles-") as tmp:
+        path = os.path.join(tmp, "ref.exr")
+        try:
+            _configure(bscene, saved, resolution, samples, path)
+            total = 2 * len(targets)
+            for i, target in enumerate(targets):
+                for o in lights:
+                    per_light.set(o, "hide_render", o is not target)
+                passes = {}
+                t0 = time.perf_counter()
+                for k, shadow in enumerate((True, False)):
+                    per_light.set(target.data, "use_shadow", shadow)
+                    passes[shadow] = render(path)
+                    if progress:
+                        progress(2 * i + k + 1, total, target.name)
+                ref.render_ms[target.name] = (time.perf_counter() - t0) * 1e3
+                per_light.restore()
+                lit = _find(passes[True], "DiffDir", "Diffuse Direct")[..., :3].mean(axis=-1)
+                full = _find(passes[False], "DiffDir", "Diffuse Direct")[..., :3].mean(axis=-1)
+                alpha = _find(passes[False], ".Combined", "Combined")[..., 3]
+                valid = (full > UNSHADOWED_MIN) & (alpha >= 1.0 - 1e-6)
+                vis = np.full(full.shape, np.nan, np.float32)
+                vis[valid] = np.clip(lit[valid] / full[valid], 0.0, 1.0)
+                ref.visibility[target.name] = vis
+                keep_position(passes[False])
+            if ref.position is None:  # no shadowed light: the positions all the same
+                keep_position(render(path))
+        finally:
+            per_light.restore()
+            saved.restore()
+    return ref
