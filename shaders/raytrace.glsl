@@ -1,0 +1,92 @@
+// Pass 2, ray traced: one shadow ray per mask texel towards one light, through the baked scene.
+//
+// Output (R32F): 1 = lit, 0 = shadowed. Background texels are 1 (the lighting pass skips them).
+// Texels whose surface faces away from the light are 0 (unlit anyway).
+// Defines (besides scene_data.glsl's): HS_MAX_DISTANCE (shadows only up to u_max_distance from
+// the camera; rays are no longer than that either), HS_INTERLACE (trace only the texels of
+// phase u_phase in each 2x2 block; keep u_history where that texel's phase is in
+// u_valid_phases, else write -1 for interlace_fill.glsl to fill from this frame's rays).
+
+#ifdef VERTEX_SHADER
+#include "common/fullscreen.glsl"
+#endif
+
+#ifdef FRAGMENT_SHADER
+#include "common/gbuffer.glsl"
+#include "common/scene_data.glsl"
+
+uniform int u_scale;            // mask texel = u_scale x u_scale full-resolution pixels
+uniform ivec2 u_full_size;      // G-buffer size
+uniform int u_light_local;      // 0: sun (u_light_vec = unit direction towards it), 1: position
+uniform vec3 u_light_vec;
+#ifdef HS_MAX_DISTANCE
+uniform float u_max_distance;
+#endif
+#ifdef HS_INTERLACE
+uniform sampler2D u_history;
+uniform int u_phase;            // 0..3
+uniform int u_valid_phases;     // bit p set: history texels of phase p are up to date
+#endif
+
+in vec2 v_uv;
+out float o_mask;
+
+// Ray origin pushed off the surface along the normal (Waechter & Binder, Ray Tracing Gems ch. 6):
+// a fixed number of float ULPs of each coordinate (scale-invariant, works far from the origin),
+// a small absolute step near the origin where ULPs vanish. 'slack' adds the G-buffer
+// reconstruction error, which grows with the distance from the camera.
+vec3 offset_origin(vec3 p, vec3 n, float slack)
+{
+    const float origin = 1.0 / 32.0;
+    const float float_scale = 1.0 / 65536.0;
+    const float int_scale = 256.0;
+    ivec3 of_i = ivec3(int_scale * n);
+    vec3 p_i = vec3(intBitsToFloat(floatBitsToInt(p.x) + ((p.x < 0.0) ? -of_i.x : of_i.x)),
+                    intBitsToFloat(floatBitsToInt(p.y) + ((p.y < 0.0) ? -of_i.y : of_i.y)),
+                    intBitsToFloat(floatBitsToInt(p.z) + ((p.z < 0.0) ? -of_i.z : of_i.z)));
+    vec3 q = vec3(abs(p.x) < origin ? p.x + float_scale * n.x : p_i.x,
+                  abs(p.y) < origin ? p.y + float_scale * n.y : p_i.y,
+                  abs(p.z) < origin ? p.z + float_scale * n.z : p_i.z);
+    return q + n * slack;
+}
+
+void main()
+{
+    ivec2 mt = ivec2(gl_FragCoord.xy);
+#ifdef HS_INTERLACE
+    int phase = (mt.x & 1) | ((mt.y & 1) << 1);
+    ivec2 block_ray = (mt & ~1) + ivec2(u_phase & 1, u_phase >> 1);
+    bool block_has_ray = all(lessThan(block_ray, textureSize(u_history, 0)));
+    if (phase != u_phase && block_has_ray) {  // (a block cut by the edge traces its own texels)
+        o_mask = ((u_valid_phases >> phase) & 1) != 0 ? texelFetch(u_history, mt, 0).r : -1.0;
+        return;
+    }
+#endif
+    ivec2 px = mask_source_pixel(mt, u_scale, u_full_size);
+    vec4 pos = texelFetch(u_gb_position, px, 0);
+    if (pos.w == 0.0) { o_mask = 1.0; return; }
+    float depth = texelFetch(u_gb_depth, px, 0).r;
+#ifdef HS_MAX_DISTANCE
+    if (depth > u_max_distance) { o_mask = 1.0; return; }
+#endif
+    vec3 n = texelFetch(u_gb_normal, px, 0).xyz;
+    vec3 to_light = (u_light_local != 0) ? u_light_vec - pos.xyz : u_light_vec;
+    float facing = dot(n, to_light);
+    if (facing <= 0.0) { o_mask = 0.0; return; }
+
+    vec3 o = offset_origin(pos.xyz, n, depth * 3.0e-6);
+    vec3 d;
+    float tmax;
+    if (u_light_local != 0) {
+        d = u_light_vec - o;      // the light is at t = 1
+        tmax = 1.0;
+    } else {
+        d = u_light_vec;
+        tmax = HS_FLT_BIG;
+    }
+#ifdef HS_MAX_DISTANCE
+    tmax = min(tmax, u_max_distance / length(d));
+#endif
+    o_mask = hs_occluded(o, d, tmax) ? 0.0 : 1.0;
+}
+#endif
