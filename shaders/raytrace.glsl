@@ -2,7 +2,8 @@
 //
 // Output (R32F): 1 = lit, 0 = shadowed. Background texels are 1 (the lighting pass skips them).
 // Texels whose surface faces away from the light are 0 (unlit anyway).
-// Defines (besides scene_data.glsl's): HS_MAX_DISTANCE (shadows only up to u_max_distance from
+// Defines (besides scene_data.glsl's): HS_LIGHT_SUN or HS_LIGHT_LOCAL (point, spot, area) picks
+// the light kind, one program per kind; HS_MAX_DISTANCE (shadows only up to u_max_distance from
 // the camera; rays are no longer than that either), HS_INTERLACE (trace only the texels of
 // phase u_phase in each 2x2 block; keep u_history where that texel's phase is in
 // u_valid_phases, else write -1 for interlace_fill.glsl to fill from this frame's rays).
@@ -17,8 +18,7 @@
 
 uniform int u_scale;            // mask texel = u_scale x u_scale full-resolution pixels
 uniform ivec2 u_full_size;      // G-buffer size
-uniform int u_light_local;      // 0: sun (u_light_vec = unit direction towards it), 1: position
-uniform vec3 u_light_vec;
+uniform vec3 u_light_vec;       // sun: unit direction towards it; else the light's position
 #ifdef HS_MAX_DISTANCE
 uniform float u_max_distance;
 #endif
@@ -70,20 +70,22 @@ void main()
     if (depth > u_max_distance) { o_mask = 1.0; return; }
 #endif
     vec3 n = texelFetch(u_gb_normal, px, 0).xyz;
-    vec3 to_light = (u_light_local != 0) ? u_light_vec - pos.xyz : u_light_vec;
+#ifdef HS_LIGHT_LOCAL
+    vec3 to_light = u_light_vec - pos.xyz;
+#else
+    vec3 to_light = u_light_vec;
+#endif
     float facing = dot(n, to_light);
     if (facing <= 0.0) { o_mask = 0.0; return; }
 
     vec3 o = offset_origin(pos.xyz, n, depth * 3.0e-6);
-    vec3 d;
-    float tmax;
-    if (u_light_local != 0) {
-        d = u_light_vec - o;      // the light is at t = 1
-        tmax = 1.0;
-    } else {
-        d = u_light_vec;
-        tmax = HS_FLT_BIG;
-    }
+#ifdef HS_LIGHT_LOCAL
+    vec3 d = u_light_vec - o;     // the light is at t = 1
+    float tmax = 1.0;
+#else
+    vec3 d = u_light_vec;
+    float tmax = HS_FLT_BIG;
+#endif
 #ifdef HS_MAX_DISTANCE
     tmax = min(tmax, u_max_distance / length(d));
 #endif

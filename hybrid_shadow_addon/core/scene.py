@@ -119,7 +119,7 @@ class Instances:
     inverse: np.ndarray = None  # (N, 4, 4) float64
     casts_shadow: np.ndarray = None  # (N,) bool
     base_color: np.ndarray = None  # (N, 4) float32, linear RGBA
-    specular: np.ndarray = None  # (N,) float32, 0..1 (Principled "Specular IOR Level" * 2 clamp)
+    specular: np.ndarray = None  # (N,) float32, 0..1 (Principled "Specular IOR Level", clamped)
     roughness: np.ndarray = None  # (N,) float32
     sphere: np.ndarray = None  # (N,) bool
 
@@ -129,7 +129,7 @@ class Instances:
         self.matrices = (np.tile(np.eye(4), (n, 1, 1)) if self.matrices is None
                          else np.ascontiguousarray(self.matrices, np.float64).reshape(n, 4, 4))
         if self.inverse is None:
-            self.inverse = _safe_inverse(self.matrices)
+            self.inverse = affine_inverse(self.matrices)
         else:
             self.inverse = np.ascontiguousarray(self.inverse, np.float64).reshape(n, 4, 4)
         self.casts_shadow = np.ones(n, bool) if self.casts_shadow is None else np.ascontiguousarray(self.casts_shadow, bool).reshape(n)
@@ -167,19 +167,23 @@ class Instances:
         """Move instances: new world matrices (and inverses) for rows ``index``."""
         m = np.asarray(matrices, np.float64).reshape(-1, 4, 4)
         self.matrices[index] = m
-        self.inverse[index] = _safe_inverse(m)
+        self.inverse[index] = affine_inverse(m)
 
 
-def _safe_inverse(m: np.ndarray) -> np.ndarray:
-    """Inverse of a stack of 4x4 matrices; singular ones (zero scale) give NaN rows, which
+def affine_inverse(m: np.ndarray) -> np.ndarray:
+    """Inverses of a stack of affine 4x4 matrices (bottom row 0 0 0 1) by cofactors, ~10x
+    faster than ``np.linalg.inv``. Singular (zero-scale) or non-finite ones give NaN, which
     ``Scene.validate`` then reports by name."""
-    if len(m) == 0:
-        return np.zeros((0, 4, 4))
+    m = np.asarray(m, np.float64)
+    r0, r1, r2 = m[:, 0, :3], m[:, 1, :3], m[:, 2, :3]
+    adj = np.stack([np.cross(r1, r2), np.cross(r2, r0), np.cross(r0, r1)], axis=2)  # columns
+    det = np.einsum("ni,ni->n", r0, adj[:, :, 0])
+    ok = np.isfinite(m).all(axis=(1, 2)) & (det != 0)
     out = np.full_like(m, np.nan)
-    det = np.linalg.det(m[:, :3, :3])
-    ok = np.isfinite(det) & (np.abs(det) > 0) & np.isfinite(m).all(axis=(1, 2))
-    if ok.any():
-        out[ok] = np.linalg.inv(m[ok])
+    inv3 = adj[ok] / det[ok, None, None]
+    out[ok, :3, :3] = inv3
+    out[ok, :3, 3] = -np.einsum("nij,nj->ni", inv3, m[ok, :3, 3])
+    out[ok, 3] = (0, 0, 0, 1)
     return out
 
 

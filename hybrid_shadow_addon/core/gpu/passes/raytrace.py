@@ -11,16 +11,47 @@ and a still view is exact after four frames.
 from __future__ import annotations
 
 import moderngl
+import numpy as np
 
 from . import create_mask_texture
 
 
-def light_ray_uniforms(light) -> tuple[int, tuple]:
-    """(u_light_local, u_light_vec): a sun gives the unit direction towards it, other lights
-    their position (area lights are points for now)."""
+def light_ray_uniforms(light) -> tuple[bool, tuple]:
+    """(local, u_light_vec): a sun gives the unit direction towards it, other lights their
+    position (area lights are points for now)."""
     if light.type == "SUN":
-        return 0, tuple(float(v) for v in -light.direction)
-    return 1, tuple(float(v) for v in light.position)
+        return False, tuple(float(v) for v in -light.direction)
+    return True, tuple(float(v) for v in light.position)
+
+
+def offset_origins(p: np.ndarray, n: np.ndarray, slack: np.ndarray) -> np.ndarray:
+    """numpy mirror of ``offset_origin`` in ``shaders/raytrace.glsl`` (float32 throughout)."""
+    p = np.asarray(p, np.float32)
+    n = np.asarray(n, np.float32)
+    of_i = (np.float32(256.0) * n).astype(np.int32)
+    bits = p.view(np.int32)
+    p_i = np.where(p < 0, bits - of_i, bits + of_i).astype(np.int32).view(np.float32)
+    q = np.where(np.abs(p) < np.float32(1 / 32), p + np.float32(1 / 65536) * n, p_i)
+    return (q + n * np.asarray(slack, np.float32)[..., None]).astype(np.float32)
+
+
+def shadow_rays(position: np.ndarray, normal: np.ndarray, depth: np.ndarray, light):
+    """The rays ``shaders/raytrace.glsl`` traces for G-buffer samples (arrays of (N, 3) and (N,)):
+    ``(origins, dirs, tmax, facing)``; samples with ``facing`` False are not traced (mask 0)."""
+    local, vec = light_ray_uniforms(light)
+    vec = np.asarray(vec, np.float32)  # (as the shader's uniform)
+    p = np.asarray(position, np.float32)
+    n = np.asarray(normal, np.float32)
+    to_light = vec - p if local else np.broadcast_to(vec, p.shape)
+    facing = (n * to_light).sum(axis=1) > 0
+    o = offset_origins(p, n, np.asarray(depth, np.float32) * np.float32(3.0e-6))
+    if local:
+        d = vec - o
+        tmax = np.ones(len(o), np.float32)
+    else:
+        d = np.broadcast_to(vec, o.shape).copy()
+        tmax = np.full(len(o), np.inf, np.float32)
+    return o, d, tmax, facing
 
 
 class RaytracePass:
@@ -37,8 +68,9 @@ class RaytracePass:
         """Forget interlacing history (any camera, object, light or setting change)."""
         self._valid_phases = 0
 
-    def defines(self, settings) -> dict:
+    def defines(self, settings, local: bool) -> dict:
         d = dict(self.scene_textures.baked.defines)
+        d["HS_LIGHT_LOCAL" if local else "HS_LIGHT_SUN"] = 1
         if settings.max_distance > 0:
             d["HS_MAX_DISTANCE"] = 1
         if settings.interlace:
@@ -58,39 +90,39 @@ class RaytracePass:
         """Masks ``{light_index: R32F texture}`` at ``settings.mask_size`` of the G-buffer."""
         ctx = self.ctx
         w, h = settings.mask_size(gbuffer.width, gbuffer.height)
-        defines = self.defines(settings)
-        self.last_defines = defines
+        self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+        self.last_defines = {}
+        masks = {}
+        for li in lights:
+            local, vec = light_ray_uniforms(scene.lights[li])
+            defines = self.defines(settings, local)
+            self.last_defines.update(defines)
+            masks[li] = self._trace(li, vec, defines, gbuffer, settings, w, h)
+        if settings.interlace:
+            self._valid_phases |= 1 << self._phase
+            self._phase = (self._phase + 1) % 4
+        return masks
+
+    def _trace(self, li, light_vec, defines, gbuffer, settings, w, h):
         prog, vao = self.programs.fullscreen("raytrace", defines)
-        interlace = settings.interlace
-        ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
         unit = gbuffer.bind(prog)
         unit = self.scene_textures.bind(prog, unit)
         prog["u_scale"].value = settings.mask_scale
         prog["u_full_size"].value = (gbuffer.width, gbuffer.height)
+        prog["u_light_vec"].value = light_vec
         if settings.max_distance > 0:
             prog["u_max_distance"].value = float(settings.max_distance)
-        if interlace:
-            prog["u_phase"].value = self._phase
-            prog["u_valid_phases"].value = self._valid_phases
-            prog["u_history"].value = unit
-        masks = {}
-        for li in lights:
-            local, vec = light_ray_uniforms(scene.lights[li])
-            prog["u_light_local"].value = local
-            prog["u_light_vec"].value = vec
-            out = self._target((li, "out"), w, h)
-            if interlace:
-                hist = self._target((li, "hist"), w, h)
-                hist.use(unit)
-                self._draw(vao, out, w, h)
-                out = self._fill(out, hist, w, h)
-            else:
-                self._draw(vao, out, w, h)
-            masks[li] = out
-        if interlace:
-            self._valid_phases |= 1 << self._phase
-            self._phase = (self._phase + 1) % 4
-        return masks
+        out = self._target((li, "out"), w, h)
+        if not settings.interlace:
+            self._draw(vao, out, w, h)
+            return out
+        hist = self._target((li, "hist"), w, h)
+        hist.use(unit)
+        prog["u_history"].value = unit
+        prog["u_phase"].value = self._phase
+        prog["u_valid_phases"].value = self._valid_phases
+        self._draw(vao, out, w, h)
+        return self._fill(out, hist, w, h)
 
     def _draw(self, vao, target, w, h) -> None:
         fbo = self.ctx.framebuffer(color_attachments=[target])
