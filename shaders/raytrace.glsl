@@ -3,8 +3,8 @@
 // Output (R32F): 1 = lit, 0 = shadowed. Background texels are 1 (the lighting pass skips them).
 // Texels whose surface faces away from the light are 0 (unlit anyway).
 // Defines (besides scene_data.glsl's): HS_LIGHT_SUN or HS_LIGHT_LOCAL (point, spot, area) picks
-// the light kind, one program per kind; HS_MAX_DISTANCE (shadows only up to u_max_distance from
-// the camera; rays are no longer than that either), HS_INTERLACE (trace only the texels of
+// the light kind, one program per kind; HS_MAX_DISTANCE (shadows only on surfaces within
+// u_max_distance of the camera, as the shadow-map pass; rays are no longer than that either), HS_INTERLACE (trace only the texels of
 // phase u_phase in each 2x2 block; keep u_history where that texel's phase is in
 // u_valid_phases, else write -1 for interlace_fill.glsl to fill from this frame's rays).
 
@@ -13,6 +13,7 @@
 #endif
 
 #ifdef FRAGMENT_SHADER
+#include "common/camera.glsl"
 #include "common/gbuffer.glsl"
 #include "common/scene_data.glsl"
 
@@ -67,7 +68,7 @@ void main()
     if (pos.w == 0.0) { o_mask = 1.0; return; }
     float depth = texelFetch(u_gb_depth, px, 0).r;
 #ifdef HS_MAX_DISTANCE
-    if (depth > u_max_distance) { o_mask = 1.0; return; }
+    if (distance(pos.xyz, u_cam_pos) > u_max_distance) { o_mask = 1.0; return; }
 #endif
     vec3 n = texelFetch(u_gb_normal, px, 0).xyz;
 #ifdef HS_LIGHT_LOCAL

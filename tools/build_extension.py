@@ -108,6 +108,14 @@ def stage(platforms: list, offline: bool) -> Path:
     return src
 
 
+def ext_id_version(src: Path) -> str:
+    """``<id>-<version>`` from the staged manifest (the zip name's stem before the platform)."""
+    text = (src / "blender_manifest.toml").read_text()
+    ident = re.search(r'(?m)^id\s*=\s*"([^"]+)"', text).group(1)
+    version = re.search(r'(?m)^version\s*=\s*"([^"]+)"', text).group(1)
+    return f"{ident}-{version}"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--platform", action="append", choices=sorted(PLATFORMS),
@@ -119,11 +127,13 @@ def main(argv=None) -> int:
     src = stage(platforms, args.offline)
     DIST.mkdir(exist_ok=True)
     subprocess.run([sys.executable, str(cli), "validate", str(src)], check=True)
-    cmd = [sys.executable, str(cli), "build", "--source-dir", str(src), "--output-dir", str(DIST)]
-    if len(platforms) > 1:
-        cmd.append("--split-platforms")
+    # always split: one platform then still gets its "-<platform>" suffix (without the flag the
+    # zip would be named hybrid_shadows-<version>.zip)
+    cmd = [sys.executable, str(cli), "build", "--source-dir", str(src), "--output-dir", str(DIST),
+           "--split-platforms"]
     subprocess.run(cmd, check=True)
-    for z in sorted(DIST.glob("*.zip")):
+    built = [DIST / f"{ext_id_version(src)}-{p.replace('-', '_')}.zip" for p in platforms]
+    for z in built:
         subprocess.run([sys.executable, str(cli), "validate", str(z)], check=True, stdout=subprocess.DEVNULL)
         print(f"built {z.relative_to(REPO)} ({z.stat().st_size / 1e6:.2f} MB)")
     return 0

@@ -4,3 +4,33 @@
 - :mod:`.load`: a scene script, built-in test scene or ``.blend`` file → a loaded bpy scene or a
   core ``Scene``.
 """
+
+# -- add-on registration --------------------------------------------------------------------------
+# Order matters: properties before the engine and the panels that draw them; unregistered in
+# reverse. ``engine.unregister`` also releases the shared final-render OpenGL context.
+_MODULES = ("properties", "engine", "ui")
+_registered: list = []
+
+
+def register():
+    import importlib
+
+    try:
+        for name in _MODULES:
+            module = importlib.import_module(f".{name}", __name__)
+            module.register()
+            _registered.append(module)
+    except Exception:
+        unregister()
+        raise
+
+
+def unregister():
+    while _registered:
+        module = _registered.pop()
+        try:
+            module.unregister()
+        except Exception:  # keep unregistering the rest: a left-over engine hangs Blender at exit
+            import traceback
+
+            traceback.print_exc()

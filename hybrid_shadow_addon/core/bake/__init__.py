@@ -1,0 +1,19 @@
+"""Scene -> GPU textures: hierarchical 2D grid, per-model BVHs, packed textures, incremental updates.
+
+Public API::
+
+    baked = bake_scene(scene, BakeConfig())          # BakedScene
+    baked.textures   # {'grid', 'grid_index', 'object', 'model', 'bvh', 'tri'} -> TextureData
+    baked.defines    # #defines for shaders/common/scene_data.glsl
+    baked.uniforms   # uniform values (grid origin, node sizes, dims, scene max height, ...)
+    baked.samplers   # texture name -> sampler uniform name
+    baked.stats      # bake ms, bytes per texture, node counts, max objects per node, ...
+    report = baked.update_instances(scene, indices)   # after Instances.set_matrices
+    report = baked.update_model(scene, model_id)      # edited (or appended) mesh
+
+Texel layouts: ``shaders/common/scene_data.glsl`` (the one description packer and shader follow).
+"""
+from .baked import BakeConfig, BakedScene, UpdateReport, bake_scene, instance_spheres
+from .textures import TextureData
+
+__all__ = ["BakeConfig", "BakedScene", "TextureData", "UpdateReport", "bake_scene", "instance_spheres"]

@@ -4,8 +4,8 @@ Each stage is compiled from the same file with ``#define VERTEX_SHADER``, ``FRAG
 (or ``GEOMETRY_SHADER``) prepended, moderngl-window style; a stage is built only when its name
 appears in the file. The source gets ``#version 410 core`` and the sorted defines first, and
 ``#include "common/x.glsl"`` lines (relative to ``shaders/``) are resolved recursively, each file
-once. A ``#line`` directive per file makes the driver's log name file numbers, which are mapped
-back to ``file:line`` in the error.
+once. A ``#line`` directive per file numbers file k's lines from ``k * 100000 + 1``, so the
+driver's log maps back to ``file:line`` in the error.
 
 Programs are cached by (name, defines, varyings).
 """
@@ -20,6 +20,7 @@ from ..errors import GPUError
 
 GLSL_VERSION = "#version 410 core"
 STAGES = ("VERTEX_SHADER", "GEOMETRY_SHADER", "FRAGMENT_SHADER")
+_LINE_STRIDE = 100000
 _INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"\s*(?://.*)?$')
 
 
@@ -99,7 +100,8 @@ class ProgramCache:
         seen.add(path.resolve())
         idx = len(files)
         files.append(rel)
-        out = [f"#line 1 {idx}"]
+        base = idx * _LINE_STRIDE  # file k's lines are numbered k * stride + n (robust to drivers
+        out = [f"#line {base + 1} {idx}"]  # that misreport the source-string number)
         for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
             m = _INCLUDE.match(line)
             if not m:
@@ -110,7 +112,7 @@ class ProgramCache:
                 out.append(f"// {m.group(1)} already included")
                 continue
             out.append(self._expand(inc, files, seen, f"{rel}:{lineno}"))
-            out.append(f"#line {lineno + 1} {idx}")
+            out.append(f"#line {base + lineno + 1} {idx}")
         return "\n".join(out)
 
     # -- compile -----------------------------------------------------------------------------
@@ -157,23 +159,24 @@ _LOG_PATTERNS = (
 
 
 def _map_log(log: str, files: list) -> str:
-    """Replace GLSL source-string numbers by file names: ``0:12(3)`` -> ``gbuffer.glsl:12(3)``."""
-    def name(i):
-        i = int(i)
-        return files[i] if 0 <= i < len(files) else i
+    """Replace GLSL locations by file names: ``1:100012(3)`` -> ``common/x.glsl:12(3)``."""
+    def loc(src, line):
+        line = int(line)
+        k, n = divmod(line, _LINE_STRIDE)
+        if not (0 <= k < len(files)):
+            k = int(src)
+        return f"{files[k] if 0 <= k < len(files) else src}:{n}"
 
     lines = []
     for line in log.splitlines():
         m = _LOG_PATTERNS[0].search(line)
         if m:
-            line = line[:m.start()] + f"{name(m.group(1))}:{m.group(2)}({m.group(3)})" + line[m.end():]
+            line = line[:m.start()] + f"{loc(m.group(1), m.group(2))}({m.group(3)})" + line[m.end():]
         else:
-            m = _LOG_PATTERNS[1].search(line)
-            if m:
-                line = line[:m.start()] + f"{name(m.group(1))}:{m.group(2)}:" + line[m.end():]
-            else:
-                m = _LOG_PATTERNS[2].search(line)
+            for pat in _LOG_PATTERNS[1:]:
+                m = pat.search(line)
                 if m:
-                    line = line[:m.start()] + f"{name(m.group(1))}:{m.group(2)}:" + line[m.end():]
+                    line = line[:m.start()] + f"{loc(m.group(1), m.group(2))}:" + line[m.end():]
+                    break
         lines.append(line)
     return "\n".join(lines)

@@ -1,0 +1,165 @@
+"""Blender properties of the Hybrid Shadows engine and their mapping to the core ``Settings``.
+
+- ``Scene.hybrid_shadows`` (:class:`HybridShadowsSceneSettings`): shadow mode, quality, limits,
+  shadow-map options, viewport options and the debug view.
+- ``ViewLayer.hybrid_shadows`` (:class:`HybridShadowsViewLayerSettings`): the engine's own
+  render passes (Depth and Normal follow Blender's ``use_pass_z`` / ``use_pass_normal``).
+- ``Object.hybrid_sphere``: the object is traced as an analytic sphere. Blender 4.x stores a
+  ``bpy.props`` property of an ID in the same ID-property group as custom properties, so this is
+  the very ``ob["hybrid_sphere"]`` custom property the exporter reads (scene scripts may set
+  either). "Casts hybrid shadow" is Blender's own ``Object.visible_shadow`` (what the exporter
+  reads), and a light's shadow switch is Blender's own ``Light.use_shadow``.
+"""
+from __future__ import annotations
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
+
+from ..core.settings import Settings
+
+MODE_ITEMS = (
+    ("RAYTRACE", "Ray Traced", "Exact hard shadows: one shadow ray per pixel and light through the baked grid", "SHADING_RENDERED", 0),
+    ("SHADOWMAP", "Shadow Map", "Rasterised shadow maps filtered with PCF (fast, may alias or leak)", "LIGHT_SUN", 1),
+    ("NONE", "None", "No shadows: every light reaches every surface", "LIGHT", 2),
+)
+QUALITY_ITEMS = (
+    ("HIGH", "High", "Shadow masks at full resolution", 0),
+    ("MEDIUM", "Medium", "Shadow masks at half resolution per side, upsampled edge-aware", 1),
+    ("LOW", "Low", "Shadow masks at a quarter resolution per side, upsampled edge-aware", 2),
+)
+SHADOWMAP_SIZE_ITEMS = tuple(
+    (str(s), f"{s} px", f"Shadow maps of {s}x{s} texels (per cube face for point lights)", i)
+    for i, s in enumerate((512, 1024, 2048, 4096, 8192))
+)
+UPSAMPLE_ITEMS = (
+    ("BILATERAL", "Bilateral", "Depth and normal aware upsampling of reduced-resolution masks", 0),
+    ("NEAREST", "Nearest", "Blocky nearest-texel upsampling (the thesis' look)", 1),
+)
+DEBUG_ITEMS = (
+    ("NONE", "None", "Show the lit image", 0),
+    ("LIGHT_MASK", "Light Mask", "Show the shadow mask of one light (white lit, black shadowed, blue no geometry)", 1),
+    ("GRID_HEAT", "Grid Occupancy", "Heat map of how many shadow casters the grid nodes above each pixel hold", 2),
+    ("NORMAL", "G-Buffer Normal", "Show the G-buffer's world-space shading normal", 3),
+    ("ALBEDO", "G-Buffer Albedo", "Show the G-buffer's base colour", 4),
+    ("DEPTH", "G-Buffer Depth", "Show the G-buffer's camera distance, near bright, far dark", 5),
+    ("POSITION", "G-Buffer Position", "Show the G-buffer's world position (fractional part per metre)", 6),
+)
+
+
+def _light_object_poll(_self, ob) -> bool:
+    return ob.type == "LIGHT"
+
+
+def _tag_viewport(_self, context) -> None:
+    """Setting changes redraw rendered viewports (view_update does not see all of them)."""
+    screen = getattr(context, "screen", None)
+    if screen is None:
+        return
+    for area in screen.areas:
+        if area.type == "VIEW_3D":
+            area.tag_redraw()
+
+
+class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
+    mode: EnumProperty(name="Shadow Mode", items=MODE_ITEMS, default="RAYTRACE",
+                       description="How shadows are made: ray traced, shadow maps or none",
+                       update=_tag_viewport)
+    quality: EnumProperty(name="Quality", items=QUALITY_ITEMS, default="HIGH",
+                          description="Resolution of the ray-traced shadow masks in final renders",
+                          update=_tag_viewport)
+    viewport_quality: EnumProperty(name="Viewport Quality", items=QUALITY_ITEMS, default="HIGH",
+                                   description="Resolution of the ray-traced shadow masks in the viewport once "
+                                               "the view is still", update=_tag_viewport)
+    navigation_quality: EnumProperty(name="While Navigating", items=QUALITY_ITEMS, default="LOW",
+                                     description="Resolution of the ray-traced shadow masks in the viewport "
+                                                 "while the view or the scene changes (refined when still)",
+                                     update=_tag_viewport)
+    max_distance: FloatProperty(name="Max Distance", default=0.0, min=0.0, soft_max=1000.0, subtype="DISTANCE",
+                                unit="LENGTH", description="Shadows only within this distance of the camera "
+                                                           "(0 = no limit)", update=_tag_viewport)
+    max_shadowed_lights: IntProperty(name="Max Shadowed Lights", default=0, min=0, soft_max=64,
+                                     description="Final and batch renders: shadow only the N nearest shadow-"
+                                                 "casting lights, suns first (0 = every shadow-casting light)")
+    viewport_max_shadowed_lights: IntProperty(name="Viewport Max Shadowed Lights", default=4, min=0, soft_max=64,
+                                              description="Viewport: shadow only the N nearest shadow-casting "
+                                                          "lights, suns first (0 = all; 4 is the real-time budget)",
+                                              update=_tag_viewport)
+    use_interlace: BoolProperty(name="Interlacing", default=False,
+                                description="Viewport: trace a quarter of the shadow rays per redraw and reuse "
+                                            "the rest from the previous redraws (faster, ghosts while moving)",
+                                update=_tag_viewport)
+    shadowmap_size: EnumProperty(name="Shadow Map Resolution", items=SHADOWMAP_SIZE_ITEMS, default="2048",
+                                 description="Texels per side of each shadow map (cube face for point lights)",
+                                 update=_tag_viewport)
+    pcf: IntProperty(name="PCF Radius", default=1, min=0, max=8,
+                     description="Shadow-map filter kernel radius in texels (0 = one tap, hard and aliased)",
+                     update=_tag_viewport)
+    shadow_bias: FloatProperty(name="Bias", default=1.0, min=0.0, soft_max=10.0,
+                               description="Constant shadow-map depth bias in texels", update=_tag_viewport)
+    slope_bias: FloatProperty(name="Slope Bias", default=2.0, min=0.0, soft_max=10.0,
+                              description="Slope-scaled shadow-map depth bias", update=_tag_viewport)
+    normal_offset: FloatProperty(name="Normal Offset", default=1.5, min=0.0, soft_max=10.0,
+                                 description="Offset of the receiver along its normal, in shadow-map texels",
+                                 update=_tag_viewport)
+    upsample: EnumProperty(name="Upsampling", items=UPSAMPLE_ITEMS, default="BILATERAL",
+                           description="How reduced-resolution shadow masks are brought to full resolution",
+                           update=_tag_viewport)
+    use_specular: BoolProperty(name="Specular", default=True,
+                               description="Add the specular lobe of the materials to the lighting",
+                               update=_tag_viewport)
+    debug_view: EnumProperty(name="Debug View", items=DEBUG_ITEMS, default="NONE",
+                             description="Viewport: show an intermediate buffer instead of the lit image",
+                             update=_tag_viewport)
+    debug_light: PointerProperty(name="Debug Light", type=bpy.types.Object, poll=_light_object_poll,
+                                 description="Light whose shadow mask the Light Mask debug view shows "
+                                             "(empty: the first shadowed light)", update=_tag_viewport)
+
+    # -- mapping onto the core -------------------------------------------------------------------
+    def to_settings(self, *, viewport: bool = False, navigating: bool = False) -> Settings:
+        """The core :class:`Settings` for a final render, or for the viewport (``navigating``:
+        the fast pass while the view or scene changes)."""
+        if viewport:
+            quality = self.navigation_quality if navigating else self.viewport_quality
+            limit = self.viewport_max_shadowed_lights
+            interlace = bool(self.use_interlace)
+        else:
+            quality, limit, interlace = self.quality, self.max_shadowed_lights, False
+        return Settings(
+            mode=self.mode.lower(), quality=quality.lower(), max_distance=float(self.max_distance),
+            max_shadowed_lights=int(limit) if limit > 0 else None, interlace=interlace,
+            shadowmap_size=int(self.shadowmap_size), pcf=int(self.pcf), shadow_bias=float(self.shadow_bias),
+            slope_bias=float(self.slope_bias), normal_offset=float(self.normal_offset),
+            upsample=self.upsample.lower(), specular=bool(self.use_specular),
+        )
+
+
+class HybridShadowsViewLayerSettings(bpy.types.PropertyGroup):
+    use_pass_shadow: BoolProperty(name="Shadow", default=True,
+                                  description="One pass per shadow-casting light, named 'Shadow <light>': 1 lit, "
+                                              "0 shadowed (1 where there is no geometry)")
+    use_pass_albedo: BoolProperty(name="Albedo", default=True,
+                                  description="The base colour of the surfaces (Principled BSDF Base Color)")
+
+
+CLASSES = (HybridShadowsSceneSettings, HybridShadowsViewLayerSettings)
+
+
+def register() -> None:
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    bpy.types.Scene.hybrid_shadows = PointerProperty(
+        type=HybridShadowsSceneSettings, name="Hybrid Shadows", description="Hybrid Shadows render settings")
+    bpy.types.ViewLayer.hybrid_shadows = PointerProperty(
+        type=HybridShadowsViewLayerSettings, name="Hybrid Shadows", description="Hybrid Shadows render passes")
+    bpy.types.Object.hybrid_sphere = BoolProperty(
+        name="Sphere Primitive", default=False,
+        description="Trace this object as an analytic sphere (its mesh's bounding sphere) instead of its triangles")
+
+
+def unregister() -> None:
+    for owner, name in ((bpy.types.Object, "hybrid_sphere"), (bpy.types.ViewLayer, "hybrid_shadows"),
+                        (bpy.types.Scene, "hybrid_shadows")):
+        if hasattr(owner, name):
+            delattr(owner, name)
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,425 @@
+"""The viewport side of the engine, kept apart from ``RenderEngine`` so it can be tested headless.
+
+- :class:`ViewportSync`: the core scene of a viewport depsgraph, kept up to date from
+  ``depsgraph.updates`` with the least work (see :meth:`ViewportSync.classify`).
+- :func:`viewport_camera`: a core ``Camera`` from a 3D view's view and window matrices.
+- :func:`debug_image`: the debug views (a light's mask, grid occupancy, G-buffer channels).
+- :class:`ViewportDisplay`: numpy RGBA → ``gpu.types.GPUTexture`` → ``draw_texture_2d``.
+  ``gpu`` is imported lazily: it is unavailable in background mode until Blender has a GPU
+  context.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import bpy
+import numpy as np
+
+from ..core.scene import Camera, Model
+from . import export
+
+#: data-block types whose change only needs the lights re-read (nothing re-baked)
+_LIGHT_TYPES = (bpy.types.Light,)
+#: data-block types whose change needs a re-export of the shading (no re-bake)
+_SHADING_TYPES = (bpy.types.Material, bpy.types.Image, bpy.types.ShaderNodeTree)
+
+
+@dataclass
+class UpdatePlan:
+    """What ``depsgraph.updates`` asks for. ``full`` wins over everything else."""
+
+    full: bool = False
+    moved: set = field(default_factory=set)  # object names: transform only
+    geometry: set = field(default_factory=set)  # object names: geometry edited
+    lights: bool = False
+    world: bool = False
+    shading: bool = False  # materials: re-export without re-baking
+    reasons: list = field(default_factory=list)
+
+    @property
+    def nothing(self) -> bool:
+        return not (self.full or self.moved or self.geometry or self.lights or self.world or self.shading)
+
+    def need_full(self, why: str) -> None:
+        self.full = True
+        self.reasons.append(why)
+
+
+def export_lights(depsgraph) -> list:
+    """The render-visible lights of a depsgraph (what ``export_depsgraph`` would list), without
+    reading any geometry."""
+    ex = export._Exporter(depsgraph)
+    lights = []
+    for inst in depsgraph.object_instances:
+        ob = inst.object
+        if ob.type != "LIGHT":
+            continue
+        if inst.is_instance:
+            parent = inst.parent
+            if not ex._renderable(parent.original):
+                continue
+            name = ob.name if ob.name == parent.name else f"{parent.name}/{ob.name}"
+        else:
+            if not ex._renderable(ob.original):
+                continue
+            name = ob.name
+        lights.append(export.export_light(ob, export._matrix(inst.matrix_world), name))
+    return lights
+
+
+def _object_attributes(ob) -> tuple:
+    """What the exporter reads from an object besides its transform and geometry."""
+    slots = ob.material_slots
+    mat = slots[0].material if len(slots) else None
+    return (bool(ob.visible_shadow), bool(ob.get(export.SPHERE_PROPERTY, False)),
+            None if mat is None else mat.as_pointer(), tuple(ob.color), bool(ob.hide_render))
+
+
+class ViewportSync:
+    """The core scene of a viewport depsgraph and the incremental updates of a pipeline.
+
+    ``pipeline`` may be None (change detection only, as in the tests). The pipeline's bake is
+    made lazily: only ray tracing needs it (:meth:`ensure_baked`)."""
+
+    def __init__(self, pipeline=None):
+        self.pipeline = pipeline
+        self.scene = None
+        self.rows: dict = {}  # object name -> instance rows it owns (non-instanced objects)
+        self.known: set = set()  # names of every evaluated object at the last full export
+        self.attributes: dict = {}  # object name -> _object_attributes
+        self.baked = False  # the pipeline's bake matches self.scene
+        self.log: list = []  # (action, detail) of the updates applied, newest last
+
+    # -- full export ------------------------------------------------------------------------------
+    def full_export(self, depsgraph) -> None:
+        scene = export.export_depsgraph(depsgraph, resolution=(1, 1))
+        rows: dict = {}
+        for i, name in enumerate(scene.instances.names):
+            rows.setdefault(name, []).append(i)
+        self.rows = {k: np.array(v, np.int64) for k, v in rows.items()}
+        self.known = set()
+        self.attributes = {}
+        for ob in depsgraph.objects:
+            self.known.add(ob.name)
+            if ob.name in self.rows:
+                self.attributes[ob.name] = _object_attributes(ob)
+        if self.scene is not None:
+            scene.camera = self.scene.camera
+        self.scene = scene
+        self.baked = False
+        self.log.append(("full", len(scene.instances)))
+
+    def ensure_baked(self) -> None:
+        """Bake the scene into the pipeline if it changed structurally since the last bake."""
+        if self.pipeline is not None and not self.baked:
+            self.pipeline.set_scene(self.scene)
+            self.log.append(("bake", len(self.scene.instances)))
+        self.baked = True
+
+    # -- classification ---------------------------------------------------------------------------
+    def classify(self, depsgraph) -> UpdatePlan:
+        """Read ``depsgraph.updates`` into an :class:`UpdatePlan`:
+
+        - an object whose transform changed → ``moved`` (incremental grid update);
+        - an object whose geometry changed → ``geometry`` (that model is re-built);
+        - a light or light data → ``lights``; a world → ``world``; a material → ``shading``;
+          none of them re-bakes anything;
+        - a new object, an instancer (collection instances, particles, geometry-nodes instances),
+          a collection change, or a change of what the exporter reads from an object (shadow
+          visibility, sphere flag, material slot, render visibility) → ``full``.
+        """
+        plan = UpdatePlan()
+        if self.scene is None:
+            plan.need_full("first update")
+            return plan
+        for u in depsgraph.updates:
+            idb = u.id
+            if isinstance(idb, bpy.types.Object):
+                self._classify_object(u, idb, plan)
+            elif isinstance(idb, _LIGHT_TYPES):
+                plan.lights = True
+            elif isinstance(idb, bpy.types.World):
+                plan.world = True
+            elif isinstance(idb, _SHADING_TYPES):
+                plan.shading = True
+            elif isinstance(idb, bpy.types.Collection):
+                if u.is_updated_transform or u.is_updated_geometry:
+                    plan.need_full(f"collection '{idb.name}' changed")
+            # Scene, meshes (their objects come as well), cameras, node groups (their objects
+            # come as well), ...: nothing of their own
+        return plan
+
+    def _classify_object(self, u, ob, plan: UpdatePlan) -> None:
+        name = ob.name
+        kind = ob.type
+        if kind == "LIGHT":
+            plan.lights = True
+            return
+        if kind == "CAMERA":
+            return  # the viewport's own view matrices are compared in view_draw
+        if name not in self.known:
+            if kind in export.GEOMETRY_TYPES or ob.is_instancer or kind == "EMPTY" and ob.instance_type != "NONE":
+                plan.need_full(f"new object '{name}'")
+            return
+        if ob.is_instancer and (u.is_updated_transform or u.is_updated_geometry):
+            plan.need_full(f"instancer '{name}' changed")
+            return
+        owned = name in self.rows
+        if not owned:
+            # known but exported no rows: hidden from render, no triangles, an empty, ...
+            if kind in export.GEOMETRY_TYPES and u.is_updated_geometry:
+                plan.need_full(f"'{name}' may have gained geometry")
+            elif kind in export.GEOMETRY_TYPES and not ob.original.hide_render and not u.is_updated_transform:
+                plan.need_full(f"'{name}' may have become renderable")
+            return
+        if u.is_updated_geometry:
+            plan.geometry.add(name)
+        elif u.is_updated_transform:
+            plan.moved.add(name)
+        if _object_attributes(ob) != self.attributes.get(name):
+            plan.need_full(f"attributes of '{name}' changed")
+
+    # -- applying ---------------------------------------------------------------------------------
+    def update(self, depsgraph) -> UpdatePlan:
+        """Classify and apply ``depsgraph.updates``; returns the plan that was applied."""
+        plan = self.classify(depsgraph)
+        if plan.nothing:
+            return plan
+        if plan.full:
+            self.full_export(depsgraph)
+            return plan
+        if plan.shading:
+            self._reexport_keeping_bake(depsgraph)
+            return plan
+        for name in sorted(plan.geometry):
+            if not self._update_geometry(depsgraph, name):
+                self.full_export(depsgraph)
+                return plan
+        moved = sorted(plan.moved - plan.geometry)
+        if moved:
+            self._move(depsgraph, moved)
+        if plan.lights:
+            self.scene.lights = export_lights(depsgraph)
+            self._reset_history()
+            self.log.append(("lights", len(self.scene.lights)))
+        if plan.world:
+            self.scene.world_color = np.asarray(export.world_color(depsgraph.scene_eval.world), np.float32)
+            self._reset_history()
+            self.log.append(("world", None))
+        return plan
+
+    def _reset_history(self) -> None:
+        if self.pipeline is not None:
+            self.pipeline.reset_history()
+
+    def _move(self, depsgraph, names) -> None:
+        objects = depsgraph.objects
+        index = []
+        mats = []
+        for name in names:
+            ob = objects.get(name)
+            if ob is None:
+                continue
+            rows = self.rows[name]
+            m = export._matrix(ob.matrix_world)
+            index.append(rows)
+            mats.append(np.broadcast_to(m, (len(rows), 4, 4)))
+        if not index:
+            return
+        idx = np.concatenate(index)
+        self.scene.instances.set_matrices(idx, np.concatenate(mats))
+        if self.pipeline is not None and self.baked:
+            self.pipeline.move_instances(self.scene, idx)
+        self.log.append(("move", [str(n) for n in names]))
+
+    def _update_geometry(self, depsgraph, name) -> bool:
+        """Re-read the evaluated mesh of object ``name`` into its model; False when only a full
+        export can do it (non-mesh object, several models, no triangles left)."""
+        ob = depsgraph.objects.get(name)
+        rows = self.rows[name]
+        if ob is None or ob.type != "MESH" or len(rows) != 1 or ob.is_instancer:
+            return False
+        mid = int(self.scene.instances.model_ids[rows[0]])
+        verts, tris = export.mesh_arrays(ob.data)
+        if not len(tris):
+            return False
+        old = self.scene.models[mid]
+        self.scene.models[mid] = Model(name=old.name, vertices=verts, triangles=tris)
+        self.scene.instances.set_matrices(rows, export._matrix(ob.matrix_world)[None])
+        if self.pipeline is not None and self.baked:
+            self.pipeline.update_model(self.scene, mid)
+        self.log.append(("model", name))
+        return True
+
+    def _reexport_keeping_bake(self, depsgraph) -> None:
+        """Materials changed: re-export; the bake stays when the instances did not change."""
+        old = self.scene
+        baked = self.baked
+        self.full_export(depsgraph)
+        new = self.scene
+        same = (old.instances.names == new.instances.names
+                and np.array_equal(old.instances.model_ids, new.instances.model_ids)
+                and np.array_equal(old.instances.matrices, new.instances.matrices)
+                and np.array_equal(old.instances.casts_shadow, new.instances.casts_shadow)
+                and np.array_equal(old.instances.sphere, new.instances.sphere)
+                and len(old.models) == len(new.models)
+                and all(a.triangle_count == b.triangle_count and np.array_equal(a.vertices, b.vertices)
+                        for a, b in zip(old.models, new.models)))
+        if same:
+            # keep the old models (their GPU buffers stay cached) and the bake
+            new.models = old.models
+            self.baked = baked
+            self._reset_history()
+            self.log[-1] = ("shading", len(new.instances))
+
+
+# ------------------------------------------------------------------------------------------------
+# Viewport camera
+# ------------------------------------------------------------------------------------------------
+_SENSOR = 36.0
+
+
+def viewport_camera(view_matrix, window_matrix, width: int, height: int) -> Camera:
+    """A core camera reproducing a 3D view (``RegionView3D.view_matrix`` / ``window_matrix``,
+    as nested sequences or mathutils matrices) on a ``width`` x ``height`` region."""
+    V = np.array([tuple(r) for r in view_matrix], np.float64)
+    P = np.array([tuple(r) for r in window_matrix], np.float64)
+    cam_to_world = np.linalg.inv(V)
+    w, h = float(width), float(height)
+    if abs(P[3, 3]) > 0.5:  # orthographic
+        near = (P[2, 3] + 1.0) / P[2, 2]
+        far = (P[2, 3] - 1.0) / P[2, 2]
+        # the viewport's orthographic clip range starts behind the eye: pull the camera back
+        back = max(0.0, -near) + 1e-3 * max(1.0, far - near)
+        m = cam_to_world.copy()
+        m[:3, 3] += m[:3, 2] / np.linalg.norm(m[:3, 2]) * back
+        return Camera(name="Viewport", matrix=m, type="ORTHO", sensor_fit="HORIZONTAL",
+                      sensor_width=_SENSOR, sensor_height=_SENSOR, ortho_scale=2.0 / P[0, 0],
+                      shift_x=-P[0, 3] / 2.0, shift_y=-P[1, 3] * h / (2.0 * w),
+                      clip_start=near + back, clip_end=far + back)
+    near = P[2, 3] / (P[2, 2] - 1.0)
+    far = P[2, 3] / (P[2, 2] + 1.0)
+    return Camera(name="Viewport", matrix=cam_to_world, type="PERSP", sensor_fit="HORIZONTAL",
+                  sensor_width=_SENSOR, sensor_height=_SENSOR, lens=P[0, 0] * _SENSOR / 2.0,
+                  shift_x=P[0, 2] / 2.0, shift_y=P[1, 2] * h / (2.0 * w), clip_start=near, clip_end=far)
+
+
+# ------------------------------------------------------------------------------------------------
+# Debug views
+# ------------------------------------------------------------------------------------------------
+def _heat(t: np.ndarray) -> np.ndarray:
+    """0..1 → a blue-green-yellow-red ramp (H, W, 3)."""
+    t = np.clip(t, 0.0, 1.0)[..., None]
+    stops = np.float32([[0.0, 0.0, 0.3], [0.0, 0.6, 1.0], [0.1, 0.9, 0.2], [1.0, 0.9, 0.0], [1.0, 0.1, 0.0]])
+    x = t * (len(stops) - 1)
+    i = np.minimum(x.astype(np.int64), len(stops) - 2)[..., 0]
+    f = x - i[..., None]
+    return (stops[i] * (1 - f) + stops[i + 1] * f).astype(np.float32)
+
+
+def grid_occupancy(baked, position: np.ndarray) -> np.ndarray:
+    """Per pixel, the shadow casters held by the grid nodes (all levels) over the pixel's world
+    XY; -1 where there is no geometry. ``position``: the G-buffer's (H, W, 4) world position."""
+    lay = baked.layout
+    valid = position[..., 3] > 0.5
+    out = np.full(position.shape[:2], -1.0, np.float32)
+    if lay is None or not valid.any():
+        return out
+    px = position[..., 0][valid] - lay.origin[0]
+    py = position[..., 1][valid] - lay.origin[1]
+    total = np.zeros(px.shape, np.float64)
+    counts = np.asarray(baked.node_count)
+    for lvl, s in enumerate(lay.node_sizes):
+        nx, ny = (int(v) for v in lay.dims[lvl])
+        ix = np.floor(px / s)
+        iy = np.floor(py / s)
+        inside = (ix >= 0) & (iy >= 0) & (ix < nx) & (iy < ny)
+        node = lay.level_offset[lvl] + np.where(inside, iy, 0).astype(np.int64) * nx + np.where(inside, ix, 0).astype(np.int64)
+        total += np.where(inside, counts[node], 0)
+    total += counts[lay.outside_node] if lay.outside_node < len(counts) else 0
+    out[valid] = total
+    return out
+
+
+def debug_image(view: str, frame, scene, pipeline, light_name: str | None = None) -> np.ndarray:
+    """(H, W, 4) float32, row 0 = top: the ``view`` debug image of a rendered ``frame``.
+    Raises ValueError with a readable message when the view cannot be shown."""
+    gb = frame.gbuffer
+    valid = gb.coverage()
+    h, w = valid.shape
+    rgb = np.zeros((h, w, 3), np.float32)
+    if view == "LIGHT_MASK":
+        if not frame.lights:
+            raise ValueError("no shadowed light: nothing to show in the Light Mask view")
+        names = [scene.lights[i].name for i in frame.lights]
+        li = frame.lights[names.index(light_name)] if light_name in names else frame.lights[0]
+        m = frame.mask_array(li)
+        bad = np.isnan(m)
+        rgb[:] = np.nan_to_num(m, nan=0.0)[..., None]
+        rgb[bad] = (0.05, 0.1, 0.4)
+    elif view == "GRID_HEAT":
+        baked = getattr(pipeline, "baked", None)
+        if baked is None:
+            raise ValueError("the grid occupancy view needs the ray-traced mode (no grid is baked)")
+        occ = grid_occupancy(baked, gb.read("position"))
+        top = max(1.0, float(occ.max()))
+        rgb[:] = _heat(np.log1p(np.maximum(occ, 0)) / np.log1p(top))
+        rgb[occ < 0] = 0.0
+    elif view == "NORMAL":
+        rgb[:] = gb.read("shading_normal")[..., :3] * 0.5 + 0.5
+    elif view == "ALBEDO":
+        rgb[:] = gb.read("albedo")[..., :3]
+    elif view == "DEPTH":
+        d = gb.read("depth")
+        d = d[..., 0] if d.ndim == 3 else d
+        if valid.any():
+            lo, hi = float(d[valid].min()), float(d[valid].max())
+            rgb[:] = (1.0 - (d - lo) / max(hi - lo, 1e-9))[..., None]
+    elif view == "POSITION":
+        rgb[:] = np.mod(gb.read("position")[..., :3], 1.0)
+    else:
+        raise ValueError(f"unknown debug view {view!r}")
+    rgb[~valid] = np.where(view == "LIGHT_MASK", rgb[~valid], 0.0)
+    out = np.ones((h, w, 4), np.float32)
+    out[..., :3] = rgb
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# Display through Blender's gpu module
+# ------------------------------------------------------------------------------------------------
+class ViewportDisplay:
+    """Holds the last image as a ``GPUTexture`` and draws it into the bound framebuffer."""
+
+    def __init__(self):
+        self.texture = None
+        self.size = (0, 0)
+
+    def upload(self, image: np.ndarray) -> None:
+        """``image``: float32 (H, W, 4), row 0 = top (flipped here: textures are bottom-up)."""
+        import gpu
+
+        h, w = image.shape[:2]
+        data = np.ascontiguousarray(np.clip(image[::-1], -65504.0, 65504.0), np.float32)
+        buf = gpu.types.Buffer("FLOAT", w * h * 4, data.ravel())
+        self.texture = gpu.types.GPUTexture((w, h), format="RGBA16F", data=buf)
+        self.size = (w, h)
+
+    def draw(self, scene, width: int, height: int, engine=None) -> None:
+        """Draw the texture over ``width`` x ``height`` pixels, alpha premultiplied, through the
+        scene's view transform (``engine.bind_display_space_shader``; without an engine, as in
+        the headless tests, the plain image shader draws it)."""
+        import gpu
+        from gpu_extras.presets import draw_texture_2d
+
+        if self.texture is None:
+            return
+        gpu.state.blend_set("ALPHA_PREMULT")
+        if engine is not None:
+            engine.bind_display_space_shader(scene)
+        try:
+            draw_texture_2d(self.texture, (0, 0), width, height)
+        finally:
+            if engine is not None:
+                engine.unbind_display_space_shader()
+            gpu.state.blend_set("NONE")

@@ -1,0 +1,369 @@
+"""The full bake: Scene -> BakedScene (textures + defines + uniforms + stats).
+
+Texel layouts: ``shaders/common/scene_data.glsl`` ("SCENE TEXTURE LAYOUT"), section names cited
+below as [grid], [grid_index], [object], [model], [bvh], [tri].
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from . import grid as _grid
+from .bvh import build_bvhs
+from .textures import (BVH_TEXELS, EMPTY_HEIGHT, GRID_TEXELS, INDEX_TEXELS, MAX_ROWS_LOG2, MODEL_TEXELS,
+                       OBJECT_TEXELS, SPHERE_FLAG, TRI_TEXELS, TextureData, alloc_texture, f32_bits, f32_up,
+                       grow_texture)
+
+REL_EPS = 2.0 ** -20
+TEXTURE_NAMES = ("grid", "grid_index", "object", "model", "bvh", "tri")
+
+
+@dataclass
+class BakeConfig:
+    tex_width: int = 4096  # power of two <= 16384; every texture wraps its rows at this width
+    base_node_size: Optional[float] = None  # level-0 node size (m); None: fit to the scene
+    max_level0_nodes: Optional[int] = None  # None: 4 * casters (at least 64, at most 4M)
+    leaf_size: int = 4  # triangles per BVH leaf (1..7)
+    index_slack: float = 0.25  # spare slots per grid node, as a fraction of its count (+1)
+    index_reserve: float = 0.25  # spare tail of the grid index list, fraction of its length
+    outside_rebake_fraction: float = 0.01  # regrid when more casters than this left the grid
+
+    def __post_init__(self):
+        w = int(self.tex_width)
+        if w < 4 or w > 16384 or w & (w - 1):
+            raise ValueError("tex_width must be a power of two between 4 and 16384")
+        if not 1 <= int(self.leaf_size) <= 7:
+            raise ValueError("leaf_size must be 1..7")
+
+
+@dataclass
+class UpdateReport:
+    """What an incremental update changed, for partial re-uploads.
+
+    ``ranges``: ``(texture_name, layer, y0, y1)`` row ranges (y1 exclusive) whose texels changed;
+    ``resized``: textures whose shape changed (re-create and upload whole; their rows are not
+    listed); ``uniforms_changed`` / ``defines_changed``: re-read ``BakedScene.uniforms`` /
+    ``.defines`` (defines mean recompiling the program); ``regrid``: the grid was rebuilt.
+    """
+
+    ranges: list = field(default_factory=list)
+    resized: set = field(default_factory=set)
+    uniforms_changed: bool = False
+    defines_changed: bool = False
+    regrid: bool = False
+    objects: int = 0
+    nodes_changed: int = 0
+    ms: float = 0.0
+
+    def texels_changed(self, baked: "BakedScene") -> int:
+        n = 0
+        for name, _layer, y0, y1 in self.ranges:
+            n += (y1 - y0) * baked.textures[name].width
+        return n
+
+    def merge(self, other: "UpdateReport") -> "UpdateReport":
+        from .textures import merge_ranges
+
+        self.ranges = merge_ranges(self.ranges + other.ranges)
+        self.resized |= other.resized
+        self.uniforms_changed |= other.uniforms_changed
+        self.defines_changed |= other.defines_changed
+        self.regrid |= other.regrid
+        self.objects += other.objects
+        self.nodes_changed += other.nodes_changed
+        return self
+
+
+def instance_spheres(scene, idx=None):
+    """World bounding spheres (float64) of instances ``idx`` (all when None): centres, radii.
+    Same maths as ``Scene.instance_spheres`` but for a subset."""
+    inst = scene.instances
+    if idx is None:
+        idx = np.arange(len(inst))
+    if len(idx) == 0 or not scene.models:
+        return np.zeros((len(idx), 3)), np.zeros(len(idx))
+    centers_m = np.array([m.sphere_center for m in scene.models], np.float64).reshape(-1, 3)
+    radii_m = np.array([m.sphere_radius for m in scene.models], np.float64)
+    mid = inst.model_ids[idx]
+    M = inst.matrices[idx]
+    c = np.einsum("nij,nj->ni", M[:, :3, :3], centers_m[mid]) + M[:, :3, 3]
+    scale = np.sqrt((M[:, :3, :3] ** 2).sum(axis=1)).max(axis=1)
+    return c, radii_m[mid] * scale
+
+
+def stored_radius(c: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """World radius as stored/tested: enlarged so rounding never culls (float32, rounded up)."""
+    return f32_up(r * (1.0 + REL_EPS) + REL_EPS * np.abs(c).max(axis=1) + 1e-30)
+
+
+class BakedScene:
+    """All GPU-ready scene data. Build with :func:`bake_scene`."""
+
+    def __init__(self, config: BakeConfig):
+        self.config = config
+        self.textures: dict[str, TextureData] = {}
+        self.layout: _grid.GridLayout = None
+        self.stats: dict = {}
+
+    # ------------------------------------------------------------------ public read-outs --
+    @property
+    def defines(self) -> dict:
+        """``#define``s for scene_data.glsl. Flags are present only when true (``#ifdef``)."""
+        w = self.config.tex_width
+        d = {
+            "HS_GRID_LEVELS": int(self.layout.levels),
+            "HS_TEX_WIDTH": int(w),
+            "HS_TEX_WIDTH_LOG2": int(w).bit_length() - 1,
+            "HS_TEX_ROWS_LOG2": MAX_ROWS_LOG2,
+            "HS_BVH_LEAF_SIZE": int(self.config.leaf_size),
+        }
+        if self.has_meshes:
+            d["HS_HAS_MESHES"] = 1
+        if self.has_spheres:
+            d["HS_HAS_SPHERES"] = 1
+        return d
+
+    @property
+    def uniforms(self) -> dict:
+        """Uniform values by GLSL name (numpy arrays / Python scalars)."""
+        lay = self.layout
+        return {
+            "hs_grid_origin": lay.origin.astype(np.float32),
+            "hs_node_size": lay.node_sizes.astype(np.float32),
+            "hs_level_dims": lay.dims.astype(np.int32),
+            "hs_level_offset": lay.level_offset.astype(np.int32),
+            "hs_level_count": self.level_count.astype(np.int32),
+            "hs_outside_node": int(lay.outside_node),
+            "hs_scene_max_height": float(self.scene_max_height),
+        }
+
+    @property
+    def samplers(self) -> dict:
+        """GLSL sampler uniform name of each texture."""
+        return {name: f"hs_{name}_tex" for name in TEXTURE_NAMES}
+
+    @property
+    def has_meshes(self) -> bool:
+        c = self.inst_node >= 0
+        if not c.any():
+            return False
+        tri = self.model_tri_count[self.inst_model[c]] > 0
+        return bool((tri & ~self.inst_sphere[c]).any())
+
+    @property
+    def has_spheres(self) -> bool:
+        return bool((self.inst_sphere & (self.inst_node >= 0)).any())
+
+    @property
+    def scene_max_height(self) -> float:
+        nonempty = self.node_count > 0
+        if not nonempty.any():
+            return float(EMPTY_HEIGHT)
+        return float(self.node_maxh[nonempty].max())
+
+    @property
+    def texture_bytes(self) -> dict:
+        return {k: t.nbytes for k, t in self.textures.items()}
+
+    # ------------------------------------------------------------------ updates ------------
+    def update_instances(self, scene, indices) -> UpdateReport:
+        """Instances ``indices`` moved (``scene.instances`` already holds their new matrices)."""
+        from .update import update_instances
+
+        return update_instances(self, scene, indices)
+
+    def update_model(self, scene, model_id: int) -> UpdateReport:
+        """Mesh ``model_id`` was edited (or appended to ``scene.models``): rebuild that model's
+        BVH and triangles only, then re-place its instances."""
+        from .update import update_model
+
+        return update_model(self, scene, model_id)
+
+    # ------------------------------------------------------------------ writers ------------
+    def write_objects(self, scene, idx: np.ndarray) -> None:
+        """[object] texels of instances ``idx`` (+ world spheres kept for the grid)."""
+        inst = scene.instances
+        c, r = instance_spheres(scene, idx)
+        rs = stored_radius(c, r)
+        self.inst_center[idx] = c
+        self.inst_radius[idx] = r
+        self.inst_top[idx] = c[:, 2] + rs
+        rec = self.textures["object"].records(OBJECT_TEXELS)
+        block = np.empty((len(idx), 16), np.float32)
+        block[:, 0:12] = inst.inverse[idx, :3, :].reshape(len(idx), 12)
+        block[:, 12:15] = c
+        block[:, 15] = rs
+        rec[idx] = block
+        self.inst_model[idx] = inst.model_ids[idx]
+        self.inst_sphere[idx] = inst.sphere[idx]
+
+    def index_code(self, obj: np.ndarray) -> np.ndarray:
+        return self.inst_model[obj].astype(np.uint32) | np.where(self.inst_sphere[obj], SPHERE_FLAG, np.uint32(0))
+
+    def write_nodes(self, nodes: np.ndarray) -> None:
+        """[grid] texels of global node ids ``nodes`` from the node arrays."""
+        lin = self.textures["grid"].linear()
+        lin[nodes, 0] = self.node_offset[nodes]
+        lin[nodes, 1] = self.node_count[nodes]
+        mh = np.where(self.node_count[nodes] > 0, self.node_maxh[nodes], 0.0)
+        h = np.where(self.node_count[nodes] > 0, f32_up(mh + REL_EPS * np.abs(mh)), EMPTY_HEIGHT)
+        lin[nodes, 2] = f32_bits(h)
+        lin[nodes, 3] = self.node_cap[nodes]
+
+    def write_models(self, ids: np.ndarray, scene) -> None:
+        """[model] texels of model ids ``ids``."""
+        rec = self.textures["model"].records(MODEL_TEXELS)
+        for m in np.asarray(ids).tolist():
+            model = scene.models[m]
+            sph = np.array([*model.sphere_center, model.sphere_radius], np.float64)
+            s = np.concatenate([sph[:3].astype(np.float32), f32_up(sph[3:])])
+            rec[m, 0:4] = f32_bits(s)
+            rec[m, 4:8] = [self.model_node_start[m], self.model_node_count[m],
+                           self.model_tri_start[m], self.model_tri_count[m]]
+
+    def write_bvh(self, build, node_base: int, tri_base: int, local_model: int) -> None:
+        """[bvh] and [tri] records of one model of ``build`` at absolute ``node_base``/``tri_base``."""
+        ns, nc = int(build.node_start[local_model]), int(build.node_count[local_model])
+        ts, tc = int(build.tri_start[local_model]), int(build.tri_count[local_model])
+        self._write_bvh_block(build, ns, nc, ts, tc, node_base, tri_base)
+
+    def _write_bvh_block(self, build, ns, nc, ts, tc, node_base, tri_base) -> None:
+        sl = slice(ns, ns + nc)
+        rec = self.textures["bvh"].records(BVH_TEXELS)
+        block = np.empty((nc, 8), np.uint32)
+        block[:, 0:3] = f32_bits(build.node_min[sl])
+        block[:, 3] = build.escape[sl] - ns + node_base
+        block[:, 4:7] = f32_bits(build.node_max[sl])
+        lc = build.leaf_count[sl]
+        block[:, 7] = np.where(lc > 0, ((build.leaf_start[sl] - ts + tri_base) << 3) | lc, 0)
+        rec[node_base:node_base + nc] = block
+        trec = self.textures["tri"].records(TRI_TEXELS)
+        trec[tri_base:tri_base + tc] = build.tris[ts:ts + tc].reshape(tc, 9)
+
+    # ------------------------------------------------------------------ grid ---------------
+    def build_grid(self, scene) -> None:
+        """(Re)build the grid and its index list from the instance spheres."""
+        cfg = self.config
+        casters = np.nonzero(scene.instances.casts_shadow)[0] if len(scene.instances) else np.zeros(0, np.int64)
+        self.layout = lay = _grid.plan_grid(self.inst_center[casters], self.inst_radius[casters],
+                                            cfg.base_node_size, cfg.max_level0_nodes)
+        node = _grid.place(lay, self.inst_center[casters], self.inst_radius[casters])
+        n_nodes = lay.n_nodes
+        counts = np.bincount(node, minlength=n_nodes).astype(np.int64)
+        cap = _grid.node_capacity(counts, cfg.index_slack)
+        offset = np.concatenate([[0], np.cumsum(cap)[:-1]]).astype(np.int64)
+        used = int(cap.sum())
+        order = np.argsort(node, kind="stable")
+        sn = node[order]
+        first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        rank = np.arange(len(sn)) - first[sn]
+        slot = offset[sn] + rank
+        self.inst_node[:] = -1
+        self.inst_slot[:] = -1
+        self.inst_node[casters[order]] = sn
+        self.inst_slot[casters[order]] = slot
+        self.node_count, self.node_cap, self.node_offset = counts, cap, offset
+        maxh = np.full(n_nodes, -np.inf)
+        if len(sn):
+            starts = np.nonzero(np.concatenate([[True], sn[1:] != sn[:-1]]))[0]
+            maxh[sn[starts]] = np.maximum.reduceat(self.inst_top[casters[order]], starts)
+        self.node_maxh = maxh
+        self.level_count = np.bincount(lay.node_level(node), minlength=lay.levels + 1)[: lay.levels].astype(np.int64)
+        self.index_tail = used
+        reserve = max(1024, int(used * cfg.index_reserve))
+        self.textures["grid"] = alloc_texture("grid", n_nodes * GRID_TEXELS, 4, "u4", cfg.tex_width)
+        self.textures["grid_index"] = alloc_texture("grid_index", (used + reserve) * INDEX_TEXELS, 2, "u4", cfg.tex_width)
+        self.textures["grid_index"].used = used
+        self.write_nodes(np.arange(n_nodes))
+        lin = self.textures["grid_index"].linear()
+        obj = casters[order]
+        lin[slot, 0] = obj
+        lin[slot, 1] = self.index_code(obj)
+
+
+def bake_scene(scene, config: BakeConfig | None = None) -> BakedScene:
+    """Bake ``scene`` into GPU textures (see scene_data.glsl for every texel)."""
+    cfg = config or BakeConfig()
+    t0 = time.perf_counter()
+    b = BakedScene(cfg)
+    inst = scene.instances
+    n = len(inst)
+    models = list(scene.models)
+    m_count = len(models)
+
+    # models: BVH + triangles, once per model ---------------------------------------------
+    tb = time.perf_counter()
+    build = build_bvhs(models, cfg.leaf_size)
+    b.model_node_start = build.node_start.copy()
+    b.model_node_count = build.node_count.copy()
+    b.model_tri_start = build.tri_start.copy()
+    b.model_tri_count = build.tri_count.copy()
+    b.model_node_cap = build.node_count.copy()
+    b.model_tri_cap = build.tri_count.copy()
+    b.bvh_tail = int(build.node_count.sum())
+    b.tri_tail = int(build.tri_count.sum())
+    b.model_depth = build.depth.copy()
+    b.textures["model"] = alloc_texture("model", m_count * MODEL_TEXELS, 4, "u4", cfg.tex_width)
+    b.textures["bvh"] = alloc_texture("bvh", b.bvh_tail * BVH_TEXELS, 4, "u4", cfg.tex_width)
+    b.textures["tri"] = alloc_texture("tri", b.tri_tail * TRI_TEXELS, 3, "f4", cfg.tex_width)
+    if b.bvh_tail:
+        b._write_bvh_block(build, 0, b.bvh_tail, 0, b.tri_tail, 0, 0)
+    b.write_models(np.arange(m_count), scene)
+    t_bvh = time.perf_counter() - tb
+
+    # objects ------------------------------------------------------------------------------
+    to = time.perf_counter()
+    b.inst_center = np.zeros((n, 3))
+    b.inst_radius = np.zeros(n)
+    b.inst_top = np.zeros(n)
+    b.inst_model = np.zeros(n, np.int64)
+    b.inst_sphere = np.zeros(n, bool)
+    b.inst_node = np.full(n, -1, np.int64)
+    b.inst_slot = np.full(n, -1, np.int64)
+    b.textures["object"] = alloc_texture("object", n * OBJECT_TEXELS, 4, "f4", cfg.tex_width)
+    if n:
+        b.write_objects(scene, np.arange(n))
+    t_obj = time.perf_counter() - to
+
+    # grid ---------------------------------------------------------------------------------
+    tg = time.perf_counter()
+    b.build_grid(scene)
+    t_grid = time.perf_counter() - tg
+    b.textures = {k: b.textures[k] for k in TEXTURE_NAMES}
+    b.stats = {
+        "bake_ms": (time.perf_counter() - t0) * 1e3,
+        "bvh_ms": t_bvh * 1e3,
+        "objects_ms": t_obj * 1e3,
+        "grid_ms": t_grid * 1e3,
+    }
+    refresh_stats(b)
+    return b
+
+
+def refresh_stats(b: BakedScene) -> dict:
+    lay = b.layout
+    counts = b.node_count
+    s = b.stats
+    s.update({
+        "instances": int(len(b.inst_node)),
+        "casters": int((b.inst_node >= 0).sum()),
+        "models": int(len(b.model_node_count)),
+        "triangles": int(b.model_tri_count.sum()),
+        "bvh_nodes": int(b.model_node_count.sum()),
+        "bvh_max_depth": int(b.model_depth.max()) if len(b.model_depth) else 0,
+        "grid_levels": int(lay.levels),
+        "grid_base_node_size": float(lay.base_size),
+        "grid_origin": [float(x) for x in lay.origin],
+        "grid_dims": lay.dims.tolist(),
+        "grid_nodes": int(lay.n_nodes),
+        "grid_nodes_nonempty": int((counts > 0).sum()),
+        "objects_per_level": b.level_count.tolist(),
+        "outside_objects": int(counts[lay.outside_node]),
+        "max_objects_per_node": int(counts.max()) if len(counts) else 0,
+        "bytes": b.texture_bytes,
+        "total_bytes": int(sum(b.texture_bytes.values())),
+    })
+    return s

@@ -1,0 +1,189 @@
+"""Incremental updates of a :class:`BakedScene`.
+
+Moving instances rewrites their [object] texels, the [grid] texels of the nodes they leave and
+enter, and the [grid_index] entries of those nodes only. A node keeps its slot range while its
+new count fits its capacity; otherwise its list moves to the spare tail of the index list (the
+old range becomes unreferenced garbage). When the tail runs out, or too many casters have left
+the grid rectangle (they sit in the always-tested outside node), the grid is rebuilt (``regrid``).
+Models and BVHs are untouched by moves. An edited mesh rebuilds that model's BVH only: in place
+when it fits the model's old allocation, else appended (the texture grows when needed).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from . import grid as _grid
+from .baked import TEXTURE_NAMES, UpdateReport, refresh_stats
+from .bvh import build_bvhs
+from .textures import (BVH_TEXELS, MODEL_TEXELS, OBJECT_TEXELS, TRI_TEXELS, grow_texture, rows_of_texels,
+                       texel_rows, merge_ranges)
+
+
+def _ragged(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Concatenated aranges [s, s + c) for each (s, c)."""
+    counts = np.asarray(counts, np.int64)
+    total = int(counts.sum())
+    if total == 0:
+        return np.zeros(0, np.int64)
+    rep = np.repeat(np.asarray(starts, np.int64) - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
+    return rep + np.arange(total, dtype=np.int64)
+
+
+def _full_grid_report(b, rep: UpdateReport) -> None:
+    rep.regrid = True
+    rep.resized |= {"grid", "grid_index"}
+    rep.uniforms_changed = True
+    rep.defines_changed = True
+
+
+def update_instances(b, scene, indices) -> UpdateReport:
+    t0 = time.perf_counter()
+    rep = UpdateReport()
+    idx = np.unique(np.asarray(indices, np.int64).reshape(-1))
+    if idx.size == 0:
+        return rep
+    if len(scene.instances) != len(b.inst_node):
+        raise ValueError("instances were added or removed: bake the scene again")
+    w = b.config.tex_width
+    old_level_defs = (b.has_meshes, b.has_spheres)
+    old_maxh = b.scene_max_height
+
+    # object texels ------------------------------------------------------------------------
+    b.write_objects(scene, idx)
+    rep.ranges += rows_of_texels("object", (idx[:, None] * OBJECT_TEXELS + np.arange(OBJECT_TEXELS)).ravel(), w)
+    rep.objects = int(idx.size)
+
+    # grid: nodes left and entered ---------------------------------------------------------
+    lay = b.layout
+    casts = scene.instances.casts_shadow[idx]
+    old = b.inst_node[idx]
+    new = np.full(idx.size, -1, np.int64)
+    if casts.any():
+        new[casts] = _grid.place(lay, b.inst_center[idx[casts]], b.inst_radius[idx[casts]])
+    moving = (old >= 0) | (new >= 0)
+    if moving.any():
+        ok = _move(b, scene, idx[moving], old[moving], new[moving], rep)
+        n_casters = int((b.inst_node >= 0).sum())
+        outside = int(b.node_count[lay.outside_node])
+        if not ok or outside > max(16, b.config.outside_rebake_fraction * n_casters):
+            b.build_grid(scene)
+            _full_grid_report(b, rep)
+    if (b.has_meshes, b.has_spheres) != old_level_defs:
+        rep.defines_changed = True
+    if b.scene_max_height != old_maxh:
+        rep.uniforms_changed = True
+    rep.ranges = merge_ranges([r for r in rep.ranges if r[0] not in rep.resized])
+    refresh_stats(b)
+    rep.ms = (time.perf_counter() - t0) * 1e3
+    b.stats["last_update_ms"] = rep.ms
+    return rep
+
+
+def _move(b, scene, obj, old, new, rep) -> bool:
+    """Move casters ``obj`` from nodes ``old`` to ``new`` (-1: none). False: index list full."""
+    lay = b.layout
+    aff = np.unique(np.concatenate([old[old >= 0], new[new >= 0]]))
+    # current members of the affected nodes, minus the movers
+    pos = _ragged(b.node_offset[aff], b.node_count[aff])
+    node_of_pos = np.repeat(aff, b.node_count[aff])
+    lin = b.textures["grid_index"].linear()
+    members = lin[pos, 0].astype(np.int64)
+    keep = ~np.isin(members, obj)
+    ent_obj = np.concatenate([members[keep], obj[new >= 0]])
+    ent_node = np.concatenate([node_of_pos[keep], new[new >= 0]])
+    order = np.argsort(ent_node, kind="stable")
+    ent_obj, ent_node = ent_obj[order], ent_node[order]
+    k = np.searchsorted(aff, ent_node)
+    cnt = np.bincount(k, minlength=aff.size).astype(np.int64)
+    # relocate nodes that overflow their capacity to the tail
+    over = cnt > b.node_cap[aff]
+    if over.any():
+        need = _grid.node_capacity(cnt[over], b.config.index_slack)
+        starts = b.index_tail + np.concatenate([[0], np.cumsum(need)[:-1]])
+        end = b.index_tail + int(need.sum())
+        if end > b.textures["grid_index"].capacity:
+            return False
+        b.node_offset[aff[over]] = starts
+        b.node_cap[aff[over]] = need
+        b.index_tail = end
+        b.textures["grid_index"].used = end
+    # per-level object counts
+    lv_old = lay.node_level(old[old >= 0])
+    lv_new = lay.node_level(new[new >= 0])
+    lc = np.bincount(lv_new, minlength=lay.levels + 1) - np.bincount(lv_old, minlength=lay.levels + 1)
+    b.level_count += lc[: lay.levels]
+    # write entries
+    first = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    rank = np.arange(ent_obj.size) - first[k]
+    slot = b.node_offset[ent_node] + rank
+    lin[slot, 0] = ent_obj
+    lin[slot, 1] = b.index_code(ent_obj)
+    b.inst_node[obj] = -1
+    b.inst_slot[obj] = -1
+    b.inst_node[ent_obj] = ent_node
+    b.inst_slot[ent_obj] = slot
+    # node records
+    b.node_count[aff] = cnt
+    maxh = np.full(aff.size, -np.inf)
+    if ent_obj.size:
+        nz = np.nonzero(cnt)[0]
+        maxh[nz] = np.maximum.reduceat(b.inst_top[ent_obj], first[nz])
+    b.node_maxh[aff] = maxh
+    b.write_nodes(aff)
+    rep.nodes_changed += int(aff.size)
+    w = b.config.tex_width
+    rep.ranges += rows_of_texels("grid", aff, w)
+    rep.ranges += rows_of_texels("grid_index", slot, w)
+    if (lc != 0).any():
+        rep.uniforms_changed = True
+    return True
+
+
+def update_model(b, scene, model_id: int) -> UpdateReport:
+    t0 = time.perf_counter()
+    rep = UpdateReport()
+    m = int(model_id)
+    w = b.config.tex_width
+    n_old = len(b.model_node_count)
+    if m > n_old or m >= len(scene.models):
+        raise ValueError(f"model id {m} is neither an existing model nor the next new one")
+    if m == n_old:  # a new model
+        for name in ("model_node_start", "model_node_count", "model_tri_start", "model_tri_count",
+                     "model_node_cap", "model_tri_cap", "model_depth"):
+            setattr(b, name, np.concatenate([getattr(b, name), [0]]).astype(np.int64))
+        if grow_texture(b.textures["model"], (m + 1) * MODEL_TEXELS):
+            rep.resized.add("model")
+    old_defs = b.defines
+    build = build_bvhs([scene.models[m]], b.config.leaf_size)
+    nc, tc = int(build.node_count[0]), int(build.tri_count[0])
+    if nc <= b.model_node_cap[m] and tc <= b.model_tri_cap[m]:
+        node_base, tri_base = int(b.model_node_start[m]), int(b.model_tri_start[m])
+    else:
+        node_base, tri_base = b.bvh_tail, b.tri_tail
+        b.bvh_tail += nc
+        b.tri_tail += tc
+        b.model_node_cap[m], b.model_tri_cap[m] = nc, tc
+        for name, n_tex in (("bvh", b.bvh_tail * BVH_TEXELS), ("tri", b.tri_tail * TRI_TEXELS)):
+            if grow_texture(b.textures[name], n_tex):
+                rep.resized.add(name)
+            b.textures[name].used = n_tex
+    b.model_node_start[m], b.model_node_count[m] = node_base, nc
+    b.model_tri_start[m], b.model_tri_count[m] = tri_base, tc
+    b.model_depth[m] = int(build.depth[0]) if len(build.depth) else 0
+    if nc:
+        b.write_bvh(build, node_base, tri_base, 0)
+    b.write_models(np.array([m]), scene)
+    rep.ranges += texel_rows("bvh", node_base * BVH_TEXELS, (node_base + nc) * BVH_TEXELS, w)
+    rep.ranges += texel_rows("tri", tri_base * TRI_TEXELS, (tri_base + tc) * TRI_TEXELS, w)
+    rep.ranges += texel_rows("model", m * MODEL_TEXELS, (m + 1) * MODEL_TEXELS, w)
+    users = np.nonzero(scene.instances.model_ids == m)[0] if len(scene.instances) else np.zeros(0, np.int64)
+    if users.size:
+        rep.merge(update_instances(b, scene, users))
+    if b.defines != old_defs:
+        rep.defines_changed = True
+    rep.ranges = merge_ranges([r for r in rep.ranges if r[0] not in rep.resized])
+    refresh_stats(b)
+    rep.ms = (time.perf_counter() - t0) * 1e3
+    return rep

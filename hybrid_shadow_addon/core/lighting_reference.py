@@ -1,0 +1,123 @@
+"""The lighting model, in numpy: the reference the GPU lighting pass (``shaders/lighting.glsl``,
+``shaders/common/lights.glsl``) is tested against, and the light table both use.
+
+Units as Cycles/EEVEE use them (delta lights, no soft-size):
+- sun of strength S: irradiance S * colour (W/m^2) on a surface facing it;
+- point of power P (W): radiant intensity P / (4 pi) * colour (W/sr), inverse-square falloff;
+- spot: the same intensity as a point of equal power (not concentrated into the cone), times
+  Blender's cone mask smoothstep01((t - cos(size/2)) / ((1 - cos(size/2)) * blend)), t the cosine
+  between the spot axis and the light->point direction (a hard edge when blend = 0);
+- area (for now a point at its position): a one-sided Lambertian emitter of power P, i.e.
+  intensity P / pi * colour * max(cos, 0) around its -Z axis (the far field of Blender's area
+  light).
+BRDF: Lambert albedo / pi plus normalised Blinn-Phong, F0 = 0.08 * specular (Principled's 0.5 ->
+0.04), exponent s = clamp(2 / a^2 - 2, 1, 2048), a = max(roughness^2, 0.03):
+f_spec = F0 (s + 8) / (8 pi) (n.h)^s. Ambient: albedo * world colour (a uniform world of
+radiance W gives irradiance pi W). Each light's contribution is multiplied by its shadow mask
+when it has one.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+LIGHT_CODES = {"SUN": 0, "POINT": 1, "SPOT": 2, "AREA": 3}
+
+
+def light_table(lights) -> np.ndarray:
+    """(N, 4, 4) float64 rows as ``shaders/common/lights.glsl`` reads them."""
+    out = np.zeros((len(lights), 4, 4))
+    for i, light in enumerate(lights):
+        color = np.asarray(light.color, np.float64)
+        if light.type == "SUN":
+            rad = light.power * color
+        elif light.type == "AREA":
+            rad = light.power / math.pi * color
+        else:
+            rad = light.power / (4 * math.pi) * color
+        out[i, 0, :3] = light.position
+        out[i, 0, 3] = LIGHT_CODES[light.type]
+        out[i, 1, :3] = light.direction
+        out[i, 1, 3] = math.cos(light.spot_size / 2)
+        out[i, 2, :3] = rad
+        out[i, 3, 0] = max(float(light.spot_blend), 0.0)
+    return out
+
+
+def _smoothstep01(x):
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3 - 2 * x)
+
+
+def light_incident(row: np.ndarray, p: np.ndarray):
+    """Irradiance (..., 3) on a surface facing the light and unit directions to it (..., 3)."""
+    t0, t1, t2, t3 = row
+    code = int(round(t0[3]))
+    if code == 0:
+        l = np.broadcast_to(-t1[:3], p.shape)
+        return np.broadcast_to(t2[:3], p.shape), l
+    d = t0[:3] - p
+    r2 = np.maximum((d * d).sum(-1), 1e-12)
+    l = d / np.sqrt(r2)[..., None]
+    k = 1.0 / r2
+    t = -(l @ t1[:3])
+    if code == 2:
+        ch, blend = t1[3], t3[0]
+        k = k * (_smoothstep01((t - ch) / ((1 - ch) * blend)) if blend > 0 else (t > ch).astype(np.float64))
+    elif code == 3:
+        k = k * np.maximum(t, 0.0)
+    return t2[:3] * k[..., None], l
+
+
+def brdf_cos(n, l, v, albedo, specular, roughness, use_specular=True):
+    c = (n * l).sum(-1)
+    f = albedo / math.pi
+    if use_specular:
+        a = np.maximum(roughness * roughness, 0.03)
+        s = np.clip(2 / (a * a) - 2, 1.0, 2048.0)
+        h = l + v
+        h = h / np.linalg.norm(h, axis=-1, keepdims=True)
+        nh = np.maximum((n * h).sum(-1), 0.0)
+        f = f + (0.08 * specular * (s + 8) / (8 * math.pi) * nh ** s)[..., None]
+    return np.where((c > 0)[..., None], f * np.maximum(c, 0)[..., None], 0.0)
+
+
+def view_vectors(position: np.ndarray, camera) -> np.ndarray:
+    cw = camera.world_matrix_normalized()
+    if camera.type == "ORTHO":
+        return np.broadcast_to(cw[:3, 2], position.shape)
+    v = cw[:3, 3] - position
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def shade(scene, gbuffer: dict, masks: dict | None = None, use_specular: bool = True,
+          film_transparent: bool = False) -> np.ndarray:
+    """(H, W, 4) float64 linear RGBA from G-buffer arrays (``read_gbuffer_arrays``: keys
+    position, shading_normal, albedo, material; row 0 = top) and masks ``{light: (H, W)}``
+    (NaN treated as 1)."""
+    pos = gbuffer["position"].astype(np.float64)
+    cov = pos[..., 3] > 0.5
+    p = pos[..., :3]
+    n = gbuffer["shading_normal"][..., :3].astype(np.float64)
+    albedo = gbuffer["albedo"][..., :3].astype(np.float64)
+    mat = gbuffer["material"].astype(np.float64)
+    v = view_vectors(p, scene.camera)
+    world = np.asarray(scene.world_color, np.float64)
+    c = albedo * world
+    table = light_table(scene.lights)
+    masks = masks or {}
+    for i in range(len(scene.lights)):
+        e, l = light_incident(table[i], p)
+        contrib = e * brdf_cos(n, l, v, albedo, mat[..., 0], mat[..., 1], use_specular)
+        if i in masks:
+            m = np.nan_to_num(np.asarray(masks[i], np.float64), nan=1.0)
+            contrib = contrib * m[..., None]
+        c = c + contrib
+    out = np.zeros(pos.shape[:2] + (4,))
+    out[cov, :3] = c[cov]
+    out[cov, 3] = 1.0
+    if not film_transparent:
+        out[~cov, :3] = world
+        out[~cov, 3] = 1.0
+    return out

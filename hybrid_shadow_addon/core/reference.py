@@ -1,0 +1,382 @@
+"""Reference shadow-ray tracers in numpy: the oracle for the GLSL tracer.
+
+- :func:`trace_structured` walks exactly the baked textures (it reads nothing else but
+  ``BakedScene.textures`` and ``.uniforms``): the always-tested outside node, then each non-empty
+  grid level with the DDA, node max-height culling, the world-sphere pre-test, the ray transform,
+  the analytic sphere test or the stackless BVH walk and the watertight triangle test. It follows
+  ``shaders/common/scene_data.glsl`` operation by operation in float32, but runs all rays in lock
+  step (one numpy pass per DDA step / BVH step) instead of one ray per invocation.
+- :func:`trace_brute` tests every shadow caster of a :class:`Scene` (no acceleration structure)
+  with the same float32 ray transform, triangle and sphere tests.
+
+Ray convention: ``origins`` (N,3), ``dirs`` (N,3) world space (not necessarily unit), ``tmax``
+(N,) or scalar in units of |dir| (may be inf). Occluded when any caster is hit at t in (0, tmax).
+Rays are transformed per instance with the inverse world matrix, the direction is not normalised.
+A zero direction, tmax <= 0 or NaN input gives "not occluded".
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .bake.textures import (BVH_TEXELS, FLT_BIG, MODEL_TEXELS, OBJECT_TEXELS, SPHERE_FLAG, TRI_TEXELS, f32_up)
+
+F = np.float32
+BIG = F(3.4e38)  # "no boundary" t of the DDA; > FLT_BIG
+SLAB_BIG = F(1e30)  # 1/d for d == 0 in the slab test
+EPS16 = F(2.0 ** -16)
+TFAR_SCALE = F(1.0 + 2.0 ** -20)
+PRETEST_EPS = F(2.0 ** -18)
+
+
+# ------------------------------------------------------------------------------------------
+# primitives shared by both tracers (float32, in the order the GLSL evaluates them)
+# ------------------------------------------------------------------------------------------
+def prepare_rays(origins, dirs, tmax):
+    o = np.ascontiguousarray(np.asarray(origins, np.float64).reshape(-1, 3), F)
+    d = np.ascontiguousarray(np.asarray(dirs, np.float64).reshape(-1, 3), F)
+    t = np.broadcast_to(np.asarray(tmax, np.float64), (len(o),)).astype(np.float64)
+    t = np.where(np.isnan(t), 0.0, np.minimum(t, float(FLT_BIG))).astype(F)
+    valid = (d != 0).any(axis=1) & (t > 0) & np.isfinite(o).all(axis=1) & np.isfinite(d).all(axis=1)
+    return o, d, t, valid
+
+
+def transform_rays(rows: np.ndarray, o: np.ndarray, d: np.ndarray):
+    """Model-space rays: ``rows`` (P, 12) float32 = rows 0..2 of the inverse world matrix."""
+    r = rows.reshape(-1, 3, 4)
+    om = ((r[:, :, 0] * o[:, None, 0] + r[:, :, 1] * o[:, None, 1]) + r[:, :, 2] * o[:, None, 2]) + r[:, :, 3]
+    dm = (r[:, :, 0] * d[:, None, 0] + r[:, :, 1] * d[:, None, 1]) + r[:, :, 2] * d[:, None, 2]
+    return om.astype(F), dm.astype(F)
+
+
+def woop_setup(d: np.ndarray):
+    """Watertight test set-up per ray: axis permutation (kx, ky, kz) and shear (Sx, Sy, Sz)."""
+    a = np.abs(d)
+    kz = np.where(a[:, 0] > a[:, 1], np.where(a[:, 0] > a[:, 2], 0, 2), np.where(a[:, 1] > a[:, 2], 1, 2))
+    kx = (kz + 1) % 3
+    ky = (kx + 1) % 3
+    n = np.arange(len(d))
+    dz = d[n, kz]
+    swap = dz < 0
+    kx, ky = np.where(swap, ky, kx), np.where(swap, kx, ky)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sx = d[n, kx] / dz
+        sy = d[n, ky] / dz
+        sz = F(1.0) / dz
+    return kx, ky, kz, sx.astype(F), sy.astype(F), sz.astype(F)
+
+
+def woop_hit(o, setup, v0, v1, v2, tmax) -> np.ndarray:
+    """Watertight ray/triangle (Woop, Benthin, Wald 2013), double-sided, hit iff t in (0, tmax).
+    All arguments broadcast per pair: o (P,3), setup arrays (P,), v* (P,3), tmax (P,)."""
+    kx, ky, kz, sx, sy, sz = setup
+    n = np.arange(len(o))
+    A = (v0 - o).astype(F)
+    B = (v1 - o).astype(F)
+    C = (v2 - o).astype(F)
+    Akz, Bkz, Ckz = A[n, kz], B[n, kz], C[n, kz]
+    Ax = A[n, kx] - sx * Akz
+    Ay = A[n, ky] - sy * Akz
+    Bx = B[n, kx] - sx * Bkz
+    By = B[n, ky] - sy * Bkz
+    Cx = C[n, kx] - sx * Ckz
+    Cy = C[n, ky] - sy * Ckz
+    U = Cx * By - Cy * Bx
+    V = Ax * Cy - Ay * Cx
+    W = Bx * Ay - By * Ax
+    inside = ~(((U < 0) | (V < 0) | (W < 0)) & ((U > 0) | (V > 0) | (W > 0)))
+    det = U + V + W
+    T = (U * (sz * Akz) + V * (sz * Bkz)) + W * (sz * Ckz)
+    with np.errstate(over="ignore", invalid="ignore"):
+        td = tmax * det
+        pos = (det > 0) & (T > 0) & (T < td)
+        neg = (det < 0) & (T < 0) & (T > td)
+    return inside & (pos | neg)
+
+
+def sphere_hit(o, d, c, r, tmax) -> np.ndarray:
+    """Ray/sphere surface hit with t in (0, tmax) (Ray Tracing Gems ch. 7, unnormalised d)."""
+    f = (o - c).astype(F)
+    a = (d * d).sum(axis=1, dtype=F)
+    b = -(f * d).sum(axis=1, dtype=F)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        l = f + (b / a)[:, None] * d
+        rr = r * r
+        disc = rr - (l * l).sum(axis=1, dtype=F)
+        cc = (f * f).sum(axis=1, dtype=F) - rr
+        sq = np.sqrt(np.maximum(a * disc, F(0)))
+        q = b + np.where(b >= 0, sq, -sq)
+        t0 = cc / q
+        t1 = q / a
+        ok = (disc >= 0) & (q != 0)
+        hit = ((t0 > 0) & (t0 < tmax)) | ((t1 > 0) & (t1 < tmax))
+    return ok & hit
+
+
+def sphere_pretest(o, d, c, r, tmax) -> np.ndarray:
+    """Conservative: does segment o + t d, t in [0, tmax], come within r of c?"""
+    f = (o - c).astype(F)
+    a = (d * d).sum(axis=1, dtype=F)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        tc = np.clip(-(f * d).sum(axis=1, dtype=F) / a, F(0), tmax)
+        p = f + tc[:, None] * d
+        e = PRETEST_EPS * (np.abs(f).sum(axis=1, dtype=F) + tc * np.abs(d).sum(axis=1, dtype=F))
+        re = r + e
+        return (p * p).sum(axis=1, dtype=F) <= re * re
+
+
+def slab_inv(d: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore"):
+        return np.where(d != 0, F(1.0) / np.where(d != 0, d, F(1)), SLAB_BIG).astype(F)
+
+
+def slab_hit(o, inv, bmin, bmax, tmax) -> np.ndarray:
+    """Robust slab test (conservative: far t scaled by 1 + 2^-20)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        t1 = (bmin - o) * inv
+        t2 = (bmax - o) * inv
+        tn = np.minimum(t1, t2).max(axis=1)
+        tf = np.maximum(t1, t2).min(axis=1) * TFAR_SCALE
+    return np.maximum(tn, F(0)) <= np.minimum(tf, tmax)
+
+
+def _ragged(starts, counts):
+    counts = np.asarray(counts, np.int64)
+    total = int(counts.sum())
+    if total == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    owner = np.repeat(np.arange(len(counts)), counts)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    return owner, np.asarray(starts, np.int64)[owner] + np.arange(total) - first[owner]
+
+
+# ------------------------------------------------------------------------------------------
+# structured tracer: reads the baked textures only
+# ------------------------------------------------------------------------------------------
+class _Tex:
+    def __init__(self, baked):
+        t = baked.textures
+        self.grid = t["grid"].linear()
+        self.index = t["grid_index"].linear()
+        self.obj = t["object"].records(OBJECT_TEXELS)
+        self.model = t["model"].records(MODEL_TEXELS)
+        self.bvh = t["bvh"].records(BVH_TEXELS)
+        self.tri = t["tri"].records(TRI_TEXELS)
+
+
+def _bvh_occluded(tex: _Tex, om, dm, root, count, tmax, stats) -> np.ndarray:
+    """Stackless walk of each pair's model BVH (escape indices); any-hit."""
+    P = len(om)
+    hit = np.zeros(P, bool)
+    i = root.astype(np.int64).copy()
+    end = i + count
+    setup = woop_setup(dm)
+    inv = slab_inv(dm)
+    act = np.nonzero(i < end)[0]
+    while act.size:
+        node = tex.bvh[i[act]]
+        bmin = node[:, 0:3].view(F)
+        bmax = node[:, 4:7].view(F)
+        esc = node[:, 3].astype(np.int64)
+        leaf = node[:, 7].astype(np.int64)
+        bh = slab_hit(om[act], inv[act], bmin, bmax, tmax[act])
+        if stats is not None:
+            stats["bvh_nodes"] += act.size
+        is_leaf = leaf != 0
+        lt = np.nonzero(bh & is_leaf)[0]
+        if lt.size:
+            owner, tri = _ragged(leaf[lt] >> 3, leaf[lt] & 7)
+            p = act[lt[owner]]
+            v = tex.tri[tri].reshape(-1, 3, 3)
+            s = tuple(x[p] for x in setup)
+            h = woop_hit(om[p], s, v[:, 0], v[:, 1], v[:, 2], tmax[p])
+            if stats is not None:
+                stats["triangles"] += tri.size
+            hit[p[h]] = True
+        nxt = np.where(bh & ~is_leaf, i[act] + 1, esc)
+        i[act] = nxt
+        keep = (nxt < end[act]) & ~hit[act]
+        act = act[keep]
+    return hit
+
+
+def _test_pairs(tex: _Tex, o, d, tmax, ray, entry, stats) -> np.ndarray:
+    """Occlusion of (ray, grid-index entry) pairs: pre-test, transform, sphere or BVH."""
+    e = tex.index[entry]
+    obj = e[:, 0].astype(np.int64)
+    code = e[:, 1]
+    rec = tex.obj[obj]
+    if stats is not None:
+        stats["objects"] += len(obj)
+    ok = sphere_pretest(o[ray], d[ray], rec[:, 12:15], rec[:, 15], tmax[ray])
+    out = np.zeros(len(obj), bool)
+    sel = np.nonzero(ok)[0]
+    if not sel.size:
+        return out
+    r = ray[sel]
+    om, dm = transform_rays(rec[sel, 0:12], o[r], d[r])
+    is_sph = (code[sel] & SPHERE_FLAG) != 0
+    mid = (code[sel] & np.uint32(0x7FFFFFFF)).astype(np.int64)
+    m = tex.model[mid]
+    if is_sph.any():
+        s = np.nonzero(is_sph)[0]
+        sph = m[s, 0:4].view(F)
+        out[sel[s]] = sphere_hit(om[s], dm[s], sph[:, 0:3], sph[:, 3], tmax[r[s]])
+    mesh = np.nonzero(~is_sph & (m[:, 5] > 0))[0]
+    if mesh.size:
+        out[sel[mesh]] = _bvh_occluded(tex, om[mesh], dm[mesh], m[mesh, 4], m[mesh, 5], tmax[r[mesh]], stats)
+    return out
+
+
+def trace_structured(baked, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
+    """Occlusion of each ray through the baked grid + BVH textures (the GPU algorithm)."""
+    o, d, tm, valid = prepare_rays(origins, dirs, tmax)
+    N = len(o)
+    occ = np.zeros(N, bool)
+    if stats is not None:
+        stats.update({"dda_steps": 0, "nodes_tested": 0, "objects": 0, "bvh_nodes": 0, "triangles": 0})
+    tex = _Tex(baked)
+    u = baked.uniforms
+    H = F(u["hs_scene_max_height"])
+    oz, dz = o[:, 2], d[:, 2]
+    # scene max height: above it and going up (or flat) -> lit
+    with np.errstate(invalid="ignore", over="ignore"):
+        above = oz - H > EPS16 * (np.abs(oz) + np.abs(H))
+    active = valid & ~(above & (dz >= 0))
+    # DDA end: where an upward ray passes the scene max height (conservatively later)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        t_top = ((H - oz) + EPS16 * (np.abs(H) + np.abs(oz))) / np.where(dz > 0, dz, F(1)) * F(1.0 + 2.0 ** -16)
+    t_dda = np.where(dz > 0, np.minimum(tm, np.maximum(t_top, F(0))), tm).astype(F)
+
+    # outside node: every active ray
+    out_node = int(u["hs_outside_node"])
+    _visit(tex, o, d, tm, occ, np.nonzero(active)[0], np.full(int(active.sum()), out_node), stats)
+
+    gx, gy = F(u["hs_grid_origin"][0]), F(u["hs_grid_origin"][1])
+    for lvl in range(len(u["hs_node_size"])):
+        if u["hs_level_count"][lvl] == 0:
+            continue
+        s = F(u["hs_node_size"][lvl])
+        nx, ny = (int(x) for x in u["hs_level_dims"][lvl])
+        off = int(u["hs_level_offset"][lvl])
+        rays = np.nonzero(active & ~occ)[0]
+        if not rays.size:
+            break
+        _walk_level(tex, o, d, tm, t_dda, occ, rays, gx, gy, s, nx, ny, off, stats)
+    return occ
+
+
+def _visit(tex, o, d, tm, occ, ray, node, stats, zmin=None):
+    """Test the objects of grid ``node`` for each ``ray`` (skipping culled / occluded ones)."""
+    g = tex.grid[node]
+    cnt = g[:, 1].astype(np.int64)
+    keep = (cnt > 0) & ~occ[ray]
+    if zmin is not None:
+        maxh = g[:, 2].view(F)
+        with np.errstate(invalid="ignore", over="ignore"):
+            culled = zmin - maxh > EPS16 * (np.abs(zmin) + np.abs(maxh))
+        keep &= ~culled
+    if stats is not None:
+        stats["nodes_tested"] += int(keep.sum())
+    ray, g, cnt = ray[keep], g[keep], cnt[keep]
+    if not ray.size:
+        return
+    owner, entry = _ragged(g[:, 0], cnt)
+    pr = ray[owner]
+    hit = _test_pairs(tex, o, d, tm, pr, entry, stats)
+    occ[pr[hit]] = True
+
+
+def _walk_level(tex, o, d, tm, t_dda, occ, rays, gx, gy, s, nx, ny, off, stats):
+    """DDA over one grid level for ``rays`` in lock step (mirrors hs_walk_level in GLSL)."""
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        u0 = (o[rays, 0] - gx) / s
+        v0 = (o[rays, 1] - gy) / s
+        du = d[rays, 0] / s
+        dv = d[rays, 1] / s
+        dz = d[rays, 2]
+        oz = o[rays, 2]
+        t_lo = np.zeros(rays.size, F)
+        t_hi = t_dda[rays].copy()
+        alive = np.ones(rays.size, bool)
+        invs = []
+        for p0, dp, n in ((u0, du, nx), (v0, dv, ny)):
+            zero = dp == 0
+            alive &= ~(zero & ((p0 < 0) | (p0 > F(n))))
+            inv = np.where(zero, F(0), F(1) / np.where(zero, F(1), dp)).astype(F)
+            ta = (F(0) - p0) * inv
+            tb = (F(n) - p0) * inv
+            t_lo = np.where(zero, t_lo, np.maximum(t_lo, np.minimum(ta, tb)))
+            t_hi = np.where(zero, t_hi, np.minimum(t_hi, np.maximum(ta, tb)))
+            invs.append(inv)
+        invu, invv = invs
+        alive &= t_lo <= t_hi
+        cx = np.clip(np.floor(u0 + du * t_lo), 0, nx - 1).astype(np.int64)
+        cy = np.clip(np.floor(v0 + dv * t_lo), 0, ny - 1).astype(np.int64)
+        dmax = np.maximum(np.abs(du), np.abs(dv))
+        inv_dmax = np.where(dmax > 0, F(1) / np.where(dmax > 0, dmax, F(1)), BIG).astype(F)
+        slack = (np.abs(u0) + np.abs(v0) + F(2)) * inv_dmax
+        t_enter = t_lo
+        sx = np.where(du > 0, 1, -1)
+        sy = np.where(dv > 0, 1, -1)
+        idx = np.nonzero(alive)[0]
+        while idx.size:
+            r = rays[idx]
+            tx = np.where(du[idx] > 0, ((cx[idx] + 1).astype(F) - u0[idx]) * invu[idx],
+                          np.where(du[idx] < 0, (cx[idx].astype(F) - u0[idx]) * invu[idx], BIG)).astype(F)
+            ty = np.where(dv[idx] > 0, ((cy[idx] + 1).astype(F) - v0[idx]) * invv[idx],
+                          np.where(dv[idx] < 0, (cy[idx].astype(F) - v0[idx]) * invv[idx], BIG)).astype(F)
+            te = t_enter[idx]
+            tx_exit = np.minimum(np.minimum(tx, ty), t_hi[idx])
+            delta = EPS16 * (tx_exit - te + slack[idx])
+            zlo = np.where(dz[idx] > 0, oz[idx] + dz[idx] * np.maximum(te - delta, F(0)),
+                           np.where(dz[idx] < 0, oz[idx] + dz[idx] * np.minimum(tx_exit + delta, tm[r]), oz[idx])).astype(F)
+            node = off + cy[idx] * nx + cx[idx]
+            if stats is not None:
+                stats["dda_steps"] += idx.size
+            _visit(tex, o, d, tm, occ, r, node, stats, zmin=zlo)
+            done = (tx_exit >= t_hi[idx]) | occ[r]
+            stepx = tx <= ty
+            cx[idx] += np.where(stepx, sx[idx], 0)
+            cy[idx] += np.where(stepx, 0, sy[idx])
+            done |= (cx[idx] < 0) | (cx[idx] >= nx) | (cy[idx] < 0) | (cy[idx] >= ny)
+            t_enter[idx] = tx_exit
+            idx = idx[~done]
+
+
+# ------------------------------------------------------------------------------------------
+# brute force: every caster, no acceleration structure
+# ------------------------------------------------------------------------------------------
+def trace_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21) -> np.ndarray:
+    """Occlusion of each ray against every shadow caster of ``scene`` (small scenes only)."""
+    o, d, tm, valid = prepare_rays(origins, dirs, tmax)
+    occ = np.zeros(len(o), bool)
+    inst = scene.instances
+    if not len(inst):
+        return occ
+    for i in np.nonzero(inst.casts_shadow)[0].tolist():
+        rays = np.nonzero(valid & ~occ)[0]
+        if not rays.size:
+            break
+        model = scene.models[int(inst.model_ids[i])]
+        rows = np.broadcast_to(inst.inverse[i, :3, :].astype(F).reshape(1, 12), (rays.size, 12))
+        om, dm = transform_rays(rows, o[rays], d[rays])
+        if inst.sphere[i]:
+            c = np.broadcast_to(model.sphere_center.astype(F), om.shape)
+            r = np.broadcast_to(f32_up(model.sphere_radius), (rays.size,))
+            occ[rays[sphere_hit(om, dm, c, r, tm[rays])]] = True
+            continue
+        T = model.triangle_count
+        if T == 0:
+            continue
+        v = model.vertices[model.triangles]  # (T, 3, 3)
+        setup = woop_setup(dm)
+        per = max(1, chunk // T)
+        for a in range(0, rays.size, per):
+            sl = slice(a, a + per)
+            n = min(per, rays.size - a)
+            rr = np.repeat(np.arange(a, a + n), T)
+            tt = np.tile(np.arange(T), n)
+            s = tuple(x[rr] for x in setup)
+            h = woop_hit(om[rr], s, v[tt, 0], v[tt, 1], v[tt, 2], tm[rays[rr]])
+            occ[rays[sl]] |= h.reshape(n, T).any(axis=1)
+    return occ

@@ -1,0 +1,106 @@
+"""Render settings: the one value object the CLI, Blender properties and benchmarks all build."""
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import asdict, dataclass, fields, replace
+
+MODES = ("raytrace", "shadowmap", "none")
+QUALITIES = ("high", "medium", "low")
+QUALITY_SCALE = {"high": 1, "medium": 2, "low": 4}  # mask resolution = full / scale
+UPSAMPLE_FILTERS = ("bilateral", "nearest")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """How shadows are made.
+
+    - ``mode``: ``raytrace`` (rays through the grid), ``shadowmap`` or ``none`` (all lit).
+    - ``quality``: mask resolution ``high`` = full, ``medium`` = 1/2, ``low`` = 1/4 per side;
+      lower-resolution masks are upsampled edge-aware to full resolution.
+    - ``max_distance``: shadows only within this camera distance in metres (0 = no limit).
+    - ``max_shadowed_lights``: shadow only the nearest N shadow-casting lights (suns always
+      count first); ``None`` = all.
+    - ``interlace``: ray interlacing (a quarter of the mask's rays per frame).
+    - ``shadowmap_size``: texels per side of each shadow map (cube face for point lights).
+    - ``pcf``: PCF kernel radius in shadow-map texels (0 = one tap).
+    - ``shadow_bias``: constant depth bias in shadow-map texels; ``slope_bias``: slope-scaled
+      factor; ``normal_offset``: receiver offset along the normal, in texels.
+    - ``upsample``: ``bilateral`` (depth/normal aware) or ``nearest`` (the thesis' blocky look).
+    """
+
+    mode: str = "raytrace"
+    quality: str = "high"
+    max_distance: float = 0.0
+    max_shadowed_lights: int | None = None
+    interlace: bool = False
+    shadowmap_size: int = 2048
+    pcf: int = 1
+    shadow_bias: float = 1.0
+    slope_bias: float = 2.0
+    normal_offset: float = 1.5
+    upsample: str = "bilateral"
+    specular: bool = True
+
+    def __post_init__(self):
+        self.validate()
+
+    # -- derived -------------------------------------------------------------------------------
+    @property
+    def mask_scale(self) -> int:
+        """Divisor of the full resolution for the shadow masks: 1, 2 or 4."""
+        return QUALITY_SCALE[self.quality]
+
+    def mask_size(self, width: int, height: int) -> tuple[int, int]:
+        s = self.mask_scale
+        return max(1, -(-int(width) // s)), max(1, -(-int(height) // s))
+
+    def replace(self, **changes) -> "Settings":
+        return replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Settings":
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ValueError(f"unknown setting(s): {', '.join(unknown)} (known: {', '.join(sorted(names))})")
+        return cls(**d)
+
+    # -- validation ------------------------------------------------------------------------------
+    def validate(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {', '.join(MODES)}, not {self.mode!r}")
+        if self.quality not in QUALITIES:
+            raise ValueError(f"quality must be one of {', '.join(QUALITIES)}, not {self.quality!r}")
+        if self.upsample not in UPSAMPLE_FILTERS:
+            raise ValueError(f"upsample must be one of {', '.join(UPSAMPLE_FILTERS)}, not {self.upsample!r}")
+        _number(self.max_distance, "max_distance", low=0.0)
+        if self.max_shadowed_lights is not None:
+            _integer(self.max_shadowed_lights, "max_shadowed_lights (or None for all)", low=0)
+        if not isinstance(self.interlace, bool):
+            raise ValueError(f"interlace must be True or False, not {self.interlace!r}")
+        if not isinstance(self.specular, bool):
+            raise ValueError(f"specular must be True or False, not {self.specular!r}")
+        _integer(self.shadowmap_size, "shadowmap_size", low=16, high=16384)
+        _integer(self.pcf, "pcf", low=0, high=8)
+        _number(self.shadow_bias, "shadow_bias", low=0.0)
+        _number(self.slope_bias, "slope_bias", low=0.0)
+        _number(self.normal_offset, "normal_offset", low=0.0)
+
+
+def _integer(v, name, low=None, high=None):
+    if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+        raise ValueError(f"{name} must be an integer, not {v!r}")
+    if (low is not None and v < low) or (high is not None and v > high):
+        rng = f"at least {low}" if high is None else f"between {low} and {high}"
+        raise ValueError(f"{name} must be {rng}, not {v}")
+
+
+def _number(v, name, low=None):
+    if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
+        raise ValueError(f"{name} must be a finite number, not {v!r}")
+    if low is not None and v < low:
+        raise ValueError(f"{name} must be at least {low}, not {v}")

@@ -1,0 +1,115 @@
+// Pass 1: the G-buffer. One instanced draw per model (triangles), or per sphere-primitive
+// batch (define SPHERE: a box proxy around the model's bounding sphere, ray/ellipsoid in the
+// fragment shader).
+//
+// The world position is NOT the interpolated vertex position: each fragment intersects its
+// pixel-centre camera ray with the triangle's plane (camera-relative float32), which matches
+// Cycles' position pass to a few ULPs. Normals are flat face normals (the triangle's plane).
+#include "common/camera.glsl"
+
+#ifdef VERTEX_SHADER
+layout(location = 0) in vec3 in_pos;          // model space (de-indexed: 3 per triangle)
+layout(location = 1) in vec3 in_face_normal;  // model space, unit (zero if degenerate)
+// per instance
+in vec4 in_m0; in vec4 in_m1; in vec4 in_m2;  // rows of the camera-relative world matrix
+in vec3 in_n0; in vec3 in_n1; in vec3 in_n2;  // rows of the normal matrix (inverse transpose)
+in vec4 in_color;
+in vec3 in_material;                          // specular, roughness, instance index
+#ifdef SPHERE
+in vec4 in_i0; in vec4 in_i1; in vec4 in_i2;  // rows of the inverse world matrix (camera-relative)
+in vec4 in_sphere;                            // model-space bounding sphere: centre, radius
+flat out vec4 v_i0; flat out vec4 v_i1; flat out vec4 v_i2;
+flat out vec4 v_sphere;
+#endif
+
+flat out vec3 v_plane_point;   // a point of the triangle (the provoking vertex), camera-relative
+flat out vec3 v_normal;        // world face normal (unnormalised)
+flat out vec4 v_color;
+flat out vec3 v_material;
+flat out vec3 v_n0; flat out vec3 v_n1; flat out vec3 v_n2;
+out vec3 v_rel;                // interpolated camera-relative position (fallback)
+
+void main() {
+    vec4 p = vec4(in_pos, 1.0);
+#ifdef SPHERE
+    p.xyz = in_sphere.xyz + in_pos * in_sphere.w;   // unit cube corners -> box around the sphere
+    v_i0 = in_i0; v_i1 = in_i1; v_i2 = in_i2; v_sphere = in_sphere;
+#endif
+    vec3 rel = vec3(dot(in_m0, p), dot(in_m1, p), dot(in_m2, p));
+    v_rel = rel;
+    v_plane_point = rel;
+    v_normal = vec3(dot(in_n0, in_face_normal), dot(in_n1, in_face_normal), dot(in_n2, in_face_normal));
+    v_n0 = in_n0; v_n1 = in_n1; v_n2 = in_n2;
+    v_color = in_color;
+    v_material = in_material;
+    gl_Position = u_clip_from_rel * vec4(rel, 1.0);
+}
+#endif
+
+#ifdef FRAGMENT_SHADER
+flat in vec3 v_plane_point;
+flat in vec3 v_normal;
+flat in vec4 v_color;
+flat in vec3 v_material;
+flat in vec3 v_n0; flat in vec3 v_n1; flat in vec3 v_n2;
+in vec3 v_rel;
+#ifdef SPHERE
+flat in vec4 v_i0; flat in vec4 v_i1; flat in vec4 v_i2;
+flat in vec4 v_sphere;
+#endif
+
+layout(location = 0) out vec4 o_position;   // world xyz, w = 1
+layout(location = 1) out vec4 o_normal;     // geometric normal (unit, facing the camera), w = 1
+layout(location = 2) out vec4 o_shading;    // shading normal, w = 1
+layout(location = 3) out vec4 o_albedo;     // linear base colour
+layout(location = 4) out vec4 o_material;   // specular, roughness, instance index, 1
+layout(location = 5) out vec4 o_depth;      // r: view depth (metres along the view axis)
+
+void main() {
+    vec3 ro, rd;
+    camera_ray(gl_FragCoord.xy, ro, rd);
+    vec3 p;
+    vec3 n;
+#ifdef SPHERE
+    // ray into model space, intersect the bounding sphere there (an ellipsoid in the world)
+    vec3 mo = vec3(dot(v_i0, vec4(ro, 1.0)), dot(v_i1, vec4(ro, 1.0)), dot(v_i2, vec4(ro, 1.0)));
+    vec3 md = vec3(dot(v_i0.xyz, rd), dot(v_i1.xyz, rd), dot(v_i2.xyz, rd));
+    vec3 f = mo - v_sphere.xyz;
+    float a = dot(md, md);
+    float b = -dot(f, md) / a;                    // t of the closest approach
+    vec3 perp = f + b * md;
+    float r2 = v_sphere.w * v_sphere.w;
+    float disc = r2 - dot(perp, perp);
+    if (disc < 0.0) discard;
+    float t = b - sqrt(disc / a);
+    if (t < 0.0) t = b + sqrt(disc / a);         // camera inside the sphere
+    if (t < 0.0) discard;
+    p = ro + t * rd;
+    vec3 nm = (mo + t * md) - v_sphere.xyz;
+    n = vec3(dot(v_n0, nm), dot(v_n1, nm), dot(v_n2, nm));
+    vec4 clip = u_clip_from_rel * vec4(p, 1.0);
+    float zndc = clip.z / clip.w;
+    if (zndc < -1.0 || zndc > 1.0) discard;
+    gl_FragDepth = 0.5 * zndc + 0.5;
+#else
+    n = v_normal;
+    float denom = dot(n, rd);
+    p = v_rel;
+    if (abs(denom) > 1e-12 * length(n) * length(rd)) {
+        float t = dot(n, v_plane_point - ro) / denom;
+        vec3 q = ro + t * rd;
+        // keep the plane hit unless it is far off the rasterised point (grazing triangles)
+        if (t > 0.0 && length(q - v_rel) < 1e-2 * length(v_rel) + 1e-6) p = q;
+    }
+#endif
+    float len = length(n);
+    n = len > 0.0 ? n / len : -normalize(rd);
+    if (dot(n, rd) > 0.0) n = -n;                // face the camera (Cycles flips back faces)
+    o_position = vec4(u_cam_pos + p, 1.0);
+    o_normal = vec4(n, 1.0);
+    o_shading = vec4(n, 1.0);
+    o_albedo = v_color;
+    o_material = vec4(v_material, 1.0);
+    o_depth = vec4(view_depth(p), 0.0, 0.0, 1.0);
+}
+#endif

@@ -1,0 +1,62 @@
+// Pass 3: deferred lighting. Batch 0 writes ambient (albedo x world colour), every unmasked
+// light and up to 8 masked lights; further batches add 8 masked lights each (additive blend).
+#include "common/camera.glsl"
+#include "common/gbuffer.glsl"
+#include "common/lights.glsl"
+
+#ifdef VERTEX_SHADER
+#include "common/fullscreen.glsl"
+#endif
+
+#ifdef FRAGMENT_SHADER
+#define MAX_MASKS 8
+uniform int u_unmasked_begin;
+uniform int u_unmasked_end;
+uniform int u_masked_count;
+uniform int u_masked_rows[MAX_MASKS];
+uniform sampler2D u_masks[MAX_MASKS];
+uniform vec3 u_world_color;
+uniform int u_first_batch;
+uniform int u_specular;
+uniform int u_transparent;
+layout(location = 0) out vec4 o_color;
+
+float mask_at(int k, ivec2 pix) {
+    ivec2 size = textureSize(u_masks[k], 0);
+    ivec2 full = ivec2(u_resolution);
+    ivec2 q = (size == full) ? pix : min(pix * size / full, size - 1);
+    return texelFetch(u_masks[k], q, 0).r;
+}
+
+void main() {
+    ivec2 pix = ivec2(gl_FragCoord.xy);
+    vec4 pos = texelFetch(u_gb_position, pix, 0);
+    if (pos.w < 0.5) {
+        o_color = (u_first_batch == 1 && u_transparent == 0) ? vec4(u_world_color, 1.0) : vec4(0.0);
+        return;
+    }
+    vec3 p = pos.xyz;
+    vec3 n = texelFetch(u_gb_shading, pix, 0).xyz;
+    vec3 albedo = texelFetch(u_gb_albedo, pix, 0).rgb;
+    vec2 mat = texelFetch(u_gb_material, pix, 0).xy;
+    vec3 v = view_vector(p);
+    vec3 c = vec3(0.0);
+    if (u_first_batch == 1) {
+        c = albedo * u_world_color;
+        for (int r = u_unmasked_begin; r < u_unmasked_end; ++r) {
+            vec3 l;
+            vec3 e = light_incident(r, p, l);
+            c += e * brdf_cos(n, l, v, albedo, mat.x, mat.y, u_specular);
+        }
+    }
+    for (int k = 0; k < MAX_MASKS; ++k) {
+        if (k >= u_masked_count) break;
+        float m = mask_at(k, pix);
+        if (m <= 0.0) continue;
+        vec3 l;
+        vec3 e = light_incident(u_masked_rows[k], p, l);
+        c += m * e * brdf_cos(n, l, v, albedo, mat.x, mat.y, u_specular);
+    }
+    o_color = vec4(c, u_first_batch == 1 ? 1.0 : 0.0);
+}
+#endif

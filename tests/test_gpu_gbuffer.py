@@ -1,0 +1,73 @@
+"""G-buffer positions/normals against an exact float64 ray cast of Camera.pixel_rays."""
+import numpy as np
+import pytest
+
+from hybrid_shadow_addon.core.gpu.passes.gbuffer import GBufferPass
+from hybrid_shadow_addon.core.gpu.programs import ProgramCache
+from test_gpu_scenes import basic_scene, interior, ray_cast, trs
+
+W, H = 160, 120
+
+
+@pytest.fixture(scope="module")
+def gpass(gl_ctx):
+    return GBufferPass(gl_ctx, ProgramCache(gl_ctx))
+
+
+@pytest.mark.parametrize("camera_type,offset", [("PERSP", (0, 0, 0)), ("ORTHO", (0, 0, 0)),
+                                                ("PERSP", (3000.0, -2000.0, 150.0))])
+def test_positions_match_exact_ray_cast(gpass, camera_type, offset):
+    scene = basic_scene(offset=offset, camera_type=camera_type, with_sphere=True)
+    gb = gpass.render(scene, W, H)
+    pos = gb.read("position")
+    nrm = gb.read("normal")
+    mat = gb.read("material")
+    depth = gb.read("depth")
+    o, d = scene.camera.pixel_rays(W, H)
+    t, inst, face = ray_cast(scene, o, d)
+    hit = np.isfinite(t)
+    cov = pos[..., 3] > 0.5
+    ok = interior(np.where(hit, face, -10**6))
+    # coverage agrees away from silhouettes
+    assert (cov == hit)[ok].all()
+    assert ((cov != hit).sum()) < 0.01 * W * H
+    sel = ok & hit
+    assert sel.sum() > 0.5 * W * H
+    ref = o + t[..., None] * d
+    dist = np.linalg.norm(ref - scene.camera.world_matrix_normalized()[:3, 3], axis=-1)
+    err = np.linalg.norm(pos[..., :3].astype(np.float64) - ref, axis=-1)
+    # float32 storage of world coordinates far from the origin costs ~1 ULP of |p|
+    tol = 1e-6 * dist + 2 * np.spacing(np.float32(np.abs(ref[sel]).max()))
+    assert (err[sel] < tol[sel]).all(), ((err - tol)[sel].max(), (err[sel] / dist[sel]).max())
+    assert (err[sel] / dist[sel]).max() < 1e-4
+    # instance index and face normals
+    assert (mat[..., 2][sel].round().astype(int) == inst[sel]).all()
+    assert (mat[..., 2][~cov] == 0).all() and (pos[~cov] == 0).all()
+    # normals: unit, facing the camera, perpendicular to the hit triangle
+    n = nrm[..., :3]
+    assert np.allclose(np.linalg.norm(n[cov], axis=-1), 1, atol=1e-5)
+    assert ((n * d).sum(-1)[sel] < 0).all()
+    # view depth
+    cam = scene.camera.world_matrix_normalized()
+    ref_depth = -((ref - cam[:3, 3]) @ cam[:3, 2])
+    assert np.allclose(depth[sel], ref_depth[sel], rtol=1e-5, atol=1e-4)
+    assert (depth[~cov] == 0).all()
+    # albedo follows the instance colours
+    alb = gb.read("albedo")
+    assert np.allclose(alb[sel], scene.instances.base_color[inst[sel]], atol=2e-3)
+
+
+def test_top_row_is_top_and_moving_reuses_model_buffers(gpass):
+    scene = basic_scene()
+    gb = gpass.render(scene, W, H)
+    pos = gb.read("position")
+    # the camera looks down: the bottom rows are the ground nearest the camera
+    cov = pos[..., 3] > 0.5
+    assert cov[-1].all()
+    vbos = gpass.models.buffer_ids()
+    scene.instances.set_matrices([1], trs((1.0, 1.0, 1.0))[None])
+    gb = gpass.render(scene, W, H)
+    assert gpass.models.buffer_ids() == vbos
+    assert gpass.draw_calls == 2  # one per model
+    pos2 = gb.read("position")
+    assert not np.array_equal(pos, pos2)

@@ -1,0 +1,161 @@
+"""Lighting pass against the numpy reference; sRGB/PNG output; edge-aware upsample; settings."""
+import struct
+import zlib
+
+import numpy as np
+import pytest
+
+from hybrid_shadow_addon.core import lighting_reference
+from hybrid_shadow_addon.core.gpu.passes import (LightingPass, NoShadowPass, UpsamplePass, create_mask_texture,
+                                                 mask_source_pixels, read_mask, to_srgb8, write_png)
+from hybrid_shadow_addon.core.gpu.passes.gbuffer import GBufferPass
+from hybrid_shadow_addon.core.gpu.passes.shadowmap import ShadowMapPass
+from hybrid_shadow_addon.core.gpu.programs import ProgramCache
+from hybrid_shadow_addon.core.scene import Light
+from hybrid_shadow_addon.core.settings import Settings
+from test_gpu_scenes import basic_scene, interior
+from test_gpu_shadowmap import all_lights
+
+W, H = 160, 120
+
+
+@pytest.fixture(scope="module")
+def rig(gl_ctx):
+    progs = ProgramCache(gl_ctx)
+    g = GBufferPass(gl_ctx, progs)
+    return dict(ctx=gl_ctx, progs=progs, g=g, s=ShadowMapPass(gl_ctx, progs, g.models), n=NoShadowPass(gl_ctx),
+                l=LightingPass(gl_ctx, progs), u=UpsamplePass(gl_ctx, progs))
+
+
+def gbuffer_arrays(gb):
+    return {k: gb.read(k) for k in ("position", "shading_normal", "albedo", "material")}
+
+
+def assert_close(img, ref, tol=1e-3):
+    err = np.abs(img.astype(np.float64) - ref) / np.maximum(1.0, np.abs(ref))
+    assert err.max() < tol, (err.max(), np.unravel_index(err.argmax(), err.shape))
+
+
+@pytest.mark.parametrize("camera_type", ["PERSP", "ORTHO"])
+def test_none_mode_matches_numpy(rig, camera_type):
+    lights = all_lights()
+    lights[2].spot_blend = 0.4
+    lights[1].color = np.float32([1.0, 0.6, 0.3])
+    scene = basic_scene(lights=lights, camera_type=camera_type, with_sphere=True)
+    gb = rig["g"].render(scene, W, H)
+    masks = rig["n"].render(scene, gb, Settings(mode="none"))
+    rig["l"].render(scene, gb, masks)
+    img = rig["l"].read()
+    ref = lighting_reference.shade(scene, gbuffer_arrays(gb))
+    assert_close(img, ref)
+    assert img[..., :3].max() > 0.05  # really lit
+    # no masks at all gives the same picture
+    rig["l"].render(scene, gb, None)
+    assert_close(rig["l"].read(), ref)
+
+
+def test_each_light_type_alone_and_masks_multiply(rig):
+    for i, light in enumerate(all_lights()):
+        light.spot_blend = 0.0 if light.type == "SPOT" else light.spot_blend
+        scene = basic_scene(lights=[light])
+        gb = rig["g"].render(scene, W, H)
+        rig["l"].render(scene, gb, None, Settings(specular=False))
+        img = rig["l"].read()
+        ref = lighting_reference.shade(scene, gbuffer_arrays(gb), use_specular=False)
+        assert_close(img, ref)
+        ambient = lighting_reference.shade(scene.__class__(**{**scene.__dict__, "lights": []}), gbuffer_arrays(gb))
+        assert (img[..., :3] - ambient[..., :3]).max() > 0.02, light.type
+    # shadow-map masks: GPU lighting with masks == numpy lighting with the same masks read back
+    scene = basic_scene(lights=all_lights())
+    gb = rig["g"].render(scene, W, H)
+    masks = rig["s"].render(scene, gb, Settings(mode="shadowmap", shadowmap_size=512))
+    rig["l"].render(scene, gb, masks)
+    arrays = {k: read_mask(v) for k, v in masks.items()}
+    ref = lighting_reference.shade(scene, gbuffer_arrays(gb), arrays)
+    assert_close(rig["l"].read(), ref)
+
+
+def test_more_masked_lights_than_one_batch(rig):
+    lights = [Light(f"p{i}", "POINT", power=40.0 + 5 * i, matrix=np.eye(4)) for i in range(11)]
+    for i, light in enumerate(lights):
+        light.matrix[:3, 3] = (np.cos(i), np.sin(i), 3.0 + 0.1 * i)
+    scene = basic_scene(lights=lights)
+    gb = rig["g"].render(scene, W, H)
+    rng = np.random.default_rng(1)
+    mask_arrays = {i: rng.random((H, W)).astype(np.float32) for i in range(0, 11, 1) if i != 4}
+    masks = {}
+    for i, a in mask_arrays.items():
+        t = create_mask_texture(rig["ctx"], W, H)
+        t.write(np.ascontiguousarray(a[::-1]).tobytes())  # numpy top row -> GL top row
+        masks[i] = t
+    rig["l"].render(scene, gb, masks)
+    assert rig["l"].batches == 2
+    ref = lighting_reference.shade(scene, gbuffer_arrays(gb), mask_arrays)
+    assert_close(rig["l"].read(), ref)
+    for t in masks.values():
+        t.release()
+
+
+def test_srgb_and_png(tmp_path):
+    x = np.array([[[0.0, 0.0031308, 0.5, 1.0], [2.0, -1.0, np.nan, 0.5]]], np.float32)
+    out = to_srgb8(x)
+    assert out.dtype == np.uint8 and out.shape == (1, 2, 4)
+    assert list(out[0, 0, :3]) == [0, 10, 188] and out[0, 0, 3] == 255
+    assert list(out[0, 1, :3]) == [255, 0, 0] and out[0, 1, 3] == 128
+    img = np.random.default_rng(0).integers(0, 256, (5, 7, 4), dtype=np.uint8)
+    p = tmp_path / "x.png"
+    write_png(p, img)
+    data = p.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    w, h = struct.unpack(">II", data[16:24])
+    assert (w, h) == (7, 5)
+    n = struct.unpack(">I", data[33:37])[0]
+    raw = np.frombuffer(zlib.decompress(data[41:41 + n]), np.uint8).reshape(5, 1 + 7 * 4)
+    assert np.array_equal(raw[:, 1:].reshape(5, 7, 4), img)
+
+
+@pytest.mark.parametrize("quality", ["medium", "low"])
+def test_edge_aware_upsample_beats_nearest(rig, quality):
+    """A low-res mask sampled from an exact full-res mask: the bilateral upsample reproduces the
+    full-res mask better than nearest, especially across geometric edges."""
+    scene = basic_scene(lights=all_lights()[:1], with_sphere=True)
+    gb = rig["g"].render(scene, W, H)
+    settings = Settings(mode="shadowmap", quality=quality, shadowmap_size=1024, pcf=0)
+    full = read_mask(rig["s"].render(scene, gb, settings)[0])
+    mw, mh = settings.mask_size(W, H)
+    rows, cols = mask_source_pixels((mw, mh), (W, H), settings.mask_scale)
+    assert rows.shape == (mh, mw)
+    low = full[rows, cols].astype(np.float32)
+    tex = create_mask_texture(rig["ctx"], mw, mh)
+    tex.write(np.ascontiguousarray(low[::-1]).tobytes())
+    cov = gb.coverage()
+    # read_mask maps a reduced mask onto its source pixels' coverage
+    assert np.array_equal(np.isnan(read_mask(tex, gb)), ~cov[rows, cols])
+    up = read_mask(rig["u"].render({0: tex}, gb, settings)[0], gb)
+    near = read_mask(rig["u"].render({0: tex}, gb, settings.replace(upsample="nearest"))[0], gb)
+    inst = gb.read("material")[..., 2]
+    edges = cov & ~interior(np.where(cov, inst, -1))
+    err_up = np.abs(up - full)[cov]
+    err_near = np.abs(near - full)[cov]
+    assert err_up.mean() < 1.3 * err_near.mean()  # a blend vs a hard edge: no worse overall
+    assert np.abs(up - full)[edges].mean() < 0.9 * np.abs(near - full)[edges].mean()
+    assert np.isnan(up[~cov]).all()
+    tex.release()
+
+
+def test_settings_validation():
+    s = Settings()
+    assert s.mode == "raytrace" and s.mask_scale == 1 and s.max_shadowed_lights is None
+    assert Settings(quality="low").mask_size(641, 361) == (161, 91)
+    assert Settings.from_dict({"mode": "none", "pcf": 2}).pcf == 2
+    bad = [dict(mode="fast"), dict(quality="ultra"), dict(max_distance=-1.0), dict(max_distance=float("nan")),
+           dict(max_shadowed_lights=-1), dict(max_shadowed_lights=1.5), dict(interlace="yes"),
+           dict(shadowmap_size=8), dict(pcf=-1), dict(upsample="cubic")]
+    for kw in bad:
+        with pytest.raises(ValueError) as ei:
+            Settings(**kw)
+        assert list(kw)[0] in str(ei.value) and "\n" not in str(ei.value)
+    with pytest.raises(ValueError, match="unknown setting"):
+        Settings.from_dict({"modes": "none"})
+    with pytest.raises(Exception):
+        s.mode = "none"  # frozen

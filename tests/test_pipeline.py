@@ -1,0 +1,195 @@
+"""The whole pipeline on the test scenes: the GLSL ray-traced masks against the numpy reference
+tracer fed the same G-buffer origins; shadow maps against rays away from shadow edges;
+interlacing; incremental updates; what the shader variants compile."""
+import numpy as np
+import pytest
+
+from hybrid_shadow_addon.core.bake import bake_scene
+from hybrid_shadow_addon.core.gpu.passes.raytrace import shadow_rays
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.reference import trace_structured
+from hybrid_shadow_addon.core.settings import Settings
+
+W, H = 160, 120
+SAMPLES_PER_LIGHT = 1500  # the numpy tracer is the slow side: compare a seeded sample of pixels
+
+SCENES = {
+    "cube_on_plane": "cube_on_plane",
+    "forest": "forest",
+    "clusters": "clusters",
+    "city": "city:blocks=4",
+    "scaling": "scaling:triangles=20000,instances=200",
+}
+
+
+@pytest.fixture(scope="module")
+def pipeline(gl_ctx):
+    p = Pipeline(gl_ctx)
+    yield p
+    p.release()
+
+
+@pytest.fixture(scope="module")
+def loaded():
+    from hybrid_shadow_addon.blender.load import load_scene
+
+    cache = {}
+
+    def get(name):
+        if name not in cache:
+            cache[name] = load_scene(SCENES[name])
+        return cache[name]
+
+    return get
+
+
+def reference_mask(frame, scene, baked, li, pixels):
+    """The numpy tracer's verdict at (rows, cols): 1 lit, 0 shadowed (or facing away)."""
+    rows, cols = pixels
+    gb = frame.gbuffer
+    pos = gb.read("position")[rows, cols, :3]
+    nrm = gb.read("normal")[rows, cols, :3]
+    depth = gb.read("depth")[rows, cols]
+    o, d, tmax, facing = shadow_rays(pos, nrm, depth, scene.lights[li])
+    out = np.zeros(len(o), np.float32)
+    if facing.any():
+        occ = trace_structured(baked, o[facing], d[facing], tmax[facing])
+        out[facing] = np.where(occ, 0.0, 1.0)
+    return out
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_glsl_masks_equal_numpy_reference(name, pipeline, loaded):
+    scene = loaded(name)
+    pipeline.set_scene(scene)
+    frame = pipeline.render(scene, Settings(mode="raytrace"), W, H)
+    assert frame.lights, "every test scene has shadowed lights"
+    rng = np.random.default_rng(7)
+    total = mismatched = 0
+    for li in frame.lights:
+        mask = frame.mask_array(li)
+        valid = np.argwhere(~np.isnan(mask))
+        pick = valid[rng.choice(len(valid), min(SAMPLES_PER_LIGHT, len(valid)), replace=False)]
+        pixels = (pick[:, 0], pick[:, 1])
+        ref = reference_mask(frame, scene, pipeline.baked, li, pixels)
+        got = mask[pixels]
+        assert set(np.unique(got)) <= {0.0, 1.0}
+        total += len(ref)
+        mismatched += int((ref != got).sum())
+    assert total > 0
+    assert mismatched <= 0.001 * total, f"{name}: {mismatched} of {total} samples differ"
+
+
+def edge_distance_mask(mask: np.ndarray, radius: int) -> np.ndarray:
+    """True where a pixel is more than ``radius`` pixels from any change of the mask (or NaN)."""
+    m = np.nan_to_num(mask, nan=-1.0)
+    far = np.ones(m.shape, bool)
+    pad = np.pad(m, radius, mode="edge")
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            shifted = pad[radius + dy:radius + dy + m.shape[0], radius + dx:radius + dx + m.shape[1]]
+            far &= shifted == m
+    return far & ~np.isnan(mask)
+
+
+def lit_region(frame, light) -> np.ndarray:
+    """Pixels the light reaches at all: inside a spot's cone (elsewhere a mask means nothing)."""
+    pos = frame.gbuffer.read("position")[..., :3].astype(np.float64)
+    if light.type != "SPOT":
+        return np.ones(pos.shape[:2], bool)
+    v = pos - light.position
+    cos = (v @ light.direction) / np.maximum(np.linalg.norm(v, axis=-1), 1e-12)
+    return cos > np.cos(light.spot_size / 2)
+
+
+@pytest.mark.parametrize("name", ["cube_on_plane", "forest", "city"])
+def test_shadowmap_agrees_with_rays_away_from_edges(name, pipeline, loaded):
+    scene = loaded(name)
+    pipeline.set_scene(scene)
+    rt = pipeline.render(scene, Settings(mode="raytrace"), W, H)
+    rays = {li: rt.mask_array(li) for li in rt.lights}
+    sm = pipeline.render(scene, Settings(mode="shadowmap", shadowmap_size=2048), W, H)
+    for li in sm.lights:
+        far = edge_distance_mask(rays[li], 3) & lit_region(sm, scene.lights[li])
+        if far.sum() < 50:  # (a spot aimed outside the view)
+            continue
+        got = sm.mask_array(li)[far]
+        agree = (np.abs(got - rays[li][far]) < 0.5).mean()
+        assert agree >= 0.98, f"{name} light {scene.lights[li].name}: {agree:.4f}"
+
+
+def test_quality_levels_and_upsample(pipeline, loaded):
+    scene = loaded("cube_on_plane")
+    pipeline.set_scene(scene)
+    full = pipeline.render(scene, Settings(mode="raytrace", quality="high"), W, H)
+    ref = full.mask_array(full.lights[0])
+    for quality, floor in (("medium", 0.97), ("low", 0.93)):
+        frame = pipeline.render(scene, Settings(mode="raytrace", quality=quality), W, H)
+        assert frame.stats["mask_resolution"] == list(Settings(quality=quality).mask_size(W, H))
+        m = frame.mask_array(frame.lights[0])
+        assert m.shape == (H, W)
+        ok = ~np.isnan(ref) & ~np.isnan(m)
+        assert (np.abs(m[ok] - ref[ok]) < 0.5).mean() >= floor
+
+
+def test_interlacing_converges_and_never_keeps_stale_shadows(pipeline, loaded):
+    scene = loaded("cube_on_plane")
+    pipeline.set_scene(scene)
+    exact = pipeline.render(scene, Settings(mode="raytrace"), W, H)
+    exact_mask = exact.mask_array(exact.lights[0])
+    inter = Settings(mode="raytrace", interlace=True)
+    pipeline.reset_history()
+    for _ in range(4):
+        frame = pipeline.render(scene, inter, W, H)
+    np.testing.assert_array_equal(frame.mask_array(frame.lights[0]), exact_mask)
+
+    # move the cube far away: the next interlaced frame must not show its old shadow anywhere
+    cube = scene.instances.names.index("Cube")
+    old = scene.instances.matrices[cube].copy()
+    moved = old.copy()
+    moved[:3, 3] += (0.0, 0.0, 500.0)
+    scene.instances.set_matrices([cube], moved)
+    pipeline.move_instances(scene, [cube])
+    first = pipeline.render(scene, inter, W, H).mask_array(exact.lights[0])
+    valid = ~np.isnan(first)
+    assert (first[valid] == 1.0).all(), "a stale shadow survived the move"
+    scene.instances.set_matrices([cube], old)
+    pipeline.move_instances(scene, [cube])
+
+
+def test_incremental_move_equals_fresh_bake(pipeline, loaded, gl_ctx):
+    scene = loaded("forest")
+    pipeline.set_scene(scene)
+    rng = np.random.default_rng(3)
+    idx = rng.choice(len(scene.instances), 20, replace=False)
+    before = scene.instances.matrices[idx].copy()
+    m = before.copy()
+    m[:, :3, 3] += rng.uniform(-15, 15, (20, 3)) * (1, 1, 0)
+    scene.instances.set_matrices(idx, m)
+    try:
+        pipeline.move_instances(scene, idx)
+        inc = pipeline.render(scene, Settings(mode="raytrace"), W, H)
+        inc_masks = {li: inc.mask_array(li) for li in inc.lights}
+        fresh = Pipeline(gl_ctx)
+        fresh.set_scene(scene)
+        full = fresh.render(scene, Settings(mode="raytrace"), W, H)
+        for li in full.lights:
+            np.testing.assert_array_equal(inc_masks[li], full.mask_array(li))
+        fresh.release()
+    finally:
+        scene.instances.set_matrices(idx, before)
+        pipeline.set_scene(scene)
+
+
+def test_shader_variants_hold_only_what_the_scene_needs(pipeline, loaded):
+    scene = loaded("cube_on_plane")  # one sun, meshes only
+    pipeline.set_scene(scene)
+    frame = pipeline.render(scene, Settings(mode="raytrace"), W, H)
+    defines = set(frame.stats["defines"])
+    assert "HS_LIGHT_SUN=1" in defines and "HS_HAS_MESHES=1" in defines
+    assert not any(d.startswith(("HS_LIGHT_LOCAL", "HS_HAS_SPHERES", "HS_MAX_DISTANCE", "HS_INTERLACE"))
+                   for d in defines)
+    frame = pipeline.render(scene, Settings(mode="raytrace", max_distance=5.0), W, H)
+    assert "HS_MAX_DISTANCE=1" in frame.stats["defines"]
+    forest = loaded("forest")
+    assert "HS_HAS_SPHERES" in bake_scene(forest).defines
