@@ -100,8 +100,8 @@ def add_camera(scene, location, target, lens=35.0, clip=(0.1, 1000.0)):
 # Meshes from numpy arrays
 # --------------------------------------------------------------------------------------------
 def mesh(name, verts, loops, sizes=None, materials=()):
-    """A mesh from vertices (V, 3) and polygons: ``loops`` (F, k) for k-gons only, or flat
-    vertex indices with per-polygon ``sizes``."""
+    """A flat-shaded mesh from vertices (V, 3) and polygons: ``loops`` (F, k) for k-gons only,
+    or flat vertex indices with per-polygon ``sizes``."""
     verts = np.asarray(verts, np.float32).reshape(-1, 3)
     loops = np.asarray(loops, np.int32)
     if sizes is None:
@@ -115,6 +115,9 @@ def mesh(name, verts, loops, sizes=None, materials=()):
     me.loops.foreach_set("vertex_index", loops)
     me.polygons.add(len(sizes))
     me.polygons.foreach_set("loop_start", np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int32))
+    # flat shading (Blender >= 4.1 makes new faces smooth): the renderer shades with face
+    # normals, so Cycles must too for the comparison to measure shadows, not shading
+    me.polygons.foreach_set("use_smooth", np.zeros(len(sizes), bool))
     me.update(calc_edges=True)
     for mat in materials:
         me.materials.append(mat)
