@@ -91,6 +91,27 @@ def main():
           f"(target <= 5%); {rep.nodes_changed} grid nodes, {len(rep.ranges)} row ranges, "
           f"{rep.texels_changed(baked)} texels to re-upload, regrid={rep.regrid}")
 
+    print()
+    test_scene_table(args.repeat)
+
+
+def test_scene_table(repeat: int) -> None:
+    """Bake ms (best of ``repeat``) and texture MB of every built-in test scene."""
+    from hybrid_shadow_addon.blender.load import builtin_scenes, load_scene
+
+    print(f"{'scene':16s} {'instances':>9s} {'triangles':>10s} {'bake ms':>8s} {'textures MB':>12s}")
+    for name in builtin_scenes():
+        if "/" in name:
+            continue
+        scene = load_scene(name)
+        times = []
+        for _ in range(repeat):
+            t = time.perf_counter()
+            baked = bake_scene(scene)
+            times.append((time.perf_counter() - t) * 1e3)
+        print(f"{name:16s} {len(scene.instances):9d} {scene.triangle_count:10d} {min(times):8.1f} "
+              f"{baked.stats['total_bytes'] / 2**20:12.2f}")
+
 
 if __name__ == "__main__":
     main()
