@@ -9,6 +9,9 @@ setup:
 
 demo: setup
 	$(PY) -m hybrid_shadow_addon info forest
+	@mkdir -p out/demo
+	$(PY) -m hybrid_shadow_addon render forest --output out/demo/forest.png \
+		--masks-dir out/demo --stats out/demo/stats.json
 
 test: setup
 	$(PY) -m pytest -q tests
