@@ -12,6 +12,7 @@ demo: setup
 	@mkdir -p out/demo
 	$(PY) -m hybrid_shadow_addon render forest --output out/demo/forest.png \
 		--masks-dir out/demo --stats out/demo/stats.json
+	$(PY) tools/demo_blender.py
 
 test: setup
 	$(PY) -m pytest -q tests

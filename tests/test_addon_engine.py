@@ -56,6 +56,17 @@ def read_exr(path) -> dict:
 # ------------------------------------------------------------------------------------------------
 # The bpy side (runs in the subprocess)
 # ------------------------------------------------------------------------------------------------
+def engine_selectable(scene) -> bool:
+    """Registered engines are not in bpy.types: try selecting it (and restore)."""
+    old = scene.render.engine
+    try:
+        scene.render.engine = "HYBRID_SHADOWS"
+    except TypeError:
+        return False
+    scene.render.engine = old
+    return True
+
+
 def driver(out_dir: str, zip_path: str) -> None:
     sys.path.insert(0, str(REPO))
     import bpy
@@ -67,7 +78,7 @@ def driver(out_dir: str, zip_path: str) -> None:
     scene = open_scene(SCENE)  # factory settings first: they would reset the preferences
     bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
     report["enabled"] = EXT_MODULE in bpy.context.preferences.addons
-    report["engine_listed"] = any(getattr(e, "bl_idname", None) == "HYBRID_SHADOWS" for e in bpy.types.RenderEngine.__subclasses__())
+    report["engine_listed"] = engine_selectable(scene)
     try:
         scene.render.engine = "HYBRID_SHADOWS"
         vl = scene.view_layers[0]
@@ -100,11 +111,13 @@ def driver(out_dir: str, zip_path: str) -> None:
             report["error"] = str(exc)
     finally:
         bpy.ops.preferences.addon_disable(module=EXT_MODULE)
+    panel_names = ("RENDER_PT_hybrid_shadows", "RENDER_PT_hybrid_shadows_debug", "OBJECT_PT_hybrid_shadows",
+                   "DATA_PT_hybrid_shadows_light", "VIEWLAYER_PT_hybrid_shadows_passes")
     report["after_disable"] = {
-        "engine_listed": any(getattr(e, "bl_idname", None) == "HYBRID_SHADOWS" for e in bpy.types.RenderEngine.__subclasses__()),
+        "engine_listed": engine_selectable(scene),
         "scene_property": hasattr(bpy.types.Scene, "hybrid_shadows"),
         "object_property": hasattr(bpy.types.Object, "hybrid_sphere"),
-        "panels": [c.__name__ for c in bpy.types.Panel.__subclasses__() if "hybrid_shadows" in c.__name__],
+        "panels": [n for n in panel_names if hasattr(bpy.types, n)],
         "light_panel_compat": "HYBRID_SHADOWS" in DATA_PT_light.COMPAT_ENGINES,
     }
     (out / "report.json").write_text(json.dumps(report, indent=1))

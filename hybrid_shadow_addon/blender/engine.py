@@ -93,8 +93,10 @@ def create_pipeline():
 
 @contextlib.contextmanager
 def gl_scope(pipeline):
-    """Make ``pipeline``'s context current meanwhile; restore the previous one after."""
-    with pipeline.ctx:
+    """Make ``pipeline``'s context current meanwhile; restore the previous one after.
+    (moderngl's ``with ctx`` alone leaves *no* context current on exit, which breaks Blender's
+    drawing afterwards: measured with bpy 4.5 on EGL.)"""
+    with _EGLCurrent(), pipeline.ctx:
         yield pipeline
 
 

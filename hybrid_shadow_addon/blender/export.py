@@ -119,11 +119,42 @@ def world_color(world) -> np.ndarray:
     return np.array(world.color[:3], np.float32)
 
 
+def is_sphere_primitive(ob) -> bool:
+    """The object's "Sphere Primitive" setting: the add-on's property when registered, else the
+    ``hybrid_sphere`` custom property (scene scripts set that one)."""
+    value = getattr(ob, SPHERE_PROPERTY, None)
+    if value is None:
+        value = ob.get(SPHERE_PROPERTY, False)
+    return bool(value)
+
+
 def render_resolution(scene) -> tuple[int, int]:
     """The render size in pixels, as Blender computes it (integer percentage scaling)."""
     r = scene.render
     return (r.resolution_x * r.resolution_percentage // 100,
             r.resolution_y * r.resolution_percentage // 100)
+
+
+def export_lights(depsgraph) -> list:
+    """The render-visible lights of a depsgraph (what ``export_depsgraph`` would list), without
+    reading any geometry."""
+    ex = _Exporter(depsgraph)
+    lights = []
+    for inst in depsgraph.object_instances:
+        ob = inst.object
+        if ob.type != "LIGHT":
+            continue
+        if inst.is_instance:
+            parent = inst.parent
+            if not ex._renderable(parent.original):
+                continue
+            name = ob.name if ob.name == parent.name else f"{parent.name}/{ob.name}"
+        else:
+            if not ex._renderable(ob.original):
+                continue
+            name = ob.name
+        lights.append(export_light(ob, _matrix(inst.matrix_world), name))
+    return lights
 
 
 def export_light(ob, matrix: np.ndarray, name: str) -> Light:
@@ -270,7 +301,7 @@ class _Exporter:
                 if skey is not None:
                     self.surface_of[skey] = surface
             aid = len(self.attrs)
-            self.attrs.append((bool(ob.visible_shadow), bool(ob.get(SPHERE_PROPERTY, False))) + surface)
+            self.attrs.append((bool(ob.visible_shadow), is_sphere_primitive(ob)) + surface)
             self.attr_of[key] = aid
         return aid
 

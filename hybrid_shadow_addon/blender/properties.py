@@ -46,6 +46,12 @@ DEBUG_ITEMS = (
 )
 
 
+def _tag_object(ob, _context) -> None:
+    """A bpy.props property set on an object tags nothing by itself: tag the object so the
+    viewport's ``view_update`` sees the change (measured: no depsgraph update otherwise)."""
+    ob.update_tag(refresh={"OBJECT"})
+
+
 def _light_object_poll(_self, ob) -> bool:
     return ob.type == "LIGHT"
 
@@ -152,7 +158,7 @@ def register() -> None:
     bpy.types.ViewLayer.hybrid_shadows = PointerProperty(
         type=HybridShadowsViewLayerSettings, name="Hybrid Shadows", description="Hybrid Shadows render passes")
     bpy.types.Object.hybrid_sphere = BoolProperty(
-        name="Sphere Primitive", default=False,
+        name="Sphere Primitive", default=False, update=_tag_object,
         description="Trace this object as an analytic sphere (its mesh's bounding sphere) instead of its triangles")
 
 

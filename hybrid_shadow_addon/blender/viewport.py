@@ -45,33 +45,11 @@ class UpdatePlan:
         self.reasons.append(why)
 
 
-def export_lights(depsgraph) -> list:
-    """The render-visible lights of a depsgraph (what ``export_depsgraph`` would list), without
-    reading any geometry."""
-    ex = export._Exporter(depsgraph)
-    lights = []
-    for inst in depsgraph.object_instances:
-        ob = inst.object
-        if ob.type != "LIGHT":
-            continue
-        if inst.is_instance:
-            parent = inst.parent
-            if not ex._renderable(parent.original):
-                continue
-            name = ob.name if ob.name == parent.name else f"{parent.name}/{ob.name}"
-        else:
-            if not ex._renderable(ob.original):
-                continue
-            name = ob.name
-        lights.append(export.export_light(ob, export._matrix(inst.matrix_world), name))
-    return lights
-
-
 def _object_attributes(ob) -> tuple:
     """What the exporter reads from an object besides its transform and geometry."""
     slots = ob.material_slots
     mat = slots[0].material if len(slots) else None
-    return (bool(ob.visible_shadow), bool(ob.get(export.SPHERE_PROPERTY, False)),
+    return (bool(ob.visible_shadow), export.is_sphere_primitive(ob),
             None if mat is None else mat.as_pointer(), tuple(ob.color), bool(ob.hide_render))
 
 
@@ -191,15 +169,16 @@ class ViewportSync:
         if plan.shading:
             self._reexport_keeping_bake(depsgraph)
             return plan
+        done: set = set()  # models already rebuilt (linked duplicates share one)
         for name in sorted(plan.geometry):
-            if not self._update_geometry(depsgraph, name):
+            if not self._update_geometry(depsgraph, name, done):
                 self.full_export(depsgraph)
                 return plan
         moved = sorted(plan.moved - plan.geometry)
         if moved:
             self._move(depsgraph, moved)
         if plan.lights:
-            self.scene.lights = export_lights(depsgraph)
+            self.scene.lights = export.export_lights(depsgraph)
             self._reset_history()
             self.log.append(("lights", len(self.scene.lights)))
         if plan.world:
@@ -232,7 +211,7 @@ class ViewportSync:
             self.pipeline.move_instances(self.scene, idx)
         self.log.append(("move", [str(n) for n in names]))
 
-    def _update_geometry(self, depsgraph, name) -> bool:
+    def _update_geometry(self, depsgraph, name, done: set) -> bool:
         """Re-read the evaluated mesh of object ``name`` into its model; False when only a full
         export can do it (non-mesh object, several models, no triangles left)."""
         ob = depsgraph.objects.get(name)
@@ -240,6 +219,9 @@ class ViewportSync:
         if ob is None or ob.type != "MESH" or len(rows) != 1 or ob.is_instancer:
             return False
         mid = int(self.scene.instances.model_ids[rows[0]])
+        if mid in done:
+            return True
+        done.add(mid)
         verts, tris = export.mesh_arrays(ob.data)
         if not len(tris):
             return False

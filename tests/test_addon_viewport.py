@@ -1,0 +1,267 @@
+"""The viewport path, as far as it runs headless (in a subprocess: ``python
+tests/test_addon_viewport.py OUT``):
+
+- change detection: ``ViewportSync`` fed by a ``depsgraph_update_post`` handler (the same
+  ``depsgraph.updates`` ``view_update`` receives) picks the least work, and incremental updates
+  give the same masks as a fresh bake;
+- ``viewport_camera`` reproduces a camera from its view and window matrices;
+- the refine logic of ``view_draw`` (fast pass, then full quality; four frames with interlacing);
+- the draw-data path into a ``gpu.types.GPUOffScreen`` once a tiny Workbench render made
+  Blender's GPU context, with our own OpenGL context used in between.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SCENE = "forest:trees=12,spheres=4,variants=2,terrain=32,width=160,height=120"
+
+
+def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
+    sys.path.insert(0, str(REPO))
+    import bpy
+    import numpy as np
+
+    import hybrid_shadow_addon
+    from hybrid_shadow_addon.blender.engine import (HybridShadowsEngine, create_pipeline, gl_scope,
+                                                    release_pipeline)
+    from hybrid_shadow_addon.blender.export import export_depsgraph
+    from hybrid_shadow_addon.blender.load import open_scene
+    from hybrid_shadow_addon.blender.viewport import ViewportDisplay, ViewportSync, viewport_camera
+    from hybrid_shadow_addon.core.settings import Settings
+
+    r = {}
+    scene = open_scene(SCENE)
+    hybrid_shadow_addon.register()
+    pipe = ref = None
+    try:
+        scene.render.engine = "HYBRID_SHADOWS"
+        dg = bpy.context.evaluated_depsgraph_get()
+        pipe = create_pipeline()
+        sync = ViewportSync(pipe)
+        plans = []
+
+        def handler(_scene, depsgraph):
+            with gl_scope(pipe):
+                plan = sync.update(depsgraph)
+            plans.append({"full": plan.full, "moved": sorted(plan.moved), "geometry": sorted(plan.geometry),
+                          "lights": plan.lights, "shading": plan.shading, "world": plan.world})
+
+        sync.full_export(dg)
+        with gl_scope(pipe):
+            sync.ensure_baked()
+        bpy.app.handlers.depsgraph_update_post.append(handler)
+        settings = Settings()
+        w, h = 160, 120
+
+        def step(name, fn):
+            plans.clear()
+            n_log = len(sync.log)
+            fn()
+            bpy.context.view_layer.update()
+            merged = {"full": any(p["full"] for p in plans), "moved": sorted({m for p in plans for m in p["moved"]}),
+                      "geometry": sorted({g for p in plans for g in p["geometry"]}),
+                      "lights": any(p["lights"] for p in plans), "shading": any(p["shading"] for p in plans)}
+            r[name] = {"plan": merged, "log": [a for a, _ in sync.log[n_log:]]}
+
+        def check_masks(name):
+            """Masks of the incrementally updated pipeline == masks of a fresh bake."""
+            fresh = export_depsgraph(bpy.context.evaluated_depsgraph_get(), resolution=(w, h))
+            with gl_scope(pipe):
+                sync.scene.camera = fresh.camera
+                a = pipe.render(sync.scene, settings, w, h)
+                ma = {sync.scene.lights[i].name: a.mask_array(i) for i in a.lights}
+            with gl_scope(ref):
+                ref.set_scene(fresh)
+                b = ref.render(fresh, settings, w, h)
+                mb = {fresh.lights[i].name: b.mask_array(i) for i in b.lights}
+            r[name]["masks_equal"] = sorted(ma) == sorted(mb) and all(
+                np.array_equal(ma[k], mb[k], equal_nan=True) for k in ma)
+
+        ref = create_pipeline()
+        step("move", lambda: setattr(bpy.data.objects["Palm.0003"], "location",
+                                     bpy.data.objects["Palm.0003"].location + type(bpy.data.objects["Palm.0003"].location)((2.0, 1.0, 0.0))))
+        check_masks("move")
+
+        def edit_terrain():
+            me = bpy.data.objects["Terrain"].data
+            co = np.empty(len(me.vertices) * 3, np.float32)
+            me.vertices.foreach_get("co", co)
+            co[2::3] += 0.5 * np.sin(co[0::3] / 5.0)
+            me.vertices.foreach_set("co", co)
+            me.update()
+
+        step("geometry", edit_terrain)
+        check_masks("geometry")
+        step("light", lambda: setattr(bpy.data.lights["Dawn sun"], "energy", 3.0))
+        step("light_move", lambda: setattr(bpy.data.objects["Lantern.0"], "location", (0.0, 0.0, 5.0)))
+        step("material", lambda: bpy.data.materials["Grass"].node_tree.nodes["Principled BSDF"]
+             .inputs["Base Color"].__setattr__("default_value", (0.5, 0.2, 0.1, 1.0)))
+        step("setting", lambda: setattr(scene.hybrid_shadows, "mode", "SHADOWMAP"))
+        scene.hybrid_shadows.mode = "RAYTRACE"
+
+        def add_object():
+            ob = bpy.data.objects.new("New box", bpy.data.objects["Ball.000"].data)
+            scene.collection.objects.link(ob)
+
+        step("new_object", add_object)
+        step("sphere_flag", lambda: setattr(bpy.data.objects["Ball.001"], "hybrid_sphere",
+                                            not bpy.data.objects["Ball.001"].hybrid_sphere))
+        check_masks("sphere_flag")
+        bpy.app.handlers.depsgraph_update_post.remove(handler)
+
+        # viewport camera from a camera's own view/window matrices == that camera
+        dg = bpy.context.evaluated_depsgraph_get()
+        cam_ob = scene.camera.evaluated_get(dg)
+        view = cam_ob.matrix_world.normalized().inverted()
+        win = cam_ob.calc_matrix_camera(dg, x=w, y=h)
+        vc = viewport_camera(view, win, w, h)
+        core = export_depsgraph(dg, resolution=(w, h))
+        r["camera_projection_error"] = float(np.abs(vc.projection_matrix(w, h) - np.array(win)).max())
+        r["camera_matrix_error"] = float(np.abs(vc.world_matrix_normalized() - core.camera.world_matrix_normalized()).max())
+
+        # view_draw's refine logic, on a stand-in for the engine instance
+        class Stand:
+            _view_render = HybridShadowsEngine._view_render
+            _viewport_pipeline = lambda self: pipe  # noqa: E731
+
+            def __init__(self):
+                self._sync, self._display = sync, ViewportDisplay()
+                self._display.upload = lambda image: setattr(self, "shown", image.shape)
+                self._vp_state, self._refine, self._vp_error = None, 0, None
+                self.redraws, self.stats = 0, []
+
+            def tag_redraw(self):
+                self.redraws += 1
+
+            def update_stats(self, a, b):
+                self.stats.append(b)
+
+        class RV3D:
+            view_matrix, window_matrix = view, win
+
+        eng = Stand()
+        seq = []
+        for _ in range(3):
+            eng._view_render(scene, RV3D, w, h)
+            seq.append(eng.stats[-1] if eng.stats else None)
+            eng.stats.clear()
+        r["refine_plain"] = {"stats": seq, "redraws": eng.redraws, "shape": list(eng.shown)}
+        scene.hybrid_shadows.use_interlace = True
+        eng = Stand()
+        seq = []
+        for _ in range(7):
+            eng._view_render(scene, RV3D, w, h)
+            seq.append(eng.stats[-1] if eng.stats else None)
+            eng.stats.clear()
+        r["refine_interlace"] = {"stats": seq, "redraws": eng.redraws}
+        scene.hybrid_shadows.use_interlace = False
+
+        # the GPU path: Blender's GPU context from a tiny Workbench render, then an offscreen
+        scene.render.engine = "BLENDER_WORKBENCH"
+        rx, ry, pc = scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage
+        scene.render.resolution_x = scene.render.resolution_y = 8
+        scene.render.resolution_percentage = 100
+        bpy.ops.render.render()
+        scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = rx, ry, pc
+        scene.render.engine = "HYBRID_SHADOWS"
+        import gpu
+        from mathutils import Matrix
+
+        off = gpu.types.GPUOffScreen(w, h, format="RGBA32F")
+        display = ViewportDisplay()
+        vp_pipe = create_pipeline()  # created while Blender's context is current
+        with off.bind():
+            fb = gpu.state.active_framebuffer_get()
+            fb.clear(color=(0.0, 0.0, 0.0, 0.0))
+            with gl_scope(vp_pipe):
+                vp_pipe.set_scene(core)
+                frame = vp_pipe.render(core, settings, w, h, film_transparent=True)
+            display.upload(frame.image)
+            with gpu.matrix.push_pop(), gpu.matrix.push_pop_projection():
+                gpu.matrix.load_matrix(Matrix.Identity(4))
+                gpu.matrix.load_projection_matrix(Matrix.Translation((-1.0, -1.0, 0.0)) @ Matrix.Diagonal((2.0 / w, 2.0 / h, 1.0, 1.0)))
+                display.draw(scene, w, h)
+            pixels = np.array(fb.read_color(0, 0, w, h, 4, 0, "FLOAT").to_list(), np.float32).reshape(h, w, 4)
+        release_pipeline(vp_pipe)
+        off.free()
+        want = np.clip(frame.image[::-1], 0.0, 65504.0)
+        r["offscreen_error"] = float(np.abs(pixels - want).max())
+        r["offscreen_mean"] = float(pixels[..., :3].mean())
+    finally:
+        release_pipeline(pipe)
+        release_pipeline(ref)
+        hybrid_shadow_addon.unregister()
+    Path(out_dir, "viewport.json").write_text(json.dumps(r, indent=1))
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    from test_addon_engine import isolated_env
+
+    tmp = tmp_path_factory.mktemp("viewport")
+    proc = subprocess.run([sys.executable, __file__, str(tmp)], cwd=REPO, env=isolated_env(tmp),
+                          capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return json.loads((tmp / "viewport.json").read_text())
+
+
+def test_transform_only_change_moves_instances(report):
+    m = report["move"]
+    assert m["plan"]["moved"] == ["Palm.0003"] and not m["plan"]["full"] and not m["plan"]["geometry"]
+    assert m["log"] == ["move"]
+    assert m["masks_equal"]
+
+
+def test_geometry_change_rebuilds_that_model(report):
+    g = report["geometry"]
+    assert g["plan"]["geometry"] == ["Terrain"] and not g["plan"]["full"]
+    assert g["log"] == ["model"]
+    assert g["masks_equal"]
+
+
+@pytest.mark.parametrize("name", ["light", "light_move", "material", "setting"])
+def test_light_material_and_setting_changes_rebake_nothing(report, name):
+    s = report[name]
+    assert not s["plan"]["full"] and not s["plan"]["geometry"] and not s["plan"]["moved"]
+    assert "bake" not in s["log"] and "full" not in s["log"]
+    if name.startswith("light"):
+        assert s["plan"]["lights"] and s["log"] == ["lights"]
+    if name == "material":
+        assert s["log"] == ["shading"]
+
+
+def test_structural_changes_export_again(report):
+    assert report["new_object"]["plan"]["full"] and report["new_object"]["log"] == ["full"]
+    assert report["sphere_flag"]["plan"]["full"]
+    assert report["sphere_flag"]["masks_equal"]
+
+
+def test_viewport_camera_matches_camera(report):
+    assert report["camera_projection_error"] < 1e-4
+    assert report["camera_matrix_error"] < 1e-5
+
+
+def test_refine_after_fast_pass(report):
+    plain = report["refine_plain"]
+    assert "Ray traced low" in plain["stats"][0] and "refining" in plain["stats"][0]
+    assert "Ray traced high" in plain["stats"][1] and "refining" not in plain["stats"][1]
+    assert plain["stats"][2] is None  # nothing changed: nothing rendered
+    assert plain["redraws"] == 1 and plain["shape"] == [120, 160, 4]
+    inter = report["refine_interlace"]
+    rendered = [s for s in inter["stats"] if s]
+    assert len(rendered) == 5 and inter["redraws"] == 4 and inter["stats"][5] is None
+
+
+def test_draw_into_offscreen(report):
+    assert report["offscreen_mean"] > 0.01
+    assert report["offscreen_error"] < 2e-3  # RGBA16F texture
+
+
+if __name__ == "__main__":
+    driver(sys.argv[1])
