@@ -12,6 +12,8 @@ demo: setup
 	@mkdir -p out/demo
 	$(PY) -m hybrid_shadow_addon render forest --output out/demo/forest.png \
 		--masks-dir out/demo --stats out/demo/stats.json
+	$(PY) -m hybrid_shadow_addon compare forest --resolution 320x180 --repeats 3 --warmup 1 \
+		--output-dir out/demo/compare
 	$(PY) tools/demo_blender.py
 
 test: setup

@@ -93,6 +93,42 @@ def cmd_render(args) -> int:
     return 0
 
 
+def _progress(args, title):
+    from .tools.progress import TerminalProgress, null_progress
+
+    return null_progress if getattr(args, "quiet", False) else TerminalProgress(title)
+
+
+def cmd_compare(args) -> int:
+    from .blender.load import open_scene
+    from .tools.compare import resolve_variants, run_compare, text_table
+
+    variants = resolve_variants(args.modes)
+    with blender_output_to_stderr():
+        bscene = open_scene(args.scene, args.frame)
+    progress = _progress(args, "compare")
+    with blender_output_to_stderr():
+        m = run_compare(bscene, args.output_dir, resolution=args.resolution, variants=variants,
+                        repeats=args.repeats, warmup=args.warmup, samples=args.samples,
+                        cache_dir=args.cache_dir, use_cache=not args.no_cache, progress=progress,
+                        scene_label=args.scene)
+    print(text_table(m))
+    print(f"report: {os.path.join(args.output_dir, 'report.html')}")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from .tools.bench import run_bench, text_summary
+
+    progress = _progress(args, "bench")
+    with blender_output_to_stderr():
+        b = run_bench(args.scene, args.output_dir, frames=args.frames, modes=args.modes, repeats=args.repeats,
+                      resolution=args.resolution, warmup=args.warmup, progress=progress)
+    print(text_summary(b))
+    print(f"summary: {os.path.join(args.output_dir, 'summary.md')}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m hybrid_shadow_addon",
@@ -127,6 +163,48 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--max-distance", type=float, default=0.0, metavar="M",
                     help="shadows only within M metres of the camera (default 0: no limit)")
     pr.set_defaults(func=cmd_render)
+
+    modes_help = ("variants to run, space or comma separated: raytrace-high, raytrace-medium, raytrace-low, "
+                  "raytrace-interlaced, shadowmap-512/1024/2048/4096 (any shadowmap-N), none, or the groups "
+                  "raytrace, shadowmap, all")
+    pc = sub.add_parser("compare", help="error against run time of every mode, against Cycles",
+                        description="Render a per-light Cycles visibility reference (cached), then every shadow "
+                        "mode and quality; write metrics.json, false-colour difference images, "
+                        "error_vs_time.png and report.html. Cost: Cycles ~0.1 s per light at 320x240; each "
+                        "variant (warmup + repeats + 1) frames; ray tracing on llvmpipe takes seconds per "
+                        "frame on big scenes at 640x360, so lower --resolution and --repeats there.")
+    pc.add_argument("scene", metavar="SCENE", help=scene_help)
+    pc.add_argument("--output-dir", required=True, help="folder for the report (created)")
+    pc.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH",
+                    help="image size (default: the scene's)")
+    pc.add_argument("--modes", nargs="+", default=None, metavar="MODE", help=modes_help + " (default: all)")
+    pc.add_argument("--repeats", type=int, default=5, metavar="N", help="timed frames per variant (median; default 5)")
+    pc.add_argument("--warmup", type=int, default=2, metavar="N",
+                    help="untimed frames per variant first (shader compilation; default 2)")
+    pc.add_argument("--frame", type=int, default=None, help="frame to compare (default: the scene's current)")
+    pc.add_argument("--samples", type=int, default=1, metavar="N", help="Cycles samples per pixel (default 1)")
+    pc.add_argument("--cache-dir", default=None, help="Cycles reference cache (default: "
+                    "$XDG_CACHE_HOME/hybrid_shadows/cycles)")
+    pc.add_argument("--no-cache", action="store_true", help="always render the Cycles reference, store nothing")
+    pc.add_argument("--quiet", action="store_true", help="no progress bar")
+    pc.set_defaults(func=cmd_compare)
+
+    pb = sub.add_parser("bench", help="frame rates along the camera path, per mode",
+                        description="Render N evenly spaced frames of the scene's animation (frame_start.."
+                        "frame_end) in each mode and the no-shadow control, repeated; write bench.json, "
+                        "summary.md and the thesis' figures 5.1-5.6. Cost: frames x repeats x (modes + 1) "
+                        "renders, plus one export (and a bake when geometry moves) per frame.")
+    pb.add_argument("scene", metavar="SCENE", help=scene_help)
+    pb.add_argument("--frames", type=int, default=10, metavar="N", help="frames along the path (default 10)")
+    pb.add_argument("--output-dir", required=True, help="folder for the results (created)")
+    pb.add_argument("--modes", nargs="+", default=None, metavar="MODE",
+                    help=modes_help + " (default: raytrace-high shadowmap-2048; the control 'none' is always run)")
+    pb.add_argument("--repeats", type=int, default=5, metavar="N", help="passes along the path (default 5)")
+    pb.add_argument("--warmup", type=int, default=1, metavar="N", help="untimed frames per mode first (default 1)")
+    pb.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH",
+                    help="image size (default: the scene's)")
+    pb.add_argument("--quiet", action="store_true", help="no progress bar")
+    pb.set_defaults(func=cmd_bench)
     return p
 
 

@@ -3,12 +3,14 @@
 - :mod:`.export`: an evaluated depsgraph → :class:`hybrid_shadow_addon.core.scene.Scene`.
 - :mod:`.load`: a scene script, built-in test scene or ``.blend`` file → a loaded bpy scene or a
   core ``Scene``.
+- :mod:`.engine` (the ``HYBRID_SHADOWS`` render engine), :mod:`.viewport`, :mod:`.properties`,
+  :mod:`.ui`, :mod:`.compare_operator` ("Compare with Cycles"): the add-on.
 """
 
 # -- add-on registration --------------------------------------------------------------------------
 # Order matters: properties before the engine and the panels that draw them; unregistered in
 # reverse. ``engine.unregister`` also releases the shared final-render OpenGL context.
-_MODULES = ("properties", "engine", "ui")
+_MODULES = ("properties", "engine", "compare_operator", "ui")
 _registered: list = []
 
 

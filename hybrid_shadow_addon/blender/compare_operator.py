@@ -22,6 +22,7 @@ import tempfile
 import bpy
 
 from ..core.errors import HybridShadowError
+from .engine import ENGINE_ID
 
 OPERATOR_ID = "render.hybrid_shadows_compare"
 
@@ -78,7 +79,7 @@ class RENDER_OT_hybrid_shadows_compare(bpy.types.Operator):
                                     repeats=self.repeats, pipeline=pipe, gl_scope=lambda: gl_scope(pipe),
                                     scene_label=f"{scene.name} (frame {scene.frame_current})", result=self._result)
 
-    def _finish(self, context, cancelled=False):
+    def _finish(self, context):
         from .engine import release_pipeline
 
         if self._steps is not None:
@@ -134,7 +135,7 @@ class RENDER_OT_hybrid_shadows_compare(bpy.types.Operator):
 
     def modal(self, context, event):
         if event.type in {"ESC", "RIGHTMOUSE"}:
-            self._finish(context, cancelled=True)
+            self._finish(context)
             self.report({"WARNING"}, "Compare with Cycles cancelled")
             return {"CANCELLED"}
         if event.type != "TIMER" or event.timer is not self._timer:
@@ -171,7 +172,9 @@ def draw_compare_button(layout) -> None:
 
 
 def menu_draw(self, context) -> None:
-    """Appended to the Render menu (``TOPBAR_MT_render``)."""
+    """Appended to the Render menu (``TOPBAR_MT_render``), shown while the engine is active."""
+    if context.engine != ENGINE_ID:
+        return
     self.layout.separator()
     draw_compare_button(self.layout)
 

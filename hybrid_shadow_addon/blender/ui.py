@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import bpy
 
+from .compare_operator import draw_compare_button
 from .engine import ENGINE_ID
 
 
@@ -36,6 +37,7 @@ class RENDER_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         col.active = props.mode == "RAYTRACE"
         col.prop(props, "quality", text="Render Quality")
         col.prop(props, "upsample")
+        draw_compare_button(layout)
 
 
 class RENDER_PT_hybrid_shadows_limits(HybridShadowsPanel, bpy.types.Panel):

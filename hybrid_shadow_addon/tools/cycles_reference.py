@@ -2,7 +2,10 @@
 
 For each light: only that light renders, ``max_bounces = 0``, ``filter_width = 0.01`` (samples
 at the pixel centre), no world light, film transparent; the Diffuse Direct pass with the light's
-``use_shadow`` on and off; visibility = shadowed / unshadowed. Pixels without full geometry
+``use_shadow`` on and off; visibility = shadowed / unshadowed. By default lights are made hard
+for the reference (sun angle, point/spot radius and area size 0), as our shadows are: the
+reference then measures where shadows fall, not how soft Cycles makes them (``hard=False``
+keeps the scene's light sizes). Pixels without full geometry
 coverage, or that the light does not reach even unshadowed (facing away, outside a spot cone),
 are invalid (NaN).
 
@@ -105,11 +108,22 @@ def _configure(bscene, saved: _Saved, resolution, samples: int, filepath: str) -
     saved.set(im, "exr_codec", "ZIP")
 
 
+def _make_hard(light, saved: _Saved) -> None:
+    """Zero the light's size: a point, a spot's apex, a sun's exact direction."""
+    if light.type == "SUN":
+        saved.set(light, "angle", 0.0)
+    elif light.type in ("POINT", "SPOT"):
+        saved.set(light, "shadow_soft_size", 0.0)
+    elif light.type == "AREA":
+        saved.set(light, "size", 1e-4)
+        saved.set(light, "size_y", 1e-4)
+
+
 def render_reference(bscene, light_names=None, *, resolution=None, samples: int = 1,
-                     progress=None) -> CyclesReference:
+                     progress=None, hard: bool = True) -> CyclesReference:
     """Render the Cycles visibility of each named light (default: every shadow-casting light
     visible in render) and the position pass. ``progress(done, total, label)`` is called
-    between renders."""
+    between renders; ``hard``: see the module's docstring."""
     import bpy
 
     lights = [o for o in bscene.objects if o.type == "LIGHT" and not o.hide_render]
@@ -137,6 +151,8 @@ def render_reference(bscene, light_names=None, *, resolution=None, samples: int 
             for i, target in enumerate(targets):
                 for o in lights:
                     per_light.set(o, "hide_render", o is not target)
+                if hard:
+                    _make_hard(target.data, per_light)
                 passes = {}
                 t0 = time.perf_counter()
                 for k, shadow in enumerate((True, False)):
