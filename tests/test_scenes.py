@@ -19,7 +19,8 @@ SMALL = {
 
 
 def test_every_builtin_scene_is_covered():
-    assert set(builtin_scenes()) == set(SMALL)
+    """Every top-level built-in scene is exported here (the stiff/ ones in test_stiff.py)."""
+    assert {n for n in builtin_scenes() if not n.startswith("stiff/")} == set(SMALL)
 
 
 def _reference(depsgraph):

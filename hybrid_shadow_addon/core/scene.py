@@ -23,6 +23,8 @@ import numpy as np
 from .errors import SceneError
 
 LIGHT_TYPES = ("SUN", "POINT", "SPOT", "AREA")
+#: transforms with a value this large are rejected (Blender stores an infinite scale as FLT_MAX)
+MAX_COORD = 1e18
 CAMERA_TYPES = ("PERSP", "ORTHO")
 SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
 
@@ -238,6 +240,8 @@ class Light:
                          ("spot blend", self.spot_blend), ("angle", self.angle)):
             if not np.isfinite(np.asarray(v, np.float64)).all():
                 raise SceneError(f"light '{self.name}' has a NaN or infinite {label}")
+        if (np.abs(self.matrix) >= MAX_COORD).any():
+            raise SceneError(f"light '{self.name}' has an infinite or absurd transform (a value beyond {MAX_COORD:.0e})")
         if not np.linalg.norm(self.matrix[:3, 2]) > 0:
             raise SceneError(f"light '{self.name}' has a zero-scale matrix (no direction)")
 
@@ -272,6 +276,8 @@ class Camera:
                 self.shift_x, self.shift_y, self.clip_start, self.clip_end]
         if not all(np.isfinite(np.asarray(v, np.float64)).all() for v in vals):
             raise SceneError(f"camera '{self.name}' has NaN or infinite values")
+        if (np.abs(self.matrix) >= MAX_COORD).any():
+            raise SceneError(f"camera '{self.name}' has an infinite or absurd transform (a value beyond {MAX_COORD:.0e})")
         if self.type not in CAMERA_TYPES:
             raise SceneError(f"camera '{self.name}' has unsupported type {self.type!r} (perspective or orthographic only)")
         if self.sensor_fit not in SENSOR_FITS:
@@ -442,6 +448,10 @@ class Scene:
             bad_m = ~np.isfinite(inst.matrices).all(axis=(1, 2))
             if bad_m.any():
                 raise SceneError(f"object '{inst.names[int(np.argmax(bad_m))]}' has a NaN or infinite transform")
+            huge = (np.abs(inst.matrices) >= MAX_COORD).any(axis=(1, 2))
+            if huge.any():  # Blender clamps an infinite scale/location to FLT_MAX: still unusable
+                raise SceneError(f"object '{inst.names[int(np.argmax(huge))]}' has an infinite or absurd transform "
+                                 f"(a value beyond {MAX_COORD:.0e})")
             bad_i = ~np.isfinite(inst.inverse).all(axis=(1, 2))
             if bad_i.any():
                 raise SceneError(f"object '{inst.names[int(np.argmax(bad_i))]}' has a zero scale (its transform cannot be inverted)")

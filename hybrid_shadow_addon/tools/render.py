@@ -8,13 +8,15 @@ from __future__ import annotations
 import json
 import os
 import re
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import HybridShadowError
+from ..core.errors import HybridShadowError, SceneError
+from ..core.gpu.context import check_light_count
 from ..core.gpu.passes import to_srgb8, write_png
 
 IMAGE_SUFFIXES = (".png", ".exr", ".npy")
@@ -70,6 +72,16 @@ def frame_stats(scene, frame, bake_ms: float) -> dict:
     return stats
 
 
+def check_renderable(scene) -> None:
+    """SceneError for a scene with nothing to render (no object with triangles or a sphere)."""
+    inst = scene.instances
+    if len(inst):
+        tris = np.array([m.triangle_count for m in scene.models], np.int64)[inst.model_ids]
+        if ((tris > 0) | inst.sphere).any():
+            return
+    raise SceneError(f"scene '{scene.name}' is empty: no visible mesh objects to render")
+
+
 def render_to_files(scene, settings, *, resolution=None, output: str, masks_dir: str | None = None,
                     stats_path: str | None = None, pipeline=None) -> dict:
     """Render ``scene`` once and write the outputs; returns the stats dict."""
@@ -79,14 +91,19 @@ def render_to_files(scene, settings, *, resolution=None, output: str, masks_dir:
     if out.suffix.lower() not in IMAGE_SUFFIXES:
         raise HybridShadowError(f"output '{output}' must end in {', '.join(IMAGE_SUFFIXES)}")
     dests = [out] + ([Path(stats_path)] if stats_path else [])
-    if masks_dir:
-        Path(masks_dir).mkdir(parents=True, exist_ok=True)
+    if masks_dir and not Path(masks_dir).resolve().parent.is_dir():
+        raise HybridShadowError(f"folder '{Path(masks_dir).resolve().parent}' does not exist")
     for d in dests:
         if not d.parent.is_dir():
             raise HybridShadowError(f"folder '{d.parent}' does not exist")
     scene.validate()
+    check_renderable(scene)
     width, height = resolution or scene.resolution
     pipe = pipeline or Pipeline()
+    check_light_count(pipe.ctx, len(scene.lights))
+    if not scene.lights:
+        print(f"warning: scene '{scene.name}' has no lights: rendering the world colour (ambient) only",
+              file=sys.stderr, flush=True)
     bake_ms = pipe.set_scene(scene) if settings.mode == "raytrace" else 0.0
     frame = pipe.render(scene, settings, width, height)
     stats = frame_stats(scene, frame, bake_ms)
@@ -97,6 +114,7 @@ def render_to_files(scene, settings, *, resolution=None, output: str, masks_dir:
         staged.append((t, out))
         write_image(t, frame.image)
         if masks_dir:
+            Path(masks_dir).mkdir(parents=True, exist_ok=True)  # only once the frame exists
             for li in frame.lights:
                 dest = Path(masks_dir) / mask_filename(scene.lights[li].name)
                 t = _staged(dest)

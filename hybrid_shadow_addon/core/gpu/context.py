@@ -123,3 +123,21 @@ def check_render_size(ctx: moderngl.Context, width: int, height: int, what: str 
     cap = min(lim["max_texture_size"], lim["max_renderbuffer_size"], *lim["max_viewport_dims"])
     if width < 1 or height < 1 or width > cap or height > cap:
         raise GPUError(f"{what} size {width}x{height} is outside this GPU's limits (1..{cap} per side)")
+
+
+#: texels per light in the lighting pass's light table (``shaders/common/lights.glsl``)
+LIGHT_TABLE_TEXELS = 4
+
+
+def max_lights(ctx: moderngl.Context) -> int:
+    """Lights the lighting pass can hold: one row of ``LIGHT_TABLE_TEXELS`` texels per light in a
+    texture at most ``GL_MAX_TEXTURE_SIZE`` wide (4096 on a 16384 GPU)."""
+    return gpu_limits(ctx)["max_texture_size"] // LIGHT_TABLE_TEXELS
+
+
+def check_light_count(ctx: moderngl.Context, count: int) -> None:
+    """GPUError when a scene has more lights than the lighting pass can hold."""
+    limit = max_lights(ctx)
+    if count > limit:
+        raise GPUError(f"the scene has {count} lights; this GPU can light at most {limit} "
+                       f"(hide some lights from rendering)")

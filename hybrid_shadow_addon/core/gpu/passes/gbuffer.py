@@ -7,6 +7,7 @@ colour, specular/roughness/index) re-uploaded each render. Sphere primitives
 
 World positions are the pixel-centre camera ray intersected with the triangle's plane (see
 ``shaders/gbuffer.glsl``), so they match an exact ray cast of ``Camera.pixel_rays``.
+The depth test runs on a logarithmic depth of that position (:func:`log_depth_scale`).
 """
 from __future__ import annotations
 
@@ -142,6 +143,13 @@ def read_texture(tex: moderngl.Texture) -> np.ndarray:
     a = a[::-1]
     a = a.astype(np.float32) / 255.0 if tex.dtype == "f1" else a.astype(np.float32)
     return a[..., 0].copy() if tex.components == 1 else np.ascontiguousarray(a)
+
+
+def log_depth_scale(camera) -> float:
+    """``1 / log2(clip_end / clip_start)``: the G-buffer's depth test runs on
+    ``log2(view depth / clip_start) * scale`` (``shaders/gbuffer.glsl``), which keeps a relative
+    depth resolution of ~1e-6 for any clip range (1e-4 .. 1e6 included)."""
+    return float(1.0 / np.log2(float(camera.clip_end) / float(camera.clip_start)))
 
 
 def _unit_cube() -> np.ndarray:
@@ -325,6 +333,7 @@ class GBufferPass:
         if len(inst):
             prog = self.programs.get("gbuffer")
             cam.apply(prog)
+            prog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
             order = np.argsort(inst.model_ids, kind="stable")
             tri_rows = order[~inst.sphere[order]]
             bounds = np.searchsorted(inst.model_ids[tri_rows], np.arange(len(scene.models) + 1))
@@ -342,6 +351,7 @@ class GBufferPass:
             if len(sph_rows):
                 prog = self.programs.get("gbuffer", {"SPHERE": 1})
                 cam.apply(prog)
+                prog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
                 if self._sphere_vbo is None:
                     cube = np.zeros((36, 6), np.float32)
                     cube[:, :3] = _unit_cube()

@@ -1,0 +1,134 @@
+"""A scene compiles only the shader code it needs: for each optional feature, a scene without it
+builds the ray-trace program without it (``RaytracePass.last_defines`` / the frame stats'
+``defines``, and the compiled program's active uniforms: code that is compiled out leaves no
+uniform or sampler behind).
+
+Light types: the ray-trace pass has one program per light *kind* (``HS_LIGHT_SUN`` for suns,
+``HS_LIGHT_LOCAL`` for point, spot and area lights); ``shaders/lighting.glsl`` has no per-type
+defines (it branches on the type read from the light table), so there is nothing to leave out
+there; ``benchmarks/bench_variants.py`` shows a sun-only scene does not pay for the other paths.
+"""
+import numpy as np
+import pytest
+
+from hybrid_shadow_addon.core.scene import Camera, Instances, Light, Model, Scene
+from hybrid_shadow_addon.core.settings import Settings
+
+W, H = 64, 48
+
+
+def make_scene(lights=("SUN",), meshes=True, spheres=False, spread=1.0):
+    models = [Model("plane", [[-5, -5, 0], [5, -5, 0], [5, 5, 0], [-5, 5, 0]], [[0, 1, 2], [0, 2, 3]]),
+              Model("box", np.array([[x, y, z] for x in (-.5, .5) for y in (-.5, .5) for z in (0, 1)]),
+                    [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                     [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])]
+    names, mids, mats, sph = [], [], [], []
+    if meshes:
+        names += ["ground", "box"]
+        mids += [0, 1]
+        mats += [np.eye(4), np.eye(4)]
+        sph += [False, False]
+    if spheres:
+        m = np.eye(4)
+        m[:3, 3] = (1.5, 1.0, 0.6)
+        names.append("ball")
+        mids.append(1)
+        mats.append(m)
+        sph.append(True)
+        if not meshes:  # something to receive shadows: a big sphere as the ground
+            g = np.diag([20.0, 20.0, 1.0, 1.0])
+            g[2, 3] = -1.0
+            names.append("ground ball")
+            mids.append(1)
+            mats.append(g)
+            sph.append(True)
+    if spread > 1.0:  # far-apart objects: several grid levels
+        for i, x in enumerate((-spread, spread)):
+            m = np.eye(4)
+            m[0, 3] = x
+            names.append(f"far{i}")
+            mids.append(1)
+            mats.append(m)
+            sph.append(spheres and not meshes)
+    inst = Instances(names=names, model_ids=mids, matrices=np.array(mats), sphere=np.array(sph, bool))
+    cam = np.eye(4)
+    cam[:3, 3] = (0, -8, 5)
+    a = np.radians(58)
+    cam[:3, :3] = [[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]]
+    ls = []
+    for t in lights:
+        m = np.eye(4)
+        m[:3, 3] = (1, -1, 4)
+        ls.append(Light(t, t, matrix=m, power=500.0, spot_size=np.radians(120)))
+    return Scene(models=models, instances=inst, lights=ls, camera=Camera(matrix=cam), resolution=(W, H))
+
+
+def trace(gl_ctx, scene, **settings):
+    from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+
+    pipe = Pipeline(gl_ctx)
+    try:
+        pipe.set_scene(scene)
+        frame = pipe.render(scene, Settings(mode="raytrace", **settings), W, H)
+        defines = dict(pipe.raytrace.last_defines)
+        assert frame.stats["defines"] == sorted(f"{k}={v}" for k, v in defines.items())
+        prog = pipe.programs.get("raytrace", defines)
+        uniforms = {name for name in prog}
+        masks = [frame.mask_array(i) for i in frame.lights]
+    finally:
+        pipe.release()
+    return defines, uniforms, masks
+
+
+def test_sun_only_scene_has_no_local_light_code(gl_ctx):
+    d, u, masks = trace(gl_ctx, make_scene(("SUN",)))
+    assert "HS_LIGHT_SUN" in d and "HS_LIGHT_LOCAL" not in d
+    assert (masks[0][np.isfinite(masks[0])] < 0.5).any()
+
+
+@pytest.mark.parametrize("kind", ["POINT", "SPOT", "AREA"])
+def test_local_light_scene_has_no_sun_code(gl_ctx, kind):
+    d, u, _ = trace(gl_ctx, make_scene((kind,)))
+    assert "HS_LIGHT_LOCAL" in d and "HS_LIGHT_SUN" not in d
+
+
+def test_mixed_lights_compile_both_kinds(gl_ctx):
+    d, _, masks = trace(gl_ctx, make_scene(("SUN", "POINT")))
+    assert "HS_LIGHT_LOCAL" in d and "HS_LIGHT_SUN" in d and len(masks) == 2
+
+
+def test_meshes_only_has_no_sphere_code(gl_ctx):
+    d, u, _ = trace(gl_ctx, make_scene(meshes=True, spheres=False))
+    assert "HS_HAS_MESHES" in d and "HS_HAS_SPHERES" not in d
+    assert "hs_bvh_tex" in u and "hs_tri_tex" in u
+
+
+def test_spheres_only_has_no_mesh_code(gl_ctx):
+    d, u, masks = trace(gl_ctx, make_scene(meshes=False, spheres=True))
+    assert "HS_HAS_SPHERES" in d and "HS_HAS_MESHES" not in d
+    assert "hs_bvh_tex" not in u and "hs_tri_tex" not in u  # BVH and triangle fetches compiled out
+    assert (masks[0][np.isfinite(masks[0])] < 0.5).any()
+
+
+def test_grid_levels_only_as_many_as_needed(gl_ctx):
+    small, _, _ = trace(gl_ctx, make_scene())
+    wide, _, _ = trace(gl_ctx, make_scene(spread=400.0))
+    assert small["HS_GRID_LEVELS"] < wide["HS_GRID_LEVELS"]
+
+
+def test_max_distance_and_interlace_only_when_on(gl_ctx):
+    d, u, _ = trace(gl_ctx, make_scene())
+    assert "HS_MAX_DISTANCE" not in d and "u_max_distance" not in u
+    assert "HS_INTERLACE" not in d and "u_history" not in u
+    d, u, _ = trace(gl_ctx, make_scene(), max_distance=5.0)
+    assert "HS_MAX_DISTANCE" in d and "u_max_distance" in u
+
+
+def test_lighting_shader_has_no_per_type_defines():
+    """Documents the fact stated in the module doc: if lighting.glsl grows per-light-type
+    defines, extend the tests above to it."""
+    from pathlib import Path
+
+    src = (Path(__file__).resolve().parents[1] / "shaders" / "lighting.glsl").read_text()
+    src += (Path(__file__).resolve().parents[1] / "shaders" / "common" / "lights.glsl").read_text()
+    assert "#ifdef HS_LIGHT" not in src and "#if defined(HS_LIGHT" not in src
