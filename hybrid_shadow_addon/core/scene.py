@@ -81,9 +81,9 @@ class Model:
                 r = float(np.sqrt((d * d).sum(axis=1).max()))
             else:
                 r = 0.0
-        # float32 storage must never shrink the sphere: add the centre's rounding, round r up
-        c32 = c.astype(np.float32)
-        r += float(np.linalg.norm(c - c32))
+            # float32 storage must never shrink the sphere: add the centre's rounding, round r up
+            c32 = c.astype(np.float32)
+            r += float(np.linalg.norm(c - c32))
         self.sphere_center = c32
         self.sphere_radius = float(np.nextafter(np.float32(r), np.float32(np.inf)))
 
