@@ -14,23 +14,38 @@ from .engine import ENGINE_ID
 
 
 class HybridShadowsPanel:
+    """Properties-editor panels of this engine: shown only while it is the render engine."""
+
     COMPAT_ENGINES = {ENGINE_ID}
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
 
     @classmethod
     def poll(cls, context):
         return context.engine in cls.COMPAT_ENGINES
 
-
-class RENDER_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
-    bl_label = "Shadows"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
-    bl_context = "render"
-
-    def draw(self, context):
+    def split_layout(self):
+        """The panel's layout with Blender's label-beside-value style."""
         layout = self.layout
         layout.use_property_split = True
         layout.use_property_decorate = False
+        return layout
+
+
+class RenderSubPanel(HybridShadowsPanel):
+    """A folded sub-panel of Render ▸ Shadows."""
+
+    bl_context = "render"
+    bl_parent_id = "RENDER_PT_hybrid_shadows"
+    bl_options = {"DEFAULT_CLOSED"}
+
+
+class RENDER_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
+    bl_label = "Shadows"
+    bl_context = "render"
+
+    def draw(self, context):
+        layout = self.split_layout()
         props = context.scene.hybrid_shadows
         layout.row().prop(props, "mode", expand=True)
         col = layout.column()
@@ -40,17 +55,12 @@ class RENDER_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         draw_compare_button(layout)
 
 
-class RENDER_PT_hybrid_shadows_limits(HybridShadowsPanel, bpy.types.Panel):
+class RENDER_PT_hybrid_shadows_limits(RenderSubPanel, bpy.types.Panel):
     bl_label = "Limits"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
-    bl_context = "render"
-    bl_parent_id = "RENDER_PT_hybrid_shadows"
+    bl_options = set()  # open
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = self.split_layout()
         props = context.scene.hybrid_shadows
         col = layout.column(align=True)
         col.prop(props, "viewport_max_shadowed_lights", text="Shadowed Lights Viewport")
@@ -58,17 +68,12 @@ class RENDER_PT_hybrid_shadows_limits(HybridShadowsPanel, bpy.types.Panel):
         layout.prop(props, "max_distance")
 
 
-class RENDER_PT_hybrid_shadows_viewport(HybridShadowsPanel, bpy.types.Panel):
+class RENDER_PT_hybrid_shadows_viewport(RenderSubPanel, bpy.types.Panel):
     bl_label = "Viewport"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
-    bl_context = "render"
-    bl_parent_id = "RENDER_PT_hybrid_shadows"
+    bl_options = set()  # open
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = self.split_layout()
         props = context.scene.hybrid_shadows
         col = layout.column()
         col.active = props.mode == "RAYTRACE"
@@ -77,18 +82,11 @@ class RENDER_PT_hybrid_shadows_viewport(HybridShadowsPanel, bpy.types.Panel):
         col.prop(props, "use_interlace")
 
 
-class RENDER_PT_hybrid_shadows_shadowmap(HybridShadowsPanel, bpy.types.Panel):
+class RENDER_PT_hybrid_shadows_shadowmap(RenderSubPanel, bpy.types.Panel):
     bl_label = "Shadow Maps"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
-    bl_context = "render"
-    bl_parent_id = "RENDER_PT_hybrid_shadows"
-    bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = self.split_layout()
         props = context.scene.hybrid_shadows
         layout.active = props.mode == "SHADOWMAP"
         layout.prop(props, "shadowmap_size", text="Resolution")
@@ -99,34 +97,20 @@ class RENDER_PT_hybrid_shadows_shadowmap(HybridShadowsPanel, bpy.types.Panel):
         col.prop(props, "normal_offset")
 
 
-class RENDER_PT_hybrid_shadows_lighting(HybridShadowsPanel, bpy.types.Panel):
+class RENDER_PT_hybrid_shadows_lighting(RenderSubPanel, bpy.types.Panel):
     bl_label = "Lighting"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
-    bl_context = "render"
-    bl_parent_id = "RENDER_PT_hybrid_shadows"
-    bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = self.split_layout()
         layout.prop(context.scene.hybrid_shadows, "use_specular")
         layout.prop(context.scene.render, "film_transparent")
 
 
-class RENDER_PT_hybrid_shadows_debug(HybridShadowsPanel, bpy.types.Panel):
+class RENDER_PT_hybrid_shadows_debug(RenderSubPanel, bpy.types.Panel):
     bl_label = "Debug"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
-    bl_context = "render"
-    bl_parent_id = "RENDER_PT_hybrid_shadows"
-    bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = self.split_layout()
         props = context.scene.hybrid_shadows
         layout.prop(props, "debug_view", text="View")
         row = layout.row()
@@ -136,14 +120,10 @@ class RENDER_PT_hybrid_shadows_debug(HybridShadowsPanel, bpy.types.Panel):
 
 class VIEWLAYER_PT_hybrid_shadows_passes(HybridShadowsPanel, bpy.types.Panel):
     bl_label = "Passes"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
     bl_context = "view_layer"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = self.split_layout()
         vl = context.view_layer
         col = layout.column(heading="Data", align=True)
         col.prop(vl, "use_pass_combined")
@@ -156,8 +136,6 @@ class VIEWLAYER_PT_hybrid_shadows_passes(HybridShadowsPanel, bpy.types.Panel):
 
 class OBJECT_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
     bl_label = "Hybrid Shadows"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
     bl_context = "object"
 
     @classmethod
@@ -166,9 +144,7 @@ class OBJECT_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         return super().poll(context) and ob is not None and ob.type in {"MESH", "CURVE", "SURFACE", "FONT", "META"}
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = self.split_layout()
         ob = context.object
         layout.prop(ob, "visible_shadow", text="Cast Shadow")
         layout.prop(ob, "hybrid_sphere")
@@ -176,8 +152,6 @@ class OBJECT_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
 
 class DATA_PT_hybrid_shadows_light(HybridShadowsPanel, bpy.types.Panel):
     bl_label = "Shadow"
-    bl_space_type = "PROPERTIES"
-    bl_region_type = "WINDOW"
     bl_context = "data"
 
     @classmethod
@@ -188,9 +162,7 @@ class DATA_PT_hybrid_shadows_light(HybridShadowsPanel, bpy.types.Panel):
         self.layout.prop(context.light, "use_shadow", text="")
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = self.split_layout()
         light = context.light
         layout.active = light.use_shadow
         if light.type == "SUN":
