@@ -6,7 +6,8 @@
 // the light kind, one program per kind; HS_MAX_DISTANCE (shadows only on surfaces within
 // u_max_distance of the camera, as the shadow-map pass; rays are no longer than that either), HS_INTERLACE (trace only the texels of
 // phase u_phase in each 2x2 block; keep u_history where that texel's phase is in
-// u_valid_phases, else write -1 for interlace_fill.glsl to fill from this frame's rays).
+// u_valid_phases, else write -1 for interlace_fill.glsl to fill from this frame's rays),
+// HS_CONSERVATIVE (a conservative occupancy map of the light decides or shortens the ray).
 
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
@@ -22,6 +23,16 @@ uniform ivec2 u_full_size;      // G-buffer size
 uniform vec3 u_light_vec;       // sun: unit direction towards it; else the light's position
 #ifdef HS_MAX_DISTANCE
 uniform float u_max_distance;
+#endif
+#ifdef HS_CONSERVATIVE
+// Conservative occupancy map of this light (passes/conservative.py, conservative_map.glsl):
+// per texel a lower bound of the light depth of every caster in the texel's column.
+uniform sampler2D u_cm;
+uniform vec3 u_cm_origin;       // world origin of the map's view coordinates
+uniform mat3 u_cm_basis[6];     // per view: columns right, up, forward (sun: view 0 only)
+uniform vec4 u_cm_win[6];       // standard-coordinate window: lo.xy, texels per unit .zw
+uniform vec4 u_cm_tile[6];      // atlas x0, y0, size, valid (0: view not built, trace fully)
+uniform float u_cm_margin;      // depth slack (metres) for float rounding
 #endif
 #ifdef HS_INTERLACE
 uniform sampler2D u_history;
@@ -89,6 +100,40 @@ void main()
 #endif
 #ifdef HS_MAX_DISTANCE
     tmax = min(tmax, u_max_distance / length(d));
+#endif
+#ifdef HS_CONSERVATIVE
+    // The ray stays in o's column of the map; casters there lie at depth >= D, so a hit needs
+    // the ray's depth >= D: cut tmax there, or skip the ray when o is nearer the light than D.
+    {
+        vec3 rel = o - u_cm_origin;
+        int view = 0;
+#ifdef HS_LIGHT_LOCAL
+        vec3 a = abs(rel);
+        if (a.x >= a.y && a.x >= a.z) view = rel.x >= 0.0 ? 0 : 1;
+        else if (a.y >= a.z) view = rel.y >= 0.0 ? 2 : 3;
+        else view = rel.z >= 0.0 ? 4 : 5;
+#endif
+        vec4 tile = u_cm_tile[view];
+        vec3 v = rel * u_cm_basis[view];
+#ifdef HS_LIGHT_LOCAL
+        vec2 s = v.xy / v.z;
+        bool front = v.z > 0.0;
+#else
+        vec2 s = v.xy;
+        bool front = true;
+#endif
+        vec4 win = u_cm_win[view];
+        vec2 tc = (s - win.xy) * win.zw;
+        if (tile.w > 0.5 && front && all(greaterThanEqual(tc, vec2(0.0))) && all(lessThan(tc, vec2(tile.z)))) {
+            float D = texelFetch(u_cm, ivec2(tile.xy) + ivec2(floor(tc)), 0).r - u_cm_margin;
+            if (D >= v.z) { o_mask = 1.0; return; }
+#ifdef HS_LIGHT_LOCAL
+            tmax = min(tmax, 1.0 - D / v.z);
+#else
+            tmax = min(tmax, (v.z - D) / -dot(d, u_cm_basis[0][2]));
+#endif
+        }
+    }
 #endif
     o_mask = hs_occluded(o, d, tmax) ? 0.0 : 1.0;
 }

@@ -7,13 +7,22 @@ code it needs. Interlacing (thesis 3.5.2) traces one texel of every 2x2 block pe
 whose history is not up to date since the last :meth:`reset_history` are filled from this
 frame's rays (``shaders/interlace_fill.glsl``), so a change never leaves stale shadows behind
 and a still view is exact after four frames.
+
+With ``conservative`` on (the default; ``conservative_local`` extends it from suns to the other
+lights) each light first gets a conservative occupancy map
+(:mod:`.conservative`, ``HS_CONSERVATIVE``): receivers nearer the light than every caster in
+their map column are lit without a ray, the others trace only up to the first possible caster
+depth. Exact: the masks equal those traced without the map.
 """
 from __future__ import annotations
+
+import time
 
 import moderngl
 import numpy as np
 
 from . import create_mask_texture
+from .conservative import ConservativeMaps
 
 
 def light_ray_uniforms(light) -> tuple[bool, tuple]:
@@ -55,10 +64,16 @@ def shadow_rays(position: np.ndarray, normal: np.ndarray, depth: np.ndarray, lig
 
 
 class RaytracePass:
-    def __init__(self, ctx: moderngl.Context, programs, scene_textures):
+    def __init__(self, ctx: moderngl.Context, programs, scene_textures, conservative: bool = True):
         self.ctx = ctx
         self.programs = programs
         self.scene_textures = scene_textures
+        self.conservative = conservative  # build and use the conservative occupancy maps (suns)
+        # ... also for point/spot/area lights: exact too, but on llvmpipe the cube map costs about
+        # what it saves on the forest (measured in benchmarks/bench_pipeline.py), so off by default
+        self.conservative_local = False
+        self.maps = ConservativeMaps(ctx, programs)
+        self.last_map_ms = 0.0  # time spent building the maps in the last render (incl. finish)
         self._targets: dict = {}  # (light, role) -> texture
         self._phase = 0
         self._valid_phases = 0
@@ -92,21 +107,39 @@ class RaytracePass:
         w, h = settings.mask_size(gbuffer.width, gbuffer.height)
         self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
         self.last_defines = {}
+        self.last_map_ms = 0.0
         masks = {}
+        if self.conservative and lights and (self.conservative_local or any(
+                not light_ray_uniforms(scene.lights[li])[0] for li in lights)):
+            t0 = time.perf_counter()
+            self.maps.begin_frame(scene, gbuffer)
+            self.last_map_ms += (time.perf_counter() - t0) * 1e3
         for li in lights:
             local, vec = light_ray_uniforms(scene.lights[li])
             defines = self.defines(settings, local)
+            cmap = None
+            if self.conservative and (self.conservative_local or not local):
+                ctx.finish()  # (so last_map_ms holds the maps alone, not the previous light's rays)
+                t0 = time.perf_counter()
+                cmap = self.maps.render(scene, li, local, vec)
+                ctx.finish()
+                self.last_map_ms += (time.perf_counter() - t0) * 1e3
+                self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+            if cmap is not None:
+                defines["HS_CONSERVATIVE"] = 1
             self.last_defines.update(defines)
-            masks[li] = self._trace(li, vec, defines, gbuffer, settings, w, h)
+            masks[li] = self._trace(li, vec, defines, gbuffer, settings, w, h, cmap)
         if settings.interlace:
             self._valid_phases |= 1 << self._phase
             self._phase = (self._phase + 1) % 4
         return masks
 
-    def _trace(self, li, light_vec, defines, gbuffer, settings, w, h):
+    def _trace(self, li, light_vec, defines, gbuffer, settings, w, h, cmap=None):
         prog, vao = self.programs.fullscreen("raytrace", defines)
         unit = gbuffer.bind(prog)
         unit = self.scene_textures.bind(prog, unit)
+        if cmap is not None:
+            unit = self._bind_map(prog, unit, *cmap)
         prog["u_scale"].value = settings.mask_scale
         prog["u_full_size"].value = (gbuffer.width, gbuffer.height)
         prog["u_light_vec"].value = light_vec
@@ -123,6 +156,26 @@ class RaytracePass:
         prog["u_valid_phases"].value = self._valid_phases
         self._draw(vao, out, w, h)
         return self._fill(out, hist, w, h)
+
+    @staticmethod
+    def _bind_map(prog, unit, tex, views) -> int:
+        tex.use(unit)
+        prog["u_cm"].value = unit
+        n = len(views.bases)
+        bases = np.zeros((6, 3, 3), np.float32)
+        wins = np.zeros((6, 4), np.float32)
+        tiles = np.zeros((6, 4), np.float32)
+        for k in range(n):
+            bases[k] = views.bases[k].T  # column-major upload: rows of .T = columns
+            if views.windows[k] is not None:
+                wins[k] = views.windows[k]
+                tiles[k] = (*views.tiles[k], 1.0)
+        prog["u_cm_origin"].value = tuple(float(v) for v in views.origin)
+        for name, arr in (("u_cm_basis", bases), ("u_cm_win", wins), ("u_cm_tile", tiles)):
+            u = prog[name]  # (the sun's program keeps only element 0 of the arrays)
+            u.write(arr[:max(1, u.array_length)].tobytes())
+        prog["u_cm_margin"].value = float(views.margin)
+        return unit + 1
 
     def _draw(self, vao, target, w, h) -> None:
         fbo = self.ctx.framebuffer(color_attachments=[target])
@@ -142,6 +195,7 @@ class RaytracePass:
         return hist
 
     def release(self) -> None:
+        self.maps.release()
         for tex in self._targets.values():
             tex.release()
         self._targets.clear()

@@ -1,0 +1,120 @@
+"""Pipeline benchmark on llvmpipe (a script, not a test): ms per pass and per mode.
+
+    .venv/bin/python benchmarks/bench_pipeline.py [--scenes forest,clusters,city] [--reps 3]
+        [--size 640x360] [--scaling 1000,10000,100000,1000000] [--no-scaling]
+
+Tables (warm: the first frame of every configuration compiles shaders and is discarded; median
+of ``--reps`` frames; the machine is shared, so compare ratios measured in the same run):
+1. ms per pass and mode (raytrace high/medium/low, shadowmap, none) per scene; raytrace also
+   without the conservative maps, and the maps' own share;
+2. ray-traced shadow pass / shadow-map pass on each scene at equal resolution;
+3. shadow ms as triangles grow (``scaling:triangles=N,instances=M``), sun only.
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
+from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+
+SCENES = {"forest": "forest", "clusters": "clusters", "city": "city"}
+PASSES = ("gbuffer_ms", "shadow_ms", "upsample_ms", "lighting_ms", "total_ms")
+
+
+def _frame(pipe, scene, settings, w, h, conservative, local):
+    pipe.raytrace.conservative = conservative
+    pipe.raytrace.conservative_local = local
+    try:
+        fr = pipe.render(scene, settings, w, h, read_image=False)
+    finally:
+        pipe.raytrace.conservative = True
+        pipe.raytrace.conservative_local = False
+    t = dict(fr.timings)
+    t["map_ms"] = pipe.raytrace.last_map_ms if settings.mode == "raytrace" and conservative else 0.0
+    return t
+
+
+def measure_all(pipe, scene, configs, w, h, reps):
+    """{label: median timings}; configurations interleaved round-robin so that the load of a
+    shared machine hits them alike (the first frame of each, compiling shaders, discarded)."""
+    for _, s, cons, local in configs:
+        _frame(pipe, scene, s, w, h, cons, local)
+    rows = {c[0]: [] for c in configs}
+    for _ in range(reps):
+        for label, s, cons, local in configs:
+            rows[label].append(_frame(pipe, scene, s, w, h, cons, local))
+    return {label: {k: statistics.median(r[k] for r in rs) for k in PASSES + ("map_ms",)}
+            for label, rs in rows.items()}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", default="forest,clusters,city")
+    ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--size", default="640x360")
+    ap.add_argument("--scaling", default="1000,10000,100000,1000000")
+    ap.add_argument("--no-scaling", action="store_true")
+    ap.add_argument("--no-plain", action="store_true", help="skip raytrace without conservative maps")
+    a = ap.parse_args(argv)
+    w, h = (int(v) for v in a.size.split("x"))
+    pipe = Pipeline()
+    ratio_rows = []
+    print(f"## ms per pass ({w}x{h}, llvmpipe, median of {a.reps} warm frames)\n")
+    print("| scene | mode | shadow ms | (of which maps) | g-buffer | upsample | lighting | total |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name in a.scenes.split(","):
+        scene = load_scene(SCENES.get(name, name))
+        pipe.set_scene(scene)
+        high = Settings(mode="raytrace", quality="high")
+        configs = [("raytrace high", high, True, False)]
+        if not a.no_plain:
+            configs += [("raytrace high, no maps", high, False, False),
+                        ("raytrace high, maps for all lights", high, True, True)]
+        configs += [("raytrace medium", Settings(mode="raytrace", quality="medium"), True, False),
+                    ("raytrace low", Settings(mode="raytrace", quality="low"), True, False),
+                    ("shadowmap", Settings(mode="shadowmap"), True, False),
+                    ("none", Settings(mode="none"), True, False)]
+        res = measure_all(pipe, scene, configs, w, h, a.reps)
+        for label, *_ in configs:
+            t = res[label]
+            print(f"| {name} | {label} | {t['shadow_ms']:.0f} | {t['map_ms']:.0f} | {t['gbuffer_ms']:.0f} | "
+                  f"{t['upsample_ms']:.0f} | {t['lighting_ms']:.0f} | {t['total_ms']:.0f} |", flush=True)
+        ratio_rows.append((name, res))
+    print(f"\n## ray-traced shadow pass / shadow-map pass (equal resolution {w}x{h}; thesis: 14.7x)\n")
+    print("| scene | raytrace ms | shadowmap ms | ratio | no maps ms | ratio no maps |")
+    print("|---|---|---|---|---|---|")
+    for name, res in ratio_rows:
+        rt, sm = res["raytrace high"]["shadow_ms"], res["shadowmap"]["shadow_ms"]
+        plain = res.get("raytrace high, no maps", {}).get("shadow_ms", float("nan"))
+        print(f"| {name} | {rt:.0f} | {sm:.0f} | {rt / sm:.1f}x | {plain:.0f} | {plain / sm:.1f}x |")
+    if a.no_scaling:
+        return
+    print(f"\n## shadow ms as triangles grow (scaling scene, {w}x{h}, ray traced high)\n")
+    print("| triangles | instances | raytrace ms | no maps ms | shadowmap ms | rt step ratio |")
+    print("|---|---|---|---|---|---|")
+    prev = None
+    for n in (int(v) for v in a.scaling.split(",")):
+        inst = max(1, min(1000, n // 1000))
+        scene = load_scene(f"scaling:triangles={n},instances={inst}")
+        pipe.set_scene(scene)
+        rt_s = Settings(mode="raytrace")
+        configs = [("rt", rt_s, True, False), ("shadowmap", Settings(mode="shadowmap"), True, False)]
+        if not a.no_plain:
+            configs.append(("plain", rt_s, False, False))
+        res = measure_all(pipe, scene, configs, w, h, a.reps)
+        rt, sm = res["rt"]["shadow_ms"], res["shadowmap"]["shadow_ms"]
+        plain = res["plain"]["shadow_ms"] if "plain" in res else float("nan")
+        step = "" if prev is None else f"{rt / prev:.2f}x"
+        print(f"| {n} | {inst} | {rt:.0f} | {plain:.0f} | {sm:.0f} | {step} |", flush=True)
+        prev = rt
+    pipe.release()
+
+
+if __name__ == "__main__":
+    main()

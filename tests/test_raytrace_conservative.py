@@ -1,0 +1,112 @@
+"""The conservative occupancy maps (passes/conservative.py) only save work: the ray-traced masks
+with the maps equal, pixel for pixel, those traced without them, on every test scene, every
+light kind, reduced mask resolutions and with point lights right next to caster surfaces."""
+import numpy as np
+import pytest
+
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.scene import Light
+from hybrid_shadow_addon.core.settings import Settings
+
+W, H = 160, 120
+SCENES = {
+    "cube_on_plane": "cube_on_plane",
+    "forest": "forest",
+    "clusters": "clusters",
+    "city": "city:blocks=4",
+    "scaling": "scaling:triangles=20000,instances=200",
+}
+
+
+@pytest.fixture(scope="module")
+def pipeline(gl_ctx):
+    p = Pipeline(gl_ctx)
+    yield p
+    p.release()
+
+
+@pytest.fixture(scope="module")
+def loaded():
+    from hybrid_shadow_addon.blender.load import load_scene
+
+    cache = {}
+
+    def get(name):
+        if name not in cache:
+            cache[name] = load_scene(SCENES.get(name, name))
+        return cache[name]
+
+    return get
+
+
+def masks_with_and_without(pipeline, scene, settings):
+    out = []
+    for cons in (False, True):
+        pipeline.raytrace.conservative = pipeline.raytrace.conservative_local = cons
+        try:
+            frame = pipeline.render(scene, settings, W, H)
+        finally:
+            pipeline.raytrace.conservative = True
+            pipeline.raytrace.conservative_local = False
+        out.append({li: frame.mask_array(li) for li in frame.lights})
+        if cons:
+            assert any(d == "HS_CONSERVATIVE=1" for d in frame.stats["defines"])
+    return out
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_conservative_maps_change_no_pixel(name, pipeline, loaded):
+    scene = loaded(name)
+    pipeline.set_scene(scene)
+    plain, culled = masks_with_and_without(pipeline, scene, Settings(mode="raytrace"))
+    assert plain.keys() == culled.keys() and plain
+    for li in plain:
+        np.testing.assert_array_equal(culled[li], plain[li], err_msg=f"{name} light {scene.lights[li].name}")
+
+
+@pytest.mark.parametrize("quality", ["medium", "low"])
+def test_conservative_maps_at_reduced_mask_resolution(quality, pipeline, loaded):
+    scene = loaded("forest")
+    pipeline.set_scene(scene)
+    plain, culled = masks_with_and_without(pipeline, scene, Settings(mode="raytrace", quality=quality,
+                                                                     max_distance=60.0))
+    for li in plain:
+        np.testing.assert_array_equal(culled[li], plain[li])
+
+
+@pytest.mark.parametrize("height", [1e-3, 0.05, 0.5])
+def test_point_light_touching_the_casters(height, pipeline, loaded):
+    """A point light just above the cube's top face and the ground (the near plane and the
+    tiny texels next to the light are where a careless map would lose casters)."""
+    base = loaded("cube_on_plane")
+    from copy import copy
+
+    scene = copy(base)
+    top = float(scene.world_bounds()[1][2])
+    lights = []
+    for k, (x, y, z) in enumerate([(0.0, 0.0, top + height), (3.0, 2.0, height), (0.0, 0.0, top - height)]):
+        m = np.eye(4)
+        m[:3, 3] = (x, y, z)
+        lights.append(Light(name=f"P{k}", type="POINT", matrix=m))
+    scene.lights = lights
+    pipeline.set_scene(scene)
+    plain, culled = masks_with_and_without(pipeline, scene, Settings(mode="raytrace"))
+    for li in plain:
+        np.testing.assert_array_equal(culled[li], plain[li], err_msg=f"light {li} at height {height}")
+    pipeline.set_scene(base)
+
+
+def test_maps_skip_most_rays_on_the_forest(pipeline, loaded):
+    """The point of it: most receivers are decided or cut short (map statistics sanity)."""
+    scene = loaded("forest")
+    pipeline.set_scene(scene)
+    pipeline.raytrace.conservative = pipeline.raytrace.conservative_local = True
+    try:
+        pipeline.render(scene, Settings(mode="raytrace"), W, H)
+    finally:
+        pipeline.raytrace.conservative_local = False
+    stats = pipeline.raytrace.maps.stats
+    assert stats and all(s["views"] >= 1 for s in stats.values())
+    # the sun's casters are culled against the receivers' window
+    sun = [li for li in stats if scene.lights[li].type == "SUN"]
+    assert sun and stats[sun[0]]["casters"] < len(scene.instances)
