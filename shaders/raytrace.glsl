@@ -21,6 +21,8 @@
 uniform int u_scale;            // mask texel = u_scale x u_scale full-resolution pixels
 uniform ivec2 u_full_size;      // G-buffer size
 uniform vec3 u_light_vec;       // sun: unit direction towards it; else the light's position
+                                // (bake space: world - the bake's origin)
+uniform vec3 u_cam_bake;        // camera position in bake space (float64 on the CPU)
 #ifdef HS_MAX_DISTANCE
 uniform float u_max_distance;
 #endif
@@ -28,7 +30,7 @@ uniform float u_max_distance;
 // Conservative occupancy map of this light (passes/conservative.py, conservative_map.glsl):
 // per texel a lower bound of the light depth of every caster in the texel's column.
 uniform sampler2D u_cm;
-uniform vec3 u_cm_origin;       // world origin of the map's view coordinates
+uniform vec3 u_cm_origin;       // origin of the map's view coordinates, in bake space
 uniform mat3 u_cm_basis[6];     // per view: columns right, up, forward (sun: view 0 only)
 uniform vec4 u_cm_win[6];       // standard-coordinate window: lo.xy, texels per unit .zw
 uniform vec4 u_cm_tile[6];      // atlas x0, y0, size, valid (0: view not built, trace fully)
@@ -62,6 +64,17 @@ vec3 offset_origin(vec3 p, vec3 n, float slack)
     return q + n * slack;
 }
 
+// The surface point of pixel px in bake space: the camera ray scaled to the G-buffer's view
+// depth, added to the camera's bake-space position. Rebuilt camera-relative, it keeps float32
+// precision wherever the scene sits in the world (100 km out as well as at the origin).
+vec3 surface_point(ivec2 px, float depth)
+{
+    vec3 o_rel, dir;
+    camera_ray(vec2(px) + 0.5, o_rel, dir);
+    vec3 p_rel = (u_ortho == 1) ? o_rel + dir * (depth - u_clip_start) : dir * (depth / u_clip_start);
+    return u_cam_bake + p_rel;
+}
+
 void main()
 {
     ivec2 mt = ivec2(gl_FragCoord.xy);
@@ -75,22 +88,22 @@ void main()
     }
 #endif
     ivec2 px = mask_source_pixel(mt, u_scale, u_full_size);
-    vec4 pos = texelFetch(u_gb_position, px, 0);
-    if (pos.w == 0.0) { o_mask = 1.0; return; }
+    if (texelFetch(u_gb_position, px, 0).w == 0.0) { o_mask = 1.0; return; }
     float depth = texelFetch(u_gb_depth, px, 0).r;
+    vec3 p = surface_point(px, depth);
 #ifdef HS_MAX_DISTANCE
-    if (distance(pos.xyz, u_cam_pos) > u_max_distance) { o_mask = 1.0; return; }
+    if (distance(p, u_cam_bake) > u_max_distance) { o_mask = 1.0; return; }
 #endif
     vec3 n = texelFetch(u_gb_normal, px, 0).xyz;
 #ifdef HS_LIGHT_LOCAL
-    vec3 to_light = u_light_vec - pos.xyz;
+    vec3 to_light = u_light_vec - p;
 #else
     vec3 to_light = u_light_vec;
 #endif
     float facing = dot(n, to_light);
     if (facing <= 0.0) { o_mask = 0.0; return; }
 
-    vec3 o = offset_origin(pos.xyz, n, depth * 3.0e-6);
+    vec3 o = offset_origin(p, n, depth * 3.0e-6);
 #ifdef HS_LIGHT_LOCAL
     vec3 d = u_light_vec - o;     // the light is at t = 1
     float tmax = 1.0;

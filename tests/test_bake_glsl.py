@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hybrid_shadow_addon.core.bake import bake_scene
-from hybrid_shadow_addon.core.reference import trace_structured, trace_brute
+from hybrid_shadow_addon.core.reference import bake_space, trace_structured, trace_brute
 
 from test_bake_scenes import random_scene, random_rays, adversarial_scene
 
@@ -76,7 +76,7 @@ def gl_trace(ctx, baked, origins, dirs, tmax):
     H = -(-n // W)
     o = np.zeros((H * W, 4), np.float32)
     d = np.zeros((H * W, 4), np.float32)
-    o[:n, :3] = origins
+    o[:n, :3] = bake_space(baked, origins)
     o[:n, 3] = np.minimum(np.broadcast_to(np.asarray(tmax, np.float64), (n,)), 3.0e38)
     d[:n, :3] = dirs
     d[n:, 0] = 1.0

@@ -219,8 +219,13 @@ def test_far_from_origin():
     scene.instances.matrices[:, 1, 3] -= 7000.0
     scene.instances.set_matrices(slice(None), scene.instances.matrices.copy())
     baked = bake_scene(scene)
+    # bake space: a round origin near the scene, so the textures hold small coordinates
+    assert np.allclose(baked.origin, (10000.0, -7000.0, 0.0), atol=64)
+    assert np.abs(baked.uniforms["hs_grid_origin"]).max() < 100
     o, d, t = random_rays(rng, scene, 2000)
     assert_equal_tracers(scene, baked, o, d, t)
+    # the same scene at home bakes with origin zero
+    assert not bake_scene(random_scene(np.random.default_rng(11), n_inst=100, area=20)).origin.any()
 
 
 def test_sun_rays_from_ground():

@@ -45,12 +45,7 @@ def loaded():
 
 def reference_mask(frame, scene, baked, li, pixels):
     """The numpy tracer's verdict at (rows, cols): 1 lit, 0 shadowed (or facing away)."""
-    rows, cols = pixels
-    gb = frame.gbuffer
-    pos = gb.read("position")[rows, cols, :3]
-    nrm = gb.read("normal")[rows, cols, :3]
-    depth = gb.read("depth")[rows, cols]
-    o, d, tmax, facing = shadow_rays(pos, nrm, depth, scene.lights[li])
+    o, d, tmax, facing = shadow_rays(frame.gbuffer, pixels, scene.lights[li], baked.origin)
     out = np.zeros(len(o), np.float32)
     if facing.any():
         occ = trace_structured(baked, o[facing], d[facing], tmax[facing])

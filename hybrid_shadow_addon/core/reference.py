@@ -40,6 +40,11 @@ def prepare_rays(origins, dirs, tmax):
     return o, d, t, valid
 
 
+def bake_space(baked, points) -> np.ndarray:
+    """World points (N, 3) in the baked scene's space (float64)."""
+    return np.asarray(points, np.float64).reshape(-1, 3) - baked.origin
+
+
 def transform_rays(rows: np.ndarray, o: np.ndarray, d: np.ndarray):
     """Model-space rays: ``rows`` (P, 12) float32 = rows 0..2 of the inverse world matrix."""
     r = rows.reshape(-1, 3, 4)
@@ -228,8 +233,9 @@ def _test_pairs(tex: _Tex, o, d, tmax, ray, entry, stats) -> np.ndarray:
 
 
 def trace_structured(baked, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
-    """Occlusion of each ray through the baked grid + BVH textures (the GPU algorithm)."""
-    o, d, tm, valid = prepare_rays(origins, dirs, tmax)
+    """Occlusion of each ray through the baked grid + BVH textures (the GPU algorithm).
+    ``origins`` are world space; they move into bake space (``baked.origin``) in float64."""
+    o, d, tm, valid = prepare_rays(bake_space(baked, origins), dirs, tmax)
     N = len(o)
     occ = np.zeros(N, bool)
     if stats is not None:

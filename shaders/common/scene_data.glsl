@@ -10,6 +10,9 @@
  *     x = i & (HS_TEX_WIDTH - 1);  row = i >> HS_TEX_WIDTH_LOG2;
  *     y = row & 16383;             layer = row >> 14              (hs_texel(i) below)
  * Height is the number of rows used (<= 16384), exactly 16384 when there are several layers.
+ * Positions are in BAKE SPACE: world - BakedScene.origin (a round point near the casters when
+ * they sit far from the world origin, else zero; see choose_origin in baked.py). Inverse world
+ * matrices below map bake space to model space; rays must be given in bake space too.
  * "bits(f)" = the float32 bit pattern stored in a uint channel (uintBitsToFloat reads it back;
  * floats are never hidden in float textures as integers, so denormal flushing cannot bite).
  *

@@ -30,6 +30,7 @@ class BakeConfig:
     index_slack: float = 0.25  # spare slots per grid node, as a fraction of its count (+1)
     index_reserve: float = 0.25  # spare tail of the grid index list, fraction of its length
     outside_rebake_fraction: float = 0.01  # regrid when more casters than this left the grid
+    origin: Optional[tuple] = None  # bake-space origin in world space; None: choose_origin()
 
     def __post_init__(self):
         w = int(self.tex_width)
@@ -94,6 +95,22 @@ def instance_spheres(scene, idx=None):
     return c, radii_m[mid] * scale
 
 
+def choose_origin(scene) -> np.ndarray:
+    """The bake-space origin: world zero, unless the casters sit farther from it than their own
+    extent — then a nearby round point (a multiple of a power of two near the extent), so that
+    float32 coordinates keep their precision 100 km out as well as at home."""
+    casters = np.nonzero(scene.instances.casts_shadow)[0] if len(scene.instances) else []
+    if len(casters) == 0:
+        return np.zeros(3)
+    c, r = instance_spheres(scene, casters)
+    lo, hi = (c - r[:, None]).min(axis=0), (c + r[:, None]).max(axis=0)
+    center, extent = (lo + hi) / 2, float((hi - lo).max())
+    if not np.isfinite(center).all() or np.abs(center).max() <= max(extent, 1.0):
+        return np.zeros(3)
+    q = 2.0 ** np.ceil(np.log2(max(extent, 1.0)))
+    return np.round(center / q) * q
+
+
 def stored_radius(c: np.ndarray, r: np.ndarray) -> np.ndarray:
     """World radius as stored/tested: enlarged so rounding never culls (float32, rounded up)."""
     return f32_up(r * (1.0 + REL_EPS) + REL_EPS * np.abs(c).max(axis=1) + 1e-30)
@@ -104,6 +121,8 @@ class BakedScene:
 
     def __init__(self, config: BakeConfig):
         self.config = config
+        # bake space = world - origin (float64 on the CPU): every texture and uniform is in it
+        self.origin = np.zeros(3)
         self.textures: dict[str, TextureData] = {}
         self.layout: _grid.GridLayout = None
         self.stats: dict = {}
@@ -184,16 +203,19 @@ class BakedScene:
 
     # ------------------------------------------------------------------ writers ------------
     def write_objects(self, scene, idx: np.ndarray) -> None:
-        """[object] texels of instances ``idx`` (+ world spheres kept for the grid)."""
+        """[object] texels of instances ``idx`` (+ spheres kept for the grid), in bake space."""
         inst = scene.instances
         c, r = instance_spheres(scene, idx)
+        c = c - self.origin
         rs = stored_radius(c, r)
         self.inst_center[idx] = c
         self.inst_radius[idx] = r
         self.inst_top[idx] = c[:, 2] + rs
         rec = self.textures["object"].records(OBJECT_TEXELS)
         block = np.empty((len(idx), 16), np.float32)
-        block[:, 0:12] = inst.inverse[idx, :3, :].reshape(len(idx), 12)
+        inv = inst.inverse[idx, :3, :].copy()  # world -> model, then bake space -> model:
+        inv[:, :, 3] += inv[:, :, :3] @ self.origin  # M^-1 T(origin), in float64
+        block[:, 0:12] = inv.reshape(len(idx), 12)
         block[:, 12:15] = c
         block[:, 15] = rs
         rec[idx] = block
@@ -324,6 +346,7 @@ def bake_scene(scene, config: BakeConfig | None = None) -> BakedScene:
     b.inst_node = np.full(n, -1, np.int64)
     b.inst_slot = np.full(n, -1, np.int64)
     b.textures["object"] = alloc_texture("object", n * OBJECT_TEXELS, 4, "f4", cfg.tex_width)
+    b.origin = choose_origin(scene) if cfg.origin is None else np.asarray(cfg.origin, np.float64).reshape(3)
     if n:
         b.write_objects(scene, np.arange(n))
     t_obj = time.perf_counter() - to
@@ -356,6 +379,7 @@ def refresh_stats(b: BakedScene) -> dict:
         "bvh_max_depth": int(b.model_depth.max()) if len(b.model_depth) else 0,
         "grid_levels": int(lay.levels),
         "grid_base_node_size": float(lay.base_size),
+        "origin": [float(x) for x in b.origin],
         "grid_origin": [float(x) for x in lay.origin],
         "grid_dims": lay.dims.tolist(),
         "grid_nodes": int(lay.n_nodes),

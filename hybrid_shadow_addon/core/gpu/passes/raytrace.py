@@ -25,12 +25,12 @@ from . import create_mask_texture
 from .conservative import ConservativeMaps
 
 
-def light_ray_uniforms(light) -> tuple[bool, tuple]:
+def light_ray_uniforms(light, origin=(0.0, 0.0, 0.0)) -> tuple[bool, tuple]:
     """(local, u_light_vec): a sun gives the unit direction towards it, other lights their
-    position (area lights are points for now)."""
+    position (area lights are points for now) relative to ``origin`` (the bake's)."""
     if light.type == "SUN":
         return False, tuple(float(v) for v in -light.direction)
-    return True, tuple(float(v) for v in light.position)
+    return True, tuple(float(v) for v in light.position - np.asarray(origin, np.float64))
 
 
 def offset_origins(p: np.ndarray, n: np.ndarray, slack: np.ndarray) -> np.ndarray:
@@ -44,23 +44,48 @@ def offset_origins(p: np.ndarray, n: np.ndarray, slack: np.ndarray) -> np.ndarra
     return (q + n * np.asarray(slack, np.float32)[..., None]).astype(np.float32)
 
 
-def shadow_rays(position: np.ndarray, normal: np.ndarray, depth: np.ndarray, light):
-    """The rays ``shaders/raytrace.glsl`` traces for G-buffer samples (arrays of (N, 3) and (N,)):
-    ``(origins, dirs, tmax, facing)``; samples with ``facing`` False are not traced (mask 0)."""
-    local, vec = light_ray_uniforms(light)
+def surface_points(camera, rows, cols, depth) -> np.ndarray:
+    """numpy mirror of ``surface_point`` in ``shaders/raytrace.glsl`` without the camera's
+    position: camera-relative points (N, 3) of pixels (rows, cols) (row 0 = top) at G-buffer
+    view ``depth``, in float32 as the shader computes them. ``camera``: ``GBuffer.camera``."""
+    f = np.float32
+    W, H = camera.resolution
+    fx = ((np.asarray(cols) + f(0.5)) / f(W)).astype(f)
+    fy = ((f(H - 1) - np.asarray(rows) + f(0.5)) / f(H)).astype(f)
+    xmin, xmax, ymin, ymax = (f(v) for v in camera.viewplane)
+    cs = f(camera.clip_start)
+    local = np.stack([xmin * (f(1) - fx) + xmax * fx, ymin * (f(1) - fy) + ymax * fy,
+                      np.full(len(fx), -cs, f)], axis=1)
+    R = camera.cam_rot.astype(f)
+    depth = np.asarray(depth, f)
+    if camera.ortho:
+        return local @ R.T + (-R[:, 2])[None] * (depth - cs)[:, None]
+    return (local @ R.T) * (depth / cs)[:, None]
+
+
+def shadow_rays(gbuffer, pixels, light, origin=(0.0, 0.0, 0.0)):
+    """The rays ``shaders/raytrace.glsl`` traces for G-buffer pixels ``(rows, cols)``:
+    ``(origins, dirs, tmax, facing)``. Origins are world space (float64: the shader's float32
+    bake-space origins plus the bake's ``origin``); samples with ``facing`` False are not traced
+    (mask 0)."""
+    rows, cols = pixels
+    origin = np.asarray(origin, np.float64)
+    cam = gbuffer.camera
+    depth = gbuffer.read("depth")[rows, cols]
+    n = gbuffer.read("normal")[rows, cols, :3].astype(np.float32)
+    p = (cam.cam_pos - origin).astype(np.float32) + surface_points(cam, rows, cols, depth)
+    local, vec = light_ray_uniforms(light, origin)
     vec = np.asarray(vec, np.float32)  # (as the shader's uniform)
-    p = np.asarray(position, np.float32)
-    n = np.asarray(normal, np.float32)
     to_light = vec - p if local else np.broadcast_to(vec, p.shape)
     facing = (n * to_light).sum(axis=1) > 0
-    o = offset_origins(p, n, np.asarray(depth, np.float32) * np.float32(3.0e-6))
+    o = offset_origins(p, n, depth * np.float32(3.0e-6))
     if local:
         d = vec - o
         tmax = np.ones(len(o), np.float32)
     else:
         d = np.broadcast_to(vec, o.shape).copy()
         tmax = np.full(len(o), np.inf, np.float32)
-    return o, d, tmax, facing
+    return o.astype(np.float64) + origin, d, tmax, facing
 
 
 class RaytracePass:
@@ -114,14 +139,15 @@ class RaytracePass:
             t0 = time.perf_counter()
             self.maps.begin_frame(scene, gbuffer)
             self.last_map_ms += (time.perf_counter() - t0) * 1e3
+        origin = self.scene_textures.baked.origin
         for li in lights:
-            local, vec = light_ray_uniforms(scene.lights[li])
+            local, vec = light_ray_uniforms(scene.lights[li], origin)
             defines = self.defines(settings, local)
             cmap = None
             if self.conservative and (self.conservative_local or not local):
                 ctx.finish()  # (so last_map_ms holds the maps alone, not the previous light's rays)
                 t0 = time.perf_counter()
-                cmap = self.maps.render(scene, li, local, vec)
+                cmap = self.maps.render(scene, li, local, light_ray_uniforms(scene.lights[li])[1])
                 ctx.finish()
                 self.last_map_ms += (time.perf_counter() - t0) * 1e3
                 self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
@@ -139,10 +165,11 @@ class RaytracePass:
         unit = gbuffer.bind(prog)
         unit = self.scene_textures.bind(prog, unit)
         if cmap is not None:
-            unit = self._bind_map(prog, unit, *cmap)
+            unit = self._bind_map(prog, unit, *cmap, self.scene_textures.baked.origin)
         prog["u_scale"].value = settings.mask_scale
         prog["u_full_size"].value = (gbuffer.width, gbuffer.height)
         prog["u_light_vec"].value = light_vec
+        prog["u_cam_bake"].value = tuple(float(v) for v in gbuffer.camera.cam_pos - self.scene_textures.baked.origin)
         if settings.max_distance > 0:
             prog["u_max_distance"].value = float(settings.max_distance)
         out = self._target((li, "out"), w, h)
@@ -158,7 +185,7 @@ class RaytracePass:
         return self._fill(out, hist, w, h)
 
     @staticmethod
-    def _bind_map(prog, unit, tex, views) -> int:
+    def _bind_map(prog, unit, tex, views, origin) -> int:
         tex.use(unit)
         prog["u_cm"].value = unit
         n = len(views.bases)
@@ -170,7 +197,7 @@ class RaytracePass:
             if views.windows[k] is not None:
                 wins[k] = views.windows[k]
                 tiles[k] = (*views.tiles[k], 1.0)
-        prog["u_cm_origin"].value = tuple(float(v) for v in views.origin)
+        prog["u_cm_origin"].value = tuple(float(v) for v in np.asarray(views.origin) - origin)  # bake space
         for name, arr in (("u_cm_basis", bases), ("u_cm_win", wins), ("u_cm_tile", tiles)):
             u = prog[name]  # (the sun's program keeps only element 0 of the arrays)
             u.write(arr[:max(1, u.array_length)].tobytes())
