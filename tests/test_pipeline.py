@@ -188,3 +188,26 @@ def test_shader_variants_hold_only_what_the_scene_needs(pipeline, loaded):
     assert "HS_MAX_DISTANCE=1" in frame.stats["defines"]
     forest = loaded("forest")
     assert "HS_HAS_SPHERES" in bake_scene(forest).defines
+
+
+def test_progress_steps_and_cancel(pipeline, loaded):
+    scene = loaded("forest")
+    pipeline.set_scene(scene)
+    seen = []
+    frame = pipeline.render(scene, Settings(mode="raytrace"), 40, 30, on_step=lambda *a: seen.append(a))
+    labels = [label for label, _, _ in seen]
+    assert labels[0] == "G-buffer" and labels[-1] == "Reading the image"
+    for li in frame.lights:
+        assert f"Ray tracing shadows: {scene.lights[li].name}" in labels
+    assert [done for _, done, _ in seen] == list(range(len(seen)))
+    assert all(total == len(seen) for _, _, total in seen)
+
+    class Stop(Exception):
+        pass
+
+    def cancel(label, done, total):
+        if label.startswith("Shadow map"):
+            raise Stop
+
+    with pytest.raises(Stop):
+        pipeline.render(scene, Settings(mode="shadowmap"), 40, 30, on_step=cancel)

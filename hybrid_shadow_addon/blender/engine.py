@@ -165,66 +165,18 @@ def _bottom_up(a: np.ndarray) -> np.ndarray:
 
 
 class _Progress:
-    """Reports the pipeline's passes while they run: wraps the pass objects of one pipeline
-    (instance attributes, removed again on exit) so ``test_break`` is checked before each pass
-    and each light, and progress/stats follow. Uses no core API beyond the pass objects'
-    ``render`` methods and, when present, their per-light steps (``RaytracePass._trace``,
-    ``ShadowMapPass._mask``)."""
+    """``Pipeline.render``'s ``on_step``: checks ``test_break`` before each pass and light (raising
+    :class:`Cancelled`), and maps the pipeline's steps onto ``start..end`` of the progress bar."""
 
-    def __init__(self, engine, pipeline, n_lights: int, mode: str, start: float, end: float):
+    def __init__(self, engine, start: float, end: float):
         self.engine = engine
-        self.pipeline = pipeline
-        self.done = 0
-        self.total = 3 + max(1, n_lights)
         self.start, self.end = start, end
-        self.mode = mode
-        self.patched = []
 
-    def step(self, label: str) -> None:
+    def __call__(self, label: str, done: int, total: int) -> None:
         if self.engine.test_break():
             raise Cancelled()
         self.engine.update_stats("", f"Hybrid Shadows | {label}")
-        self.engine.update_progress(self.start + (self.end - self.start) * min(1.0, self.done / self.total))
-        self.done += 1
-
-    def _wrap(self, obj, attr, label):
-        orig = getattr(obj, attr, None)
-        if orig is None:
-            return
-        names = [l.name for l in self.scene.lights]
-
-        def wrapped(*args, **kwargs):
-            text = label
-            if "{light}" in label:
-                li = args[0] if args else None
-                text = label.format(light=names[li] if isinstance(li, int) and li < len(names) else "")
-            self.step(text)
-            return orig(*args, **kwargs)
-
-        setattr(obj, attr, wrapped)
-        self.patched.append((obj, attr))
-
-    def __call__(self, scene):
-        self.scene = scene
-        return self
-
-    def __enter__(self):
-        p = self.pipeline
-        self._wrap(p.gbuffer_pass, "render", "G-buffer")
-        self._wrap(p.raytrace, "_trace", "Ray tracing shadows: {light}")
-        self._wrap(p.shadowmap, "_mask", "Shadow map: {light}")
-        self._wrap(p.noshadow, "render", "Shadow masks")
-        self._wrap(p.upsample, "render", "Upsampling masks")
-        self._wrap(p.lighting, "render", "Lighting")
-        return self
-
-    def __exit__(self, *exc):
-        for obj, attr in self.patched:
-            try:
-                delattr(obj, attr)
-            except AttributeError:
-                pass
-        return False
+        self.engine.update_progress(self.start + (self.end - self.start) * min(1.0, done / max(1, total)))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -280,10 +232,9 @@ class HybridShadowsEngine(bpy.types.RenderEngine):
                         pipe.set_scene(core)
                     if self.test_break():
                         return
-                    n = len([l for l in core.lights if l.use_shadow])
-                    with _Progress(self, pipe, n, settings.mode, 0.2, 0.8)(core):
-                        frame = pipe.render(core, settings, width, height,
-                                            film_transparent=bool(scene.render.film_transparent))
+                    frame = pipe.render(core, settings, width, height,
+                                        film_transparent=bool(scene.render.film_transparent),
+                                        on_step=_Progress(self, 0.2, 0.8))
                     self._write_result(core, frame, scene, view_layer, width, height)
         except Cancelled:
             return

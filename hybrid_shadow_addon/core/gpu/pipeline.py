@@ -84,7 +84,10 @@ class Pipeline:
 
     # -- frame ------------------------------------------------------------------------------------
     def render(self, scene, settings: Settings | None = None, width: int | None = None,
-               height: int | None = None, film_transparent: bool = False, read_image: bool = True) -> Frame:
+               height: int | None = None, film_transparent: bool = False, read_image: bool = True,
+               on_step=None) -> Frame:
+        """Run the passes. ``on_step(label, done, total)`` is called before each pass and each
+        shadowed light (progress, and a place to cancel: whatever it raises aborts the frame)."""
         settings = settings or Settings()
         if scene.camera is None:
             raise SceneError(f"scene '{scene.name}' has no camera")
@@ -95,25 +98,40 @@ class Pipeline:
             self.set_scene(scene)
         ctx = self.ctx
         timings = {}
+        lights = select_shadowed_lights(scene, settings)
+        total = 4 + len(lights)
+        done = [0]
 
-        def timed(name, fn):
+        def step(label):
+            if on_step is not None:
+                on_step(label, done[0], total)
+            done[0] += 1
+
+        def on_light(li):
+            kind = "Ray tracing shadows" if settings.mode == "raytrace" else "Shadow map"
+            step(f"{kind}: {scene.lights[li].name}")
+
+        def timed(name, fn, label=None):
+            if label:
+                step(label)
             t0 = time.perf_counter()
             out = fn()
             ctx.finish()
             timings[name] = (time.perf_counter() - t0) * 1e3
             return out
 
-        lights = select_shadowed_lights(scene, settings)
-        gbuffer = timed("gbuffer_ms", lambda: self.gbuffer_pass.render(scene, width, height))
+        gbuffer = timed("gbuffer_ms", lambda: self.gbuffer_pass.render(scene, width, height), "G-buffer")
         if settings.mode == "raytrace":
-            masks = timed("shadow_ms", lambda: self.raytrace.render(scene, gbuffer, settings, lights))
+            masks = timed("shadow_ms", lambda: self.raytrace.render(scene, gbuffer, settings, lights, on_light))
         elif settings.mode == "shadowmap":
-            masks = timed("shadow_ms", lambda: self.shadowmap.render(scene, gbuffer, settings, lights))
+            masks = timed("shadow_ms", lambda: self.shadowmap.render(scene, gbuffer, settings, lights, on_light))
         else:
             masks = timed("shadow_ms", lambda: self.noshadow.render(scene, gbuffer, settings, lights))
-        masks = timed("upsample_ms", lambda: self.upsample.render(masks, gbuffer, settings))
-        out = timed("lighting_ms", lambda: self.lighting.render(scene, gbuffer, masks, settings, film_transparent))
-        image = timed("readback_ms", lambda: self.lighting.read()) if read_image else None
+            done[0] += len(lights)
+        masks = timed("upsample_ms", lambda: self.upsample.render(masks, gbuffer, settings), "Upsampling masks")
+        out = timed("lighting_ms", lambda: self.lighting.render(scene, gbuffer, masks, settings, film_transparent),
+                    "Lighting")
+        image = timed("readback_ms", lambda: self.lighting.read(), "Reading the image") if read_image else None
         timings["total_ms"] = sum(timings.values())
         mw, mh = settings.mask_size(width, height) if settings.mode == "raytrace" else (width, height)
         stats = {

@@ -126,8 +126,9 @@ class RaytracePass:
             self._valid_phases = 0
         return tex
 
-    def render(self, scene, gbuffer, settings, lights) -> dict:
-        """Masks ``{light_index: R32F texture}`` at ``settings.mask_size`` of the G-buffer."""
+    def render(self, scene, gbuffer, settings, lights, on_light=None) -> dict:
+        """Masks ``{light_index: R32F texture}`` at ``settings.mask_size`` of the G-buffer;
+        ``on_light(index)`` is called before each light."""
         ctx = self.ctx
         w, h = settings.mask_size(gbuffer.width, gbuffer.height)
         self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
@@ -141,6 +142,8 @@ class RaytracePass:
             self.last_map_ms += (time.perf_counter() - t0) * 1e3
         origin = self.scene_textures.baked.origin
         for li in lights:
+            if on_light is not None:
+                on_light(li)
             local, vec = light_ray_uniforms(scene.lights[li], origin)
             defines = self.defines(settings, local)
             cmap = None

@@ -230,7 +230,8 @@ class ShadowMapPass:
             b = self._batches[key] = InstanceBatch(self.ctx)
         return b.upload(data, prog, vbo, "3f 12x", ("in_pos",), INSTANCE_FORMAT, INSTANCE_ATTRS)
 
-    def render(self, scene, gbuffer, settings, lights=None) -> dict:
+    def render(self, scene, gbuffer, settings, lights=None, on_light=None) -> dict:
+        """Masks ``{light_index: texture}``; ``on_light(index)`` is called before each light."""
         ctx = self.ctx
         cam = gbuffer.camera
         idx = select_shadowed_lights(scene, settings) if lights is None else list(lights)
@@ -241,6 +242,8 @@ class ShadowMapPass:
         out = {}
         self.views = {}
         for li in idx:
+            if on_light is not None:
+                on_light(li)
             light = scene.lights[li]
             mask = self._mask(li, gbuffer.width, gbuffer.height)
             out[li] = mask
