@@ -1,12 +1,12 @@
 """Pipeline benchmark on llvmpipe (a script, not a test): ms per pass and per mode.
 
     .venv/bin/python benchmarks/bench_pipeline.py [--scenes forest,clusters,city] [--reps 3]
-        [--size 640x360] [--scaling 1000,10000,100000,1000000] [--no-scaling]
+        [--size 640x360] [--scaling 1000,10000,100000,1000000] [--no-scaling] [--maps]
 
 Tables (warm: the first frame of every configuration compiles shaders and is discarded; median
 of ``--reps`` frames; the machine is shared, so compare ratios measured in the same run):
-1. ms per pass and mode (raytrace high/medium/low, shadowmap, none) per scene; raytrace also
-   without the conservative maps, and the maps' own share;
+1. ms per pass and mode (raytrace high/medium/low, shadowmap, none) per scene; with ``--maps``
+   raytrace also with the conservative occupancy maps (suns, all lights), and the maps' share;
 2. ray-traced shadow pass / shadow-map pass on each scene at equal resolution;
 3. shadow ms as triangles grow (``scaling:triangles=N,instances=M``), sun only.
 """
@@ -33,7 +33,7 @@ def _frame(pipe, scene, settings, w, h, conservative, local):
     try:
         fr = pipe.render(scene, settings, w, h, read_image=False)
     finally:
-        pipe.raytrace.conservative = True
+        pipe.raytrace.conservative = False
         pipe.raytrace.conservative_local = False
     t = dict(fr.timings)
     t["map_ms"] = pipe.raytrace.last_map_ms if settings.mode == "raytrace" and conservative else 0.0
@@ -60,7 +60,7 @@ def main(argv=None):
     ap.add_argument("--size", default="640x360")
     ap.add_argument("--scaling", default="1000,10000,100000,1000000")
     ap.add_argument("--no-scaling", action="store_true")
-    ap.add_argument("--no-plain", action="store_true", help="skip raytrace without conservative maps")
+    ap.add_argument("--maps", action="store_true", help="also raytrace with conservative occupancy maps")
     a = ap.parse_args(argv)
     w, h = (int(v) for v in a.size.split("x"))
     pipe = Pipeline()
@@ -72,14 +72,14 @@ def main(argv=None):
         scene = load_scene(SCENES.get(name, name))
         pipe.set_scene(scene)
         high = Settings(mode="raytrace", quality="high")
-        configs = [("raytrace high", high, True, False)]
-        if not a.no_plain:
-            configs += [("raytrace high, no maps", high, False, False),
+        configs = [("raytrace high", high, False, False)]
+        if a.maps:
+            configs += [("raytrace high, maps for suns", high, True, False),
                         ("raytrace high, maps for all lights", high, True, True)]
-        configs += [("raytrace medium", Settings(mode="raytrace", quality="medium"), True, False),
-                    ("raytrace low", Settings(mode="raytrace", quality="low"), True, False),
-                    ("shadowmap", Settings(mode="shadowmap"), True, False),
-                    ("none", Settings(mode="none"), True, False)]
+        configs += [("raytrace medium", Settings(mode="raytrace", quality="medium"), False, False),
+                    ("raytrace low", Settings(mode="raytrace", quality="low"), False, False),
+                    ("shadowmap", Settings(mode="shadowmap"), False, False),
+                    ("none", Settings(mode="none"), False, False)]
         res = measure_all(pipe, scene, configs, w, h, a.reps)
         for label, *_ in configs:
             t = res[label]
@@ -87,31 +87,27 @@ def main(argv=None):
                   f"{t['upsample_ms']:.0f} | {t['lighting_ms']:.0f} | {t['total_ms']:.0f} |", flush=True)
         ratio_rows.append((name, res))
     print(f"\n## ray-traced shadow pass / shadow-map pass (equal resolution {w}x{h}; thesis: 14.7x)\n")
-    print("| scene | raytrace ms | shadowmap ms | ratio | no maps ms | ratio no maps |")
-    print("|---|---|---|---|---|---|")
+    print("| scene | raytrace ms | shadowmap ms | ratio |")
+    print("|---|---|---|---|")
     for name, res in ratio_rows:
         rt, sm = res["raytrace high"]["shadow_ms"], res["shadowmap"]["shadow_ms"]
-        plain = res.get("raytrace high, no maps", {}).get("shadow_ms", float("nan"))
-        print(f"| {name} | {rt:.0f} | {sm:.0f} | {rt / sm:.1f}x | {plain:.0f} | {plain / sm:.1f}x |")
+        print(f"| {name} | {rt:.0f} | {sm:.0f} | {rt / sm:.1f}x |")
     if a.no_scaling:
         return
     print(f"\n## shadow ms as triangles grow (scaling scene, {w}x{h}, ray traced high)\n")
-    print("| triangles | instances | raytrace ms | no maps ms | shadowmap ms | rt step ratio |")
-    print("|---|---|---|---|---|---|")
+    print("| triangles | instances | raytrace ms | shadowmap ms | rt step ratio |")
+    print("|---|---|---|---|---|")
     prev = None
     for n in (int(v) for v in a.scaling.split(",")):
         inst = max(1, min(1000, n // 1000))
         scene = load_scene(f"scaling:triangles={n},instances={inst}")
         pipe.set_scene(scene)
         rt_s = Settings(mode="raytrace")
-        configs = [("rt", rt_s, True, False), ("shadowmap", Settings(mode="shadowmap"), True, False)]
-        if not a.no_plain:
-            configs.append(("plain", rt_s, False, False))
+        configs = [("rt", rt_s, False, False), ("shadowmap", Settings(mode="shadowmap"), False, False)]
         res = measure_all(pipe, scene, configs, w, h, a.reps)
         rt, sm = res["rt"]["shadow_ms"], res["shadowmap"]["shadow_ms"]
-        plain = res["plain"]["shadow_ms"] if "plain" in res else float("nan")
         step = "" if prev is None else f"{rt / prev:.2f}x"
-        print(f"| {n} | {inst} | {rt:.0f} | {plain:.0f} | {sm:.0f} | {step} |", flush=True)
+        print(f"| {n} | {inst} | {rt:.0f} | {sm:.0f} | {step} |", flush=True)
         prev = rt
     pipe.release()
 

@@ -1,7 +1,8 @@
 // Pass 2, ray traced: one shadow ray per mask texel towards one light, through the baked scene.
 //
 // Output (R32F): 1 = lit, 0 = shadowed. Background texels are 1 (the lighting pass skips them).
-// Texels whose surface faces away from the light are 0 (unlit anyway).
+// Texels whose surface faces away from the light, or that the light cannot reach (outside a
+// spot's cone, behind an area light) are 0 without a ray: unlit anyway.
 // Defines (besides scene_data.glsl's): HS_LIGHT_SUN or HS_LIGHT_LOCAL (point, spot, area) picks
 // the light kind, one program per kind; HS_MAX_DISTANCE (shadows only on surfaces within
 // u_max_distance of the camera, as the shadow-map pass; rays are no longer than that either), HS_INTERLACE (trace only the texels of
@@ -23,6 +24,11 @@ uniform ivec2 u_full_size;      // G-buffer size
 uniform vec3 u_light_vec;       // sun: unit direction towards it; else the light's position
                                 // (bake space: world - the bake's origin)
 uniform vec3 u_cam_bake;        // camera position in bake space (float64 on the CPU)
+#ifdef HS_LIGHT_LOCAL
+uniform vec3 u_light_axis;      // unit direction the light shines towards
+uniform float u_light_cone;     // no light where dot(light -> p, axis) <= this: a spot's
+                                // cos(size / 2), 0 behind an area light, -2 (never) for a point
+#endif
 #ifdef HS_MAX_DISTANCE
 uniform float u_max_distance;
 #endif
@@ -101,7 +107,10 @@ void main()
     vec3 to_light = u_light_vec;
 #endif
     float facing = dot(n, to_light);
-    if (facing <= 0.0) { o_mask = 0.0; return; }
+    if (facing <= 0.0) { o_mask = 0.0; return; }    // faces away: unlit, no ray
+#ifdef HS_LIGHT_LOCAL
+    if (dot(-normalize(to_light), u_light_axis) <= u_light_cone) { o_mask = 0.0; return; }  // out of reach
+#endif
 
     vec3 o = offset_origin(p, n, depth * 3.0e-6);
 #ifdef HS_LIGHT_LOCAL

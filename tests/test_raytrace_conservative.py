@@ -46,8 +46,7 @@ def masks_with_and_without(pipeline, scene, settings):
         try:
             frame = pipeline.render(scene, settings, W, H)
         finally:
-            pipeline.raytrace.conservative = True
-            pipeline.raytrace.conservative_local = False
+            pipeline.raytrace.conservative = pipeline.raytrace.conservative_local = False
         out.append({li: frame.mask_array(li) for li in frame.lights})
         if cons:
             assert any(d == "HS_CONSERVATIVE=1" for d in frame.stats["defines"])
@@ -104,7 +103,7 @@ def test_maps_skip_most_rays_on_the_forest(pipeline, loaded):
     try:
         pipeline.render(scene, Settings(mode="raytrace"), W, H)
     finally:
-        pipeline.raytrace.conservative_local = False
+        pipeline.raytrace.conservative = pipeline.raytrace.conservative_local = False
     stats = pipeline.raytrace.maps.stats
     assert stats and all(s["views"] >= 1 for s in stats.values())
     # the sun's casters are culled against the receivers' window

@@ -2,7 +2,8 @@
 
 - :func:`trace_structured` walks exactly the baked textures (it reads nothing else but
   ``BakedScene.textures`` and ``.uniforms``): the always-tested outside node, then each non-empty
-  grid level with the DDA, node max-height culling, the world-sphere pre-test, the ray transform,
+  grid level with the DDA, node max-height culling, the object BVH of crowded nodes (else the
+  flat node list), the world-sphere pre-test, the ray transform,
   the analytic sphere test or the stackless BVH walk and the watertight triangle test. It follows
   ``shaders/common/scene_data.glsl`` operation by operation in float32, but runs all rays in lock
   step (one numpy pass per DDA step / BVH step) instead of one ray per invocation.
@@ -26,6 +27,7 @@ SLAB_BIG = F(1e30)  # 1/d for d == 0 in the slab test
 EPS16 = F(2.0 ** -16)
 TFAR_SCALE = F(1.0 + 2.0 ** -20)
 PRETEST_EPS = F(2.0 ** -18)
+OBVH_EPS = F(2.0 ** -16)  # object-BVH box widening (HS_OBVH_EPS)
 
 
 # ------------------------------------------------------------------------------------------
@@ -239,7 +241,8 @@ def trace_structured(baked, origins, dirs, tmax=np.inf, stats: dict | None = Non
     N = len(o)
     occ = np.zeros(N, bool)
     if stats is not None:
-        stats.update({"dda_steps": 0, "nodes_tested": 0, "objects": 0, "bvh_nodes": 0, "triangles": 0})
+        stats.update({"dda_steps": 0, "nodes_tested": 0, "objects": 0, "bvh_nodes": 0, "triangles": 0,
+                      "obvh_walks": 0, "obvh_nodes": 0})
     tex = _Tex(baked)
     u = baked.uniforms
     H = F(u["hs_scene_max_height"])
@@ -286,10 +289,59 @@ def _visit(tex, o, d, tm, occ, ray, node, stats, zmin=None):
     ray, g, cnt = ray[keep], g[keep], cnt[keep]
     if not ray.size:
         return
+    tree = g[:, 3] != 0  # crowded node: walk its object BVH (hs_node_bvh_occludes)
+    if tree.any():
+        _node_bvh(tex, o, d, tm, occ, ray[tree], g[tree, 3].astype(np.int64) - 1, stats)
+        ray, g, cnt = ray[~tree], g[~tree], cnt[~tree]
+        if stats is not None:
+            stats["obvh_walks"] += int(tree.sum())
+        if not ray.size:
+            return
     owner, entry = _ragged(g[:, 0], cnt)
     pr = ray[owner]
     hit = _test_pairs(tex, o, d, tm, pr, entry, stats)
     occ[pr[hit]] = True
+
+
+def _node_bvh(tex, o, d, tm, occ, ray, root, stats):
+    """Object-BVH walk of crowded grid nodes, one (ray, root) pair each, in lock step (mirrors
+    hs_node_bvh_occludes): widened slab test, leaves = runs of grid-index entries."""
+    P = len(ray)
+    hit = np.zeros(P, bool)
+    r = tex.bvh[root]
+    end = r[:, 3].astype(np.int64)
+    ao = np.abs(o[ray])
+    rlo = np.abs(r[:, 0:3].view(F))
+    rhi = np.abs(r[:, 4:7].view(F))
+    with np.errstate(over="ignore", invalid="ignore"):
+        e = OBVH_EPS * (((ao[:, 0] + ao[:, 1]) + ao[:, 2])
+                        + (((rlo[:, 0] + rlo[:, 1]) + rlo[:, 2]) + ((rhi[:, 0] + rhi[:, 1]) + rhi[:, 2])))
+    inv = slab_inv(d[ray])
+    i = root.copy()
+    act = np.nonzero(i < end)[0]
+    while act.size:
+        node = tex.bvh[i[act]]
+        ea = e[act][:, None]
+        with np.errstate(over="ignore", invalid="ignore"):
+            bmin = node[:, 0:3].view(F) - ea
+            bmax = node[:, 4:7].view(F) + ea
+        esc = node[:, 3].astype(np.int64)
+        leaf = node[:, 7].astype(np.int64)
+        ra = ray[act]
+        bh = slab_hit(o[ra], inv[act], bmin, bmax, tm[ra])
+        if stats is not None:
+            stats["obvh_nodes"] += act.size
+        is_leaf = leaf != 0
+        lt = np.nonzero(bh & is_leaf)[0]
+        if lt.size:
+            owner, entry = _ragged(leaf[lt] >> 3, leaf[lt] & 7)
+            p = act[lt[owner]]
+            h = _test_pairs(tex, o, d, tm, ray[p], entry, stats)
+            hit[p[h]] = True
+        nxt = np.where(bh & ~is_leaf, i[act] + 1, esc)
+        i[act] = nxt
+        act = act[(nxt < end[act]) & ~hit[act]]
+    occ[ray[hit]] = True
 
 
 def _walk_level(tex, o, d, tm, t_dda, occ, rays, gx, gy, s, nx, ny, off, stats):

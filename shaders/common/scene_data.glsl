@@ -24,9 +24,11 @@
  *     .y  count (objects in the node)
  *     .z  bits(max height): highest world bounding-sphere top (z) of its objects, rounded up;
  *         -FLT_MAX when empty
- *     .w  capacity (slots reserved for the node; for incremental updates, unused by the GPU)
+ *     .w  object BVH: 0 = none (test the node's list flat), else 1 + its root node in [bvh].
+ *         Nodes with more than BakeConfig.object_bvh_threshold objects have one; their list in
+ *         [grid_index] is then in the tree's leaf order (Morton order of the object centres).
  * [grid_index]  RG32UI "hs_grid_index_tex", 1 texel per entry, node lists packed back to back
- *         (any length; spare slots and a spare tail for incremental updates).
+ *         (any length; spare slots and a spare tail for incremental updates, capacities CPU-side).
  *     .x  object id (instance index, row of [object])
  *     .y  model id | 0x80000000 if the instance is an analytic sphere primitive
  * [object]  RGBA32F "hs_object_tex", 4 texels per instance (texel 4*id + k), all instances
@@ -43,6 +45,14 @@
  *     k=0     .xyz bits(box min), .w escape: absolute index of the node after this subtree
  *     k=1     .xyz bits(box max), .w leaf: 0 for an inner node, else (first triangle << 3) | count
  *             (count 1..7, triangles contiguous in [tri])
+ *         Object BVHs of crowded grid nodes follow the model trees (and the tail after model
+ *         edits) in the same record format: boxes in BAKE space around the objects' stored world
+ *         spheres ([object] k=3, rounded outward, enlarged like model boxes), balanced over the
+ *         Morton-ordered list, escape absolute, and the root's escape ends the walk; a leaf is
+ *         (first [grid_index] entry << 3) | count (count 1..7, entries contiguous). The walk
+ *         (hs_node_bvh_occludes) widens every box by HS_OBVH_EPS * (|o|_1 + |root min|_1 +
+ *         |root max|_1) per ray, which bounds the sphere pre-test's own tolerance: the tree never
+ *         culls an object the pre-test would accept.
  * [tri]  RGB32F "hs_tri_tex", 3 texels per triangle (texel 3*tri + k): vertex k in model space,
  *         triangles reordered per model into BVH leaf order. De-indexed on purpose: the thesis'
  *         vertex + index textures cost one more dependent fetch per vertex in the innermost loop;
@@ -71,6 +81,7 @@
 #define HS_EPS16 1.52587890625e-05      // 2^-16
 #define HS_TFAR_SCALE 1.00000095367431640625  // 1 + 2^-20
 #define HS_PRETEST_EPS 3.814697265625e-06     // 2^-18
+#define HS_OBVH_EPS 1.52587890625e-05         // 2^-16: object-BVH box widening (>= pre-test's)
 #define HS_SPHERE_FLAG 0x80000000u
 
 uniform usampler2DArray hs_grid_tex;
@@ -257,6 +268,35 @@ bool hs_object_occludes(vec3 o, vec3 d, float tmax, uvec2 entry)
 #endif
 }
 
+// Object BVH of a crowded grid node: stackless walk like hs_bvh_occluded, leaves are runs of
+// grid-index entries. Boxes widened by e (see [bvh]) so no pre-test hit is culled.
+bool hs_node_bvh_occludes(vec3 o, vec3 d, float tmax, int root)
+{
+    vec3 inv = hs_slab_inv(d);
+    uvec4 r0 = hs_fetch_bvh(root, 0);
+    uvec4 r1 = hs_fetch_bvh(root, 1);
+    vec3 ao = abs(o);
+    vec3 rlo = abs(uintBitsToFloat(r0.xyz));
+    vec3 rhi = abs(uintBitsToFloat(r1.xyz));
+    float e = HS_OBVH_EPS * (((ao.x + ao.y) + ao.z) + (((rlo.x + rlo.y) + rlo.z) + ((rhi.x + rhi.y) + rhi.z)));
+    vec3 ev = vec3(e);
+    int i = root;
+    int end = int(r0.w);
+    while (i < end) {
+        uvec4 n0 = hs_fetch_bvh(i, 0);
+        uvec4 n1 = hs_fetch_bvh(i, 1);
+        bool hit = hs_slab_hit(o, inv, uintBitsToFloat(n0.xyz) - ev, uintBitsToFloat(n1.xyz) + ev, tmax);
+        if (hit && n1.w != 0u) {
+            int first = int(n1.w >> 3u);
+            int cnt = int(n1.w & 7u);
+            for (int k = 0; k < cnt; ++k)
+                if (hs_object_occludes(o, d, tmax, hs_fetch_index(first + k))) return true;
+        }
+        i = (hit && n1.w == 0u) ? i + 1 : int(n0.w);
+    }
+    return false;
+}
+
 // All objects of one grid node; zmin: lowest ray z inside the node (-FLT_MAX: no culling).
 bool hs_node_occludes(vec3 o, vec3 d, float tmax, int node, float zmin, bool cull)
 {
@@ -266,6 +306,7 @@ bool hs_node_occludes(vec3 o, vec3 d, float tmax, int node, float zmin, bool cul
         float maxh = uintBitsToFloat(g.z);
         if (zmin - maxh > HS_EPS16 * (abs(zmin) + abs(maxh))) return false;
     }
+    if (g.w != 0u) return hs_node_bvh_occludes(o, d, tmax, int(g.w) - 1);
     int first = int(g.x);
     int cnt = int(g.y);
     for (int k = 0; k < cnt; ++k)

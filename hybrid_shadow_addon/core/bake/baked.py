@@ -2,6 +2,11 @@
 
 Texel layouts: ``shaders/common/scene_data.glsl`` ("SCENE TEXTURE LAYOUT"), section names cited
 below as [grid], [grid_index], [object], [model], [bvh], [tri].
+
+Crowded grid nodes (more than ``BakeConfig.object_bvh_threshold`` objects) also get an *object BVH*
+in [bvh] (after the model BVHs): a stackless tree over the bake-space boxes of their objects'
+stored spheres, leaves of ``object_leaf_size`` consecutive [grid_index] entries (the node's list is
+kept in the tree's Morton leaf order). ``place_object_bvhs`` builds them, vectorised over nodes.
 """
 from __future__ import annotations
 
@@ -12,9 +17,9 @@ from typing import Optional
 import numpy as np
 
 from . import grid as _grid
-from .bvh import build_bvhs
+from .bvh import build_bvhs, build_trees, morton_order_groups
 from .textures import (BVH_TEXELS, EMPTY_HEIGHT, GRID_TEXELS, INDEX_TEXELS, MAX_ROWS_LOG2, MODEL_TEXELS,
-                       OBJECT_TEXELS, SPHERE_FLAG, TRI_TEXELS, TextureData, alloc_texture, f32_bits, f32_up,
+                       OBJECT_TEXELS, SPHERE_FLAG, TRI_TEXELS, TextureData, alloc_texture, f32_bits, f32_down, f32_up,
                        grow_texture)
 
 REL_EPS = 2.0 ** -20
@@ -31,6 +36,8 @@ class BakeConfig:
     index_reserve: float = 0.25  # spare tail of the grid index list, fraction of its length
     outside_rebake_fraction: float = 0.01  # regrid when more casters than this left the grid
     origin: Optional[tuple] = None  # bake-space origin in world space; None: choose_origin()
+    object_bvh_threshold: int = 32  # nodes with more objects than this get an object BVH
+    object_leaf_size: int = 4  # grid-index entries per object-BVH leaf (1..7)
 
     def __post_init__(self):
         w = int(self.tex_width)
@@ -38,6 +45,10 @@ class BakeConfig:
             raise ValueError("tex_width must be a power of two between 4 and 16384")
         if not 1 <= int(self.leaf_size) <= 7:
             raise ValueError("leaf_size must be 1..7")
+        if not 1 <= int(self.object_leaf_size) <= 7:
+            raise ValueError("object_leaf_size must be 1..7")
+        if int(self.object_bvh_threshold) < 1:
+            raise ValueError("object_bvh_threshold must be >= 1")
 
 
 @dataclass
@@ -233,7 +244,69 @@ class BakedScene:
         mh = np.where(self.node_count[nodes] > 0, self.node_maxh[nodes], 0.0)
         h = np.where(self.node_count[nodes] > 0, f32_up(mh + REL_EPS * np.abs(mh)), EMPTY_HEIGHT)
         lin[nodes, 2] = f32_bits(h)
-        lin[nodes, 3] = self.node_cap[nodes]
+        lin[nodes, 3] = np.where(self.node_obvh[nodes] >= 0, self.node_obvh[nodes] + 1, 0)
+
+    def obvh_nodes_for(self, n) -> np.ndarray:
+        """Object-BVH tree nodes for ``n`` objects (balanced tree over ceil(n / leaf) leaves)."""
+        leaves = -(-np.asarray(n, np.int64) // int(self.config.object_leaf_size))
+        return np.where(leaves > 0, 2 * leaves - 1, 0)
+
+    def place_object_bvhs(self, nodes, first, cnt, ent_obj, reserve: float = 0.25):
+        """Object BVHs of grid ``nodes``: node ``nodes[k]`` holds ``ent_obj[first[k]:first[k] +
+        cnt[k]]`` in slot order (slots ``node_offset + rank``; offsets already final). Crowded nodes
+        (count > threshold) get their entries reordered into Morton order (returned as a new
+        ``ent_obj``) and their tree built and written to [bvh], in place when it fits the node's
+        allocation, else at the [bvh] tail; the others get none (flat list). Vectorised over all
+        nodes. Returns ``(ent_obj, (starts, counts), grown)``: the [bvh] record ranges written and
+        whether the texture was resized. The caller writes the [grid] texels (``write_nodes``).
+        ``reserve``: when the texture grows, spare records as a fraction of the new trees."""
+        nodes = np.asarray(nodes, np.int64)
+        crowd = np.asarray(cnt) > int(self.config.object_bvh_threshold)
+        self.node_obvh[nodes[~crowd]] = -1
+        none = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        if not crowd.any():
+            return ent_obj, none, False
+        cn = nodes[crowd]
+        cf = np.asarray(first, np.int64)[crowd]
+        cc = np.asarray(cnt, np.int64)[crowd]
+        istart = np.concatenate([[0], np.cumsum(cc)[:-1]]).astype(np.int64)
+        owner = np.repeat(np.arange(cn.size), cc)
+        items = cf[owner] + np.arange(int(cc.sum())) - istart[owner]  # positions in ent_obj
+        obj = ent_obj[items]
+        obj = obj[morton_order_groups(self.inst_center[obj], istart, cc)]
+        ent_obj = ent_obj.copy()
+        ent_obj[items] = obj
+        # item boxes: the stored (float32) sphere of each object, rounded outward
+        rec = self.textures["object"].records(OBJECT_TEXELS)[obj]
+        c = rec[:, 12:15].astype(np.float64)
+        r = rec[:, 15:16].astype(np.float64)
+        lo, hi = f32_down(c - r), f32_up(c + r)
+        nmin, nmax, esc, lstart, lcount, nstart, ncount, _ = build_trees(
+            lo, hi, istart, cc, int(self.config.object_leaf_size))
+        # allocation: in place when the node's previous allocation is large enough
+        fits = ncount <= self.node_obvh_cap[cn]
+        grown = False
+        if (~fits).any():
+            cap = self.obvh_nodes_for(np.maximum(self.node_cap[cn[~fits]], cc[~fits]))
+            self.node_obvh_start[cn[~fits]] = self.bvh_tail + np.concatenate([[0], np.cumsum(cap)[:-1]])
+            self.node_obvh_cap[cn[~fits]] = cap
+            self.bvh_tail += int(cap.sum())
+            if self.bvh_tail * BVH_TEXELS > self.textures["bvh"].capacity:
+                spare = int(reserve * cap.sum()) + 1024
+                grown = grow_texture(self.textures["bvh"], (self.bvh_tail + spare) * BVH_TEXELS, slack=0.0)
+            self.textures["bvh"].used = self.bvh_tail * BVH_TEXELS
+        base = self.node_obvh_start[cn]
+        towner = np.repeat(np.arange(cn.size), ncount)
+        shift = base[towner] - nstart[towner]  # local tree node -> absolute [bvh] record
+        block = np.empty((len(esc), 8), np.uint32)
+        block[:, 0:3] = f32_bits(nmin)
+        block[:, 3] = esc + shift
+        block[:, 4:7] = f32_bits(nmax)
+        slot = self.node_offset[cn][towner] + (lstart - istart[towner])
+        block[:, 7] = np.where(lcount > 0, (slot << 3) | lcount, 0)
+        self.textures["bvh"].records(BVH_TEXELS)[np.arange(len(esc)) + shift] = block
+        self.node_obvh[cn] = base
+        return ent_obj, (base, ncount), grown
 
     def write_models(self, ids: np.ndarray, scene) -> None:
         """[model] texels of model ids ``ids``."""
@@ -295,13 +368,27 @@ class BakedScene:
         self.node_maxh = maxh
         self.level_count = np.bincount(lay.node_level(node), minlength=lay.levels + 1)[: lay.levels].astype(np.int64)
         self.index_tail = used
+        # object BVHs of crowded nodes: one contiguous [bvh] region after the model BVHs (every
+        # [bvh] record past the last model allocation belonged to the previous grid: reclaimed)
+        ends = self.model_node_start + self.model_node_cap
+        self.bvh_tail = int(ends.max()) if ends.size else 0
+        region0 = self.bvh_tail
+        self.node_obvh = np.full(n_nodes, -1, np.int64)
+        self.node_obvh_start = np.zeros(n_nodes, np.int64)
+        self.node_obvh_cap = np.zeros(n_nodes, np.int64)
+        obj = casters[order]
+        obj, _, self.grid_bvh_grown = self.place_object_bvhs(np.arange(n_nodes), first, counts, obj,
+                                                             reserve=cfg.index_reserve)
+        self.grid_bvh_range = (region0, self.bvh_tail)  # [bvh] records written (for regrid reports)
+        self.textures["bvh"].used = self.bvh_tail * BVH_TEXELS
+        if obj.size:
+            self.inst_slot[obj] = slot
         reserve = max(1024, int(used * cfg.index_reserve))
         self.textures["grid"] = alloc_texture("grid", n_nodes * GRID_TEXELS, 4, "u4", cfg.tex_width)
         self.textures["grid_index"] = alloc_texture("grid_index", (used + reserve) * INDEX_TEXELS, 2, "u4", cfg.tex_width)
         self.textures["grid_index"].used = used
         self.write_nodes(np.arange(n_nodes))
         lin = self.textures["grid_index"].linear()
-        obj = casters[order]
         lin[slot, 0] = obj
         lin[slot, 1] = self.index_code(obj)
 
@@ -387,6 +474,8 @@ def refresh_stats(b: BakedScene) -> dict:
         "objects_per_level": b.level_count.tolist(),
         "outside_objects": int(counts[lay.outside_node]),
         "max_objects_per_node": int(counts.max()) if len(counts) else 0,
+        "object_bvh_nodes": int((b.node_obvh >= 0).sum()),
+        "object_bvh_objects": int(counts[b.node_obvh >= 0].sum()),
         "bytes": b.texture_bytes,
         "total_bytes": int(sum(b.texture_bytes.values())),
     })

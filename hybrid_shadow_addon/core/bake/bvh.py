@@ -91,18 +91,37 @@ def build_bvhs(models, leaf_size: int = 4) -> BVHBuild:
         tris[s0:s0 + T] = tr.reshape(T, 9).take(order, axis=0).reshape(T, 3, 3)
         tri_src[s0:s0 + T] = order
 
+    tmin = np.minimum(np.minimum(tris[:, 0], tris[:, 1]), tris[:, 2])
+    tmax = np.maximum(np.maximum(tris[:, 0], tris[:, 1]), tris[:, 2])
+    node_min, node_max, escape, leaf_start, leaf_count, node_start, node_count, depth = build_trees(
+        tmin, tmax, tri_start, tri_count, leaf_size)
+
+    return BVHBuild(node_min, node_max, escape, leaf_start, leaf_count, tris, tri_src,
+                    node_start, node_count, tri_start, tri_count, depth)
+
+
+def build_trees(item_min, item_max, item_start, item_count, leaf_size: int):
+    """Balanced stackless BVHs over groups of items already in their final (e.g. Morton) order.
+
+    ``item_min`` / ``item_max`` (N, 3) float32 item boxes; group ``g`` owns items
+    ``[item_start[g], item_start[g] + item_count[g])``. Leaves are runs of ``leaf_size``
+    consecutive items; nodes are in depth-first order per group (escape indices, see the module
+    doc). Returns ``node_min, node_max, escape, leaf_start, leaf_count, node_start, node_count,
+    depth`` (indices local to this build; leaf_start indexes items). One numpy pass per depth.
+    """
+    item_count = np.asarray(item_count, np.int64)
+    item_start = np.asarray(item_start, np.int64)
+    m_count = len(item_count)
     # --- leaves ----------------------------------------------------------------------------
-    leaves = -(-tri_count // leaf_size)  # per model
+    leaves = -(-item_count // leaf_size)  # per model
     leaf_off = np.concatenate([[0], np.cumsum(leaves)[:-1]]).astype(np.int64) if m_count else np.zeros(0, np.int64)
     n_leaves = int(leaves.sum())
     model_of_leaf = np.repeat(np.arange(m_count, dtype=np.int64), leaves)
     j = np.arange(n_leaves, dtype=np.int64) - leaf_off[model_of_leaf]
-    leaf_tri0 = tri_start[model_of_leaf] + j * leaf_size
-    leaf_tcnt = np.minimum(leaf_size, tri_count[model_of_leaf] - j * leaf_size)
-    tmin = np.minimum(np.minimum(tris[:, 0], tris[:, 1]), tris[:, 2])
-    tmax = np.maximum(np.maximum(tris[:, 0], tris[:, 1]), tris[:, 2])
-    leaf_min = _segment_reduce(np.minimum, tmin, leaf_tri0, leaf_tcnt, 0.0)
-    leaf_max = _segment_reduce(np.maximum, tmax, leaf_tri0, leaf_tcnt, 0.0)
+    leaf_item0 = item_start[model_of_leaf] + j * leaf_size
+    leaf_icnt = np.minimum(leaf_size, item_count[model_of_leaf] - j * leaf_size)
+    leaf_min = _segment_reduce(np.minimum, item_min, leaf_item0, leaf_icnt, 0.0)
+    leaf_max = _segment_reduce(np.maximum, item_max, leaf_item0, leaf_icnt, 0.0)
 
     # --- nodes: top-down, one numpy pass per depth ----------------------------------------
     node_count = np.where(leaves > 0, 2 * leaves - 1, 0)
@@ -125,8 +144,8 @@ def build_bvhs(models, leaf_size: int = 4) -> BVHBuild:
         is_leaf = k == 1
         if is_leaf.any():
             lf = a[is_leaf]
-            leaf_start[df[is_leaf]] = leaf_tri0[lf]
-            leaf_count[df[is_leaf]] = leaf_tcnt[lf]
+            leaf_start[df[is_leaf]] = leaf_item0[lf]
+            leaf_count[df[is_leaf]] = leaf_icnt[lf]
         inner = ~is_leaf
         a, b, df, k, mod = a[inner], b[inner], df[inner], k[inner], mod[inner]
         mid = a + (k + 1) // 2
@@ -158,5 +177,27 @@ def build_bvhs(models, leaf_size: int = 4) -> BVHBuild:
     node_min = lo - pad
     node_max = hi + pad
 
-    return BVHBuild(node_min, node_max, escape, leaf_start, leaf_count, tris, tri_src,
-                    node_start, node_count.astype(np.int64), tri_start, tri_count, depth)
+    return node_min, node_max, escape, leaf_start, leaf_count, node_start, node_count.astype(np.int64), depth
+
+
+def morton_order_groups(centers: np.ndarray, group_start: np.ndarray, group_count: np.ndarray) -> np.ndarray:
+    """Permutation putting the points of each contiguous group in Morton order of their centres
+    (normalised to the cube over the group's own centre box); groups keep their place. Fully
+    vectorised."""
+    n = len(centers)
+    group_count = np.asarray(group_count, np.int64)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    gid = np.repeat(np.arange(len(group_count), dtype=np.int64), group_count)
+    starts = np.asarray(group_start, np.int64)
+    nz = group_count > 0
+    gmin = np.zeros((len(group_count), 3))
+    gmax = np.zeros((len(group_count), 3))
+    gmin[nz] = np.minimum.reduceat(centers, starts[nz], axis=0)
+    gmax[nz] = np.maximum.reduceat(centers, starts[nz], axis=0)
+    # one scale for all three axes (the group's largest extent): a flat crowd keeps square cells
+    # instead of stretching its thin axis over all 10 bits
+    span = np.maximum((gmax - gmin).max(axis=1, keepdims=True), 1e-300)
+    q = np.clip((centers - gmin[gid]) * (1023.0 / span[gid]), 0, 1023).astype(np.uint32)
+    key = (gid << np.int64(30)) | _morton3(q).astype(np.int64)
+    return np.argsort(key, kind="stable")

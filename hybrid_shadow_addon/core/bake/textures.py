@@ -114,11 +114,12 @@ def alloc_texture(name: str, n_texels: int, components: int, fmt: str, width: in
     return TextureData(name, data, fmt, int(n_texels))
 
 
-def grow_texture(tex: TextureData, n_texels: int) -> bool:
-    """Make ``tex`` hold at least ``n_texels`` (keeping its content). True when it was resized."""
+def grow_texture(tex: TextureData, n_texels: int, slack: float = 0.25) -> bool:
+    """Make ``tex`` hold at least ``n_texels`` (keeping its content), plus ``slack`` of that and
+    a row when it has to grow. True when it was resized."""
     if n_texels <= tex.capacity:
         return False
-    layers, height = texture_shape(int(n_texels * 1.25) + tex.width, tex.width)
+    layers, height = texture_shape(int(n_texels * (1.0 + slack)) + tex.width, tex.width)
     new = np.zeros((layers, height, tex.width, tex.components), tex.data.dtype)
     old = tex.linear()
     new.reshape(-1, tex.components)[: old.shape[0]] = old

@@ -5,8 +5,11 @@ enter, and the [grid_index] entries of those nodes only. A node keeps its slot r
 new count fits its capacity; otherwise its list moves to the spare tail of the index list (the
 old range becomes unreferenced garbage). When the tail runs out, or too many casters have left
 the grid rectangle (they sit in the always-tested outside node), the grid is rebuilt (``regrid``).
-Models and BVHs are untouched by moves. An edited mesh rebuilds that model's BVH only: in place
-when it fits the model's old allocation, else appended (the texture grows when needed).
+Model BVHs are untouched by moves; a crowded node (object BVH, see ``place_object_bvhs``) that an
+update touches (objects left, entered or moved inside it) rebuilds its object BVH, in place when
+it fits the node's [bvh] allocation, else at the [bvh] tail. An edited mesh rebuilds that model's
+BVH only: in place when it fits the model's old allocation, else appended (the texture grows when
+needed).
 """
 from __future__ import annotations
 
@@ -34,6 +37,11 @@ def _ragged(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
 def _full_grid_report(b, rep: UpdateReport) -> None:
     rep.regrid = True
     rep.resized |= {"grid", "grid_index"}
+    if b.grid_bvh_grown:
+        rep.resized.add("bvh")
+    else:
+        lo, hi = b.grid_bvh_range
+        rep.ranges += texel_rows("bvh", lo * BVH_TEXELS, hi * BVH_TEXELS, b.config.tex_width)
     rep.uniforms_changed = True
     rep.defines_changed = True
 
@@ -114,10 +122,16 @@ def _move(b, scene, obj, old, new, rep) -> bool:
     lv_new = lay.node_level(new[new >= 0])
     lc = np.bincount(lv_new, minlength=lay.levels + 1) - np.bincount(lv_old, minlength=lay.levels + 1)
     b.level_count += lc[: lay.levels]
-    # write entries
+    # write entries (crowded nodes: in their rebuilt object BVH's leaf order)
     first = np.concatenate([[0], np.cumsum(cnt)[:-1]])
     rank = np.arange(ent_obj.size) - first[k]
     slot = b.node_offset[ent_node] + rank
+    ent_obj, (bvh_start, bvh_count), grown = b.place_object_bvhs(aff, first, cnt, ent_obj)
+    w = b.config.tex_width
+    if grown:
+        rep.resized.add("bvh")
+    elif bvh_start.size:
+        rep.ranges += rows_of_texels("bvh", _ragged(bvh_start * BVH_TEXELS, bvh_count * BVH_TEXELS), w)
     lin[slot, 0] = ent_obj
     lin[slot, 1] = b.index_code(ent_obj)
     b.inst_node[obj] = -1
@@ -133,7 +147,6 @@ def _move(b, scene, obj, old, new, rep) -> bool:
     b.node_maxh[aff] = maxh
     b.write_nodes(aff)
     rep.nodes_changed += int(aff.size)
-    w = b.config.tex_width
     rep.ranges += rows_of_texels("grid", aff, w)
     rep.ranges += rows_of_texels("grid_index", slot, w)
     if (lc != 0).any():

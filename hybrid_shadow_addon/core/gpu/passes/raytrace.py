@@ -8,11 +8,12 @@ whose history is not up to date since the last :meth:`reset_history` are filled 
 frame's rays (``shaders/interlace_fill.glsl``), so a change never leaves stale shadows behind
 and a still view is exact after four frames.
 
-With ``conservative`` on (the default; ``conservative_local`` extends it from suns to the other
-lights) each light first gets a conservative occupancy map
-(:mod:`.conservative`, ``HS_CONSERVATIVE``): receivers nearer the light than every caster in
-their map column are lit without a ray, the others trace only up to the first possible caster
-depth. Exact: the masks equal those traced without the map.
+With ``conservative`` on (``conservative_local`` extends it from suns to the other lights) each
+light first gets a conservative occupancy map (:mod:`.conservative`, ``HS_CONSERVATIVE``):
+receivers nearer the light than every caster in their map column are lit without a ray, the
+others trace only up to the first possible caster depth. Exact: the masks equal those traced
+without the map. Off by default: on llvmpipe building the map (every caster triangle through a
+geometry shader) costs what the skipped rays save (``benchmarks/bench_pipeline.py --maps``).
 """
 from __future__ import annotations
 
@@ -31,6 +32,17 @@ def light_ray_uniforms(light, origin=(0.0, 0.0, 0.0)) -> tuple[bool, tuple]:
     if light.type == "SUN":
         return False, tuple(float(v) for v in -light.direction)
     return True, tuple(float(v) for v in light.position - np.asarray(origin, np.float64))
+
+
+def light_cone(light) -> tuple[tuple, float]:
+    """(u_light_axis, u_light_cone) of a local light: where ``dot(light -> p, axis)`` is at most
+    the cone value the light does not shine (as ``shaders/common/lights.glsl`` evaluates it)."""
+    axis = tuple(float(v) for v in light.direction)
+    if light.type == "SPOT":
+        return axis, float(np.cos(light.spot_size / 2))
+    if light.type == "AREA":
+        return axis, 0.0
+    return axis, -2.0
 
 
 def offset_origins(p: np.ndarray, n: np.ndarray, slack: np.ndarray) -> np.ndarray:
@@ -78,6 +90,10 @@ def shadow_rays(gbuffer, pixels, light, origin=(0.0, 0.0, 0.0)):
     vec = np.asarray(vec, np.float32)  # (as the shader's uniform)
     to_light = vec - p if local else np.broadcast_to(vec, p.shape)
     facing = (n * to_light).sum(axis=1) > 0
+    if local:
+        axis, cone = light_cone(light)
+        unit = to_light / np.linalg.norm(to_light, axis=1, keepdims=True)
+        facing &= (-unit @ np.asarray(axis, np.float32)) > np.float32(cone)
     o = offset_origins(p, n, depth * np.float32(3.0e-6))
     if local:
         d = vec - o
@@ -89,11 +105,11 @@ def shadow_rays(gbuffer, pixels, light, origin=(0.0, 0.0, 0.0)):
 
 
 class RaytracePass:
-    def __init__(self, ctx: moderngl.Context, programs, scene_textures, conservative: bool = True):
+    def __init__(self, ctx: moderngl.Context, programs, scene_textures, conservative: bool = False):
         self.ctx = ctx
         self.programs = programs
         self.scene_textures = scene_textures
-        self.conservative = conservative  # build and use the conservative occupancy maps (suns)
+        self.conservative = conservative  # build and use conservative occupancy maps (suns)
         # ... also for point/spot/area lights: exact too, but on llvmpipe the cube map costs about
         # what it saves on the forest (measured in benchmarks/bench_pipeline.py), so off by default
         self.conservative_local = False
@@ -157,13 +173,13 @@ class RaytracePass:
             if cmap is not None:
                 defines["HS_CONSERVATIVE"] = 1
             self.last_defines.update(defines)
-            masks[li] = self._trace(li, vec, defines, gbuffer, settings, w, h, cmap)
+            masks[li] = self._trace(li, scene.lights[li], vec, defines, gbuffer, settings, w, h, cmap)
         if settings.interlace:
             self._valid_phases |= 1 << self._phase
             self._phase = (self._phase + 1) % 4
         return masks
 
-    def _trace(self, li, light_vec, defines, gbuffer, settings, w, h, cmap=None):
+    def _trace(self, li, light, light_vec, defines, gbuffer, settings, w, h, cmap=None):
         prog, vao = self.programs.fullscreen("raytrace", defines)
         unit = gbuffer.bind(prog)
         unit = self.scene_textures.bind(prog, unit)
@@ -172,6 +188,8 @@ class RaytracePass:
         prog["u_scale"].value = settings.mask_scale
         prog["u_full_size"].value = (gbuffer.width, gbuffer.height)
         prog["u_light_vec"].value = light_vec
+        if "u_light_axis" in prog:
+            prog["u_light_axis"].value, prog["u_light_cone"].value = light_cone(light)
         prog["u_cam_bake"].value = tuple(float(v) for v in gbuffer.camera.cam_pos - self.scene_textures.baked.origin)
         if settings.max_distance > 0:
             prog["u_max_distance"].value = float(settings.max_distance)
