@@ -110,6 +110,21 @@ def test_spheres_only_has_no_mesh_code(gl_ctx):
     assert (masks[0][np.isfinite(masks[0])] < 0.5).any()
 
 
+def test_object_bvh_code_only_for_crowded_nodes(gl_ctx):
+    d, _, _ = trace(gl_ctx, make_scene())
+    assert "HS_HAS_NODE_BVH" not in d
+    crowd = make_scene()
+    rng = np.random.default_rng(5)
+    m = np.tile(np.eye(4), (200, 1, 1))
+    m[:, :3, :3] *= 0.05
+    m[:, :3, 3] = rng.uniform((-0.5, -0.5, 1.2), (0.5, 0.5, 1.5), (200, 3))  # a swarm over the box
+    crowd.instances = Instances.concatenate([crowd.instances, Instances(
+        names=[f"bit{i}" for i in range(200)], model_ids=np.ones(200, int), matrices=m)])
+    d, u, masks = trace(gl_ctx, crowd)
+    assert "HS_HAS_NODE_BVH" in d and "hs_bvh_tex" in u
+    assert (masks[0][np.isfinite(masks[0])] < 0.5).any()
+
+
 def test_grid_levels_only_as_many_as_needed(gl_ctx):
     small, _, _ = trace(gl_ctx, make_scene())
     wide, _, _ = trace(gl_ctx, make_scene(spread=400.0))

@@ -64,7 +64,8 @@
  *   hs_scene_max_height.
  * Defines (BakedScene.defines): HS_GRID_LEVELS, HS_TEX_WIDTH, HS_TEX_WIDTH_LOG2,
  *   HS_TEX_ROWS_LOG2 (14), HS_BVH_LEAF_SIZE, and HS_HAS_MESHES / HS_HAS_SPHERES only when the
- *   scene has such casters (test with #ifdef).
+ *   scene has such casters, HS_HAS_NODE_BVH only when some grid node has an object BVH (test
+ *   with #ifdef).
  * =========================================================================================
  *
  * Ray convention: world-space origin o, direction d (not necessarily unit), occluded when any
@@ -111,7 +112,9 @@ uvec4 hs_fetch_grid(int node)        { return texelFetch(hs_grid_tex, hs_texel(n
 uvec2 hs_fetch_index(int entry)      { return texelFetch(hs_grid_index_tex, hs_texel(entry), 0).xy; }
 vec4  hs_fetch_object(int obj, int k){ return texelFetch(hs_object_tex, hs_texel(4 * obj + k), 0); }
 uvec4 hs_fetch_model(int model, int k){ return texelFetch(hs_model_tex, hs_texel(2 * model + k), 0); }
+#if defined(HS_HAS_MESHES) || defined(HS_HAS_NODE_BVH)
 uvec4 hs_fetch_bvh(int node, int k)  { return texelFetch(hs_bvh_tex, hs_texel(2 * node + k), 0); }
+#endif
 vec3  hs_fetch_vertex(int tri, int k){ return texelFetch(hs_tri_tex, hs_texel(3 * tri + k), 0).xyz; }
 
 // ---------------------------------------------------------------- primitive tests ---------
@@ -268,6 +271,7 @@ bool hs_object_occludes(vec3 o, vec3 d, float tmax, uvec2 entry)
 #endif
 }
 
+#ifdef HS_HAS_NODE_BVH
 // Object BVH of a crowded grid node: stackless walk like hs_bvh_occluded, leaves are runs of
 // grid-index entries. Boxes widened by e (see [bvh]) so no pre-test hit is culled.
 bool hs_node_bvh_occludes(vec3 o, vec3 d, float tmax, int root)
@@ -296,6 +300,7 @@ bool hs_node_bvh_occludes(vec3 o, vec3 d, float tmax, int root)
     }
     return false;
 }
+#endif
 
 // All objects of one grid node; zmin: lowest ray z inside the node (-FLT_MAX: no culling).
 bool hs_node_occludes(vec3 o, vec3 d, float tmax, int node, float zmin, bool cull)
@@ -306,7 +311,9 @@ bool hs_node_occludes(vec3 o, vec3 d, float tmax, int node, float zmin, bool cul
         float maxh = uintBitsToFloat(g.z);
         if (zmin - maxh > HS_EPS16 * (abs(zmin) + abs(maxh))) return false;
     }
+#ifdef HS_HAS_NODE_BVH
     if (g.w != 0u) return hs_node_bvh_occludes(o, d, tmax, int(g.w) - 1);
+#endif
     int first = int(g.x);
     int cnt = int(g.y);
     for (int k = 0; k < cnt; ++k)

@@ -154,6 +154,8 @@ class BakedScene:
             d["HS_HAS_MESHES"] = 1
         if self.has_spheres:
             d["HS_HAS_SPHERES"] = 1
+        if (self.node_obvh >= 0).any():
+            d["HS_HAS_NODE_BVH"] = 1
         return d
 
     @property
