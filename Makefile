@@ -23,7 +23,14 @@ extension: setup
 	$(PY) tools/build_extension.py
 
 bench: setup
-	$(PY) benchmarks/run_all.py
+	$(PY) -m pip install -q --disable-pip-version-check -r requirements-bench.txt
+	$(PY) benchmarks/bench_export.py
+	$(PY) benchmarks/bench_bake.py
+	$(PY) benchmarks/bench_pipeline.py
+	$(PY) benchmarks/bench_mitsuba.py
+	$(PY) benchmarks/bench_scaling.py
+	$(PY) benchmarks/stiff_table.py --modes raytrace-high,raytrace-medium,shadowmap
+	$(PY) benchmarks/bench_variants.py
 
 clean:
 	rm -rf .venv dist build out .pytest_cache
