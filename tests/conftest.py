@@ -15,9 +15,45 @@ if str(REPO) not in sys.path:
 import pytest  # noqa: E402
 
 
+#: the built-in scenes at test sizes (pipeline tests run on every one)
+TEST_SCENES = {
+    "cube_on_plane": "cube_on_plane",
+    "forest": "forest",
+    "clusters": "clusters",
+    "city": "city:blocks=4",
+    "scaling": "scaling:triangles=20000,instances=200",
+}
+
+
 @pytest.fixture(scope="session")
 def gl_ctx():
-    """One standalone OpenGL context for the whole session (skips only if none can exist)."""
+    """One standalone OpenGL context for the whole session."""
     from hybrid_shadow_addon.core.gpu.context import create_context
 
     return create_context()
+
+
+@pytest.fixture(scope="module")
+def pipeline(gl_ctx):
+    """A Pipeline on the session's context, for one test module."""
+    from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+
+    p = Pipeline(gl_ctx)
+    yield p
+    p.release()
+
+
+@pytest.fixture(scope="module")
+def loaded():
+    """``loaded(name)``: the core Scene of a TEST_SCENES entry (or any SCENE argument), loaded
+    once per test module."""
+    from hybrid_shadow_addon.blender.load import load_scene
+
+    cache = {}
+
+    def get(name):
+        if name not in cache:
+            cache[name] = load_scene(TEST_SCENES.get(name, name))
+        return cache[name]
+
+    return get

@@ -10,37 +10,11 @@ from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.reference import trace_structured
 from hybrid_shadow_addon.core.settings import Settings
 
+from conftest import TEST_SCENES
+
 W, H = 160, 120
 SAMPLES_PER_LIGHT = 1500  # the numpy tracer is the slow side: compare a seeded sample of pixels
 
-SCENES = {
-    "cube_on_plane": "cube_on_plane",
-    "forest": "forest",
-    "clusters": "clusters",
-    "city": "city:blocks=4",
-    "scaling": "scaling:triangles=20000,instances=200",
-}
-
-
-@pytest.fixture(scope="module")
-def pipeline(gl_ctx):
-    p = Pipeline(gl_ctx)
-    yield p
-    p.release()
-
-
-@pytest.fixture(scope="module")
-def loaded():
-    from hybrid_shadow_addon.blender.load import load_scene
-
-    cache = {}
-
-    def get(name):
-        if name not in cache:
-            cache[name] = load_scene(SCENES[name])
-        return cache[name]
-
-    return get
 
 
 def reference_mask(frame, scene, baked, li, pixels):
@@ -53,7 +27,7 @@ def reference_mask(frame, scene, baked, li, pixels):
     return out
 
 
-@pytest.mark.parametrize("name", list(SCENES))
+@pytest.mark.parametrize("name", list(TEST_SCENES))
 def test_glsl_masks_equal_numpy_reference(name, pipeline, loaded):
     scene = loaded(name)
     pipeline.set_scene(scene)

@@ -4,39 +4,12 @@ light kind, reduced mask resolutions and with point lights right next to caster 
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.scene import Light
 from hybrid_shadow_addon.core.settings import Settings
 
+from conftest import TEST_SCENES
+
 W, H = 160, 120
-SCENES = {
-    "cube_on_plane": "cube_on_plane",
-    "forest": "forest",
-    "clusters": "clusters",
-    "city": "city:blocks=4",
-    "scaling": "scaling:triangles=20000,instances=200",
-}
-
-
-@pytest.fixture(scope="module")
-def pipeline(gl_ctx):
-    p = Pipeline(gl_ctx)
-    yield p
-    p.release()
-
-
-@pytest.fixture(scope="module")
-def loaded():
-    from hybrid_shadow_addon.blender.load import load_scene
-
-    cache = {}
-
-    def get(name):
-        if name not in cache:
-            cache[name] = load_scene(SCENES.get(name, name))
-        return cache[name]
-
-    return get
 
 
 def masks_with_and_without(pipeline, scene, settings):
@@ -53,7 +26,7 @@ def masks_with_and_without(pipeline, scene, settings):
     return out
 
 
-@pytest.mark.parametrize("name", list(SCENES))
+@pytest.mark.parametrize("name", list(TEST_SCENES))
 def test_conservative_maps_change_no_pixel(name, pipeline, loaded):
     scene = loaded(name)
     pipeline.set_scene(scene)

@@ -62,7 +62,8 @@ if [ ! -x .venv/bin/python ]; then
     fi
 fi
 echo "setup: installing requirements.txt into .venv (bpy is a ~370 MB download the first time)"
-.venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip >/dev/null
-.venv/bin/python -m pip install -q --disable-pip-version-check -r requirements.txt
+quiet() { "$@" 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2); }  # (local mirror noise)
+quiet .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip >/dev/null
+quiet .venv/bin/python -m pip install -q --disable-pip-version-check -r requirements.txt
 echo "$want" > "$stamp"
 echo "setup: done"
