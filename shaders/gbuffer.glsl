@@ -4,7 +4,8 @@
 //
 // The world position is NOT the interpolated vertex position: each fragment intersects its
 // pixel-centre camera ray with the triangle's plane (camera-relative float32), which matches
-// Cycles' position pass to a few ULPs. Normals are flat face normals (the triangle's plane).
+// Cycles' position pass to a few ULPs. The geometric normal is the triangle's plane; the shading
+// normal interpolates the model's smooth corner normals (the face normal for flat faces).
 //
 // Depth test on a logarithmic depth of that exact position (gl_FragDepth = log(depth / near) /
 // log(far / near)): the projection's hyperbolic depth in a 24-bit buffer resolves only ~6 cm at
@@ -16,6 +17,7 @@ uniform float u_log_depth_scale;   // 1 / log2(clip_end / clip_start)
 #ifdef VERTEX_SHADER
 layout(location = 0) in vec3 in_pos;          // model space (de-indexed: 3 per triangle)
 layout(location = 1) in vec3 in_face_normal;  // model space, unit (zero if degenerate)
+layout(location = 2) in vec3 in_shading_normal;  // model space: smooth corner normal (else the face's)
 // per instance
 in vec4 in_m0; in vec4 in_m1; in vec4 in_m2;  // rows of the camera-relative world matrix
 in vec3 in_n0; in vec3 in_n1; in vec3 in_n2;  // rows of the normal matrix (inverse transpose)
@@ -34,6 +36,7 @@ flat out vec4 v_color;
 flat out vec3 v_material;
 flat out vec3 v_n0; flat out vec3 v_n1; flat out vec3 v_n2;
 out vec3 v_rel;                // interpolated camera-relative position (fallback)
+out vec3 v_shading;            // interpolated world shading normal (unnormalised)
 
 void main() {
     vec4 p = vec4(in_pos, 1.0);
@@ -45,6 +48,7 @@ void main() {
     v_rel = rel;
     v_plane_point = rel;
     v_normal = vec3(dot(in_n0, in_face_normal), dot(in_n1, in_face_normal), dot(in_n2, in_face_normal));
+    v_shading = vec3(dot(in_n0, in_shading_normal), dot(in_n1, in_shading_normal), dot(in_n2, in_shading_normal));
     v_n0 = in_n0; v_n1 = in_n1; v_n2 = in_n2;
     v_color = in_color;
     v_material = in_material;
@@ -59,6 +63,7 @@ flat in vec4 v_color;
 flat in vec3 v_material;
 flat in vec3 v_n0; flat in vec3 v_n1; flat in vec3 v_n2;
 in vec3 v_rel;
+in vec3 v_shading;
 #ifdef SPHERE
 flat in vec4 v_i0; flat in vec4 v_i1; flat in vec4 v_i2;
 flat in vec4 v_sphere;
@@ -110,9 +115,17 @@ void main() {
     float len = length(n);
     n = len > 0.0 ? n / len : -normalize(rd);
     if (dot(n, rd) > 0.0) n = -n;                // face the camera (Cycles flips back faces)
+#ifdef SPHERE
+    vec3 ns = n;                                 // analytic: exact already
+#else
+    vec3 ns = v_shading;                         // smooth shading: interpolated corner normals
+    float ls = length(ns);
+    ns = ls > 0.0 ? ns / ls : n;
+    if (dot(ns, n) < 0.0) ns = -ns;              // on the geometric normal's side
+#endif
     o_position = vec4(u_cam_pos + p, 1.0);
     o_normal = vec4(n, 1.0);
-    o_shading = vec4(n, 1.0);
+    o_shading = vec4(ns, 1.0);
     o_albedo = v_color;
     o_material = vec4(v_material, 1.0);
     float vd = view_depth(p);

@@ -224,6 +224,24 @@ def test_modifiers_are_applied(scene):
     assert sorted(m.triangle_count for m in s.models) == [48, 192]
 
 
+def test_smooth_shading_normals_are_exported(scene):
+    flat = _cube_mesh("flat")
+    flat.polygons.foreach_set("use_smooth", np.zeros(len(flat.polygons), bool))
+    smooth = _cube_mesh("smooth")
+    smooth.polygons.foreach_set("use_smooth", np.ones(len(smooth.polygons), bool))
+    smooth.update()
+    _add("Flat", flat)
+    _add("Smooth", smooth, location=(5, 0, 0))
+    s = _export()
+    by_name = {m.name: m for m in s.models}
+    assert by_name["flat"].normals is None
+    n = by_name["smooth"].normals
+    assert n.shape == (12, 3, 3)
+    # smooth cube corners: normals along the corner's diagonal, the vertex position direction
+    corner = by_name["smooth"].vertices[by_name["smooth"].triangles]
+    np.testing.assert_allclose(n, corner / np.linalg.norm(corner, axis=2, keepdims=True), atol=1e-5)
+
+
 def test_hide_render_objects_and_collections_are_excluded(scene):
     me = _cube_mesh()
     _add("Shown", me)

@@ -71,3 +71,36 @@ def test_top_row_is_top_and_moving_reuses_model_buffers(gpass):
     assert gpass.draw_calls == 2  # one per model
     pos2 = gb.read("position")
     assert not np.array_equal(pos, pos2)
+
+
+def test_smooth_shading_normals(gpass):
+    """A model with corner normals shades smoothly (shading normal interpolated, on the
+    geometric normal's side); flat models keep shading == geometric normal."""
+    from hybrid_shadow_addon.core.scene import Model
+
+    scene = basic_scene()
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 25)[:-1], np.linspace(0.15, np.pi - 0.15, 12))
+    verts = np.stack([np.sin(v) * np.cos(u), np.sin(v) * np.sin(u), np.cos(v)], -1).reshape(-1, 3)
+    i = np.arange(11)[:, None] * 24 + np.arange(24)[None, :]
+    j = np.arange(11)[:, None] * 24 + (np.arange(24)[None, :] + 1) % 24
+    quads = np.stack([i, j, j + 24, i + 24], -1).reshape(-1, 4)
+    tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    ball = Model("smooth ball", verts, tris, normals=verts[tris])
+    scene.models.append(ball)
+    scene.instances.model_ids[2] = 2  # the rotated box becomes a smooth ball
+    scene.instances.matrices[2] = trs((1.5, -1.5, 1.0))
+    scene.instances.set_matrices([2], scene.instances.matrices[2])
+    gb = gpass.render(scene, W, H)
+    inst = gb.read("material")[..., 2]
+    geo, shade = gb.read("normal")[..., :3], gb.read("shading_normal")[..., :3]
+    pos = gb.read("position")[..., :3]
+    ball = gb.coverage() & (np.round(inst) == 2)
+    on_ball = interior(ball.astype(int)) & ball
+    assert on_ball.sum() > 200
+    true_n = pos[on_ball] - (1.5, -1.5, 1.0)
+    true_n /= np.linalg.norm(true_n, axis=1, keepdims=True)
+    err_shade = np.degrees(np.arccos(np.clip((shade[on_ball] * true_n).sum(1), -1, 1)))
+    err_geo = np.degrees(np.arccos(np.clip((geo[on_ball] * true_n).sum(1), -1, 1)))
+    assert np.percentile(err_shade, 95) < 2.0 < np.percentile(err_geo, 95)
+    flat = gb.coverage() & (np.round(inst) == 1)
+    np.testing.assert_allclose(shade[flat], geo[flat], atol=2e-3)

@@ -64,6 +64,24 @@ def _matrices(ms: list) -> np.ndarray:
     return np.fromiter(flat, np.float64, count=16 * len(ms)).reshape(-1, 4, 4)
 
 
+def smooth_normals(mesh) -> np.ndarray | None:
+    """(T, 3, 3) float32 shading normals of each loop triangle's corners (Blender's corner
+    normals: smooth faces, sharp edges and custom normals included), or None when every face is
+    flat (the face normals then suffice)."""
+    n_poly = len(mesh.polygons)
+    if not n_poly or not len(mesh.loop_triangles):
+        return None
+    smooth = np.empty(n_poly, bool)
+    mesh.polygons.foreach_get("use_smooth", smooth)
+    if not smooth.any():
+        return None
+    corner = np.empty(len(mesh.loops) * 3, np.float32)
+    mesh.corner_normals.foreach_get("vector", corner)
+    loops = np.empty(len(mesh.loop_triangles) * 3, np.int32)
+    mesh.loop_triangles.foreach_get("loops", loops)
+    return corner.reshape(-1, 3)[loops].reshape(-1, 3, 3)
+
+
 def mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) float32 and loop triangles (T, 3) uint32 of a mesh, via ``foreach_get``."""
     verts = np.empty(len(mesh.vertices) * 3, np.float32)
@@ -285,7 +303,7 @@ class _Exporter:
             mid = -1
             if len(tris):
                 mid = len(self.models)
-                self.models.append(Model(name=name, vertices=verts, triangles=tris))
+                self.models.append(Model(name=name, vertices=verts, triangles=tris, normals=smooth_normals(mesh)))
             self.model_of[key] = mid
         return mid
 

@@ -41,7 +41,8 @@ def _f32(a, shape_tail=None) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 @dataclass
 class Model:
-    """One unique triangle mesh in model space.
+    """One unique triangle mesh in model space (``normals``: optional smooth shading normals per
+    triangle corner; shading only, shadows use the triangles).
 
     ``bounds_min``/``bounds_max`` and the bounding sphere (``sphere_center``, ``sphere_radius``)
     are derived from the vertices when not given. The sphere is centred on the box centre, its
@@ -55,10 +56,13 @@ class Model:
     bounds_max: np.ndarray = None  # (3,) float32
     sphere_center: np.ndarray = None  # (3,) float32
     sphere_radius: float = None
+    normals: np.ndarray = None  # (T, 3, 3) float32 smooth shading normal per corner; None: flat
 
     def __post_init__(self):
         self.vertices = _f32(self.vertices, (3,))
         self.triangles = np.ascontiguousarray(self.triangles, dtype=np.uint32).reshape(-1, 3)
+        if self.normals is not None:
+            self.normals = _f32(self.normals).reshape(-1, 3, 3)
         if self.bounds_min is None or self.bounds_max is None:
             if len(self.vertices):
                 self.bounds_min = self.vertices.min(axis=0)
@@ -100,6 +104,12 @@ class Model:
             raise SceneError(f"mesh '{self.name}' has NaN or infinite vertex coordinates")
         if len(self.triangles) and int(self.triangles.max()) >= len(self.vertices):
             raise SceneError(f"mesh '{self.name}' has triangle indices beyond its {len(self.vertices)} vertices")
+        if self.normals is not None:
+            if self.normals.shape != (len(self.triangles), 3, 3):
+                raise SceneError(f"mesh '{self.name}' has {len(self.normals)} normal triples for "
+                                 f"{len(self.triangles)} triangles")
+            if not np.isfinite(self.normals).all():
+                raise SceneError(f"mesh '{self.name}' has NaN or infinite normals")
 
 
 # --------------------------------------------------------------------------------------------

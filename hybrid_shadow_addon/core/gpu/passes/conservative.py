@@ -30,7 +30,7 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
-from .gbuffer import InstanceBatch, ModelBufferCache, sphere_proxy_matrices
+from .gbuffer import POSITION_FORMAT, InstanceBatch, ModelBufferCache, position_vertex_data, sphere_proxy_matrices
 from .shadowmap import CUBE_AXES, _icosphere, look_basis
 
 INSTANCE_FORMAT = "4f 4f 4f/i"
@@ -114,9 +114,7 @@ class ConservativeMaps:
         if len(srows):
             if self._sphere_vbo is None:
                 ico = _icosphere()
-                data = np.zeros((len(ico), 6), np.float32)
-                data[:, :3] = ico
-                self._sphere_vbo = (self.ctx.buffer(data.tobytes()), len(ico))
+                self._sphere_vbo = (self.ctx.buffer(position_vertex_data(ico).tobytes()), len(ico))
             vbo, nverts = self._sphere_vbo
             draws.append((self._upload("spheres", sphere_proxy_matrices(scene, srows), origin, prog, vbo),
                           nverts, len(srows)))
@@ -129,7 +127,7 @@ class ConservativeMaps:
         b = self._batches.get(key)
         if b is None:
             b = self._batches[key] = InstanceBatch(self.ctx)
-        return b.upload(data, prog, vbo, "3f 12x", ("in_pos",), INSTANCE_FORMAT, INSTANCE_ATTRS)
+        return b.upload(data, prog, vbo, POSITION_FORMAT, ("in_pos",), INSTANCE_FORMAT, INSTANCE_ATTRS)
 
     def _target(self, key, w, h):
         e = self._textures.get(key)

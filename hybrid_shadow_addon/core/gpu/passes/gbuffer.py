@@ -159,21 +159,36 @@ def _unit_cube() -> np.ndarray:
     return c[np.array(tris).ravel()]
 
 
+# The vertex layout of every model buffer (de-indexed: 3 vertices per triangle, model space).
+VERTEX_FORMAT = "3f 3f 3f"
+VERTEX_ATTRS = ("in_pos", "in_face_normal", "in_shading_normal")
+POSITION_FORMAT = "3f 24x"  # the same buffers read for positions only (depth-only passes)
+
+
+def position_vertex_data(points: np.ndarray) -> np.ndarray:
+    """(N, 9) float32 vertices of proxy geometry: positions only, normals zero."""
+    out = np.zeros((len(points), 9), np.float32)
+    out[:, :3] = points
+    return out
+
+
 def face_vertex_data(model) -> np.ndarray:
-    """(3T, 6) float32 de-indexed positions + the triangle's unit face normal (model space)."""
+    """(3T, 9) float32 de-indexed positions, the triangle's unit face normal and the shading
+    normal of each corner (the model's smooth normals, else the face normal)."""
     v = model.vertices.astype(np.float64)
     tri = v[model.triangles.astype(np.int64)]  # (T, 3, 3)
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     ln = np.linalg.norm(n, axis=1, keepdims=True)
     n = np.where(ln > 0, n / np.where(ln > 0, ln, 1), 0.0)
-    out = np.empty((len(tri), 3, 6), np.float32)
+    out = np.empty((len(tri), 3, 9), np.float32)
     out[:, :, :3] = model.vertices[model.triangles]
-    out[:, :, 3:] = n[:, None, :]
-    return out.reshape(-1, 6)
+    out[:, :, 3:6] = n[:, None, :]
+    out[:, :, 6:9] = n[:, None, :] if model.normals is None else model.normals
+    return out.reshape(-1, 9)
 
 
 class ModelBufferCache:
-    """De-indexed vertex buffers (``3f 3f``: position, face normal) per model, shared by the
+    """De-indexed vertex buffers (:data:`VERTEX_FORMAT`) per model, shared by the
     passes that rasterise the scene. Keyed by model identity; :meth:`prune` drops the buffers
     of models no longer in the scene."""
 
@@ -343,7 +358,7 @@ class GBufferPass:
                     continue
                 vbo, nverts = self.models.get(model)
                 data = self.instance_data(scene, rows, cam.cam_pos)
-                vao = self._batch(mi).upload(data, prog, vbo, "3f 3f", ("in_pos", "in_face_normal"),
+                vao = self._batch(mi).upload(data, prog, vbo, VERTEX_FORMAT, VERTEX_ATTRS,
                                              INSTANCE_FORMAT, INSTANCE_ATTRS)
                 vao.render(moderngl.TRIANGLES, vertices=nverts, instances=len(rows))
                 self.draw_calls += 1
@@ -353,11 +368,9 @@ class GBufferPass:
                 cam.apply(prog)
                 prog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
                 if self._sphere_vbo is None:
-                    cube = np.zeros((36, 6), np.float32)
-                    cube[:, :3] = _unit_cube()
-                    self._sphere_vbo = ctx.buffer(cube.tobytes())
+                    self._sphere_vbo = ctx.buffer(position_vertex_data(_unit_cube()).tobytes())
                 data = self.instance_data(scene, sph_rows, cam.cam_pos, spheres=True)
-                vao = self._batch("spheres").upload(data, prog, self._sphere_vbo, "3f 3f", ("in_pos", "in_face_normal"),
+                vao = self._batch("spheres").upload(data, prog, self._sphere_vbo, VERTEX_FORMAT, VERTEX_ATTRS,
                                                     SPHERE_FORMAT, SPHERE_ATTRS)
                 vao.render(moderngl.TRIANGLES, vertices=36, instances=len(sph_rows))
                 self.draw_calls += 1

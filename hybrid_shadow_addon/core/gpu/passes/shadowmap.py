@@ -18,7 +18,7 @@ import moderngl
 import numpy as np
 
 from . import create_mask_texture, select_shadowed_lights
-from .gbuffer import InstanceBatch, ModelBufferCache, sphere_proxy_matrices
+from .gbuffer import POSITION_FORMAT, InstanceBatch, ModelBufferCache, position_vertex_data, sphere_proxy_matrices
 
 WIDE_SPOT = math.radians(120.0)
 CUBE_AXES = ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1))
@@ -214,9 +214,7 @@ class ShadowMapPass:
         if len(rows):
             if self._sphere_vbo is None:
                 ico = _icosphere()
-                data = np.zeros((len(ico), 6), np.float32)
-                data[:, :3] = ico
-                self._sphere_vbo = (self.ctx.buffer(data.tobytes()), len(ico))
+                self._sphere_vbo = (self.ctx.buffer(position_vertex_data(ico).tobytes()), len(ico))
             vbo, nverts = self._sphere_vbo
             draws.append((self._upload("spheres", sphere_proxy_matrices(scene, rows), cam_pos, prog, vbo), nverts, len(rows)))
         return prog, draws
@@ -228,7 +226,7 @@ class ShadowMapPass:
         b = self._batches.get(key)
         if b is None:
             b = self._batches[key] = InstanceBatch(self.ctx)
-        return b.upload(data, prog, vbo, "3f 12x", ("in_pos",), INSTANCE_FORMAT, INSTANCE_ATTRS)
+        return b.upload(data, prog, vbo, POSITION_FORMAT, ("in_pos",), INSTANCE_FORMAT, INSTANCE_ATTRS)
 
     def render(self, scene, gbuffer, settings, lights=None, on_light=None) -> dict:
         """Masks ``{light_index: texture}``; ``on_light(index)`` is called before each light."""
