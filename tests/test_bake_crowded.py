@@ -270,39 +270,29 @@ def test_objects_per_ray_in_a_crowded_node_is_logarithmic():
     assert per_ray[8192][1] < 2.5 * per_ray[512][1], per_ray
 
 
-def test_glsl_matches_structured_on_crowded_scenes():
-    tg = pytest.importorskip("test_bake_glsl")
-    moderngl = pytest.importorskip("moderngl")
-    try:
-        ctx = moderngl.create_standalone_context(require=410, backend="egl")
-    except Exception:
-        try:
-            ctx = moderngl.create_standalone_context(require=410)
-        except Exception as e:  # pragma: no cover
-            pytest.skip(f"no OpenGL 4.1 context: {e}")
-    try:
-        rng = np.random.default_rng(5)
-        clusters = ((0.0, 0.0), (20.0, 10.0))
-        scene = crowded_scene(rng, 3000, clusters)
-        baked = bake_scene(scene, BakeConfig(object_leaf_size=3))
-        assert baked.stats["object_bvh_nodes"] >= 2
-        o, d, t = crowd_rays(rng, scene, 12000, clusters)
-        ref = trace_structured(baked, o, d, t)
-        gl = tg.gl_trace(ctx, baked, o, d, t)
-        assert ref.any() and (~ref).any()
-        assert (ref == gl).mean() >= 0.999, f"{int((ref != gl).sum())} rays differ"
-        # after incremental moves (trees rebuilt in place and at the tail)
-        idx = rng.choice(len(scene.instances) - 80, 300, replace=False)
-        M = scene.instances.matrices[idx].copy()
-        M[:, :3, 3] += rng.normal(scale=[0.2, 0.2, 0.05], size=(idx.size, 3))
-        M[:100, :2, 3] = rng.uniform(19.6, 20.4, (100, 2))
-        scene.instances.set_matrices(idx, M)
-        rep = baked.update_instances(scene, idx)
-        assert not rep.regrid
-        ref = trace_structured(baked, o, d, t)
-        gl = tg.gl_trace(ctx, baked, o, d, t)
-        assert (ref == gl).mean() >= 0.999, f"{int((ref != gl).sum())} rays differ"
-        sub = rng.choice(len(o), 1500, replace=False)
-        assert (ref[sub] == trace_brute(scene, o[sub], d[sub], t[sub])).all()
-    finally:
-        ctx.release()
+def test_glsl_matches_structured_on_crowded_scenes(gl_ctx):
+    import test_bake_glsl as tg
+
+    rng = np.random.default_rng(5)
+    clusters = ((0.0, 0.0), (20.0, 10.0))
+    scene = crowded_scene(rng, 3000, clusters)
+    baked = bake_scene(scene, BakeConfig(object_leaf_size=3))
+    assert baked.stats["object_bvh_nodes"] >= 2
+    o, d, t = crowd_rays(rng, scene, 12000, clusters)
+    ref = trace_structured(baked, o, d, t)
+    gl = tg.gl_trace(gl_ctx, baked, o, d, t)
+    assert ref.any() and (~ref).any()
+    assert (ref == gl).mean() >= 0.999, f"{int((ref != gl).sum())} rays differ"
+    # after incremental moves (trees rebuilt in place and at the tail)
+    idx = rng.choice(len(scene.instances) - 80, 300, replace=False)
+    M = scene.instances.matrices[idx].copy()
+    M[:, :3, 3] += rng.normal(scale=[0.2, 0.2, 0.05], size=(idx.size, 3))
+    M[:100, :2, 3] = rng.uniform(19.6, 20.4, (100, 2))
+    scene.instances.set_matrices(idx, M)
+    rep = baked.update_instances(scene, idx)
+    assert not rep.regrid
+    ref = trace_structured(baked, o, d, t)
+    gl = tg.gl_trace(gl_ctx, baked, o, d, t)
+    assert (ref == gl).mean() >= 0.999, f"{int((ref != gl).sum())} rays differ"
+    sub = rng.choice(len(o), 1500, replace=False)
+    assert (ref[sub] == trace_brute(scene, o[sub], d[sub], t[sub])).all()

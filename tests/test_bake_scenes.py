@@ -164,27 +164,32 @@ def test_adversarial_scene():
     assert 0.05 < hit.mean() < 0.95
 
 
+AXIS_DIRS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
+                      [1, 1, 0], [1, 0, -1], [0, -1, 1], [-1, 1, -1]], float)
+
+
+def border_rays(rng, layout, per_level: int):
+    """Rays along axes (components exactly 0) from ``per_level`` node corners of every grid
+    level, half of them infinite: ``(origins, dirs, tmax)``."""
+    pts = []
+    for lvl in range(layout.levels):
+        s = layout.node_sizes[lvl]
+        nx, ny = layout.dims[lvl]
+        X, Y = np.meshgrid(layout.origin[0] + s * np.arange(nx + 1), layout.origin[1] + s * np.arange(ny + 1))
+        P = np.stack([X.ravel(), Y.ravel(), rng.uniform(-1, 5, X.size)], 1)
+        pts.append(P[rng.permutation(len(P))[:per_level]])
+    P = np.concatenate(pts).astype(np.float32).astype(np.float64)  # (exact in float32 too)
+    o = np.repeat(P, len(AXIS_DIRS), axis=0)
+    d = np.tile(AXIS_DIRS, (len(P), 1))
+    return o, d, np.where(rng.random(len(o)) < 0.5, np.inf, 3.0)
+
+
 def test_axis_rays_on_every_border():
     """Axis-aligned rays (two components exactly 0) starting exactly on node borders and corners."""
     rng = np.random.default_rng(3)
     scene = random_scene(rng, n_inst=120, area=10)
     baked = bake_scene(scene, BakeConfig(base_node_size=1.0))
-    lay = baked.layout
-    pts = []
-    for lvl in range(lay.levels):
-        s = lay.node_sizes[lvl]
-        nx, ny = lay.dims[lvl]
-        xs = lay.origin[0] + s * np.arange(nx + 1)
-        ys = lay.origin[1] + s * np.arange(ny + 1)
-        X, Y = np.meshgrid(xs, ys)
-        P = np.stack([X.ravel(), Y.ravel(), rng.uniform(-1, 5, X.size)], 1)
-        pts.append(P[rng.permutation(len(P))[:300]])
-    P = np.concatenate(pts)
-    dirs = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
-                     [1, 1, 0], [1, 0, -1], [0, -1, 1], [-1, 1, -1]], float)
-    o = np.repeat(P, len(dirs), axis=0)
-    d = np.tile(dirs, (len(P), 1))
-    t = np.where(rng.random(len(o)) < 0.5, np.inf, 3.0)
+    o, d, t = border_rays(rng, baked.layout, 300)
     hit = assert_equal_tracers(scene, baked, o, d, t)
     assert hit.any()
 

@@ -294,25 +294,12 @@ def test_no_slip_through_shared_edges_glsl(gl_ctx, glsl):
 
 def test_axis_and_border_rays_glsl(gl_ctx, glsl):
     """Axis-aligned rays from exact node borders/corners of every level: GLSL == numpy."""
-    from test_bake_scenes import random_scene
+    from test_bake_scenes import border_rays, random_scene
 
     rng = np.random.default_rng(5)
     scene = random_scene(rng, n_inst=100, area=10)
     baked = bake_scene(scene, BakeConfig(base_node_size=1.0))
-    lay = baked.layout
-    pts = []
-    for lvl in range(lay.levels):
-        s = lay.node_sizes[lvl]
-        nx, ny = lay.dims[lvl]
-        X, Y = np.meshgrid(lay.origin[0] + s * np.arange(nx + 1), lay.origin[1] + s * np.arange(ny + 1))
-        P = np.stack([X.ravel(), Y.ravel(), rng.uniform(-1, 5, X.size)], 1)
-        pts.append(P[rng.permutation(len(P))[:200]])
-    P = np.concatenate(pts).astype(np.float32).astype(np.float64)
-    dirs = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
-                     [1, 1, 0], [1, 0, -1], [0, -1, 1], [-1, 1, -1]], float)
-    o = np.repeat(P, len(dirs), axis=0)
-    d = np.tile(dirs, (len(P), 1))
-    t = np.where(rng.random(len(o)) < 0.5, np.inf, 3.0)
+    o, d, t = border_rays(rng, baked.layout, 200)
     ref = trace_structured(baked, o, d, t)
     gl = glsl.gl_trace(gl_ctx, baked, o, d, t)
     assert ref.any() and (~ref).any()

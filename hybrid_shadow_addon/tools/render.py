@@ -10,7 +10,6 @@ import os
 import re
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -134,5 +133,4 @@ def render_to_files(scene, settings, *, resolution=None, output: str, masks_dir:
                 os.unlink(t)
             except OSError:
                 pass
-    stats["written_at"] = time.time()
     return stats

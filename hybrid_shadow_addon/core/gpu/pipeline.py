@@ -35,10 +35,13 @@ class Frame:
     timings: dict = field(default_factory=dict)  # ms per pass
     stats: dict = field(default_factory=dict)
     gbuffer: object = None
+    _coverage: np.ndarray = field(default=None, repr=False)
 
     def mask_array(self, light_index: int) -> np.ndarray:
         """float32 (H, W), row 0 = top, 1 lit / 0 shadowed, NaN where there is no geometry."""
-        return read_mask(self.masks[light_index], self.gbuffer)
+        if self._coverage is None:  # one G-buffer read for all the frame's masks
+            self._coverage = self.gbuffer.coverage()
+        return read_mask(self.masks[light_index], self.gbuffer, self._coverage)
 
 
 class Pipeline:
@@ -129,8 +132,8 @@ class Pipeline:
             masks = timed("shadow_ms", lambda: self.noshadow.render(scene, gbuffer, settings, lights))
             done[0] += len(lights)
         masks = timed("upsample_ms", lambda: self.upsample.render(masks, gbuffer, settings), "Upsampling masks")
-        out = timed("lighting_ms", lambda: self.lighting.render(scene, gbuffer, masks, settings, film_transparent),
-                    "Lighting")
+        timed("lighting_ms", lambda: self.lighting.render(scene, gbuffer, masks, settings, film_transparent),
+              "Lighting")
         image = timed("readback_ms", lambda: self.lighting.read(), "Reading the image") if read_image else None
         timings["total_ms"] = sum(timings.values())
         mw, mh = settings.mask_size(width, height) if settings.mode == "raytrace" else (width, height)
@@ -144,7 +147,6 @@ class Pipeline:
             "defines": sorted(f"{k}={v}" for k, v in self.raytrace.last_defines.items())
             if settings.mode == "raytrace" else [],
         }
-        del out
         return Frame(image=image, masks=masks, lights=lights, timings=timings, stats=stats, gbuffer=gbuffer)
 
     def release(self) -> None:

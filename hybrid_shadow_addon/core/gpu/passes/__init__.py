@@ -40,13 +40,14 @@ def mask_source_pixels(mask_size, full_size, scale: int):
     return np.ascontiguousarray(rows), np.ascontiguousarray(cols)
 
 
-def read_mask(tex: moderngl.Texture, gbuffer: GBuffer | None = None) -> np.ndarray:
-    """float32 (H, W), row 0 = top; NaN where the G-buffer has no geometry (when given).
+def read_mask(tex: moderngl.Texture, gbuffer: GBuffer | None = None, coverage: np.ndarray | None = None) -> np.ndarray:
+    """float32 (H, W), row 0 = top; NaN where the G-buffer has no geometry (when given; pass its
+    ``coverage()`` too when reading several masks, to read the G-buffer once).
 
     A reduced-resolution mask gets NaN where its source pixel has no geometry."""
     m = read_texture(tex)
     if gbuffer is not None:
-        cov = gbuffer.coverage()
+        cov = gbuffer.coverage() if coverage is None else coverage
         if m.shape != cov.shape:
             scale = max(1, round(gbuffer.width / tex.width))
             rows, cols = mask_source_pixels((tex.width, tex.height), gbuffer.size, scale)
