@@ -19,3 +19,7 @@ class SceneLoadError(HybridShadowError):
 
 class GPUError(HybridShadowError):
     """No usable OpenGL context, or a request beyond the GPU's limits."""
+
+
+class Cancelled(HybridShadowError):
+    """The user cancelled (Esc in Blender, a progress callback that raises it)."""
