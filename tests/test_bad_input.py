@@ -141,9 +141,8 @@ def test_mesh_larger_than_one_texture_splits_into_layers(gl_ctx):
     """A 40k-triangle mesh with 4-texel-wide textures needs 2 layers of 16384 rows for its
     triangles: the GLSL tracer reads it exactly like the numpy one."""
     import test_bake_glsl
-    from hybrid_shadow_addon.core.bake import bake_scene
-    from hybrid_shadow_addon.core.bake.baked import BakeConfig
-    from hybrid_shadow_addon.core.reference import trace_structured
+    from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+    from hybrid_shadow_addon.core.oracle.tracer import trace_structured
     from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 
     rng = np.random.default_rng(0)

@@ -3,7 +3,7 @@ import numpy as np
 
 from hybrid_shadow_addon.core.bake import bake_scene
 from hybrid_shadow_addon.core.bake.bvh import build_bvhs
-from hybrid_shadow_addon.core.reference import trace_brute, trace_structured
+from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 
 from test_bake_scenes import blob_model, plate_model

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
-from hybrid_shadow_addon.core.reference import trace_brute, trace_structured
+from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 
 from test_bake_scenes import assert_equal_tracers, blob_model, plate_model, random_matrices, random_rays

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hybrid_shadow_addon.core.bake import bake_scene
-from hybrid_shadow_addon.core.reference import bake_space, trace_structured, trace_brute
+from hybrid_shadow_addon.core.oracle.tracer import bake_space, trace_structured
 
 from test_bake_scenes import random_scene, random_rays, adversarial_scene
 

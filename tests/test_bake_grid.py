@@ -2,9 +2,9 @@
 import numpy as np
 
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
-from hybrid_shadow_addon.core.bake.grid import MARGIN_CELLS
+from hybrid_shadow_addon.core.bake.grid import MARGIN_CELLS, place, plan_grid
 from hybrid_shadow_addon.core.bake.textures import OBJECT_TEXELS, MAX_TEX_SIZE
-from hybrid_shadow_addon.core.reference import trace_brute, trace_structured
+from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 
 from test_bake_scenes import adversarial_scene, random_rays, random_scene
@@ -72,6 +72,41 @@ def test_grid_fits_scene_and_stats():
     for k, v in baked.defines.items():
         assert isinstance(v, (int, str))
     assert baked.defines["HS_GRID_LEVELS"] == lay.levels
+
+
+def test_nodes_at_agrees_with_place():
+    """``GridLayout.nodes_at`` of a small sphere's centre, at the level ``place`` chose, is the node
+    ``place`` put it in; a point off the grid rectangle (or NaN) is -1 at every level."""
+    rng = np.random.default_rng(7)
+    n = 3000
+    c = np.column_stack([rng.uniform(-50, 150, n), rng.uniform(-20, 80, n), rng.uniform(0, 5, n)])
+    r = rng.uniform(1e-4, 0.3, n)
+    lay = plan_grid(c, r, base_node_size=1.0)
+    node = place(lay, c, r)
+    assert (node != lay.outside_node).all()
+    lvl = lay.node_level(node)
+    assert (lvl == 0).mean() > 0.5 and lvl.max() > 0
+    at = lay.nodes_at(c[:, :2])
+    assert at.shape == (lay.levels, n) and at.dtype == np.int64
+    assert (at[lvl, np.arange(n)] == node).all()
+    for level in range(lay.levels):  # the centre is inside every level, in that level's id range
+        assert (at[level] >= lay.level_offset[level]).all()
+        assert (at[level] < lay.level_offset[level] + lay.dims[level].prod()).all()
+    off = np.array([[lay.origin[0] - 1.0, lay.origin[1] + 1.0], [lay.origin[0] + 1e6, lay.origin[1] + 1.0],
+                    [lay.origin[0] + 1.0, lay.origin[1] - 1e-9], [np.nan, 0.0]])
+    assert (lay.nodes_at(off) == -1).all()
+    # through a bake far from world zero: the layout is in bake space (world - origin)
+    tet = Model("tet", [(0, 0, 0), (0.2, 0, 0), (0, 0.2, 0), (0, 0, 0.2)], [(0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3)])
+    m = np.tile(np.eye(4), (n, 1, 1))
+    m[:, :3, 3] = c + (2e5, -3e5, 0)
+    scene = Scene(models=[tet], instances=Instances(names=[f"t{i}" for i in range(n)], model_ids=np.zeros(n), matrices=m))
+    baked = bake_scene(scene, BakeConfig(base_node_size=1.0))
+    assert np.abs(baked.origin).max() > 0
+    wc, _ = scene.instance_spheres()
+    held = baked.inst_node
+    at = baked.layout.nodes_at(wc[:, :2] - baked.origin[:2])
+    assert (at[baked.layout.node_level(held), np.arange(n)] == held).all()
+    assert (baked.node_count[held] > 0).all()
 
 
 def test_texture_sizes_and_layers():

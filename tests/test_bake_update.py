@@ -2,7 +2,7 @@
 import numpy as np
 
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
-from hybrid_shadow_addon.core.reference import trace_brute, trace_structured
+from hybrid_shadow_addon.core.oracle.tracer import trace_structured
 from hybrid_shadow_addon.core.scene import Model
 
 from test_bake_scenes import assert_equal_tracers, blob_model, random_rays, random_scene

@@ -3,7 +3,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
-from hybrid_shadow_addon.core.reference import sphere_hit, trace_brute, trace_structured, woop_hit, woop_setup
+from hybrid_shadow_addon.core.oracle.tracer import sphere_hit, trace_brute, trace_structured, woop_hit, woop_setup
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 
 

@@ -28,9 +28,8 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 
 from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E402
 
-from hybrid_shadow_addon.core.bake import bake_scene  # noqa: E402
-from hybrid_shadow_addon.core.bake.baked import BakeConfig  # noqa: E402
-from hybrid_shadow_addon.core.reference import trace_brute, trace_structured  # noqa: E402
+from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene  # noqa: E402
+from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured  # noqa: E402
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene  # noqa: E402
 
 import stiff_table  # noqa: E402

@@ -45,7 +45,7 @@ def export_depsgraph(depsgraph, *, resolution=None) -> Scene:
 
     ``resolution``: ``(width, height)`` overriding the render settings (default: resolution x/y
     times the percentage). Raises :class:`SceneError` naming the object for a NaN or infinite
-    transform; the remaining checks are ``Scene.validate``'s.
+    transform (``Scene.check_transforms``); the remaining checks are ``Scene.validate``'s.
     """
     return _Exporter(depsgraph).run(resolution)
 
@@ -241,8 +241,7 @@ class _Exporter:
                        lights=self.lights, camera=camera, world_color=world_color(scene.world),
                        resolution=render_resolution(scene) if resolution is None else resolution,
                        frame=scene.frame_current)
-        _reject_non_finite(result)
-        return result
+        return result.check_transforms()
 
     def _walk(self) -> None:
         vectorised = set()  # evaluated instancers whose instances came from their GeometrySet
@@ -457,17 +456,3 @@ def _flatten(gs, depsgraph, keep: list):
         else:
             return None
     return out
-
-
-def _reject_non_finite(scene: Scene) -> None:
-    """Raise SceneError naming the first instance, light or camera with a NaN/inf transform."""
-    inst = scene.instances
-    if len(inst):
-        bad = ~np.isfinite(inst.matrices).all(axis=(1, 2))
-        if bad.any():
-            raise SceneError(f"object '{inst.names[int(np.argmax(bad))]}' has a NaN or infinite transform")
-    for light in scene.lights:
-        if not np.isfinite(light.matrix).all():
-            raise SceneError(f"light '{light.name}' has a NaN or infinite transform")
-    if scene.camera is not None and not np.isfinite(scene.camera.matrix).all():
-        raise SceneError(f"camera '{scene.camera.name}' has a NaN or infinite transform")

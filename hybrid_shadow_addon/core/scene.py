@@ -173,13 +173,18 @@ class Instances:
 
     def max_scale(self) -> np.ndarray:
         """(N,) largest axis scale of each world matrix (length of the 3x3 columns)."""
-        return np.sqrt((self.matrices[:, :3, :3] ** 2).sum(axis=1)).max(axis=1)
+        return max_scale(self.matrices)
 
     def set_matrices(self, index, matrices) -> None:
         """Move instances: new world matrices (and inverses) for rows ``index``."""
         m = np.asarray(matrices, np.float64).reshape(-1, 4, 4)
         self.matrices[index] = m
         self.inverse[index] = affine_inverse(m)
+
+
+def max_scale(m: np.ndarray) -> np.ndarray:
+    """(N,) largest axis scale of a stack of 4x4 matrices (length of the 3x3 columns)."""
+    return np.sqrt((m[:, :3, :3] ** 2).sum(axis=1)).max(axis=1)
 
 
 def affine_inverse(m: np.ndarray) -> np.ndarray:
@@ -245,7 +250,7 @@ class Light:
     def validate(self) -> None:
         if self.type not in LIGHT_TYPES:
             raise SceneError(f"light '{self.name}' has unsupported type {self.type!r}")
-        for label, v in (("colour", self.color), ("matrix", self.matrix), ("power", self.power),
+        for label, v in (("colour", self.color), ("transform", self.matrix), ("power", self.power),
                          ("radius", self.radius), ("spot size", self.spot_size),
                          ("spot blend", self.spot_blend), ("angle", self.angle)):
             if not np.isfinite(np.asarray(v, np.float64)).all():
@@ -282,6 +287,8 @@ class Camera:
         self.sensor_fit = str(self.sensor_fit).upper()
 
     def validate(self) -> None:
+        if not np.isfinite(self.matrix).all():
+            raise SceneError(f"camera '{self.name}' has a NaN or infinite transform")
         vals = [self.matrix, self.lens, self.sensor_width, self.sensor_height, self.ortho_scale,
                 self.shift_x, self.shift_y, self.clip_start, self.clip_end]
         if not all(np.isfinite(np.asarray(v, np.float64)).all() for v in vals):
@@ -417,16 +424,17 @@ class Scene:
             out[light.type] = out.get(light.type, 0) + 1
         return out
 
-    def instance_spheres(self):
-        """World bounding spheres of all instances: centres (N, 3) and radii (N,), float64."""
+    def instance_spheres(self, idx=None):
+        """World bounding spheres of instances ``idx`` (all when None): centres (N, 3) and radii
+        (N,), float64."""
         inst = self.instances
-        if not len(inst):
-            return np.zeros((0, 3)), np.zeros(0)
+        mids, mats = (inst.model_ids, inst.matrices) if idx is None else (inst.model_ids[idx], inst.matrices[idx])
+        if len(mids) == 0 or not self.models:
+            return np.zeros((len(mids), 3)), np.zeros(len(mids))
         centers_m = np.array([m.sphere_center for m in self.models], np.float64).reshape(-1, 3)
         radii_m = np.array([m.sphere_radius for m in self.models], np.float64)
-        c = centers_m[inst.model_ids]
-        centers = np.einsum("nij,nj->ni", inst.matrices[:, :3, :3], c) + inst.matrices[:, :3, 3]
-        radii = radii_m[inst.model_ids] * inst.max_scale()
+        centers = np.einsum("nij,nj->ni", mats[:, :3, :3], centers_m[mids]) + mats[:, :3, 3]
+        radii = radii_m[mids] * max_scale(mats)
         return centers, radii
 
     def world_bounds(self):
@@ -445,6 +453,21 @@ class Scene:
         return (wc - wh).min(axis=0), (wc + wh).max(axis=0)
 
     # -- validation ---------------------------------------------------------------------------
+    def check_transforms(self) -> "Scene":
+        """Raise :class:`SceneError` naming the first object, light or camera with a NaN or
+        infinite transform (what the export rejects at once; :meth:`validate` checks the rest)."""
+        inst = self.instances
+        if len(inst):
+            bad = ~np.isfinite(inst.matrices).all(axis=(1, 2))
+            if bad.any():
+                raise SceneError(f"object '{inst.names[int(np.argmax(bad))]}' has a NaN or infinite transform")
+        for light in self.lights:
+            if not np.isfinite(light.matrix).all():
+                raise SceneError(f"light '{light.name}' has a NaN or infinite transform")
+        if self.camera is not None and not np.isfinite(self.camera.matrix).all():
+            raise SceneError(f"camera '{self.camera.name}' has a NaN or infinite transform")
+        return self
+
     def validate(self, require_camera: bool = True) -> "Scene":
         """Raise :class:`SceneError` naming the first unusable object; return self."""
         for m in self.models:
@@ -455,9 +478,8 @@ class Scene:
             if inst.model_ids.min() < 0 or inst.model_ids.max() >= len(self.models):
                 bad = int(np.nonzero((inst.model_ids < 0) | (inst.model_ids >= len(self.models)))[0][0])
                 raise SceneError(f"object '{inst.names[bad]}' refers to a missing mesh")
-            bad_m = ~np.isfinite(inst.matrices).all(axis=(1, 2))
-            if bad_m.any():
-                raise SceneError(f"object '{inst.names[int(np.argmax(bad_m))]}' has a NaN or infinite transform")
+        self.check_transforms()
+        if n:
             huge = (np.abs(inst.matrices) >= MAX_COORD).any(axis=(1, 2))
             if huge.any():  # Blender clamps an infinite scale/location to FLT_MAX: still unusable
                 raise SceneError(f"object '{inst.names[int(np.argmax(huge))]}' has an infinite or absurd transform "

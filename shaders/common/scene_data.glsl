@@ -2,7 +2,7 @@
  *
  * #version-less: the loader adds "#version 410 core" and the #defines of BakedScene.defines.
  * Packer: hybrid_shadow_addon/core/bake (baked.py, bvh.py, grid.py, update.py).
- * Oracle:  hybrid_shadow_addon/core/reference.py (trace_structured mirrors this file step by step).
+ * Oracle:  hybrid_shadow_addon/core/oracle/tracer.py (trace_structured mirrors this file step by step).
  *
  * ============================== SCENE TEXTURE LAYOUT ======================================
  * Every texture is a 2D ARRAY texture, HS_TEX_WIDTH (= 2^HS_TEX_WIDTH_LOG2 <= 16384) wide.

@@ -13,7 +13,8 @@ Public API::
 
 Texel layouts: ``shaders/common/scene_data.glsl`` (the one description packer and shader follow).
 """
-from .baked import BakeConfig, BakedScene, UpdateReport, bake_scene, instance_spheres
+from .baked import BakedScene, bake_scene
+from .state import BakeConfig, UpdateReport
 from .textures import TextureData
 
-__all__ = ["BakeConfig", "BakedScene", "TextureData", "UpdateReport", "bake_scene", "instance_spheres"]
+__all__ = ["BakeConfig", "BakedScene", "TextureData", "UpdateReport", "bake_scene"]

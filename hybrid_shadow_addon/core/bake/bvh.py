@@ -3,20 +3,17 @@
 Build (an LBVH variant): triangles of each model are sorted by the 30-bit Morton code of their
 centroid (normalised to the model's centroid box); leaves are runs of ``leaf_size`` consecutive
 triangles in that order; the tree over a model's ``L`` leaves is the balanced binary tree that
-splits a leaf range ``[a, b)`` at ``a + ceil((b - a) / 2)``. Depth is ``ceil(log2 L)``, so a 50k
-triangle model has 12.5k leaves and depth 14. Every level of every model is processed by one set
-of numpy operations (no per-node Python).
+splits a leaf range ``[a, b)`` at ``a + ceil((b - a) / 2)`` (depth ``ceil(log2 L)``). Every level
+of every model is processed by one set of numpy operations (no per-node Python).
 
 Flattening: nodes in depth-first (pre-)order, so the left child of node ``i`` is ``i + 1``; each
 node stores its *escape* index ``i + 2 * leaves(i) - 1`` (the node after its subtree). The GPU
 walks it stackless (see ``hs_bvh_occluded`` in scene_data.glsl): box hit -> ``i + 1`` (or test the
 leaf's triangles, then escape), box miss -> escape.
 
-Triangles are stored de-indexed (3 vertices per triangle, leaf order) so the innermost GPU loop does
-3 fetches per triangle instead of 1 index + 3 dependent vertex fetches; the cost is memory
-(36 B per triangle with RGB32F texels versus about 16 + 6 B with indices), paid once per model, not
-per instance. Boxes are rounded outward in float32 and enlarged by a relative 2^-20 so rounding in
-the slab test never culls a hit the triangle test would find.
+Triangles are stored de-indexed (3 vertices per triangle, leaf order). Boxes are rounded outward
+in float32 and enlarged by ``REL_EPS`` so rounding in the slab test never culls a hit the triangle
+test would find.
 """
 from __future__ import annotations
 
@@ -24,8 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
-REL_EPS = 2.0 ** -20
+from .textures import REL_EPS
 
 
 @dataclass

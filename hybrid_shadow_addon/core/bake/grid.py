@@ -18,10 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .textures import f32_down, f32_up
+from .textures import REL_EPS, f32_down, f32_up
 
 MARGIN_CELLS = 2.0 ** -8  # sphere must be this fraction of a node size inside the node
-REL_EPS = 2.0 ** -20
 
 
 @dataclass
@@ -44,6 +43,27 @@ class GridLayout:
     def node_level(self, nodes: np.ndarray) -> np.ndarray:
         """Level of each global node id (``levels`` for the outside node)."""
         return np.searchsorted(self.level_offset, nodes, side="right") - 1 + (np.asarray(nodes) == self.outside_node)
+
+    def nodes_at(self, xy: np.ndarray) -> np.ndarray:
+        """Global node id of the node of each level that contains each point, (levels, N) int64;
+        -1 where the point lies outside that level's rectangle (or is not finite).
+
+        ``xy``: (N, 2) positions in the space the layout was planned in (bake space: world minus
+        ``BakedScene.origin``), not relative to the layout origin. Same floor arithmetic as
+        :func:`place` (a point is a sphere of radius zero, without the margin).
+        """
+        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        px = xy[:, 0] - self.origin[0]
+        py = xy[:, 1] - self.origin[1]
+        out = np.full((self.levels, len(xy)), -1, np.int64)
+        for lvl, s in enumerate(self.node_sizes):
+            nx, ny = (int(v) for v in self.dims[lvl])
+            ix = np.floor(px / s)
+            iy = np.floor(py / s)
+            inside = (ix >= 0) & (iy >= 0) & (ix < nx) & (iy < ny)
+            out[lvl, inside] = (self.level_offset[lvl] + iy[inside].astype(np.int64) * nx
+                                + ix[inside].astype(np.int64))
+        return out
 
 
 def plan_grid(centers: np.ndarray, radii: np.ndarray, base_node_size=None, max_level0_nodes=None,

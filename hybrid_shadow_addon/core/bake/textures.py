@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import GPUError
+
 MAX_TEX_SIZE = 16384
 MAX_ROWS_LOG2 = 14
 MAX_LAYERS = 2048  # GL 4.1 guarantees GL_MAX_ARRAY_TEXTURE_LAYERS >= 2048
@@ -34,6 +36,8 @@ TRI_TEXELS = 3         # 'tri'         f4 x3: v0, v1, v2 (model space, BVH leaf 
 SPHERE_FLAG = np.uint32(1 << 31)
 EMPTY_HEIGHT = np.float32(-3.4028235e38)  # max height of an empty node: lowest finite float
 FLT_BIG = np.float32(3.0e38)  # "infinite" tmax is clamped to this (GLSL has no portable inf)
+#: relative enlargement of stored boxes, spheres and heights: float32 rounding never culls a hit
+REL_EPS = 2.0 ** -20
 
 FORMATS = {"f4": np.float32, "u4": np.uint32}
 
@@ -102,8 +106,6 @@ def texture_shape(n_texels: int, width: int) -> tuple[int, int]:
         return 1, rows
     layers = -(-rows // MAX_TEX_SIZE)
     if layers > MAX_LAYERS:
-        from ..errors import GPUError
-
         raise GPUError(f"scene too large for the GPU textures: {n_texels} texels need {layers} layers (limit {MAX_LAYERS})")
     return layers, MAX_TEX_SIZE
 

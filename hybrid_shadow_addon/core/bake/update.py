@@ -1,4 +1,4 @@
-"""Incremental updates of a :class:`BakedScene`.
+"""Incremental updates of a :class:`~.baked.BakedScene`.
 
 Moving instances rewrites their [object] texels, the [grid] texels of the nodes they leave and
 enter, and the [grid_index] entries of those nodes only. A node keeps its slot range while its
@@ -18,10 +18,10 @@ import time
 import numpy as np
 
 from . import grid as _grid
-from .baked import TEXTURE_NAMES, UpdateReport, refresh_stats
 from .bvh import build_bvhs
-from .textures import (BVH_TEXELS, MODEL_TEXELS, OBJECT_TEXELS, TRI_TEXELS, grow_texture, rows_of_texels,
-                       texel_rows, merge_ranges)
+from .state import UpdateReport
+from .textures import (BVH_TEXELS, MODEL_TEXELS, OBJECT_TEXELS, TRI_TEXELS, grow_texture, merge_ranges,
+                       rows_of_texels, texel_rows)
 
 
 def _ragged(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
@@ -37,22 +37,24 @@ def _ragged(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
 def _full_grid_report(b, rep: UpdateReport) -> None:
     rep.regrid = True
     rep.resized |= {"grid", "grid_index"}
-    if b.grid_bvh_grown:
+    if b.grid.bvh_grown:
         rep.resized.add("bvh")
     else:
-        lo, hi = b.grid_bvh_range
+        lo, hi = b.grid.bvh_range
         rep.ranges += texel_rows("bvh", lo * BVH_TEXELS, hi * BVH_TEXELS, b.config.tex_width)
     rep.uniforms_changed = True
     rep.defines_changed = True
 
 
 def update_instances(b, scene, indices) -> UpdateReport:
+    """Instances ``indices`` of the baked scene ``b`` moved; see :meth:`BakedScene.update_instances`."""
     t0 = time.perf_counter()
     rep = UpdateReport()
     idx = np.unique(np.asarray(indices, np.int64).reshape(-1))
     if idx.size == 0:
         return rep
-    if len(scene.instances) != len(b.inst_node):
+    st = b.instances
+    if len(scene.instances) != len(st):
         raise ValueError("instances were added or removed: bake the scene again")
     w = b.config.tex_width
     old_level_defs = (b.has_meshes, b.has_spheres)
@@ -64,17 +66,17 @@ def update_instances(b, scene, indices) -> UpdateReport:
     rep.objects = int(idx.size)
 
     # grid: nodes left and entered ---------------------------------------------------------
-    lay = b.layout
+    lay = b.grid.layout
     casts = scene.instances.casts_shadow[idx]
-    old = b.inst_node[idx]
+    old = st.node[idx]
     new = np.full(idx.size, -1, np.int64)
     if casts.any():
-        new[casts] = _grid.place(lay, b.inst_center[idx[casts]], b.inst_radius[idx[casts]])
+        new[casts] = _grid.place(lay, st.center[idx[casts]], st.radius[idx[casts]])
     moving = (old >= 0) | (new >= 0)
     if moving.any():
-        ok = _move(b, scene, idx[moving], old[moving], new[moving], rep)
-        n_casters = int((b.inst_node >= 0).sum())
-        outside = int(b.node_count[lay.outside_node])
+        ok = _move(b, idx[moving], old[moving], new[moving], rep)
+        n_casters = int((st.node >= 0).sum())
+        outside = int(b.grid.count[lay.outside_node])
         if not ok or outside > max(16, b.config.outside_rebake_fraction * n_casters):
             b.build_grid(scene)
             _full_grid_report(b, rep)
@@ -83,20 +85,21 @@ def update_instances(b, scene, indices) -> UpdateReport:
     if b.scene_max_height != old_maxh:
         rep.uniforms_changed = True
     rep.ranges = merge_ranges([r for r in rep.ranges if r[0] not in rep.resized])
-    refresh_stats(b)
+    b.refresh_stats()
     rep.ms = (time.perf_counter() - t0) * 1e3
     b.stats["last_update_ms"] = rep.ms
     return rep
 
 
-def _move(b, scene, obj, old, new, rep) -> bool:
+def _move(b, obj, old, new, rep) -> bool:
     """Move casters ``obj`` from nodes ``old`` to ``new`` (-1: none). False: index list full."""
-    lay = b.layout
+    g, st, tex = b.grid, b.instances, b.tex
+    lay = g.layout
     aff = np.unique(np.concatenate([old[old >= 0], new[new >= 0]]))
     # current members of the affected nodes, minus the movers
-    pos = _ragged(b.node_offset[aff], b.node_count[aff])
-    node_of_pos = np.repeat(aff, b.node_count[aff])
-    lin = b.textures["grid_index"].linear()
+    pos = _ragged(g.offset[aff], g.count[aff])
+    node_of_pos = np.repeat(aff, g.count[aff])
+    lin = tex.grid_index.linear()
     members = lin[pos, 0].astype(np.int64)
     keep = ~np.isin(members, obj)
     ent_obj = np.concatenate([members[keep], obj[new >= 0]])
@@ -106,26 +109,26 @@ def _move(b, scene, obj, old, new, rep) -> bool:
     k = np.searchsorted(aff, ent_node)
     cnt = np.bincount(k, minlength=aff.size).astype(np.int64)
     # relocate nodes that overflow their capacity to the tail
-    over = cnt > b.node_cap[aff]
+    over = cnt > g.cap[aff]
     if over.any():
         need = _grid.node_capacity(cnt[over], b.config.index_slack)
-        starts = b.index_tail + np.concatenate([[0], np.cumsum(need)[:-1]])
-        end = b.index_tail + int(need.sum())
-        if end > b.textures["grid_index"].capacity:
+        starts = g.index_tail + np.concatenate([[0], np.cumsum(need)[:-1]])
+        end = g.index_tail + int(need.sum())
+        if end > tex.grid_index.capacity:
             return False
-        b.node_offset[aff[over]] = starts
-        b.node_cap[aff[over]] = need
-        b.index_tail = end
-        b.textures["grid_index"].used = end
+        g.offset[aff[over]] = starts
+        g.cap[aff[over]] = need
+        g.index_tail = end
+        tex.grid_index.used = end
     # per-level object counts
     lv_old = lay.node_level(old[old >= 0])
     lv_new = lay.node_level(new[new >= 0])
     lc = np.bincount(lv_new, minlength=lay.levels + 1) - np.bincount(lv_old, minlength=lay.levels + 1)
-    b.level_count += lc[: lay.levels]
+    g.level_count += lc[: lay.levels]
     # write entries (crowded nodes: in their rebuilt object BVH's leaf order)
     first = np.concatenate([[0], np.cumsum(cnt)[:-1]])
     rank = np.arange(ent_obj.size) - first[k]
-    slot = b.node_offset[ent_node] + rank
+    slot = g.offset[ent_node] + rank
     ent_obj, (bvh_start, bvh_count), grown = b.place_object_bvhs(aff, first, cnt, ent_obj)
     w = b.config.tex_width
     if grown:
@@ -134,17 +137,17 @@ def _move(b, scene, obj, old, new, rep) -> bool:
         rep.ranges += rows_of_texels("bvh", _ragged(bvh_start * BVH_TEXELS, bvh_count * BVH_TEXELS), w)
     lin[slot, 0] = ent_obj
     lin[slot, 1] = b.index_code(ent_obj)
-    b.inst_node[obj] = -1
-    b.inst_slot[obj] = -1
-    b.inst_node[ent_obj] = ent_node
-    b.inst_slot[ent_obj] = slot
+    st.node[obj] = -1
+    st.slot[obj] = -1
+    st.node[ent_obj] = ent_node
+    st.slot[ent_obj] = slot
     # node records
-    b.node_count[aff] = cnt
+    g.count[aff] = cnt
     maxh = np.full(aff.size, -np.inf)
     if ent_obj.size:
         nz = np.nonzero(cnt)[0]
-        maxh[nz] = np.maximum.reduceat(b.inst_top[ent_obj], first[nz])
-    b.node_maxh[aff] = maxh
+        maxh[nz] = np.maximum.reduceat(st.top[ent_obj], first[nz])
+    g.maxh[aff] = maxh
     b.write_nodes(aff)
     rep.nodes_changed += int(aff.size)
     rep.ranges += rows_of_texels("grid", aff, w)
@@ -155,36 +158,36 @@ def _move(b, scene, obj, old, new, rep) -> bool:
 
 
 def update_model(b, scene, model_id: int) -> UpdateReport:
+    """Model ``model_id`` of the baked scene ``b`` changed; see :meth:`BakedScene.update_model`."""
     t0 = time.perf_counter()
     rep = UpdateReport()
     m = int(model_id)
     w = b.config.tex_width
-    n_old = len(b.model_node_count)
+    ms, tex = b.models, b.tex
+    n_old = len(ms)
     if m > n_old or m >= len(scene.models):
         raise ValueError(f"model id {m} is neither an existing model nor the next new one")
     if m == n_old:  # a new model
-        for name in ("model_node_start", "model_node_count", "model_tri_start", "model_tri_count",
-                     "model_node_cap", "model_tri_cap", "model_depth"):
-            setattr(b, name, np.concatenate([getattr(b, name), [0]]).astype(np.int64))
-        if grow_texture(b.textures["model"], (m + 1) * MODEL_TEXELS):
+        ms.append()
+        if grow_texture(tex.model, (m + 1) * MODEL_TEXELS):
             rep.resized.add("model")
     old_defs = b.defines
     build = build_bvhs([scene.models[m]], b.config.leaf_size)
     nc, tc = int(build.node_count[0]), int(build.tri_count[0])
-    if nc <= b.model_node_cap[m] and tc <= b.model_tri_cap[m]:
-        node_base, tri_base = int(b.model_node_start[m]), int(b.model_tri_start[m])
+    if nc <= ms.node_cap[m] and tc <= ms.tri_cap[m]:
+        node_base, tri_base = int(ms.node_start[m]), int(ms.tri_start[m])
     else:
-        node_base, tri_base = b.bvh_tail, b.tri_tail
-        b.bvh_tail += nc
-        b.tri_tail += tc
-        b.model_node_cap[m], b.model_tri_cap[m] = nc, tc
-        for name, n_tex in (("bvh", b.bvh_tail * BVH_TEXELS), ("tri", b.tri_tail * TRI_TEXELS)):
-            if grow_texture(b.textures[name], n_tex):
+        node_base, tri_base = tex.bvh_tail, tex.tri_tail
+        tex.bvh_tail += nc
+        tex.tri_tail += tc
+        ms.node_cap[m], ms.tri_cap[m] = nc, tc
+        for name, n_tex in (("bvh", tex.bvh_tail * BVH_TEXELS), ("tri", tex.tri_tail * TRI_TEXELS)):
+            if grow_texture(tex[name], n_tex):
                 rep.resized.add(name)
-            b.textures[name].used = n_tex
-    b.model_node_start[m], b.model_node_count[m] = node_base, nc
-    b.model_tri_start[m], b.model_tri_count[m] = tri_base, tc
-    b.model_depth[m] = int(build.depth[0]) if len(build.depth) else 0
+            tex[name].used = n_tex
+    ms.node_start[m], ms.node_count[m] = node_base, nc
+    ms.tri_start[m], ms.tri_count[m] = tri_base, tc
+    ms.depth[m] = int(build.depth[0]) if len(build.depth) else 0
     if nc:
         b.write_bvh(build, node_base, tri_base, 0)
     b.write_models(np.array([m]), scene)
@@ -197,6 +200,6 @@ def update_model(b, scene, model_id: int) -> UpdateReport:
     if b.defines != old_defs:
         rep.defines_changed = True
     rep.ranges = merge_ranges([r for r in rep.ranges if r[0] not in rep.resized])
-    refresh_stats(b)
+    b.refresh_stats()
     rep.ms = (time.perf_counter() - t0) * 1e3
     return rep

@@ -43,15 +43,16 @@ class SceneTextures:
             self.upload(baked)
             return sum(t.nbytes for t in baked.textures.values())
         written = 0
+        textures = baked.textures
         for name in report.resized:
             self.textures[name].release()
-            td = baked.textures[name]
+            td = textures[name]
             self.textures[name] = self._create(td)
             written += td.nbytes
         for name, layer, y0, y1 in report.ranges:
             if name in report.resized:
                 continue
-            td = baked.textures[name]
+            td = textures[name]
             rows = np.ascontiguousarray(td.data[layer, y0:y1])
             self.textures[name].write(rows.tobytes(), viewport=(0, y0, layer, td.width, y1 - y0, 1))
             written += rows.nbytes

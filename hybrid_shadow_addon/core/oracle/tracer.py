@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bake.textures import (BVH_TEXELS, FLT_BIG, MODEL_TEXELS, OBJECT_TEXELS, SPHERE_FLAG, TRI_TEXELS, f32_up)
+from ..bake.textures import (BVH_TEXELS, FLT_BIG, MODEL_TEXELS, OBJECT_TEXELS, SPHERE_FLAG, TRI_TEXELS, f32_up)
 
 F = np.float32
 BIG = F(3.4e38)  # "no boundary" t of the DDA; > FLT_BIG

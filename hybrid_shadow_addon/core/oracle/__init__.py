@@ -1,0 +1,1 @@
+"""numpy oracles for tests and benchmarks; not shipped in the extension."""
