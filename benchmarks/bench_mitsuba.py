@@ -26,7 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
-from hybrid_shadow_addon.core.gpu.passes.raytrace import shadow_rays  # noqa: E402
+from hybrid_shadow_addon.core.oracle.rays import shadow_rays  # noqa: E402
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
 from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
 
@@ -93,14 +93,13 @@ def main(argv=None):
         pipe.set_scene(scene)
         timings = {}
         for cons in (False, True):  # (the mask compared below is the last: with maps)
-            pipe.raytrace.conservative = cons
-            pipe.render(scene, Settings(mode="raytrace"), w, h, read_image=False)
+            settings = Settings(mode="raytrace", conservative="sun" if cons else "off")
+            pipe.render(scene, settings, w, h, read_image=False)
             ts = []
             for _ in range(a.reps):
-                fr = pipe.render(scene, Settings(mode="raytrace"), w, h, read_image=False)
+                fr = pipe.render(scene, settings, w, h, read_image=False)
                 ts.append(fr.timings["shadow_ms"])
             timings[cons] = statistics.median(ts)
-        pipe.raytrace.conservative = False
         ours = fr.mask_array(li)
         gb = fr.gbuffer
         cov = ~np.isnan(ours)

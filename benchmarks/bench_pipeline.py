@@ -27,28 +27,23 @@ SCENES = {"forest": "forest", "clusters": "clusters", "city": "city"}
 PASSES = ("gbuffer_ms", "shadow_ms", "upsample_ms", "lighting_ms", "total_ms")
 
 
-def _frame(pipe, scene, settings, w, h, conservative, local):
-    pipe.raytrace.conservative = conservative
-    pipe.raytrace.conservative_local = local
-    try:
-        fr = pipe.render(scene, settings, w, h, read_image=False)
-    finally:
-        pipe.raytrace.conservative = False
-        pipe.raytrace.conservative_local = False
+def _frame(pipe, scene, settings, w, h):
+    fr = pipe.render(scene, settings, w, h, read_image=False)
     t = dict(fr.timings)
-    t["map_ms"] = pipe.raytrace.last_map_ms if settings.mode == "raytrace" and conservative else 0.0
+    maps = settings.mode == "raytrace" and settings.conservative != "off"
+    t["map_ms"] = pipe.shadow_pass("raytrace").last_map_ms if maps else 0.0
     return t
 
 
 def measure_all(pipe, scene, configs, w, h, reps):
     """{label: median timings}; configurations interleaved round-robin so that the load of a
     shared machine hits them alike (the first frame of each, compiling shaders, discarded)."""
-    for _, s, cons, local in configs:
-        _frame(pipe, scene, s, w, h, cons, local)
+    for _, s in configs:
+        _frame(pipe, scene, s, w, h)
     rows = {c[0]: [] for c in configs}
     for _ in range(reps):
-        for label, s, cons, local in configs:
-            rows[label].append(_frame(pipe, scene, s, w, h, cons, local))
+        for label, s in configs:
+            rows[label].append(_frame(pipe, scene, s, w, h))
     return {label: {k: statistics.median(r[k] for r in rs) for k in PASSES + ("map_ms",)}
             for label, rs in rows.items()}
 
@@ -72,14 +67,14 @@ def main(argv=None):
         scene = load_scene(SCENES.get(name, name))
         pipe.set_scene(scene)
         high = Settings(mode="raytrace", quality="high")
-        configs = [("raytrace high", high, False, False)]
+        configs = [("raytrace high", high)]
         if a.maps:
-            configs += [("raytrace high, maps for suns", high, True, False),
-                        ("raytrace high, maps for all lights", high, True, True)]
-        configs += [("raytrace medium", Settings(mode="raytrace", quality="medium"), False, False),
-                    ("raytrace low", Settings(mode="raytrace", quality="low"), False, False),
-                    ("shadowmap", Settings(mode="shadowmap"), False, False),
-                    ("none", Settings(mode="none"), False, False)]
+            configs += [("raytrace high, maps for suns", high.replace(conservative="sun")),
+                        ("raytrace high, maps for all lights", high.replace(conservative="all"))]
+        configs += [("raytrace medium", Settings(mode="raytrace", quality="medium")),
+                    ("raytrace low", Settings(mode="raytrace", quality="low")),
+                    ("shadowmap", Settings(mode="shadowmap")),
+                    ("none", Settings(mode="none"))]
         res = measure_all(pipe, scene, configs, w, h, a.reps)
         for label, *_ in configs:
             t = res[label]
@@ -103,7 +98,7 @@ def main(argv=None):
         scene = load_scene(f"scaling:triangles={n},instances={inst}")
         pipe.set_scene(scene)
         rt_s = Settings(mode="raytrace")
-        configs = [("rt", rt_s, False, False), ("shadowmap", Settings(mode="shadowmap"), False, False)]
+        configs = [("rt", rt_s), ("shadowmap", Settings(mode="shadowmap"))]
         res = measure_all(pipe, scene, configs, w, h, a.reps)
         rt, sm = res["rt"]["shadow_ms"], res["shadowmap"]["shadow_ms"]
         step = "" if prev is None else f"{rt / prev:.2f}x"

@@ -8,7 +8,6 @@ sun-only scene against the same scene plus unshadowed lights of every other type
 """
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -52,18 +51,18 @@ def main(argv=None):
     st = Settings(mode="raytrace")
     rows = []
     own = median_ms(pipe, scene, st, w, h, "shadow_ms", a.repeats)
-    defines_own = sorted(pipe.raytrace.last_defines)
-    orig = pipe.raytrace.defines
+    rt = pipe.shadow_pass("raytrace")
+    defines_own = sorted(rt.last_defines)
+    orig = rt.defines
 
     def all_on(settings, local):
         d = orig(settings, local)
         d.update(HS_HAS_SPHERES=1, HS_MAX_DISTANCE=1)
         return d
-    pipe.raytrace.defines = all_on
-    pipe.raytrace._trace_orig = None
+    rt.defines = all_on
     big = Settings(mode="raytrace", max_distance=1e9)
     forced = median_ms(pipe, scene, big, w, h, "shadow_ms", a.repeats)
-    pipe.raytrace.defines = orig
+    rt.defines = orig
     rows.append(("ray trace, sun (own defines: " + ", ".join(defines_own) + ")", own))
     rows.append(("ray trace, sun, + sphere and max-distance code compiled in", forced))
     light_own = median_ms(pipe, scene, st, w, h, "lighting_ms", a.repeats)

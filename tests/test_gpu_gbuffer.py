@@ -2,8 +2,7 @@
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.gpu.passes.gbuffer import GBufferPass
-from hybrid_shadow_addon.core.gpu.programs import ProgramCache
+from pass_rig import PassRig
 from test_gpu_scenes import basic_scene, interior, ray_cast, trs
 
 W, H = 160, 120
@@ -11,14 +10,16 @@ W, H = 160, 120
 
 @pytest.fixture(scope="module")
 def gpass(gl_ctx):
-    return GBufferPass(gl_ctx, ProgramCache(gl_ctx))
+    r = PassRig(gl_ctx)
+    yield r
+    r.release()
 
 
 @pytest.mark.parametrize("camera_type,offset", [("PERSP", (0, 0, 0)), ("ORTHO", (0, 0, 0)),
                                                 ("PERSP", (3000.0, -2000.0, 150.0))])
 def test_positions_match_exact_ray_cast(gpass, camera_type, offset):
     scene = basic_scene(offset=offset, camera_type=camera_type, with_sphere=True)
-    gb = gpass.render(scene, W, H)
+    gb = gpass.gbuffer(scene, W, H)
     pos = gb.read("position")
     nrm = gb.read("normal")
     mat = gb.read("material")
@@ -59,16 +60,16 @@ def test_positions_match_exact_ray_cast(gpass, camera_type, offset):
 
 def test_top_row_is_top_and_moving_reuses_model_buffers(gpass):
     scene = basic_scene()
-    gb = gpass.render(scene, W, H)
+    gb = gpass.gbuffer(scene, W, H)
     pos = gb.read("position")
     # the camera looks down: the bottom rows are the ground nearest the camera
     cov = pos[..., 3] > 0.5
     assert cov[-1].all()
-    vbos = gpass.models.buffer_ids()
+    vbos = gpass.gpu.models.buffer_ids()
     scene.instances.set_matrices([1], trs((1.0, 1.0, 1.0))[None])
-    gb = gpass.render(scene, W, H)
-    assert gpass.models.buffer_ids() == vbos
-    assert gpass.draw_calls == 2  # one per model
+    gb = gpass.gbuffer(scene, W, H)
+    assert gpass.gpu.models.buffer_ids() == vbos
+    assert gpass.gbuffer_pass.draw_calls == 2  # one per model
     pos2 = gb.read("position")
     assert not np.array_equal(pos, pos2)
 
@@ -90,7 +91,7 @@ def test_smooth_shading_normals(gpass):
     scene.instances.model_ids[2] = 2  # the rotated box becomes a smooth ball
     scene.instances.matrices[2] = trs((1.5, -1.5, 1.0))
     scene.instances.set_matrices([2], scene.instances.matrices[2])
-    gb = gpass.render(scene, W, H)
+    gb = gpass.gbuffer(scene, W, H)
     inst = gb.read("material")[..., 2]
     geo, shade = gb.read("normal")[..., :3], gb.read("shading_normal")[..., :3]
     pos = gb.read("position")[..., :3]

@@ -5,15 +5,14 @@ import zlib
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core import lighting_reference
-from hybrid_shadow_addon.core.gpu.passes import (LightingPass, NoShadowPass, UpsamplePass, create_mask_texture,
-                                                 mask_source_pixels, read_mask, to_srgb8, write_png)
-from hybrid_shadow_addon.core.gpu.passes.gbuffer import GBufferPass
-from hybrid_shadow_addon.core.gpu.passes.shadowmap import ShadowMapPass
-from hybrid_shadow_addon.core.gpu.programs import ProgramCache
+from hybrid_shadow_addon.core.gpu.frame import mask_source_pixels, read_mask
+from hybrid_shadow_addon.core.gpu.targets import create_mask_texture
+from hybrid_shadow_addon.core.image import to_srgb8, write_png
+from hybrid_shadow_addon.core.oracle import lighting as lighting_reference
 from hybrid_shadow_addon.core.scene import Light
 from hybrid_shadow_addon.core.settings import Settings
 from test_gpu_scenes import basic_scene, interior
+from pass_rig import PassRig
 from test_gpu_shadowmap import all_lights
 
 W, H = 160, 120
@@ -21,10 +20,9 @@ W, H = 160, 120
 
 @pytest.fixture(scope="module")
 def rig(gl_ctx):
-    progs = ProgramCache(gl_ctx)
-    g = GBufferPass(gl_ctx, progs)
-    return dict(ctx=gl_ctx, progs=progs, g=g, s=ShadowMapPass(gl_ctx, progs, g.models), n=NoShadowPass(gl_ctx),
-                l=LightingPass(gl_ctx, progs), u=UpsamplePass(gl_ctx, progs))
+    r = PassRig(gl_ctx)
+    yield r
+    r.release()
 
 
 def gbuffer_arrays(gb):
@@ -42,37 +40,37 @@ def test_none_mode_matches_numpy(rig, camera_type):
     lights[2].spot_blend = 0.4
     lights[1].color = np.float32([1.0, 0.6, 0.3])
     scene = basic_scene(lights=lights, camera_type=camera_type, with_sphere=True)
-    gb = rig["g"].render(scene, W, H)
-    masks = rig["n"].render(scene, gb, Settings(mode="none"))
-    rig["l"].render(scene, gb, masks)
-    img = rig["l"].read()
+    gb = rig.gbuffer(scene, W, H)
+    masks = rig.none(scene, gb, Settings(mode="none"))
+    rig.light(scene, gb, masks)
+    img = rig.image()
     ref = lighting_reference.shade(scene, gbuffer_arrays(gb))
     assert_close(img, ref)
     assert img[..., :3].max() > 0.05  # really lit
     # no masks at all gives the same picture
-    rig["l"].render(scene, gb, None)
-    assert_close(rig["l"].read(), ref)
+    rig.light(scene, gb, None)
+    assert_close(rig.image(), ref)
 
 
 def test_each_light_type_alone_and_masks_multiply(rig):
     for i, light in enumerate(all_lights()):
         light.spot_blend = 0.0 if light.type == "SPOT" else light.spot_blend
         scene = basic_scene(lights=[light])
-        gb = rig["g"].render(scene, W, H)
-        rig["l"].render(scene, gb, None, Settings(specular=False))
-        img = rig["l"].read()
+        gb = rig.gbuffer(scene, W, H)
+        rig.light(scene, gb, None, Settings(specular=False))
+        img = rig.image()
         ref = lighting_reference.shade(scene, gbuffer_arrays(gb), use_specular=False)
         assert_close(img, ref)
         ambient = lighting_reference.shade(scene.__class__(**{**scene.__dict__, "lights": []}), gbuffer_arrays(gb))
         assert (img[..., :3] - ambient[..., :3]).max() > 0.02, light.type
     # shadow-map masks: GPU lighting with masks == numpy lighting with the same masks read back
     scene = basic_scene(lights=all_lights())
-    gb = rig["g"].render(scene, W, H)
-    masks = rig["s"].render(scene, gb, Settings(mode="shadowmap", shadowmap_size=512))
-    rig["l"].render(scene, gb, masks)
+    gb = rig.gbuffer(scene, W, H)
+    masks = rig.shadowmap(scene, gb, Settings(mode="shadowmap", shadowmap_size=512))
+    rig.light(scene, gb, masks)
     arrays = {k: read_mask(v) for k, v in masks.items()}
     ref = lighting_reference.shade(scene, gbuffer_arrays(gb), arrays)
-    assert_close(rig["l"].read(), ref)
+    assert_close(rig.image(), ref)
 
 
 def test_more_masked_lights_than_one_batch(rig):
@@ -80,18 +78,18 @@ def test_more_masked_lights_than_one_batch(rig):
     for i, light in enumerate(lights):
         light.matrix[:3, 3] = (np.cos(i), np.sin(i), 3.0 + 0.1 * i)
     scene = basic_scene(lights=lights)
-    gb = rig["g"].render(scene, W, H)
+    gb = rig.gbuffer(scene, W, H)
     rng = np.random.default_rng(1)
     mask_arrays = {i: rng.random((H, W)).astype(np.float32) for i in range(0, 11, 1) if i != 4}
     masks = {}
     for i, a in mask_arrays.items():
-        t = create_mask_texture(rig["ctx"], W, H)
+        t = create_mask_texture(rig.ctx, W, H)
         t.write(np.ascontiguousarray(a[::-1]).tobytes())  # numpy top row -> GL top row
         masks[i] = t
-    rig["l"].render(scene, gb, masks)
-    assert rig["l"].batches == 2
+    rig.light(scene, gb, masks)
+    assert rig.lighting.batches == 2
     ref = lighting_reference.shade(scene, gbuffer_arrays(gb), mask_arrays)
-    assert_close(rig["l"].read(), ref)
+    assert_close(rig.image(), ref)
     for t in masks.values():
         t.release()
 
@@ -119,20 +117,20 @@ def test_edge_aware_upsample_beats_nearest(rig, quality):
     """A low-res mask sampled from an exact full-res mask: the bilateral upsample reproduces the
     full-res mask better than nearest, especially across geometric edges."""
     scene = basic_scene(lights=all_lights()[:1], with_sphere=True)
-    gb = rig["g"].render(scene, W, H)
+    gb = rig.gbuffer(scene, W, H)
     settings = Settings(mode="shadowmap", quality=quality, shadowmap_size=1024, pcf=0)
-    full = read_mask(rig["s"].render(scene, gb, settings)[0])
+    full = read_mask(rig.shadowmap(scene, gb, settings)[0])
     mw, mh = settings.mask_size(W, H)
     rows, cols = mask_source_pixels((mw, mh), (W, H), settings.mask_scale)
     assert rows.shape == (mh, mw)
     low = full[rows, cols].astype(np.float32)
-    tex = create_mask_texture(rig["ctx"], mw, mh)
+    tex = create_mask_texture(rig.ctx, mw, mh)
     tex.write(np.ascontiguousarray(low[::-1]).tobytes())
     cov = gb.coverage()
     # read_mask maps a reduced mask onto its source pixels' coverage
     assert np.array_equal(np.isnan(read_mask(tex, gb)), ~cov[rows, cols])
-    up = read_mask(rig["u"].render({0: tex}, gb, settings)[0], gb)
-    near = read_mask(rig["u"].render({0: tex}, gb, settings.replace(upsample="nearest"))[0], gb)
+    up = read_mask(rig.upsample({0: tex}, gb, settings)[0], gb)
+    near = read_mask(rig.upsample({0: tex}, gb, settings.replace(upsample="nearest"))[0], gb)
     inst = gb.read("material")[..., 2]
     edges = cov & ~interior(np.where(cov, inst, -1))
     err_up = np.abs(up - full)[cov]

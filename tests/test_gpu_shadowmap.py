@@ -2,12 +2,11 @@
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.gpu.passes import NoShadowPass, read_mask, select_shadowed_lights
-from hybrid_shadow_addon.core.gpu.passes.gbuffer import GBufferPass
-from hybrid_shadow_addon.core.gpu.passes.shadowmap import ShadowMapPass
-from hybrid_shadow_addon.core.gpu.programs import ProgramCache
+from hybrid_shadow_addon.core.gpu.frame import read_mask
+from hybrid_shadow_addon.core.gpu.lights import select_shadowed_lights
 from hybrid_shadow_addon.core.scene import Light
 from hybrid_shadow_addon.core.settings import Settings
+from pass_rig import PassRig
 from test_gpu_scenes import basic_scene, interior, look_at, ray_cast, trs
 
 W, H = 160, 120
@@ -22,9 +21,9 @@ def all_lights():
 
 @pytest.fixture(scope="module")
 def passes(gl_ctx):
-    progs = ProgramCache(gl_ctx)
-    g = GBufferPass(gl_ctx, progs)
-    return g, ShadowMapPass(gl_ctx, progs, g.models), NoShadowPass(gl_ctx)
+    r = PassRig(gl_ctx)
+    yield r
+    r.release()
 
 
 def reference_mask(scene, pos, nrm, light):
@@ -46,10 +45,10 @@ def reference_mask(scene, pos, nrm, light):
 
 @pytest.mark.parametrize("light_index", [0, 1, 2, 3])
 def test_shadow_map_matches_ray_cast(passes, light_index):
-    gpass, spass, _ = passes
+    rig = passes
     scene = basic_scene(lights=all_lights(), with_sphere=True)
-    gb = gpass.render(scene, W, H)
-    masks = spass.render(scene, gb, Settings(mode="shadowmap", shadowmap_size=1024), lights=[light_index])
+    gb = rig.gbuffer(scene, W, H)
+    masks = rig.shadowmap(scene, gb, Settings(mode="shadowmap", shadowmap_size=1024), lights=[light_index])
     assert set(masks) == {light_index}
     m = read_mask(masks[light_index], gb)
     pos, nrm = gb.read("position"), gb.read("normal")
@@ -67,10 +66,10 @@ def test_shadow_map_matches_ray_cast(passes, light_index):
 
 
 def test_cube_on_plane_under_sun_is_shadowed_behind(passes):
-    gpass, spass, _ = passes
+    rig = passes
     scene = basic_scene(lights=all_lights()[:1])
-    gb = gpass.render(scene, W, H)
-    m = read_mask(spass.render(scene, gb, Settings(mode="shadowmap", shadowmap_size=1024, pcf=0))[0], gb)
+    gb = rig.gbuffer(scene, W, H)
+    m = read_mask(rig.shadowmap(scene, gb, Settings(mode="shadowmap", shadowmap_size=1024, pcf=0))[0], gb)
     pos = gb.read("position")
     # ground points right behind the cube (away from the sun) are 0; points in front are 1
     d = scene.lights[0].direction
@@ -85,17 +84,17 @@ def test_cube_on_plane_under_sun_is_shadowed_behind(passes):
 
 
 def test_max_distance_and_none_mode(passes):
-    gpass, spass, npass = passes
+    rig = passes
     scene = basic_scene(lights=all_lights())
-    gb = gpass.render(scene, W, H)
+    gb = rig.gbuffer(scene, W, H)
     depth = gb.read("depth")
     pos = gb.read("position")
     cam = scene.camera.matrix[:3, 3]
     dist = np.linalg.norm(pos[..., :3] - cam, axis=-1)
-    m = read_mask(spass.render(scene, gb, Settings(mode="shadowmap", max_distance=6.0), lights=[0])[0], gb)
+    m = read_mask(rig.shadowmap(scene, gb, Settings(mode="shadowmap", max_distance=6.0), lights=[0])[0], gb)
     far = (depth > 0) & (dist > 6.01)
     assert far.sum() > 100 and (m[far] == 1).all()
-    masks = npass.render(scene, gb, Settings(mode="none"))
+    masks = rig.none(scene, gb, Settings(mode="none"))
     assert sorted(masks) == [0, 1, 2, 3]
     for tex in masks.values():
         mm = read_mask(tex, gb)

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from hybrid_shadow_addon.core.bake import bake_scene
-from hybrid_shadow_addon.core.gpu.passes.raytrace import shadow_rays
+from hybrid_shadow_addon.core.oracle.rays import shadow_rays
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
-from hybrid_shadow_addon.core.reference import trace_structured
+from hybrid_shadow_addon.core.oracle.tracer import trace_structured
 from hybrid_shadow_addon.core.settings import Settings
 
 from conftest import TEST_SCENES
@@ -168,7 +168,7 @@ def test_progress_steps_and_cancel(pipeline, loaded):
     scene = loaded("forest")
     pipeline.set_scene(scene)
     seen = []
-    frame = pipeline.render(scene, Settings(mode="raytrace"), 40, 30, on_step=lambda *a: seen.append(a))
+    frame = pipeline.render(scene, Settings(mode="raytrace"), 40, 30, progress=lambda done, total, label: seen.append((label, done, total)))
     labels = [label for label, _, _ in seen]
     assert labels[0] == "G-buffer" and labels[-1] == "Reading the image"
     for li in frame.lights:
@@ -179,9 +179,9 @@ def test_progress_steps_and_cancel(pipeline, loaded):
     class Stop(Exception):
         pass
 
-    def cancel(label, done, total):
+    def cancel(done, total, label):
         if label.startswith("Shadow map"):
             raise Stop
 
     with pytest.raises(Stop):
-        pipeline.render(scene, Settings(mode="shadowmap"), 40, 30, on_step=cancel)
+        pipeline.render(scene, Settings(mode="shadowmap"), 40, 30, progress=cancel)

@@ -15,11 +15,7 @@ W, H = 160, 120
 def masks_with_and_without(pipeline, scene, settings):
     out = []
     for cons in (False, True):
-        pipeline.raytrace.conservative = pipeline.raytrace.conservative_local = cons
-        try:
-            frame = pipeline.render(scene, settings, W, H)
-        finally:
-            pipeline.raytrace.conservative = pipeline.raytrace.conservative_local = False
+        frame = pipeline.render(scene, settings.replace(conservative="all" if cons else "off"), W, H)
         out.append({li: frame.mask_array(li) for li in frame.lights})
         if cons:
             assert any(d == "HS_CONSERVATIVE=1" for d in frame.stats["defines"])
@@ -72,12 +68,8 @@ def test_maps_skip_most_rays_on_the_forest(pipeline, loaded):
     """The point of it: most receivers are decided or cut short (map statistics sanity)."""
     scene = loaded("forest")
     pipeline.set_scene(scene)
-    pipeline.raytrace.conservative = pipeline.raytrace.conservative_local = True
-    try:
-        pipeline.render(scene, Settings(mode="raytrace"), W, H)
-    finally:
-        pipeline.raytrace.conservative = pipeline.raytrace.conservative_local = False
-    stats = pipeline.raytrace.maps.stats
+    pipeline.render(scene, Settings(mode="raytrace", conservative="all"), W, H)
+    stats = pipeline.shadow_pass("raytrace").maps.stats
     assert stats and all(s["views"] >= 1 for s in stats.values())
     # the sun's casters are culled against the receivers' window
     sun = [li for li in stats if scene.lights[li].type == "SUN"]

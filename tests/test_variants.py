@@ -70,7 +70,7 @@ def trace(gl_ctx, scene, **settings):
     try:
         pipe.set_scene(scene)
         frame = pipe.render(scene, Settings(mode="raytrace", **settings), W, H)
-        defines = dict(pipe.raytrace.last_defines)
+        defines = dict(pipe.shadow_pass("raytrace").last_defines)
         assert frame.stats["defines"] == sorted(f"{k}={v}" for k, v in defines.items())
         prog = pipe.programs.get("raytrace", defines)
         uniforms = {name for name in prog}

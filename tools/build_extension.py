@@ -3,7 +3,7 @@
 The zip holds ``blender_manifest.toml`` and a root ``__init__.py`` beside ``hybrid_shadow_addon/``
 and ``shaders/`` (the repo's relative layout, so shaders are found the same way as in the repo),
 plus the moderngl and glcontext wheels of each platform, fetched with pip (cached in
-``build/wheels``). Tests and test scenes stay out. Each zip is validated with the
+``build/wheels``). Tests, test scenes and the numpy oracles (``core/oracle``) stay out. Each zip is validated with the
 ``blender_ext.py`` that ships inside bpy.
 
 Usage: ``.venv/bin/python tools/build_extension.py [--platform linux-x64 ...] [--offline]``
@@ -94,7 +94,12 @@ def stage(platforms: list, offline: bool) -> Path:
     shutil.rmtree(src, ignore_errors=True)
     src.mkdir(parents=True)
     ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
-    shutil.copytree(REPO / "hybrid_shadow_addon", src / "hybrid_shadow_addon", ignore=ignore)
+    oracle = REPO / "hybrid_shadow_addon" / "core" / "oracle"
+
+    def ignore_package(folder, names):
+        return set(ignore(folder, names)) | ({"oracle"} if Path(folder) == oracle.parent else set())
+
+    shutil.copytree(REPO / "hybrid_shadow_addon", src / "hybrid_shadow_addon", ignore=ignore_package)
     shutil.copytree(REPO / "shaders", src / "shaders", ignore=ignore)
     shutil.copy2(REPO / "README.md", src / "README.md")
     (src / "__init__.py").write_text(ROOT_INIT)

@@ -9,6 +9,7 @@ MODES = ("raytrace", "shadowmap", "none")
 QUALITIES = ("high", "medium", "low")
 QUALITY_SCALE = {"high": 1, "medium": 2, "low": 4}  # mask resolution = full / scale
 UPSAMPLE_FILTERS = ("bilateral", "nearest")
+CONSERVATIVE_MAPS = ("off", "sun", "all")
 
 
 @dataclass(frozen=True)
@@ -27,6 +28,12 @@ class Settings:
     - ``shadow_bias``: constant depth bias in shadow-map texels; ``slope_bias``: slope-scaled
       factor; ``normal_offset``: receiver offset along the normal, in texels.
     - ``upsample``: ``bilateral`` (depth/normal aware) or ``nearest`` (the thesis' blocky look).
+    - ``specular``: Blinn-Phong highlights in the lighting (False: diffuse and ambient only).
+    - ``conservative``: conservative light-space occupancy maps in ``raytrace`` mode, which let
+      receivers no caster can reach skip their ray and cut the others short; exact (the masks
+      do not change), only the work does. ``off`` (default: on a software GPU building the map
+      costs about what it saves, see BENCHMARKS.md), ``sun`` (suns only) or ``all`` (every
+      light; point, spot and area lights get a cube of six maps).
     """
 
     mode: str = "raytrace"
@@ -41,6 +48,7 @@ class Settings:
     normal_offset: float = 1.5
     upsample: str = "bilateral"
     specular: bool = True
+    conservative: str = "off"
 
     def __post_init__(self):
         self.validate()
@@ -75,6 +83,8 @@ class Settings:
             raise ValueError(f"mode must be one of {', '.join(MODES)}, not {self.mode!r}")
         if self.quality not in QUALITIES:
             raise ValueError(f"quality must be one of {', '.join(QUALITIES)}, not {self.quality!r}")
+        if self.conservative not in CONSERVATIVE_MAPS:
+            raise ValueError(f"conservative must be one of {', '.join(CONSERVATIVE_MAPS)}, not {self.conservative!r}")
         if self.upsample not in UPSAMPLE_FILTERS:
             raise ValueError(f"upsample must be one of {', '.join(UPSAMPLE_FILTERS)}, not {self.upsample!r}")
         _number(self.max_distance, "max_distance", low=0.0)

@@ -1,4 +1,4 @@
-// Blender lights, evaluated like Cycles/EEVEE for a delta light (see core/lighting_reference.py).
+// Blender lights, evaluated like Cycles/EEVEE for a delta light (units: core/gpu/lights.py; numpy mirror: core/oracle/lighting.py).
 // Light table: an RGBA32F texture, 4 texels per light (row r at x = 4r .. 4r+3):
 //   t0: world position xyz, type (0 sun, 1 point, 2 spot, 3 area)
 //   t1: direction the light shines towards (unit), cos(spot_size / 2)

@@ -1,6 +1,7 @@
 """The deferred pipeline: bake -> G-buffer -> shadow masks -> (upsample) -> lighting.
 
-One :class:`Pipeline` per OpenGL context, reused across frames: programs, model buffers and the
+The one GPU entry point of the CLI, the tools, the benchmarks and the engine. One
+:class:`Pipeline` per OpenGL context, reused across frames: programs, model buffers and the
 baked scene textures stay on the GPU. ``set_scene`` bakes (or re-bakes), ``move_instances`` and
 ``update_model`` apply incremental updates, ``render`` runs the passes for one
 :class:`~..settings.Settings` and returns a :class:`Frame` with the image, the masks and the
@@ -15,14 +16,17 @@ import numpy as np
 
 from ..bake import bake_scene
 from ..errors import SceneError
+from ..progress import Progress
 from ..settings import Settings
 from .context import check_render_size, create_context
-from .passes import (GBufferPass, LightingPass, NoShadowPass, ShadowMapPass, UpsamplePass, read_mask,
-                     select_shadowed_lights)
-from .passes.gbuffer import ModelBufferCache
-from .passes.raytrace import RaytracePass
-from .programs import ProgramCache
-from .scene_textures import SceneTextures
+from .frame import FrameJob, read_mask
+from .lights import select_shadowed_lights
+from .passes import GBufferPass, LightingPass, NoShadowPass, RaytracePass, ShadowMapPass, UpsamplePass
+from .resources import GpuResources
+from .targets import read_texture
+
+#: ``Settings.mode`` -> the shadow pass that makes its masks
+SHADOW_PASSES = {"raytrace": RaytracePass, "shadowmap": ShadowMapPass, "none": NoShadowPass}
 
 
 @dataclass
@@ -44,20 +48,42 @@ class Frame:
         return read_mask(self.masks[light_index], self.gbuffer, self._coverage)
 
 
+class _Steps:
+    """Counts the steps of one frame for a ``progress(done, total, label)`` callback."""
+
+    def __init__(self, progress: Progress | None, total: int):
+        self.progress = progress
+        self.total = total
+        self.done = 0
+
+    def __call__(self, label: str) -> None:
+        if self.progress is not None:
+            self.progress(self.done, self.total, label)
+        self.done += 1
+
+
 class Pipeline:
     def __init__(self, ctx=None):
         self.ctx = create_context(ctx)
-        self.programs = ProgramCache(self.ctx)
-        models = ModelBufferCache(self.ctx)
-        self.gbuffer_pass = GBufferPass(self.ctx, self.programs, models)
-        self.scene_textures = SceneTextures(self.ctx)
-        self.raytrace = RaytracePass(self.ctx, self.programs, self.scene_textures)
-        self.shadowmap = ShadowMapPass(self.ctx, self.programs, models)
-        self.noshadow = NoShadowPass(self.ctx, self.programs)
-        self.upsample = UpsamplePass(self.ctx, self.programs)
-        self.lighting = LightingPass(self.ctx, self.programs)
+        self.gpu = GpuResources(self.ctx)
+        self.programs = self.gpu.programs
+        self.scene_textures = self.gpu.scene_textures
+        self.gbuffer_pass = GBufferPass(self.gpu)
+        self.upsample = UpsamplePass(self.gpu)
+        self.lighting = LightingPass(self.gpu)
+        self._shadow: dict = {}  # mode -> shadow pass, created on first use
         self.baked = None
         self.bake_ms = 0.0
+
+    def shadow_pass(self, mode: str):
+        """The shadow pass of ``mode`` (one of :data:`SHADOW_PASSES`)."""
+        p = self._shadow.get(mode)
+        if p is None:
+            p = self._shadow[mode] = SHADOW_PASSES[mode](self.gpu)
+        return p
+
+    def _passes(self) -> list:
+        return [self.gbuffer_pass, *self._shadow.values(), self.upsample, self.lighting]
 
     # -- scene ------------------------------------------------------------------------------------
     def set_scene(self, scene) -> float:
@@ -65,7 +91,7 @@ class Pipeline:
         t0 = time.perf_counter()
         self.baked = bake_scene(scene)
         self.scene_textures.upload(self.baked)
-        self.raytrace.reset_history()
+        self.reset_history()
         self.bake_ms = (time.perf_counter() - t0) * 1e3
         return self.bake_ms
 
@@ -79,78 +105,66 @@ class Pipeline:
 
     def _apply(self, report) -> None:
         self.scene_textures.apply(self.baked, report)
-        self.raytrace.reset_history()
+        self.reset_history()
 
     def reset_history(self) -> None:
-        """Camera, light or setting change: interlacing must not reuse older rays."""
-        self.raytrace.reset_history()
+        """Camera, light or setting change: no pass may reuse what earlier frames left."""
+        for p in self._passes():
+            p.reset_history()
 
     # -- frame ------------------------------------------------------------------------------------
     def render(self, scene, settings: Settings | None = None, width: int | None = None,
                height: int | None = None, film_transparent: bool = False, read_image: bool = True,
-               on_step=None) -> Frame:
-        """Run the passes. ``on_step(label, done, total)`` is called before each pass and each
-        shadowed light (progress, and a place to cancel: whatever it raises aborts the frame)."""
+               progress: Progress | None = None) -> Frame:
+        """Run the passes. ``progress(done, total, label)`` is called before each pass and each
+        shadowed light (whatever it raises aborts the frame: a place to cancel)."""
         settings = settings or Settings()
         if scene.camera is None:
             raise SceneError(f"scene '{scene.name}' has no camera")
         width = int(width or scene.resolution[0])
         height = int(height or scene.resolution[1])
         check_render_size(self.ctx, width, height)
-        if self.baked is None and settings.mode == "raytrace":
+        shadow = self.shadow_pass(settings.mode)
+        if self.baked is None and shadow.needs_bake:
             self.set_scene(scene)
-        ctx = self.ctx
+        job = FrameJob(scene, settings, width, height, film_transparent,
+                       lights=select_shadowed_lights(scene, settings))
+        step = _Steps(progress, 4 + len(job.lights))
+        if shadow.light_label is not None:
+            job.on_light = lambda li: step(f"{shadow.light_label}: {scene.lights[li].name}")
         timings = {}
-        lights = select_shadowed_lights(scene, settings)
-        total = 4 + len(lights)
-        done = [0]
-
-        def step(label):
-            if on_step is not None:
-                on_step(label, done[0], total)
-            done[0] += 1
-
-        def on_light(li):
-            kind = "Ray tracing shadows" if settings.mode == "raytrace" else "Shadow map"
-            step(f"{kind}: {scene.lights[li].name}")
-
-        def timed(name, fn, label=None):
-            if label:
-                step(label)
-            t0 = time.perf_counter()
-            out = fn()
-            ctx.finish()
-            timings[name] = (time.perf_counter() - t0) * 1e3
-            return out
-
-        gbuffer = timed("gbuffer_ms", lambda: self.gbuffer_pass.render(scene, width, height), "G-buffer")
-        if settings.mode == "raytrace":
-            masks = timed("shadow_ms", lambda: self.raytrace.render(scene, gbuffer, settings, lights, on_light))
-        elif settings.mode == "shadowmap":
-            masks = timed("shadow_ms", lambda: self.shadowmap.render(scene, gbuffer, settings, lights, on_light))
-        else:
-            masks = timed("shadow_ms", lambda: self.noshadow.render(scene, gbuffer, settings, lights))
-            done[0] += len(lights)
-        masks = timed("upsample_ms", lambda: self.upsample.render(masks, gbuffer, settings), "Upsampling masks")
-        timed("lighting_ms", lambda: self.lighting.render(scene, gbuffer, masks, settings, film_transparent),
-              "Lighting")
-        image = timed("readback_ms", lambda: self.lighting.read(), "Reading the image") if read_image else None
+        for p in (self.gbuffer_pass, shadow, self.upsample, self.lighting):
+            if p.label is not None:
+                step(p.label)
+            setattr(job, p.produces, self._timed(timings, p.name, p.render, job))
+            if p is shadow and shadow.light_label is None:
+                step.done += len(job.lights)
+        image = None
+        if read_image:
+            step("Reading the image")
+            image = self._timed(timings, "readback", read_texture, job.image)
         timings["total_ms"] = sum(timings.values())
-        mw, mh = settings.mask_size(width, height) if settings.mode == "raytrace" else (width, height)
+        shadow_stats = shadow.stats(job)
         stats = {
             "mode": settings.mode,
             "quality": settings.quality,
             "resolution": [width, height],
-            "mask_resolution": [mw, mh],
-            "rays": int(mw * mh * len(lights)) if settings.mode == "raytrace" else 0,
-            "shadowed_lights": len(lights),
-            "defines": sorted(f"{k}={v}" for k, v in self.raytrace.last_defines.items())
-            if settings.mode == "raytrace" else [],
+            "mask_resolution": shadow_stats["mask_resolution"],
+            "rays": shadow_stats["rays"],
+            "shadowed_lights": len(job.lights),
+            "defines": shadow_stats["defines"],
         }
-        return Frame(image=image, masks=masks, lights=lights, timings=timings, stats=stats, gbuffer=gbuffer)
+        return Frame(image=image, masks=job.masks, lights=job.lights, timings=timings, stats=stats,
+                     gbuffer=job.gbuffer)
+
+    def _timed(self, timings: dict, name: str, fn, *args):
+        t0 = time.perf_counter()
+        out = fn(*args)
+        self.ctx.finish()
+        timings[f"{name}_ms"] = (time.perf_counter() - t0) * 1e3
+        return out
 
     def release(self) -> None:
-        for p in (self.gbuffer_pass, self.raytrace, self.shadowmap, self.noshadow, self.upsample, self.lighting):
+        for p in self._passes():
             p.release()
-        self.scene_textures.release()
-        self.programs.release()
+        self.gpu.release()

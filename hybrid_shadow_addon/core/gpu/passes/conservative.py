@@ -30,11 +30,10 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
-from .gbuffer import POSITION_FORMAT, InstanceBatch, ModelBufferCache, position_vertex_data, sphere_proxy_matrices
-from .shadowmap import CUBE_AXES, _icosphere, look_basis
+from ..geometry import CasterDraws
+from ..projection import CUBE_AXES, look_basis
+from ..targets import TargetCache, set_uniforms
 
-INSTANCE_FORMAT = "4f 4f 4f/i"
-INSTANCE_ATTRS = ("in_m0", "in_m1", "in_m2")
 EMPTY = 1e30
 
 
@@ -53,16 +52,13 @@ class MapViews:
 class ConservativeMaps:
     """Builds one light's conservative map per call to :meth:`render` into a shared atlas."""
 
-    def __init__(self, ctx: moderngl.Context, programs, models: ModelBufferCache | None = None,
-                 sun_size: int = 2048, face_size: int = 512):
-        self.ctx = ctx
-        self.programs = programs
-        self.models = models if models is not None else ModelBufferCache(ctx)
+    def __init__(self, gpu, sun_size: int = 2048, face_size: int = 512):
+        self.ctx = gpu.ctx
+        self.programs = gpu.programs
+        self.casters = CasterDraws(self.ctx, gpu.models)
         self.sun_size = int(sun_size)
         self.face_size = int(face_size)
-        self._batches: dict = {}
-        self._textures: dict = {}  # key -> (texture, fbo)
-        self._sphere_vbo = None
+        self._targets = TargetCache(self.ctx, what="conservative map")
         self._frame = None
         self.stats: dict = {}
 
@@ -93,52 +89,6 @@ class ConservativeMaps:
     def _delta(self, extra_w: float = 0.0) -> float:
         f = self._frame
         return 2.0 ** -18 * max(f["W"], extra_w) * max(1.0, f["cond"])
-
-    # -- draws -------------------------------------------------------------------------------
-    def _draw_list(self, scene, rows, origin, prog):
-        """(vao, vertex_count, instance_count) per model for caster instances ``rows``."""
-        inst = scene.instances
-        draws = []
-        if not len(rows):
-            return draws
-        sph = inst.sphere[rows]
-        mids = inst.model_ids[rows]
-        for mi in np.unique(mids[~sph]):
-            model = scene.models[int(mi)]
-            if not model.triangle_count:
-                continue
-            sel = rows[(~sph) & (mids == mi)]
-            vbo, nverts = self.models.get(model)
-            draws.append((self._upload(("m", int(mi)), inst.matrices[sel], origin, prog, vbo), nverts, len(sel)))
-        srows = rows[sph]
-        if len(srows):
-            if self._sphere_vbo is None:
-                ico = _icosphere()
-                self._sphere_vbo = (self.ctx.buffer(position_vertex_data(ico).tobytes()), len(ico))
-            vbo, nverts = self._sphere_vbo
-            draws.append((self._upload("spheres", sphere_proxy_matrices(scene, srows), origin, prog, vbo),
-                          nverts, len(srows)))
-        return draws
-
-    def _upload(self, key, matrices, origin, prog, vbo):
-        m = np.array(matrices, np.float64)
-        m[:, :3, 3] -= origin
-        data = np.ascontiguousarray(m[:, :3, :].reshape(len(m), 12), dtype=np.float32)
-        b = self._batches.get(key)
-        if b is None:
-            b = self._batches[key] = InstanceBatch(self.ctx)
-        return b.upload(data, prog, vbo, POSITION_FORMAT, ("in_pos",), INSTANCE_FORMAT, INSTANCE_ATTRS)
-
-    def _target(self, key, w, h):
-        e = self._textures.get(key)
-        if e is None or e[0].size != (w, h):
-            if e is not None:
-                e[1].release()
-                e[0].release()
-            tex = self.ctx.texture((w, h), 1, dtype="f4")
-            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            e = self._textures[key] = (tex, self.ctx.framebuffer(color_attachments=[tex]))
-        return e
 
     # -- one light -----------------------------------------------------------------------------
     def render(self, scene, key, local: bool, light_vec) -> tuple | None:
@@ -178,11 +128,11 @@ class ConservativeMaps:
         keep = (c[:, 0] + r >= wlo[0]) & (c[:, 0] - r <= whi[0]) & (c[:, 1] + r >= wlo[1]) & \
                (c[:, 1] - r <= whi[1]) & (c[:, 2] - r <= fmax + 4 * delta + texel.max())
         rows = f["casters"][keep]
-        tex, fbo = self._target(("sun", key), S, S)
-        self._draw_views(scene, fbo, origin, [basis], [(lo, scale)], [(0, 0, S)], False, delta, 0.0, rows)
+        target = self._targets.get(("sun", key), S, S)
+        self._draw_views(scene, target.fbo, origin, [basis], [(lo, scale)], [(0, 0, S)], False, delta, 0.0, rows)
         self.stats[key] = {"casters": int(len(rows)), "views": 1}
         win = (float(lo[0]), float(lo[1]), float(scale[0]), float(scale[1]))
-        return tex, MapViews(False, origin, [basis], [win], [(0, 0, S)], 4 * delta)
+        return target.texture, MapViews(False, origin, [basis], [win], [(0, 0, S)], 4 * delta)
 
     def _render_cube(self, scene, key, light_pos):
         f = self._frame
@@ -228,11 +178,11 @@ class ConservativeMaps:
                     keep &= dist <= rad
             wins.append((lo, scale))
             rows_per.append(f["casters"][keep])
-        tex, fbo = self._target(("cube", key), 3 * S, 2 * S)
-        n = self._draw_views(scene, fbo, origin, bases, wins, tiles, True, delta, near, rows_per)
+        target = self._targets.get(("cube", key), 3 * S, 2 * S)
+        n = self._draw_views(scene, target.fbo, origin, bases, wins, tiles, True, delta, near, rows_per)
         self.stats[key] = {"casters": n, "views": sum(w is not None for w in wins)}
         wl = [None if w is None else (float(w[0][0]), float(w[0][1]), float(w[1][0]), float(w[1][1])) for w in wins]
-        return tex, MapViews(True, origin, bases, wl, tiles, 4 * delta)
+        return target.texture, MapViews(True, origin, bases, wl, tiles, 4 * delta)
 
     def _draw_views(self, scene, fbo, origin, bases, wins, tiles, persp, delta, near, rows):
         ctx = self.ctx
@@ -249,19 +199,17 @@ class ConservativeMaps:
                 if win is None:
                     continue
                 r = rows[k] if persp else rows
-                draws = self._draw_list(scene, r, origin, prog)
+                draws = self.casters.build(scene, r, origin, prog)
                 total += len(r)
                 if not draws:
                     continue
                 ctx.viewport = (x0, y0, size, size)
                 ctx.scissor = (x0, y0, size, size)
-                prog["u_basis"].write(basis.T.astype("f4").tobytes())  # column-major: columns of basis
-                vals = {"u_persp": int(persp), "u_near": float(near), "u_win_lo": tuple(map(float, win[0])),
-                        "u_win_scale": tuple(map(float, win[1])), "u_tile_size": float(size),
-                        "u_expand": float(delta), "u_tile_origin": (float(x0), float(y0))}
-                for name, val in vals.items():
-                    if name in prog:
-                        prog[name].value = val
+                set_uniforms(prog, {
+                    "u_basis": basis.T.astype("f4").tobytes(),  # column-major: columns of basis
+                    "u_persp": int(persp), "u_near": float(near), "u_win_lo": tuple(map(float, win[0])),
+                    "u_win_scale": tuple(map(float, win[1])), "u_tile_size": float(size),
+                    "u_expand": float(delta), "u_tile_origin": (float(x0), float(y0))})
                 for vao, nverts, ninst in draws:
                     vao.render(moderngl.TRIANGLES, vertices=nverts, instances=ninst)
         finally:
@@ -271,14 +219,5 @@ class ConservativeMaps:
         return total
 
     def release(self) -> None:
-        for b in self._batches.values():
-            b.release()
-        self._batches.clear()
-        for tex, fbo in self._textures.values():
-            fbo.release()
-            tex.release()
-        self._textures.clear()
-        if self._sphere_vbo is not None:
-            self._sphere_vbo[0].release()
-            self._sphere_vbo = None
-        self.models.release()
+        self.casters.release()
+        self._targets.release()

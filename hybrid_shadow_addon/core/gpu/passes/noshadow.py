@@ -1,29 +1,20 @@
-"""Shadow mode ``none``: every selected light gets a mask of 1 (fully lit)."""
+"""Shadow mode ``none``: every shadowed light gets a mask of 1 (fully lit)."""
 from __future__ import annotations
 
-import moderngl
+from ..targets import TargetCache
+from .base import ShadowPass
 
-from . import create_mask_texture, select_shadowed_lights
 
+class NoShadowPass(ShadowPass):
+    """One shared all-ones R32F texture at G-buffer resolution for each shadowed light."""
 
-class NoShadowPass:
-    """``render(scene, gbuffer, settings=None, lights=None) -> dict[int, Texture]``: one shared
-    all-ones R32F texture at G-buffer resolution for each shadowed light."""
+    def __init__(self, gpu):
+        super().__init__(gpu)
+        self._ones = TargetCache(self.ctx, fill=1.0, what="mask")
 
-    def __init__(self, ctx: moderngl.Context, programs=None):
-        self.ctx = ctx
-        self._ones = None
-
-    def render(self, scene, gbuffer, settings=None, lights=None) -> dict:
-        size = (gbuffer.width, gbuffer.height)
-        if self._ones is None or self._ones.size != size:
-            if self._ones is not None:
-                self._ones.release()
-            self._ones = create_mask_texture(self.ctx, *size, fill=1.0)
-        idx = select_shadowed_lights(scene, settings) if lights is None else list(lights)
-        return {i: self._ones for i in idx}
+    def render(self, job) -> dict:
+        ones = self._ones.texture("ones", *job.size)
+        return {i: ones for i in job.lights}
 
     def release(self) -> None:
-        if self._ones is not None:
-            self._ones.release()
-            self._ones = None
+        self._ones.release()

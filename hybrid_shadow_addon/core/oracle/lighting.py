@@ -1,20 +1,11 @@
-"""The lighting model, in numpy: the reference the GPU lighting pass (``shaders/lighting.glsl``,
-``shaders/common/lights.glsl``) is tested against, and the light table both use.
+"""The lighting model in numpy: the oracle the GPU lighting pass (``shaders/lighting.glsl``,
+``shaders/common/lights.glsl``) is tested against, reading the same light table.
 
-Units as Cycles/EEVEE use them (delta lights, no soft-size):
-- sun of strength S: irradiance S * colour (W/m^2) on a surface facing it;
-- point of power P (W): radiant intensity P / (4 pi) * colour (W/sr), inverse-square falloff;
-- spot: the same intensity as a point of equal power (not concentrated into the cone), times
-  Blender's cone mask smoothstep01((t - cos(size/2)) / ((1 - cos(size/2)) * blend)), t the cosine
-  between the spot axis and the light->point direction (a hard edge when blend = 0);
-- area (for now a point at its position): a one-sided Lambertian emitter of power P, i.e.
-  intensity P / pi * colour * max(cos, 0) around its -Z axis (the far field of Blender's area
-  light).
 BRDF: Lambert albedo / pi plus normalised Blinn-Phong, F0 = 0.08 * specular (Principled's 0.5 ->
 0.04), exponent s = clamp(2 / a^2 - 2, 1, 2048), a = max(roughness^2, 0.03):
 f_spec = F0 (s + 8) / (8 pi) (n.h)^s. Ambient: albedo * world colour (a uniform world of
 radiance W gives irradiance pi W). Each light's contribution is multiplied by its shadow mask
-when it has one.
+when it has one. Light units: :mod:`..gpu.lights`.
 """
 from __future__ import annotations
 
@@ -22,27 +13,7 @@ import math
 
 import numpy as np
 
-LIGHT_CODES = {"SUN": 0, "POINT": 1, "SPOT": 2, "AREA": 3}
-
-
-def light_table(lights) -> np.ndarray:
-    """(N, 4, 4) float64 rows as ``shaders/common/lights.glsl`` reads them."""
-    out = np.zeros((len(lights), 4, 4))
-    for i, light in enumerate(lights):
-        color = np.asarray(light.color, np.float64)
-        if light.type == "SUN":
-            rad = light.power * color
-        elif light.type == "AREA":
-            rad = light.power / math.pi * color
-        else:
-            rad = light.power / (4 * math.pi) * color
-        out[i, 0, :3] = light.position
-        out[i, 0, 3] = LIGHT_CODES[light.type]
-        out[i, 1, :3] = light.direction
-        out[i, 1, 3] = math.cos(light.spot_size / 2)
-        out[i, 2, :3] = rad
-        out[i, 3, 0] = max(float(light.spot_blend), 0.0)
-    return out
+from ..gpu.lights import light_table
 
 
 def _smoothstep01(x):

@@ -1,0 +1,219 @@
+"""Geometry on the GPU: de-indexed model vertex buffers, growable instance batches, the proxy
+meshes of sphere primitives, and the caster draw lists of the light-space passes."""
+from __future__ import annotations
+
+import numpy as np
+
+def unit_cube() -> np.ndarray:
+    """De-indexed (36, 3) float32 triangles of the cube [-1, 1]^3."""
+    c = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float32)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    tris = [(a, b, c_) for q in quads for (a, b, c_) in ((q[0], q[1], q[2]), (q[0], q[2], q[3]))]
+    return c[np.array(tris).ravel()]
+
+
+# The vertex layout of every model buffer (de-indexed: 3 vertices per triangle, model space).
+VERTEX_FORMAT = "3f 3f 3f"
+VERTEX_ATTRS = ("in_pos", "in_face_normal", "in_shading_normal")
+POSITION_FORMAT = "3f 24x"  # the same buffers read for positions only (depth-only passes)
+
+
+def position_vertex_data(points: np.ndarray) -> np.ndarray:
+    """(N, 9) float32 vertices of proxy geometry: positions only, normals zero."""
+    out = np.zeros((len(points), 9), np.float32)
+    out[:, :3] = points
+    return out
+
+
+def face_vertex_data(model) -> np.ndarray:
+    """(3T, 9) float32 de-indexed positions, the triangle's unit face normal and the shading
+    normal of each corner (the model's smooth normals, else the face normal)."""
+    v = model.vertices.astype(np.float64)
+    tri = v[model.triangles.astype(np.int64)]  # (T, 3, 3)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.where(ln > 0, n / np.where(ln > 0, ln, 1), 0.0)
+    out = np.empty((len(tri), 3, 9), np.float32)
+    out[:, :, :3] = model.vertices[model.triangles]
+    out[:, :, 3:6] = n[:, None, :]
+    out[:, :, 6:9] = n[:, None, :] if model.normals is None else model.normals
+    return out.reshape(-1, 9)
+
+
+class ModelBufferCache:
+    """De-indexed vertex buffers (:data:`VERTEX_FORMAT`) per model, shared by the
+    passes that rasterise the scene. Keyed by model identity; :meth:`prune` drops the buffers
+    of models no longer in the scene."""
+
+    def __init__(self, ctx):
+        self.ctx = ctx
+        self._entries: dict = {}  # id(model) -> (model, vbo, vertex_count)
+
+    def get(self, model):
+        """``(vbo, vertex_count)``; vbo is None for a model without triangles."""
+        e = self._entries.get(id(model))
+        if e is None or e[0] is not model or e[2] != 3 * model.triangle_count:
+            if e is not None and e[1] is not None:
+                e[1].release()
+            data = face_vertex_data(model)
+            vbo = self.ctx.buffer(data.tobytes()) if len(data) else None
+            e = (model, vbo, 3 * model.triangle_count)
+            self._entries[id(model)] = e
+        return e[1], e[2]
+
+    def prune(self, models) -> None:
+        keep = {id(m) for m in models}
+        for k in [k for k in self._entries if k not in keep]:
+            vbo = self._entries.pop(k)[1]
+            if vbo is not None:
+                vbo.release()
+
+    def buffer_ids(self) -> dict:
+        return {k: id(e[1]) for k, e in self._entries.items()}
+
+    def release(self) -> None:
+        self.prune(())
+
+
+class InstanceBatch:
+    """A growable dynamic instance buffer and the VAO drawing one vertex buffer with it."""
+
+    def __init__(self, ctx):
+        self.ctx = ctx
+        self.ibuf = None
+        self.vao = None
+        self.capacity = 0
+        self._key = None
+
+    def upload(self, data: np.ndarray, prog, vbo, vbo_format, vbo_attrs, inst_format, inst_attrs):
+        nbytes = data.nbytes
+        key = (id(prog), id(vbo))
+        if self.ibuf is None or self.capacity < nbytes or key != self._key:
+            if self.vao is not None:
+                self.vao.release()
+            if self.ibuf is None or self.capacity < nbytes:
+                if self.ibuf is not None:
+                    self.ibuf.release()
+                self.capacity = max(nbytes, 2 * self.capacity, 256)
+                self.ibuf = self.ctx.buffer(reserve=self.capacity, dynamic=True)
+            self.vao = self.ctx.vertex_array(prog, [(vbo, vbo_format, *vbo_attrs),
+                                                    (self.ibuf, inst_format, *inst_attrs)], skip_errors=True)
+            self._key = key
+        self.ibuf.write(data.tobytes())
+        return self.vao
+
+    def release(self):
+        for o in (self.vao, self.ibuf):
+            if o is not None:
+                o.release()
+        self.vao = self.ibuf = None
+        self.capacity = 0
+
+
+def sphere_proxy_matrices(scene, rows) -> np.ndarray:
+    """World matrices mapping the unit sphere/cube onto each sphere primitive's bounding sphere."""
+    inst = scene.instances
+    mids = inst.model_ids[rows]
+    c = np.array([scene.models[i].sphere_center for i in mids], np.float64).reshape(-1, 3)
+    r = np.array([scene.models[i].sphere_radius for i in mids], np.float64)
+    local = np.tile(np.eye(4), (len(rows), 1, 1))
+    local[:, [0, 1, 2], [0, 1, 2]] = r[:, None]
+    local[:, :3, 3] = c
+    return inst.matrices[rows] @ local
+
+
+def icosphere(subdiv: int = 2) -> np.ndarray:
+    """De-indexed (3T, 3) float32 unit-sphere triangles, scaled to circumscribe the sphere."""
+    t = (1 + 5 ** 0.5) / 2
+    v = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t), (0, 1, -t),
+         (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
+    v = [np.array(p, float) / np.linalg.norm(p) for p in v]
+    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
+             (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11),
+             (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    tris = np.array([[v[a], v[b], v[c]] for a, b, c in faces])
+    for _ in range(subdiv):
+        a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+        ab, bc, ca = [(x + y) / np.linalg.norm(x + y, axis=1, keepdims=True) for x, y in ((a, b), (b, c), (c, a))]
+        tris = np.concatenate([np.stack(s, 1) for s in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
+    # the flat faces lie inside the sphere: scale so the inscribed distance reaches radius 1
+    centroid = np.linalg.norm(tris.mean(axis=1), axis=1).min()
+    return (tris.reshape(-1, 3) / centroid).astype(np.float32)
+
+
+class ProxyMesh:
+    """A lazily created vertex buffer (:data:`VERTEX_FORMAT`) of positions-only proxy geometry."""
+
+    def __init__(self, ctx, make_points):
+        self.ctx = ctx
+        self._make = make_points
+        self._vbo = None
+        self.vertex_count = 0
+
+    def get(self):
+        """``(vbo, vertex_count)``."""
+        if self._vbo is None:
+            pts = self._make()
+            self._vbo = self.ctx.buffer(position_vertex_data(pts).tobytes())
+            self.vertex_count = len(pts)
+        return self._vbo, self.vertex_count
+
+    def release(self) -> None:
+        if self._vbo is not None:
+            self._vbo.release()
+            self._vbo = None
+
+
+CASTER_FORMAT = "4f 4f 4f/i"
+CASTER_ATTRS = ("in_m0", "in_m1", "in_m2")
+
+
+class CasterDraws:
+    """Instanced position-only draws of shadow casters for light-space passes (shadow maps,
+    conservative maps): per model one batch of world matrix rows relative to an origin, sphere
+    primitives as icospheres circumscribing their bounding spheres."""
+
+    def __init__(self, ctx, models: ModelBufferCache):
+        self.ctx = ctx
+        self.models = models
+        self._batches: dict = {}
+        self._sphere = ProxyMesh(ctx, icosphere)
+
+    def build(self, scene, rows: np.ndarray, origin, prog) -> list:
+        """``[(vao, vertex_count, instance_count)]`` drawing instances ``rows`` with ``prog``
+        (attributes ``in_pos`` and :data:`CASTER_ATTRS`), ``origin`` subtracted in float64."""
+        inst = scene.instances
+        rows = np.asarray(rows, np.int64)
+        draws = []
+        if not len(rows):
+            return draws
+        sph = inst.sphere[rows]
+        mids = inst.model_ids[rows]
+        for mi in np.unique(mids[~sph]):
+            model = scene.models[int(mi)]
+            if not model.triangle_count:
+                continue
+            sel = rows[(~sph) & (mids == mi)]
+            vbo, nverts = self.models.get(model)
+            draws.append((self._upload(("m", int(mi)), inst.matrices[sel], origin, prog, vbo), nverts, len(sel)))
+        srows = rows[sph]
+        if len(srows):
+            vbo, nverts = self._sphere.get()
+            draws.append((self._upload("spheres", sphere_proxy_matrices(scene, srows), origin, prog, vbo),
+                          nverts, len(srows)))
+        return draws
+
+    def _upload(self, key, matrices, origin, prog, vbo):
+        m = np.array(matrices, np.float64)
+        m[:, :3, 3] -= np.asarray(origin, np.float64)
+        data = np.ascontiguousarray(m[:, :3, :].reshape(len(m), 12), dtype=np.float32)
+        b = self._batches.get(key)
+        if b is None:
+            b = self._batches[key] = InstanceBatch(self.ctx)
+        return b.upload(data, prog, vbo, POSITION_FORMAT, ("in_pos",), CASTER_FORMAT, CASTER_ATTRS)
+
+    def release(self) -> None:
+        for b in self._batches.values():
+            b.release()
+        self._batches.clear()
+        self._sphere.release()

@@ -1,0 +1,76 @@
+"""Lights as the passes see them: which lights get a shadow mask, the light table of the lighting
+pass (``shaders/common/lights.glsl``) and the ray pass's light uniforms.
+
+Units as Cycles/EEVEE use them (delta lights, no soft size): a sun of strength S gives
+irradiance S * colour on a surface facing it; a point of power P (W) radiant intensity
+P / (4 pi) * colour, inverse-square falloff; a spot the intensity of a point of equal power times
+Blender's cone mask; an area light (a point for now) a one-sided Lambertian emitter of power P,
+intensity P / pi * colour * max(cos, 0) around its -Z axis.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+LIGHT_CODES = {"SUN": 0, "POINT": 1, "SPOT": 2, "AREA": 3}
+
+
+def light_table(lights) -> np.ndarray:
+    """(N, 4, 4) float64 rows as ``shaders/common/lights.glsl`` reads them."""
+    out = np.zeros((len(lights), 4, 4))
+    for i, light in enumerate(lights):
+        color = np.asarray(light.color, np.float64)
+        if light.type == "SUN":
+            rad = light.power * color
+        elif light.type == "AREA":
+            rad = light.power / math.pi * color
+        else:
+            rad = light.power / (4 * math.pi) * color
+        out[i, 0, :3] = light.position
+        out[i, 0, 3] = LIGHT_CODES[light.type]
+        out[i, 1, :3] = light.direction
+        out[i, 1, 3] = math.cos(light.spot_size / 2)
+        out[i, 2, :3] = rad
+        out[i, 3, 0] = max(float(light.spot_blend), 0.0)
+    return out
+
+
+def select_shadowed_lights(scene, settings=None) -> list:
+    """Indices of the lights that get a mask: ``use_shadow`` lights; with
+    ``settings.max_shadowed_lights`` = N only N of them: suns first (always kept, thesis 3.2),
+    then the others nearest to the camera."""
+    idx = [i for i, l in enumerate(scene.lights) if l.use_shadow]
+    limit = None if settings is None else settings.max_shadowed_lights
+    if settings is not None and settings.mode == "none":
+        return idx
+    if limit is None or len(idx) <= limit:
+        return idx
+    cam = np.zeros(3) if scene.camera is None else scene.camera.matrix[:3, 3]
+
+    def key(i):
+        light = scene.lights[i]
+        if light.type == "SUN":
+            return (0, 0.0, i)
+        return (1, float(np.linalg.norm(light.position - cam)), i)
+
+    return sorted(sorted(idx, key=key)[:limit])
+
+
+def light_ray_uniforms(light, origin=(0.0, 0.0, 0.0)) -> tuple[bool, tuple]:
+    """(local, u_light_vec): a sun gives the unit direction towards it, other lights their
+    position (area lights are points for now) relative to ``origin`` (the bake's)."""
+    if light.type == "SUN":
+        return False, tuple(float(v) for v in -light.direction)
+    return True, tuple(float(v) for v in light.position - np.asarray(origin, np.float64))
+
+
+def light_cone(light) -> tuple[tuple, float]:
+    """(u_light_axis, u_light_cone) of a local light: where ``dot(light -> p, axis)`` is at most
+    the cone value the light does not shine (as ``shaders/common/lights.glsl`` evaluates it)."""
+    axis = tuple(float(v) for v in light.direction)
+    if light.type == "SPOT":
+        return axis, float(np.cos(light.spot_size / 2))
+    if light.type == "AREA":
+        return axis, 0.0
+    return axis, -2.0

@@ -1,0 +1,47 @@
+"""The one interface of all passes.
+
+A pass is built on the context's :class:`~..resources.GpuResources`, keeps its own render
+targets from frame to frame, and turns a :class:`~..frame.FrameJob` into one product:
+``render(job)`` reads what earlier passes left in the job and returns what the pass
+:attr:`~Pass.produces` (the pipeline stores it in that field of the job).
+"""
+from __future__ import annotations
+
+
+class Pass:
+    #: the ``FrameJob`` field this pass's product goes to
+    produces: str = ""
+    #: the timing key (``<name>_ms``)
+    name: str = ""
+    #: the progress label of this pass's step; None when the pass reports per light instead
+    label: str | None = None
+
+    def __init__(self, gpu):
+        self.gpu = gpu
+        self.ctx = gpu.ctx
+        self.programs = gpu.programs
+
+    def render(self, job):
+        raise NotImplementedError
+
+    def reset_history(self) -> None:
+        """Forget anything carried over from earlier frames (camera, scene or setting change)."""
+
+    def release(self) -> None:
+        """Release the pass's own GL objects (not the shared resources)."""
+
+
+class ShadowPass(Pass):
+    """A shadow mode: one mask per shadowed light (``job.lights``), ``{light index: texture}``,
+    at G-buffer resolution or at a reduced one that the upsample pass brings to full size."""
+
+    produces = "masks"
+    name = "shadow"
+    #: shown as ``"<light_label>: <light name>"`` before each light; None: no per-light steps
+    light_label: str | None = None
+    #: whether the pass traces the baked scene (the pipeline bakes before the first frame)
+    needs_bake: bool = False
+
+    def stats(self, job) -> dict:
+        """``mask_resolution``, ``rays`` and shader ``defines`` of the last render."""
+        return {"mask_resolution": list(job.size), "rays": 0, "defines": []}

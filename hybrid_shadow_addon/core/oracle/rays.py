@@ -1,0 +1,66 @@
+"""numpy mirrors of the rays ``shaders/raytrace.glsl`` traces (origins, offsets, directions), for
+tests and the throughput benchmark."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..gpu.lights import light_cone, light_ray_uniforms
+
+
+def offset_origins(p: np.ndarray, n: np.ndarray, slack: np.ndarray) -> np.ndarray:
+    """numpy mirror of ``offset_origin`` in ``shaders/raytrace.glsl`` (float32 throughout)."""
+    p = np.asarray(p, np.float32)
+    n = np.asarray(n, np.float32)
+    of_i = (np.float32(256.0) * n).astype(np.int32)
+    bits = p.view(np.int32)
+    p_i = np.where(p < 0, bits - of_i, bits + of_i).astype(np.int32).view(np.float32)
+    q = np.where(np.abs(p) < np.float32(1 / 32), p + np.float32(1 / 65536) * n, p_i)
+    return (q + n * np.asarray(slack, np.float32)[..., None]).astype(np.float32)
+
+
+def surface_points(camera, rows, cols, depth) -> np.ndarray:
+    """numpy mirror of ``surface_point`` in ``shaders/raytrace.glsl`` without the camera's
+    position: camera-relative points (N, 3) of pixels (rows, cols) (row 0 = top) at G-buffer
+    view ``depth``, in float32 as the shader computes them. ``camera``: ``GBuffer.camera``."""
+    f = np.float32
+    W, H = camera.resolution
+    fx = ((np.asarray(cols) + f(0.5)) / f(W)).astype(f)
+    fy = ((f(H - 1) - np.asarray(rows) + f(0.5)) / f(H)).astype(f)
+    xmin, xmax, ymin, ymax = (f(v) for v in camera.viewplane)
+    cs = f(camera.clip_start)
+    local = np.stack([xmin * (f(1) - fx) + xmax * fx, ymin * (f(1) - fy) + ymax * fy,
+                      np.full(len(fx), -cs, f)], axis=1)
+    R = camera.cam_rot.astype(f)
+    depth = np.asarray(depth, f)
+    if camera.ortho:
+        return local @ R.T + (-R[:, 2])[None] * (depth - cs)[:, None]
+    return (local @ R.T) * (depth / cs)[:, None]
+
+
+def shadow_rays(gbuffer, pixels, light, origin=(0.0, 0.0, 0.0)):
+    """The rays ``shaders/raytrace.glsl`` traces for G-buffer pixels ``(rows, cols)``:
+    ``(origins, dirs, tmax, facing)``. Origins are world space (float64: the shader's float32
+    bake-space origins plus the bake's ``origin``); samples with ``facing`` False are not traced
+    (mask 0)."""
+    rows, cols = pixels
+    origin = np.asarray(origin, np.float64)
+    cam = gbuffer.camera
+    depth = gbuffer.read("depth")[rows, cols]
+    n = gbuffer.read("normal")[rows, cols, :3].astype(np.float32)
+    p = (cam.cam_pos - origin).astype(np.float32) + surface_points(cam, rows, cols, depth)
+    local, vec = light_ray_uniforms(light, origin)
+    vec = np.asarray(vec, np.float32)  # (as the shader's uniform)
+    to_light = vec - p if local else np.broadcast_to(vec, p.shape)
+    facing = (n * to_light).sum(axis=1) > 0
+    if local:
+        axis, cone = light_cone(light)
+        unit = to_light / np.linalg.norm(to_light, axis=1, keepdims=True)
+        facing &= (-unit @ np.asarray(axis, np.float32)) > np.float32(cone)
+    o = offset_origins(p, n, depth * np.float32(3.0e-6))
+    if local:
+        d = vec - o
+        tmax = np.ones(len(o), np.float32)
+    else:
+        d = np.broadcast_to(vec, o.shape).copy()
+        tmax = np.full(len(o), np.inf, np.float32)
+    return o.astype(np.float64) + origin, d, tmax, facing
