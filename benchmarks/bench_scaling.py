@@ -24,7 +24,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hybrid_shadow_addon.__main__ import blender_output_to_stderr, parse_resolution  # noqa: E402
-from hybrid_shadow_addon.tools.compare import resolve_variants  # noqa: E402
+from hybrid_shadow_addon.tools.variants import resolve_variants  # noqa: E402
 
 
 def measure(pipe, arg, variants, resolution, repeats, warmup):

@@ -4,7 +4,7 @@ time, worst light per case first. The lead pastes the output into BENCHMARKS.md.
 
     .venv/bin/python benchmarks/stiff_table.py [--cases grazing,far_away] [--modes raytrace-high,shadowmap]
 
-Metrics come from ``hybrid_shadow_addon.core.metrics`` (the ``compare`` tool's) when present.
+Metrics come from ``hybrid_shadow_addon.tools.metrics`` (the ``compare`` tool's) when present.
 ``evaluate_case`` is also what ``tests/test_stiff.py`` runs.
 """
 from __future__ import annotations
@@ -33,7 +33,7 @@ MODES = {  # name -> Settings kwargs
 def mask_metrics(reference: np.ndarray, ours: np.ndarray) -> dict:
     """valid, mismatch (pixels), missed, false, mismatch_pct, mae over pixels valid in both."""
     try:
-        from hybrid_shadow_addon.core.metrics import mask_error
+        from hybrid_shadow_addon.tools.metrics import mask_error
     except ImportError:  # pragma: no cover - before the compare module existed
         mask_error = None
     if mask_error is not None:
@@ -58,7 +58,7 @@ def evaluate_case(name: str, modes=("raytrace-high",), *, ctx=None, params: str 
     from hybrid_shadow_addon.blender.load import open_scene
     from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
     from hybrid_shadow_addon.core.settings import Settings
-    from hybrid_shadow_addon.tools.cycles_reference import render_reference
+    from hybrid_shadow_addon.blender.cycles_reference import render_reference
 
     arg = f"stiff/{name}" + (f":{params}" if params else "")
     bscene = open_scene(arg)

@@ -1,6 +1,7 @@
 """Command line: ``python -m hybrid_shadow_addon <command> ...``.
 
-Commands are thin wrappers over the core and the Blender loader. Errors meant for the user
+Commands are thin wrappers over the core, the tools and the Blender side (which loads scenes
+and provides the Cycles reference). Errors meant for the user
 (:class:`~hybrid_shadow_addon.core.errors.HybridShadowError`) print one line on stderr and exit
 with code 2; nothing prints a traceback unless ``HYBRID_SHADOWS_DEBUG=1``.
 """
@@ -80,7 +81,8 @@ def cmd_render(args) -> int:
 
     try:
         settings = Settings(mode=args.mode, quality=args.quality, max_shadowed_lights=args.max_shadowed_lights,
-                        max_distance=args.max_distance, interlace=False)
+                        max_distance=args.max_distance, interlace=False,
+                        conservative=args.conservative_maps)
     except ValueError as e:
         raise SceneError(str(e)) from None
     scene = load(args.scene, args.frame)
@@ -94,35 +96,48 @@ def cmd_render(args) -> int:
 
 
 def _progress(args, title):
-    from .tools.progress import TerminalProgress, null_progress
+    from .core.progress import null_progress
+    from .tools.progress import TerminalProgress
 
     return null_progress if getattr(args, "quiet", False) else TerminalProgress(title)
 
 
 def cmd_compare(args) -> int:
-    from .blender.load import open_scene
-    from .tools.compare import resolve_variants, run_compare, text_table
+    from .tools.compare import run_compare
+    from .tools.report import text_table
+    from .tools.variants import resolve_variants
 
     variants = resolve_variants(args.modes)
     with blender_output_to_stderr():
+        from .blender.cycles_reference import CyclesReferenceProvider
+        from .blender.frames import current_scene
+        from .blender.load import open_scene
+
         bscene = open_scene(args.scene, args.frame)
+        scene = current_scene(resolution=args.resolution)
     progress = _progress(args, "compare")
     with blender_output_to_stderr():
-        m = run_compare(bscene, args.output_dir, resolution=args.resolution, variants=variants,
-                        repeats=args.repeats, warmup=args.warmup, samples=args.samples,
-                        cache_dir=args.cache_dir, use_cache=not args.no_cache, progress=progress,
-                        scene_label=args.scene)
+        m = run_compare(scene, args.output_dir, reference=CyclesReferenceProvider(bscene),
+                        resolution=args.resolution, variants=variants, repeats=args.repeats, warmup=args.warmup,
+                        samples=args.samples, cache_dir=args.cache_dir, use_cache=not args.no_cache,
+                        progress=progress, scene_label=args.scene)
     print(text_table(m))
     print(f"report: {os.path.join(args.output_dir, 'report.html')}")
     return 0
 
 
 def cmd_bench(args) -> int:
-    from .tools.bench import run_bench, text_summary
+    from .tools.bench import bench_variants, run_bench, text_summary
 
+    variants = bench_variants(args.modes)
+    with blender_output_to_stderr():
+        from .blender.frames import BlenderFrames
+        from .blender.load import open_scene
+
+        source = BlenderFrames(open_scene(args.scene), name=args.scene)
     progress = _progress(args, "bench")
     with blender_output_to_stderr():
-        b = run_bench(args.scene, args.output_dir, frames=args.frames, modes=args.modes, repeats=args.repeats,
+        b = run_bench(source, args.output_dir, frames=args.frames, modes=variants, repeats=args.repeats,
                       resolution=args.resolution, warmup=args.warmup, progress=progress)
     print(text_summary(b))
     print(f"summary: {os.path.join(args.output_dir, 'summary.md')}")
@@ -170,6 +185,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="shadow only the N nearest lights (suns first); default: every shadow-casting light")
     pr.add_argument("--max-distance", type=float, default=0.0, metavar="M",
                     help="shadows only within M metres of the camera (default 0: no limit)")
+    pr.add_argument("--conservative-maps", choices=("off", "sun", "all"), default="off",
+                    help="raytrace: conservative occupancy maps skip or shorten rays (exact; default off)")
     pr.set_defaults(func=cmd_render)
 
     modes_help = ("variants to run, space or comma separated: raytrace-high, raytrace-medium, raytrace-low, "

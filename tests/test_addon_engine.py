@@ -12,7 +12,6 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -159,6 +158,14 @@ def test_zip_layout(run):
     assert any(n.startswith("shaders/") for n in names)
     assert any(n.startswith("wheels/moderngl-") for n in names)
     assert not any(n.startswith(("tests/", "test_scenes/")) or "__pycache__" in n for n in names)
+
+
+def test_zip_leaves_out_the_oracles(run):
+    import zipfile
+
+    names = zipfile.ZipFile(run["zip"]).namelist()
+    assert any(n.startswith("hybrid_shadow_addon/core/gpu/") for n in names)
+    assert not any(n.startswith("hybrid_shadow_addon/core/oracle") for n in names)
 
 
 def test_installed_and_enabled(run):

@@ -28,8 +28,8 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
     import numpy as np
 
     import hybrid_shadow_addon
-    from hybrid_shadow_addon.blender.engine import (HybridShadowsEngine, create_pipeline, gl_scope,
-                                                    release_pipeline)
+    from hybrid_shadow_addon.blender.engine import HybridShadowsEngine
+    from hybrid_shadow_addon.blender.gl import create_pipeline, gl_scope, release_pipeline
     from hybrid_shadow_addon.blender.export import export_depsgraph
     from hybrid_shadow_addon.blender.load import open_scene
     from hybrid_shadow_addon.blender.viewport import ViewportDisplay, ViewportSync, viewport_camera

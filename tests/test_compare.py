@@ -8,11 +8,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from hybrid_shadow_addon.core.errors import HybridShadowError
-from hybrid_shadow_addon.tools.compare import VARIANTS, resolve_variants
+from hybrid_shadow_addon.tools.variants import VARIANTS, resolve_variants
 
 REPO = Path(__file__).resolve().parents[1]
 PY = sys.executable
@@ -132,9 +131,11 @@ def test_cancel_restores_the_scene(tmp_path):
     """A progress callback raising Cancelled stops the comparison; the user's scene is as before."""
     import bpy
 
+    from hybrid_shadow_addon.blender.cycles_reference import CyclesReferenceProvider
+    from hybrid_shadow_addon.blender.frames import current_scene
     from hybrid_shadow_addon.blender.load import open_scene
+    from hybrid_shadow_addon.core.errors import Cancelled
     from hybrid_shadow_addon.tools.compare import run_compare
-    from hybrid_shadow_addon.tools.progress import Cancelled
 
     scene = open_scene("cube_on_plane:width=40,height=30")
     before = (scene.render.engine, scene.render.film_transparent, scene.render.resolution_x)
@@ -145,7 +146,8 @@ def test_cancel_restores_the_scene(tmp_path):
         raise Cancelled("cancelled")
 
     with pytest.raises(Cancelled):
-        run_compare(scene, tmp_path / "c", progress=progress, use_cache=False)
+        run_compare(current_scene(), tmp_path / "c", reference=CyclesReferenceProvider(scene), progress=progress,
+                    use_cache=False)
     assert len(calls) == 1 and calls[0].startswith("Cycles reference")
     assert (scene.render.engine, scene.render.film_transparent, scene.render.resolution_x) == before
     assert not (tmp_path / "c" / "metrics.json").exists()

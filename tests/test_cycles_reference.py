@@ -10,7 +10,7 @@ W, H = 160, 120
 def cube_scene_and_reference():
     from hybrid_shadow_addon.blender.export import export_depsgraph
     from hybrid_shadow_addon.blender.load import open_scene
-    from hybrid_shadow_addon.tools.cycles_reference import render_reference
+    from hybrid_shadow_addon.blender.cycles_reference import render_reference
 
     import bpy
 

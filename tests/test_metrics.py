@@ -3,7 +3,7 @@ frame times; the Pareto front; the false-colour difference image."""
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core import metrics
+from hybrid_shadow_addon.tools import metrics
 
 
 def masks():

@@ -3,8 +3,9 @@
 - :mod:`.export`: an evaluated depsgraph → :class:`hybrid_shadow_addon.core.scene.Scene`.
 - :mod:`.load`: a scene script, built-in test scene or ``.blend`` file → a loaded bpy scene or a
   core ``Scene``.
-- :mod:`.engine` (the ``HYBRID_SHADOWS`` render engine), :mod:`.viewport`, :mod:`.properties`,
-  :mod:`.ui`, :mod:`.compare_operator` ("Compare with Cycles"): the add-on.
+- :mod:`.engine` (the ``HYBRID_SHADOWS`` render engine) with :mod:`.final_render`,
+  :mod:`.viewport_engine`, :mod:`.viewport` and :mod:`.gl` (its OpenGL contexts);
+  :mod:`.properties`, :mod:`.ui`, :mod:`.compare_operator` ("Compare with Cycles"): the add-on.
 """
 
 # -- add-on registration --------------------------------------------------------------------------

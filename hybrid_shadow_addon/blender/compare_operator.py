@@ -1,5 +1,6 @@
 """The "Compare with Cycles" operator: :mod:`..tools.compare` on the current frame of the current
-scene, with progress, cancel (Esc / right click) and the report opened at the end.
+scene, against its Cycles reference (:class:`.cycles_reference.CyclesReferenceProvider`), with
+progress, cancel (Esc / right click) and the report opened at the end.
 
 Interactive: a modal operator; a window timer runs one step of
 :func:`~..tools.compare.compare_steps` per tick (a Cycles render of one light, one frame of a
@@ -7,8 +8,8 @@ variant), so the UI shows progress between steps and Esc cancels between steps (
 restored: each reference render restores it itself). In background mode (``bpy`` as a module,
 ``blender -b``) ``execute`` runs every step at once.
 
-The GL work runs on the engine's context hygiene (:func:`.engine.gl_scope`): our standalone
-context is current only during our passes, never left current on Blender's thread.
+The GL work runs inside :func:`.gl.gl_scope`: our standalone context is current only during our
+passes, never left current on Blender's thread.
 
 Wiring (done by the add-on's registration): ``compare_operator.register()`` /
 ``unregister()``; in a panel ``compare_operator.draw_compare_button(layout)``;
@@ -63,8 +64,11 @@ class RENDER_OT_hybrid_shadows_compare(bpy.types.Operator):
 
     # -- the work --------------------------------------------------------------------------------
     def _start(self, context):
-        from ..tools.compare import compare_steps, resolve_variants
-        from .engine import create_pipeline, gl_scope
+        from ..tools.compare import compare_steps
+        from ..tools.variants import resolve_variants
+        from .cycles_reference import CyclesReferenceProvider
+        from .frames import current_scene
+        from .gl import create_pipeline, gl_scope
 
         scene = context.scene
         r = scene.render
@@ -72,15 +76,17 @@ class RENDER_OT_hybrid_shadows_compare(bpy.types.Operator):
         resolution = (max(1, round(r.resolution_x * pct)), max(1, round(r.resolution_y * pct)))
         self.output = bpy.path.abspath(self.output_dir) if self.output_dir else default_output_dir(scene)
         variants = resolve_variants([self.modes])
+        core_scene = current_scene(resolution=resolution)
         self._pipeline = create_pipeline()
         pipe = self._pipeline
         self._result = {}
-        self._steps = compare_steps(scene, self.output, resolution=resolution, variants=variants,
-                                    repeats=self.repeats, pipeline=pipe, gl_scope=lambda: gl_scope(pipe),
+        self._steps = compare_steps(core_scene, self.output, reference=CyclesReferenceProvider(scene),
+                                    resolution=resolution, variants=variants, repeats=self.repeats, pipeline=pipe,
+                                    gl_scope=lambda: gl_scope(pipe),
                                     scene_label=f"{scene.name} (frame {scene.frame_current})", result=self._result)
 
     def _finish(self, context):
-        from .engine import release_pipeline
+        from .gl import release_pipeline
 
         if self._steps is not None:
             self._steps.close()  # a cancelled generator runs its finally blocks

@@ -35,6 +35,13 @@ UPSAMPLE_ITEMS = (
     ("BILATERAL", "Bilateral", "Depth and normal aware upsampling of reduced-resolution masks", 0),
     ("NEAREST", "Nearest", "Blocky nearest-texel upsampling (the thesis' look)", 1),
 )
+CONSERVATIVE_ITEMS = (
+    ("OFF", "Off", "Trace every shadow ray in full", 0),
+    ("SUN", "Suns", "Conservative occupancy maps for suns: receivers no caster can reach take no ray, "
+                    "the others stop at the first possible caster (the masks do not change)", 1),
+    ("ALL", "All Lights", "Conservative occupancy maps for every light (a cube of six maps around point, "
+                          "spot and area lights)", 2),
+)
 DEBUG_ITEMS = (
     ("NONE", "None", "Show the lit image", 0),
     ("LIGHT_MASK", "Light Mask", "Show the shadow mask of one light (white lit, black shadowed, blue no geometry)", 1),
@@ -110,6 +117,10 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
     upsample: EnumProperty(name="Upsampling", items=UPSAMPLE_ITEMS, default="BILATERAL",
                            description="How reduced-resolution shadow masks are brought to full resolution",
                            update=_tag_viewport)
+    conservative_maps: EnumProperty(name="Conservative Maps", items=CONSERVATIVE_ITEMS, default="OFF",
+                                    description="Ray traced: skip or shorten shadow rays with conservative "
+                                                "light-space occupancy maps; exact, it only changes the work",
+                                    update=_tag_viewport)
     use_specular: BoolProperty(name="Specular", default=True,
                                description="Add the specular lobe of the materials to the lighting",
                                update=_tag_viewport)
@@ -136,6 +147,7 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
             shadowmap_size=int(self.shadowmap_size), pcf=int(self.pcf), shadow_bias=float(self.shadow_bias),
             slope_bias=float(self.slope_bias), normal_offset=float(self.normal_offset),
             upsample=self.upsample.lower(), specular=bool(self.use_specular),
+            conservative=self.conservative_maps.lower(),
         )
 
 

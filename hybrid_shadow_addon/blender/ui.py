@@ -52,6 +52,7 @@ class RENDER_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         col.active = props.mode == "RAYTRACE"
         col.prop(props, "quality", text="Render Quality")
         col.prop(props, "upsample")
+        col.prop(props, "conservative_maps")
         draw_compare_button(layout)
 
 

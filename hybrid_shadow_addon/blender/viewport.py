@@ -1,4 +1,5 @@
-"""The viewport side of the engine, kept apart from ``RenderEngine`` so it can be tested headless.
+"""The viewport's building blocks, apart from ``RenderEngine`` so they can be tested headless
+(:mod:`.viewport_engine` drives them from the engine).
 
 - :class:`ViewportSync`: the core scene of a viewport depsgraph, kept up to date from
   ``depsgraph.updates`` with the least work (see :meth:`ViewportSync.classify`).
@@ -307,17 +308,10 @@ def grid_occupancy(baked, position: np.ndarray) -> np.ndarray:
     out = np.full(position.shape[:2], -1.0, np.float32)
     if lay is None or not valid.any():
         return out
-    px = position[..., 0][valid] - lay.origin[0]
-    py = position[..., 1][valid] - lay.origin[1]
-    total = np.zeros(px.shape, np.float64)
     counts = np.asarray(baked.node_count)
-    for lvl, s in enumerate(lay.node_sizes):
-        nx, ny = (int(v) for v in lay.dims[lvl])
-        ix = np.floor(px / s)
-        iy = np.floor(py / s)
-        inside = (ix >= 0) & (iy >= 0) & (ix < nx) & (iy < ny)
-        node = lay.level_offset[lvl] + np.where(inside, iy, 0).astype(np.int64) * nx + np.where(inside, ix, 0).astype(np.int64)
-        total += np.where(inside, counts[node], 0)
+    xy = position[valid][:, :2].astype(np.float64) - np.asarray(baked.origin, np.float64)[:2]  # bake space
+    nodes = lay.nodes_at(xy)  # (levels, N), -1 outside
+    total = np.where(nodes >= 0, counts[np.maximum(nodes, 0)], 0).sum(axis=0, dtype=np.float64)
     total += counts[lay.outside_node] if lay.outside_node < len(counts) else 0
     out[valid] = total
     return out

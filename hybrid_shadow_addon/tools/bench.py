@@ -1,35 +1,56 @@
-"""Frame-rate benchmark along the scene's camera path, the thesis' way (chapters 4.5-4.6, 5).
+"""Frame-rate benchmark along a camera path, the thesis' way (chapters 4.5-4.6, 5).
 
-``N`` frames evenly spaced over ``frame_start..frame_end`` are exported once each (the export
-is not timed). Every mode, and the no-shadow control (``none``), is rendered along the path
-``repeats`` times; one pass per mode and repetition, in the order repetition -> mode -> frame,
-like the thesis' benchmark runs. All modes share one :class:`Pipeline`.
+``N`` frames evenly spaced over the path's frame range come from a :class:`FrameSource`, one core
+scene per frame (their export is timed apart). Every mode, and the no-shadow control (``none``),
+is rendered along the path ``repeats`` times, in the order repetition -> mode -> frame. All modes
+share one :class:`Pipeline`.
 
 The scene is baked once. Between path frames only what changed is updated, outside the timing:
 moved instances through :meth:`Pipeline.move_instances` (incremental), a full re-bake only when
 the scene's structure (models, instance list) changes; camera and lights are per-frame inputs
 anyway. Bake and update times are reported separately.
 
-Per mode: the frame time of every frame and repetition (``Frame.timings["total_ms"]``: G-buffer,
-shadows, upsample, lighting, readback); min / average / max fps, average frame time, extra time
-over the control, standard deviation relative to the mean, erraticness
-(:func:`..core.metrics.frame_stats`). Outputs: ``bench.json``, ``summary.md`` and the figures
-``fig5_1_fps.png`` ... ``fig5_6_std_dev.png``.
+Per mode: the frame time of every frame and repetition (``Frame.timings["total_ms"]``); min /
+average / max fps, average frame time, extra time over the control, standard deviation relative
+to the mean, erraticness (:func:`.metrics.frame_stats`). Outputs: ``bench.json``, ``summary.md``
+and the figures ``fig5_1_fps.png`` ... ``fig5_6_std_dev.png``.
 """
 from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
-from ..core import metrics
 from ..core.errors import HybridShadowError
-from .compare import VARIANTS, resolve_variants, scene_hash
+from ..core.progress import call
+from ..core.scene import Scene
+from . import metrics
+from .reference import scene_hash
+from .variants import VARIANTS, as_variants
 
 DEFAULT_MODES = ("raytrace-high", "shadowmap-2048")
 CONTROL = "none"
+
+
+class FrameSource(Protocol):
+    """The scenes of a camera path.
+
+    - ``name``: the scene's label in ``bench.json`` and the summary.
+    - ``version``: the version of what exports the scenes (``bench.json``'s ``bpy_version``).
+    - ``frame_range``: ``(first, last)`` frame of the path, inclusive.
+    """
+
+    name: str
+    version: str
+    frame_range: tuple
+
+    def scene_at(self, frame: int) -> Scene:
+        """The validated core scene at ``frame``."""
+        ...
 
 
 def path_frames(frame_start: int, frame_end: int, n: int) -> list:
@@ -46,21 +67,24 @@ def _structure(scene) -> str:
     return scene_hash([scene.models, list(inst.names), inst.model_ids, inst.sphere, inst.casts_shadow])
 
 
-def run_bench(scene_arg: str, output_dir, *, frames: int = 10, modes=None, repeats: int = 5, resolution=None,
-              warmup: int = 1, progress=None, pipeline=None) -> dict:
-    import bpy
+def bench_variants(modes=None) -> list:
+    """The control (``none``) first, then the variants of ``modes`` (names or :class:`Variant`
+    objects; default :data:`DEFAULT_MODES`)."""
+    picked = as_variants(list(modes) if modes else list(DEFAULT_MODES))
+    return [VARIANTS[CONTROL]] + [v for v in picked if v.name != CONTROL]
 
-    from ..blender.export import export_depsgraph
-    from ..blender.load import open_scene
 
+def run_bench(source: FrameSource, output_dir, *, frames: int = 10, modes=None, repeats: int = 5,
+              resolution=None, warmup: int = 1, progress=None, pipeline=None) -> dict:
+    """Benchmark ``frames`` frames of ``source``'s path; ``resolution`` overrides the scenes';
+    ``progress(done, total, label)`` after each step. Returns the ``bench.json`` dict."""
     if repeats < 1:
         raise HybridShadowError("--repeats must be at least 1")
-    variants = [VARIANTS[CONTROL]] + [v for v in resolve_variants(modes or list(DEFAULT_MODES)) if v.name != CONTROL]
+    variants = bench_variants(modes)
     out = Path(output_dir)
     out.mkdir(parents=True, exist_ok=True)
 
-    bscene = open_scene(scene_arg)
-    fs = path_frames(bscene.frame_start, bscene.frame_end, frames)
+    fs = path_frames(*source.frame_range, frames)
     scenes, export_ms = [], []
     total = len(fs) + 1 + len(variants) * (warmup + repeats * len(fs)) + 1
     done = 0
@@ -68,16 +92,17 @@ def run_bench(scene_arg: str, output_dir, *, frames: int = 10, modes=None, repea
     def step(label):
         nonlocal done
         done += 1
-        if progress:
-            progress(done, total, label)
+        call(progress, done, total, label)
 
     for f in fs:
         t0 = time.perf_counter()
-        bscene.frame_set(f)
-        scenes.append(export_depsgraph(bpy.context.evaluated_depsgraph_get(), resolution=resolution).validate())
+        s = source.scene_at(f)
+        if resolution is not None:
+            s = replace(s, resolution=(int(resolution[0]), int(resolution[1])))
+        scenes.append(s)
         export_ms.append((time.perf_counter() - t0) * 1e3)
         step(f"export frame {f}")
-    width, height = scenes[0].resolution if resolution is None else resolution
+    width, height = scenes[0].resolution
     structures = [_structure(s) for s in scenes]
 
     own = pipeline is None
@@ -130,12 +155,12 @@ def run_bench(scene_arg: str, output_dir, *, frames: int = 10, modes=None, repea
 
     control = times[CONTROL]
     result = {
-        "scene": scene_arg,
+        "scene": source.name,
         "frames": fs,
         "resolution": [int(width), int(height)],
         "repeats": int(repeats),
         "warmup": int(warmup),
-        "bpy_version": bpy.app.version_string,
+        "bpy_version": source.version,
         "triangles": int(scenes[0].triangle_count),
         "instances": len(scenes[0].instances),
         "shadowed_lights": sum(1 for l in scenes[0].lights if l.use_shadow),
@@ -167,8 +192,6 @@ def run_bench(scene_arg: str, output_dir, *, frames: int = 10, modes=None, repea
 
 def _copy_scene(s):
     """A scene whose instance matrices we may change (``set_matrices``) without touching ``s``."""
-    from dataclasses import replace
-
     inst = replace(s.instances, matrices=s.instances.matrices.copy(), inverse=s.instances.inverse.copy())
     return replace(s, instances=inst)
 

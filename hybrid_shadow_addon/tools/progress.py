@@ -1,18 +1,9 @@
-"""Progress reporting shared by ``compare`` and ``bench``: a terminal bar, and the cancel signal.
-
-A progress callback is ``progress(done, total, label)``; it may raise :class:`Cancelled` to stop
-the work (the Blender operator does when the user presses Esc).
-"""
+"""A terminal progress bar for ``compare`` and ``bench``: a
+:data:`~hybrid_shadow_addon.core.progress.Progress` callback, ``progress(done, total, label)``."""
 from __future__ import annotations
 
 import sys
 import time
-
-from ..core.errors import HybridShadowError
-
-
-class Cancelled(HybridShadowError):
-    """The user cancelled."""
 
 
 class TerminalProgress:
@@ -63,7 +54,3 @@ class TerminalProgress:
 def _clock(seconds: float) -> str:
     s = int(max(seconds, 0))
     return f"{s // 60}:{s % 60:02d}"
-
-
-def null_progress(done: int, total: int, label: str = "") -> None:
-    pass

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..core.errors import HybridShadowError, SceneError
 from ..core.gpu.context import check_light_count
-from ..core.gpu.passes import to_srgb8, write_png
+from ..core.image import to_srgb8, write_png
 
 IMAGE_SUFFIXES = (".png", ".exr", ".npy")
 

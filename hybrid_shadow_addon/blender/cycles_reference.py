@@ -11,6 +11,9 @@ are invalid (NaN).
 
 The user's scene is restored afterwards, whatever happens. Works with bpy 4.5 and 5.0 (which
 name and split the EXR layers differently).
+
+:class:`CyclesReferenceProvider` offers this to the ``compare`` tool as its
+:class:`~hybrid_shadow_addon.tools.reference.ReferenceProvider`.
 """
 from __future__ import annotations
 
@@ -19,9 +22,13 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 
+import bpy
 import numpy as np
 
+from ..core.errors import HybridShadowError
+
 UNSHADOWED_MIN = 1e-4
+RECIPE_VERSION = 2  # bump when the reference recipe changes: invalidates the cached references
 
 
 @dataclass
@@ -124,8 +131,6 @@ def render_reference(bscene, light_names=None, *, resolution=None, samples: int 
     """Render the Cycles visibility of each named light (default: every shadow-casting light
     visible in render) and the position pass. ``progress(done, total, label)`` is called
     between renders; ``hard``: see the module's docstring."""
-    import bpy
-
     lights = [o for o in bscene.objects if o.type == "LIGHT" and not o.hide_render]
     if light_names is None:
         light_names = [o.name for o in lights if o.data.use_shadow]
@@ -176,3 +181,35 @@ def render_reference(bscene, light_names=None, *, resolution=None, samples: int 
             per_light.restore()
             saved.restore()
     return ref
+
+
+class CyclesReferenceProvider:
+    """The Cycles reference of ``bscene`` (a ``bpy.types.Scene``) for ``compare``: it renders
+    ``bscene`` as it stands, so the core scenes it is asked about must be exported from it at
+    its current frame. ``hard``: see :func:`render_reference`."""
+
+    name = "Cycles"
+    recipe_version = RECIPE_VERSION
+
+    def __init__(self, bscene, *, hard: bool = True):
+        self.bscene = bscene
+        self.hard = hard
+
+    @property
+    def version(self) -> str:
+        return bpy.app.version_string
+
+    def light_names(self, scene) -> list:
+        """The shadow-casting lights of ``scene`` that are light objects of ``bscene`` visible in
+        render (Cycles renders one at a time by hiding the others)."""
+        objs = self.bscene.objects
+        return [l.name for l in scene.lights
+                if l.use_shadow and l.name in objs and objs[l.name].type == "LIGHT" and not objs[l.name].hide_render]
+
+    def visibility(self, scene, light: str, resolution, samples: int):
+        """``(visibility, ms)`` of ``light`` alone (see :func:`render_reference`)."""
+        if int(scene.frame) != int(self.bscene.frame_current):
+            raise HybridShadowError(f"scene '{scene.name}' is at frame {scene.frame}, the Blender scene "
+                                    f"'{self.bscene.name}' at {self.bscene.frame_current}")
+        ref = render_reference(self.bscene, [light], resolution=tuple(resolution), samples=samples, hard=self.hard)
+        return ref.visibility[light], ref.render_ms[light]

@@ -1,0 +1,37 @@
+"""Core scenes of a loaded bpy scene, frame by frame: the current frame
+(:func:`current_scene`) and its animation as a camera path (:class:`BlenderFrames`, the
+``bench`` tool's :class:`~hybrid_shadow_addon.tools.bench.FrameSource`)."""
+from __future__ import annotations
+
+import bpy
+
+from ..core.scene import Scene
+from .export import export_depsgraph
+
+
+def current_scene(*, resolution=None) -> Scene:
+    """The validated core scene of the context's scene at its current frame (``resolution``
+    overrides the render settings')."""
+    return export_depsgraph(bpy.context.evaluated_depsgraph_get(), resolution=resolution).validate()
+
+
+class BlenderFrames:
+    """The frames ``frame_start..frame_end`` of ``bscene`` (the context's scene), exported one
+    at a time; ``name`` labels the results (default: the scene's name)."""
+
+    def __init__(self, bscene, name: str | None = None):
+        self.bscene = bscene
+        self.name = name or bscene.name
+
+    @property
+    def version(self) -> str:
+        return bpy.app.version_string
+
+    @property
+    def frame_range(self) -> tuple:
+        return int(self.bscene.frame_start), int(self.bscene.frame_end)
+
+    def scene_at(self, frame: int) -> Scene:
+        """Set ``bscene`` to ``frame`` and export it."""
+        self.bscene.frame_set(int(frame))
+        return current_scene()
