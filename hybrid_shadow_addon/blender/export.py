@@ -91,7 +91,7 @@ def mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     return verts.reshape(-1, 3), tris.view(np.uint32).reshape(-1, 3)
 
 
-def _principled(tree):
+def principled_node(tree):
     """The Principled BSDF feeding the material output, else the tree's first one, else None."""
     out = tree.get_output_node("ALL")
     if out is not None and out.inputs["Surface"].is_linked:
@@ -108,7 +108,7 @@ def material_surface(material, object_color=_WHITE) -> tuple:
     if material is None:
         rgba = tuple(object_color) if tuple(object_color) != _WHITE else _GREY
         return rgba, 0.5, 0.5
-    node = _principled(material.node_tree) if material.use_nodes and material.node_tree else None
+    node = principled_node(material.node_tree) if material.use_nodes and material.node_tree else None
     if node is not None:
         rgb = tuple(node.inputs["Base Color"].default_value)[:3]
         rgba = rgb + (float(node.inputs["Alpha"].default_value),)
@@ -120,20 +120,26 @@ def material_surface(material, object_color=_WHITE) -> tuple:
     return rgba, min(max(spec, 0.0), 1.0), min(max(rough, 0.0), 1.0)
 
 
+def world_background(world):
+    """The Background node the world's output uses (else the tree's first), or None."""
+    if world is None or not world.use_nodes or not world.node_tree:
+        return None
+    out = world.node_tree.get_output_node("ALL")
+    if out is not None and out.inputs["Surface"].is_linked:
+        node = out.inputs["Surface"].links[0].from_node
+        if node.type == "BACKGROUND":
+            return node
+    return next((n for n in world.node_tree.nodes if n.type == "BACKGROUND"), None)
+
+
 def world_color(world) -> np.ndarray:
     """Linear RGB of the world: its Background node's colour × strength, else ``world.color``."""
     if world is None:
         return np.zeros(3, np.float32)
-    if world.use_nodes and world.node_tree:
-        bg = None
-        out = world.node_tree.get_output_node("ALL")
-        if out is not None and out.inputs["Surface"].is_linked:
-            node = out.inputs["Surface"].links[0].from_node
-            bg = node if node.type == "BACKGROUND" else None
-        bg = bg or next((n for n in world.node_tree.nodes if n.type == "BACKGROUND"), None)
-        if bg is not None:
-            rgb = np.array(bg.inputs["Color"].default_value[:3], np.float32)
-            return rgb * np.float32(bg.inputs["Strength"].default_value)
+    bg = world_background(world)
+    if bg is not None:
+        rgb = np.array(bg.inputs["Color"].default_value[:3], np.float32)
+        return rgb * np.float32(bg.inputs["Strength"].default_value)
     return np.array(world.color[:3], np.float32)
 
 
@@ -175,11 +181,32 @@ def export_lights(depsgraph) -> list:
     return lights
 
 
+def light_color(d) -> tuple:
+    """Linear RGB of a light datablock: its colour, times its blackbody colour when Blender has
+    ``use_temperature`` (4.5+) and it is on (as Cycles and EEVEE multiply them)."""
+    rgb = np.array(d.color[:3], np.float64)
+    if getattr(d, "use_temperature", False):
+        rgb = rgb * np.array(d.temperature_color[:3], np.float64)
+    return tuple(float(c) for c in rgb)
+
+
+def light_power(d) -> float:
+    """Power (W) or sun strength (W/m²) as Cycles emits it: ``energy * 2^exposure`` (Blender
+    4.0+), and for an area light whose ``normalize`` is off (4.2+), times its area (the power is
+    then per square metre)."""
+    power = float(d.energy) * 2.0 ** float(getattr(d, "exposure", 0.0))
+    if d.type == "AREA" and not getattr(d, "normalize", True):
+        size_y = d.size_y if d.shape in ("RECTANGLE", "ELLIPSE") else d.size
+        area = float(d.size) * float(size_y) * (np.pi / 4 if d.shape in ("DISK", "ELLIPSE") else 1.0)
+        power *= area
+    return power
+
+
 def export_light(ob, matrix: np.ndarray, name: str) -> Light:
     """A light object (evaluated) at world ``matrix``. An area light's ``size_y`` is its actual
     extent: ``size`` for square and disk shapes."""
     d = ob.data
-    kw = dict(name=name, type=d.type, color=tuple(d.color), power=float(d.energy), matrix=matrix,
+    kw = dict(name=name, type=d.type, color=light_color(d), power=light_power(d), matrix=matrix,
               use_shadow=bool(d.use_shadow))
     if d.type == "SUN":
         kw["angle"] = float(d.angle)

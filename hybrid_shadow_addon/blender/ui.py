@@ -1,5 +1,5 @@
-"""Panels of the Hybrid Shadows engine (Render, View Layer, Object and Light tabs), the shadow
-mode in the 3D viewport header, and the standard panels shown for this engine.
+"""Panels of the Hybrid Shadows engine (Render, View Layer, Object, Light, Material and World
+tabs), the shadow mode in the 3D viewport header, and the standard panels shown for this engine.
 
 Every panel polls on the engine (Cycles' ``COMPAT_ENGINES`` pattern). :func:`get_panels` lists
 the standard panels that make sense for this engine; :func:`register` adds the engine to their
@@ -11,6 +11,7 @@ import bpy
 
 from .compare_operator import draw_compare_button
 from .engine import ENGINE_ID
+from .export import principled_node, world_background
 
 
 class HybridShadowsPanel:
@@ -151,6 +152,52 @@ class OBJECT_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         layout.prop(ob, "hybrid_sphere")
 
 
+class DATA_PT_hybrid_shadows_light_settings(HybridShadowsPanel, bpy.types.Panel):
+    """What the engine reads of a light, below the stock Light panel (which draws its type)."""
+
+    bl_label = "Light Settings"
+    bl_context = "data"
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.light is not None
+
+    def draw(self, context):
+        layout = self.split_layout()
+        light = context.light
+        col = layout.column()
+        if getattr(light, "use_temperature", None) is not None:  # Blender 4.5+
+            row = col.row(align=True)
+            row.prop(light, "use_temperature", text="Temperature", expand=False)
+            sub = row.row(align=True)
+            sub.active = light.use_temperature
+            sub.prop(light, "temperature", text="")
+        col.prop(light, "color")
+        col.prop(light, "energy", text="Strength" if light.type == "SUN" else "Power")
+        if hasattr(light, "exposure"):
+            col.prop(light, "exposure")
+        if light.type == "AREA" and hasattr(light, "normalize"):
+            col.prop(light, "normalize")
+        col.separator()
+        if light.type == "SUN":
+            col.prop(light, "angle")
+        elif light.type in ("POINT", "SPOT"):
+            col.prop(light, "shadow_soft_size", text="Radius")
+        elif light.type == "AREA":
+            col.prop(light, "shape")
+            sub = col.column(align=True)
+            if light.shape in ("SQUARE", "DISK"):
+                sub.prop(light, "size")
+            else:
+                sub.prop(light, "size", text="Size X")
+                sub.prop(light, "size_y", text="Y")
+        if light.type == "SPOT":
+            col.separator()
+            col.prop(light, "spot_size", text="Spot Size")
+            col.prop(light, "spot_blend", text="Blend")
+            col.prop(light, "show_cone")
+
+
 class DATA_PT_hybrid_shadows_light(HybridShadowsPanel, bpy.types.Panel):
     bl_label = "Shadow"
     bl_context = "data"
@@ -163,14 +210,104 @@ class DATA_PT_hybrid_shadows_light(HybridShadowsPanel, bpy.types.Panel):
         self.layout.prop(context.light, "use_shadow", text="")
 
     def draw(self, context):
+        layout = self.layout
+        layout.active = context.light.use_shadow
+        layout.label(text="Shadows are hard (one ray towards the light's centre)", icon="INFO")
+
+
+def _draw_input(layout, node, name, text=None):
+    sock = node.inputs[name]
+    if sock.is_linked:
+        row = layout.row()
+        row.label(text=text or name)
+        row.label(text=f"linked to {sock.links[0].from_node.name}: not read", icon="ERROR")
+    else:
+        layout.prop(sock, "default_value", text=text or name)
+
+
+class MATERIAL_PT_hybrid_shadows_context(HybridShadowsPanel, bpy.types.Panel):
+    """Material slots of the active object, as Cycles and EEVEE show them."""
+
+    bl_label = ""
+    bl_context = "material"
+    bl_options = {"HIDE_HEADER"}
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and (context.material is not None or context.object is not None)
+
+    def draw(self, context):
+        layout = self.layout
+        ob = context.object
+        slot = context.material_slot
+        if ob is not None:
+            is_sortable = len(ob.material_slots) > 1
+            rows = 5 if is_sortable else 3
+            row = layout.row()
+            row.template_list("MATERIAL_UL_matslots", "", ob, "material_slots", ob, "active_material_index",
+                              rows=rows)
+            col = row.column(align=True)
+            col.operator("object.material_slot_add", icon="ADD", text="")
+            col.operator("object.material_slot_remove", icon="REMOVE", text="")
+        row = layout.row()
+        if ob is not None:
+            row.template_ID(ob, "active_material", new="material.new")
+            if slot is not None:
+                row.prop(slot, "link", icon_only=True)
+        elif context.material is not None:
+            row.template_ID(context.space_data, "pin_id")
+
+
+class MATERIAL_PT_hybrid_shadows_surface(HybridShadowsPanel, bpy.types.Panel):
+    """The surface values the engine reads: the Principled BSDF's base colour, alpha, specular
+    and roughness (or the material's viewport values without one)."""
+
+    bl_label = "Surface"
+    bl_context = "material"
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.material is not None
+
+    def draw(self, context):
         layout = self.split_layout()
-        light = context.light
-        layout.active = light.use_shadow
-        if light.type == "SUN":
-            layout.prop(light, "angle")
-        else:
-            layout.prop(light, "shadow_soft_size", text="Radius")
-        layout.label(text="Hybrid shadows are hard: the size only affects shading", icon="INFO")
+        mat = context.material
+        node = principled_node(mat.node_tree) if mat.use_nodes and mat.node_tree else None
+        if node is None:
+            if not mat.use_nodes:
+                layout.prop(mat, "use_nodes", icon="NODETREE")
+            layout.prop(mat, "diffuse_color", text="Base Color")
+            layout.prop(mat, "specular_intensity", text="Specular")
+            layout.prop(mat, "roughness")
+            return
+        layout.label(text=node.name, icon="NODE_MATERIAL")
+        for name, text in (("Base Color", None), ("Alpha", None), ("Specular IOR Level", "Specular"),
+                           ("Roughness", None)):
+            _draw_input(layout, node, name, text)
+
+
+class WORLD_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
+    """The world colour the engine uses as ambient light: the Background node's colour and
+    strength, else the world's viewport colour."""
+
+    bl_label = "Surface"
+    bl_context = "world"
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.world is not None
+
+    def draw(self, context):
+        layout = self.split_layout()
+        world = context.world
+        bg = world_background(world)
+        if bg is None:
+            if not world.use_nodes:
+                layout.prop(world, "use_nodes", icon="NODETREE")
+            layout.prop(world, "color")
+            return
+        _draw_input(layout, bg, "Color")
+        _draw_input(layout, bg, "Strength")
 
 
 def draw_viewport_header(self, context):
@@ -185,7 +322,9 @@ def draw_viewport_header(self, context):
 CLASSES = (
     RENDER_PT_hybrid_shadows, RENDER_PT_hybrid_shadows_limits, RENDER_PT_hybrid_shadows_viewport,
     RENDER_PT_hybrid_shadows_shadowmap, RENDER_PT_hybrid_shadows_lighting, RENDER_PT_hybrid_shadows_debug,
-    VIEWLAYER_PT_hybrid_shadows_passes, OBJECT_PT_hybrid_shadows, DATA_PT_hybrid_shadows_light,
+    VIEWLAYER_PT_hybrid_shadows_passes, OBJECT_PT_hybrid_shadows, DATA_PT_hybrid_shadows_light_settings,
+    DATA_PT_hybrid_shadows_light, MATERIAL_PT_hybrid_shadows_context, MATERIAL_PT_hybrid_shadows_surface,
+    WORLD_PT_hybrid_shadows,
 )
 
 #: standard panels (carrying the legacy 'BLENDER_RENDER' marker) that do not fit this engine

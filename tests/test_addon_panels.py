@@ -1,0 +1,145 @@
+"""The Light, Material and World panels of the engine draw what the export reads (drawn with a
+stub layout that records the RNA paths), poll only for this engine; light exposure, temperature
+and area normalisation reach the exported power and colour as Cycles emits them."""
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from hybrid_shadow_addon.blender import ui
+from hybrid_shadow_addon.blender.export import export_light
+
+ENGINE = "HYBRID_SHADOWS"
+
+
+class StubLayout:
+    """Records ``prop(data, name)`` calls; every sub-layout records into the same list."""
+
+    def __init__(self, drawn=None):
+        self.drawn = [] if drawn is None else drawn
+        self.use_property_split = self.use_property_decorate = self.active = False
+
+    def prop(self, data, name, **kw):
+        assert hasattr(data, name), (data, name)
+        owner = getattr(data, "identifier", None) or getattr(data, "name", "")
+        self.drawn.append((owner, name))
+
+    def _sub(self, *a, **kw):
+        return StubLayout(self.drawn)
+
+    row = column = split = box = _sub
+
+    def label(self, **kw):
+        self.drawn.append(("label", kw.get("text", "")))
+
+    def separator(self, **kw):
+        pass
+
+    def operator(self, *a, **kw):
+        return None
+
+    def template_list(self, *a, **kw):
+        self.drawn.append(("template_list", a[0]))
+
+    def template_ID(self, data, name, **kw):
+        self.drawn.append(("template_ID", name))
+
+
+class Ctx:
+    def __init__(self, engine=ENGINE, **kw):
+        self.engine = engine
+        self.light = self.material = self.world = self.object = self.material_slot = None
+        self.__dict__.update(kw)
+
+
+def draw(panel, context):
+    holder = type("P", (), {})()
+    holder.layout = StubLayout()
+    holder.split_layout = lambda: holder.layout
+    assert panel.poll(context)
+    panel.draw(holder, context)
+    return holder.layout.drawn
+
+
+@pytest.fixture
+def empty():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+
+
+@pytest.mark.parametrize("kind,expected", [
+    ("SUN", {"color", "energy", "angle"}),
+    ("POINT", {"color", "energy", "shadow_soft_size"}),
+    ("SPOT", {"color", "energy", "shadow_soft_size", "spot_size", "spot_blend"}),
+    ("AREA", {"color", "energy", "shape", "size", "size_y"}),
+])
+def test_light_panel_draws_what_the_export_reads(empty, kind, expected):
+    light = bpy.data.lights.new("L", kind)
+    if kind == "AREA":
+        light.shape = "RECTANGLE"
+    names = {n for _, n in draw(ui.DATA_PT_hybrid_shadows_light_settings, Ctx(light=light))}
+    assert expected <= names
+    if hasattr(light, "exposure"):
+        assert "exposure" in names
+    if hasattr(light, "use_temperature"):
+        assert {"use_temperature", "temperature"} <= names
+    assert not ui.DATA_PT_hybrid_shadows_light_settings.poll(Ctx(engine="CYCLES", light=light))
+    assert ("label", "Hybrid shadows are hard: the size only affects shading") not in draw(
+        ui.DATA_PT_hybrid_shadows_light, Ctx(light=light))
+
+
+def test_material_panels(empty):
+    bpy.ops.mesh.primitive_cube_add()
+    ob = bpy.context.object
+    mat = bpy.data.materials.new("M")
+    mat.use_nodes = True
+    ob.data.materials.append(mat)
+    ctx = Ctx(object=ob, material=mat, material_slot=ob.material_slots[0], space_data=None)
+    drawn = draw(ui.MATERIAL_PT_hybrid_shadows_context, ctx)
+    assert ("template_list", "MATERIAL_UL_matslots") in drawn and ("template_ID", "active_material") in drawn
+    drawn = draw(ui.MATERIAL_PT_hybrid_shadows_surface, ctx)
+    assert [o for o, n in drawn if n == "default_value"] == ["Base Color", "Alpha", "Specular IOR Level", "Roughness"]
+    # a linked input is shown as not read (its default value is what the export takes)
+    tex = mat.node_tree.nodes.new("ShaderNodeTexImage")
+    mat.node_tree.links.new(tex.outputs["Color"], mat.node_tree.nodes["Principled BSDF"].inputs["Base Color"])
+    drawn = draw(ui.MATERIAL_PT_hybrid_shadows_surface, ctx)
+    assert any(o == "label" and "not read" in n for o, n in drawn)
+    mat.use_nodes = False
+    names = {n for _, n in draw(ui.MATERIAL_PT_hybrid_shadows_surface, ctx)}
+    assert {"use_nodes", "diffuse_color", "specular_intensity", "roughness"} <= names
+
+
+def test_world_panel(empty):
+    world = bpy.data.worlds.new("W")
+    world.use_nodes = True
+    drawn = draw(ui.WORLD_PT_hybrid_shadows, Ctx(world=world))
+    assert [o for o, n in drawn if n == "default_value"] == ["Color", "Strength"]
+    world.use_nodes = False
+    assert {"use_nodes", "color"} <= {n for _, n in draw(ui.WORLD_PT_hybrid_shadows, Ctx(world=world))}
+    assert not ui.WORLD_PT_hybrid_shadows.poll(Ctx(engine="BLENDER_EEVEE_NEXT", world=world))
+
+
+def _light_object(kind, **props):
+    light = bpy.data.lights.new("L", kind)
+    for k, v in props.items():
+        setattr(light, k, v)
+    return bpy.data.objects.new("L", light)
+
+
+def test_exposure_temperature_and_normalize_reach_the_export(empty):
+    base = export_light(_light_object("POINT", energy=100.0), np.eye(4), "L")
+    if hasattr(bpy.types.Light, "exposure"):
+        brighter = export_light(_light_object("POINT", energy=100.0, exposure=1.5), np.eye(4), "L")
+        assert math.isclose(brighter.power, base.power * 2 ** 1.5, rel_tol=1e-6)
+    if hasattr(bpy.types.Light, "use_temperature"):
+        warm = _light_object("POINT", energy=100.0, use_temperature=True, temperature=3000.0)
+        got = export_light(warm, np.eye(4), "L")
+        want = np.array(warm.data.color) * np.array(warm.data.temperature_color)
+        assert np.allclose(got.color, want) and got.color[2] < got.color[0]
+    if hasattr(bpy.types.Light, "normalize"):
+        for shape, area in (("RECTANGLE", 2.0 * 0.5), ("ELLIPSE", math.pi / 4 * 2.0 * 0.5), ("SQUARE", 4.0),
+                            ("DISK", math.pi / 4 * 4.0)):
+            kw = dict(energy=10.0, shape=shape, size=2.0, size_y=0.5)
+            on = export_light(_light_object("AREA", **kw), np.eye(4), "L")
+            off = export_light(_light_object("AREA", normalize=False, **kw), np.eye(4), "L")
+            assert math.isclose(on.power, 10.0) and math.isclose(off.power, 10.0 * area, rel_tol=1e-6), shape
