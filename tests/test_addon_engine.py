@@ -101,6 +101,25 @@ def driver(out_dir: str, zip_path: str) -> None:
             props.mode = mode
             bpy.ops.render.render()
             bpy.data.images["Render Result"].save_render(str(out / f"{mode}.exr"))
+        # Compare with Cycles from the installed extension: a real (tiny) run, then one with a
+        # required package missing, which must fail with one clear message
+        compare_dir = out / "compare"
+        bpy.ops.render.hybrid_shadows_compare(output_dir=str(compare_dir), modes="raytrace-high,none", repeats=1,
+                                              resolution_percentage=25, open_report=False)
+        report["compare_files"] = sorted(p.name for p in compare_dir.iterdir())
+        saved = sys.modules.get("OpenEXR")
+        sys.modules["OpenEXR"] = None  # as if the package were not installed
+        try:
+            bpy.ops.render.hybrid_shadows_compare(output_dir=str(out / "compare_missing"), open_report=False)
+            report["compare_missing"] = None
+        except RuntimeError as exc:
+            report["compare_missing"] = str(exc)
+        finally:
+            if saved is None:
+                del sys.modules["OpenEXR"]
+            else:
+                sys.modules["OpenEXR"] = saved
+        report["compare_missing_wrote"] = (out / "compare_missing").exists()
         # a failure: a zero-scale object is reported by name, as an error of the render
         bpy.data.objects["Ball.001"].scale = (0, 0, 0)
         try:
@@ -166,6 +185,14 @@ def test_zip_leaves_out_the_oracles(run):
     names = zipfile.ZipFile(run["zip"]).namelist()
     assert any(n.startswith("hybrid_shadow_addon/core/gpu/") for n in names)
     assert not any(n.startswith("hybrid_shadow_addon/core/oracle") for n in names)
+
+
+def test_compare_operator_from_the_installed_zip(run):
+    r = run["report"]
+    assert {"metrics.json", "report.html"} <= set(r["compare_files"]), r["compare_files"]
+    msg = r["compare_missing"]
+    assert msg is not None and "OpenEXR" in msg and "pip install" in msg and "\n" not in msg.strip()
+    assert not r["compare_missing_wrote"]
 
 
 def test_installed_and_enabled(run):
