@@ -38,10 +38,11 @@ def read_exr(path) -> dict:
 
     out = {}
     with OpenEXR.File(str(path), separate_channels=True) as f:
-        for key, ch in f.channels().items():
-            parts = key.split(".")
-            name, comp = ".".join(parts[1:-1]), parts[-1]
-            out.setdefault(name, {})[comp] = np.asarray(ch.pixels, np.float32)
+        for part in f.parts:  # one part (Blender 4.x) or one per pass (5.x)
+            for key, ch in part.channels.items():
+                parts = key.split(".")
+                name, comp = ".".join(parts[1:-1]), parts[-1]
+                out.setdefault(name, {})[comp] = np.asarray(ch.pixels, np.float32)
     order = {"Combined": "RGBA", "Normal": "XYZ", "Albedo": "RGB"}
     res = {}
     for name, comps in out.items():
@@ -95,6 +96,8 @@ def driver(out_dir: str, zip_path: str) -> None:
         from bl_ui.properties_data_light import DATA_PT_light
 
         report["light_panel_compat"] = "HYBRID_SHADOWS" in DATA_PT_light.COMPAT_ENGINES
+        if hasattr(scene.render.image_settings, "media_type"):  # Blender 5.0+
+            scene.render.image_settings.media_type = "MULTI_LAYER_IMAGE"
         scene.render.image_settings.file_format = "OPEN_EXR_MULTILAYER"
         scene.render.image_settings.color_depth = "32"
         for mode in MODES:

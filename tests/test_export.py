@@ -126,7 +126,7 @@ def test_geometry_nodes_instances_share_one_model(scene, as_instance):
     assert s.triangle_count == 200 * 12
     np.testing.assert_allclose(np.sort(s.instances.matrices[:, :3, 3], axis=0), np.sort(points + (1, 2, 3), axis=0),
                                atol=1e-4)
-    ref = {tuple(np.round(np.array(i.matrix_world)[:3, 3], 3))
+    ref = {tuple(np.round(np.array(i.matrix_world, np.float64)[:3, 3], 3))
            for i in bpy.context.evaluated_depsgraph_get().object_instances if i.is_instance}
     assert ref == {tuple(np.round(m[:3, 3], 3)) for m in s.instances.matrices}
 

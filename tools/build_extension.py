@@ -2,7 +2,8 @@
 
 The zip holds ``blender_manifest.toml`` and a root ``__init__.py`` beside ``hybrid_shadow_addon/``
 and ``shaders/`` (the repo's relative layout, so shaders are found the same way as in the repo),
-plus the moderngl and glcontext wheels of each platform, fetched with pip (cached in
+plus the moderngl and glcontext wheels of each platform and Python version (cp311 for Blender
+4.2-5.0, cp313 for 5.1 and later), fetched with pip (cached in
 ``build/wheels``). Tests, test scenes and the numpy oracles (``core/oracle``) stay out. Each zip is validated with the
 ``blender_ext.py`` that ships inside bpy.
 
@@ -28,9 +29,11 @@ PLATFORMS = {
                    "manylinux_2_5_x86_64", "manylinux1_x86_64"), {}),
     "windows-x64": (("win_amd64",), {}),
     "macos-arm64": (("macosx_11_0_arm64",), {}),
-    "macos-x64": (("macosx_10_9_x86_64",), {"moderngl": "5.12.0", "glcontext": "3.0.0"}),
+    "macos-x64": (("macosx_10_9_x86_64", "macosx_10_13_x86_64"), {"moderngl": "5.12.0", "glcontext": "3.0.0"}),
 }
 WHEEL_PACKAGES = ("moderngl", "glcontext")
+#: Python versions of the Blender releases the extension supports: 4.2 LTS - 5.0 (3.11), 5.1+ (3.13)
+PYTHON_VERSIONS = ("3.11", "3.13")
 ROOT_INIT = '''"""Hybrid Shadows extension entry point."""
 from .hybrid_shadow_addon import register, unregister  # noqa: F401
 '''
@@ -57,23 +60,28 @@ def blender_ext_cli() -> Path:
 
 
 def fetch_wheels(platform: str, offline: bool) -> list:
+    """The moderngl and glcontext wheels of ``platform`` for every Python version Blender ships
+    (:data:`PYTHON_VERSIONS`); Blender installs the ones that match its own Python."""
     tags, overrides = PLATFORMS[platform]
     versions = {**pinned_versions(), **overrides}
     dest = BUILD / "wheels" / platform
     dest.mkdir(parents=True, exist_ok=True)
     wheels = []
-    for pkg, ver in versions.items():
-        have = sorted(dest.glob(f"{pkg}-{ver}-*.whl"))
-        if not have:
-            if offline:
-                sys.exit(f"build_extension: {pkg}=={ver} for {platform} is not in {dest} (run without --offline)")
-            subprocess.run([sys.executable, "-m", "pip", "download", "-q", "--disable-pip-version-check",
-                            "--no-deps", "--only-binary=:all:", "--python-version", "3.11",
-                            "--implementation", "cp", *[a for t in tags for a in ("--platform", t)],
-                            "-d", str(dest), f"{pkg}=={ver}"],
-                           check=True, stderr=subprocess.DEVNULL)
-            have = sorted(dest.glob(f"{pkg}-{ver}-*.whl"))
-        wheels.append(have[0])
+    for py in PYTHON_VERSIONS:
+        cp = "cp" + py.replace(".", "")
+        for pkg, ver in versions.items():
+            have = sorted(dest.glob(f"{pkg}-{ver}-{cp}-*.whl"))
+            if not have:
+                if offline:
+                    sys.exit(f"build_extension: {pkg}=={ver} ({cp}) for {platform} is not in {dest} "
+                             "(run without --offline)")
+                subprocess.run([sys.executable, "-m", "pip", "download", "-q", "--disable-pip-version-check",
+                                "--no-deps", "--only-binary=:all:", "--python-version", py,
+                                "--implementation", "cp", *[a for t in tags for a in ("--platform", t)],
+                                "-d", str(dest), f"{pkg}=={ver}"],
+                               check=True, stderr=subprocess.DEVNULL)
+                have = sorted(dest.glob(f"{pkg}-{ver}-{cp}-*.whl"))
+            wheels.append(have[0])
     return wheels
 
 

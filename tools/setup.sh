@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Sets up everything `make demo` and `make test` need, on a fresh Debian/Ubuntu machine:
-# python3.11, the Mesa EGL libraries and a .venv with the pinned requirements.
+# python3.11, the Mesa EGL libraries, Node.js (a test of the Flamenco job type), a .venv with the
+# pinned requirements (bpy 4.5 LTS) and, where python3.13 is found, .venv-bpy5 (bpy 5.x).
 # A second run only checks (a few hundred milliseconds): nothing is reinstalled.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -43,27 +44,61 @@ if [ ${#missing[@]} -gt 0 ]; then
     apt_install libegl1 libgl1-mesa-dri libgl1
 fi
 
-# 3. the virtual environment with the pinned requirements
-stamp=.venv/.requirements.sha256
-want=$(sha256sum requirements.txt | cut -d' ' -f1)
-if [ -x .venv/bin/python ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
-    exit 0
-fi
-if [ ! -x .venv/bin/python ]; then
-    echo "setup: creating .venv with $PY"
-    if ! "$PY" -m venv .venv 2>/dev/null; then
-        rm -rf .venv
-        if as_root && command -v apt-get >/dev/null; then
-            apt_install python3.11-venv
-            "$PY" -m venv .venv
-        else
-            die "'$PY -m venv' failed; run: sudo apt-get install -y python3.11-venv"
-        fi
+# 3. Node.js (tests/test_flamenco.py evaluates the Flamenco job type with it; optional: without
+#    it and without root, that test is skipped)
+if ! command -v node >/dev/null && ! command -v nodejs >/dev/null; then
+    if as_root && command -v apt-get >/dev/null; then
+        apt_install nodejs
+    else
+        echo "setup: Node.js not found (tests/test_flamenco.py will be skipped); run: sudo apt-get install -y nodejs" >&2
     fi
 fi
-echo "setup: installing requirements.txt into .venv (bpy is a ~370 MB download the first time)"
+
+# 4. the virtual environments with the pinned requirements: .venv (bpy 4.5 LTS, CPython 3.11)
+#    and .venv-bpy5 (bpy 5.x, CPython 3.13: a second run of the export, pipeline and add-on tests)
 quiet() { "$@" 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2); }  # (local mirror noise)
-quiet .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip >/dev/null
-quiet .venv/bin/python -m pip install -q --disable-pip-version-check -r requirements.txt
-echo "$want" > "$stamp"
-echo "setup: done"
+make_venv() {  # make_venv DIR PYTHON REQUIREMENTS
+    local dir=$1 py=$2 reqs=$3 stamp="$1/.requirements.sha256" want
+    want=$(sha256sum "$reqs" | cut -d' ' -f1)
+    if [ -x "$dir/bin/python" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
+        return 0
+    fi
+    if [ ! -x "$dir/bin/python" ]; then
+        echo "setup: creating $dir with $py"
+        if ! "$py" -m venv "$dir" 2>/dev/null; then
+            rm -rf "$dir"
+            local pkg
+            pkg="$(basename "$py")-venv"
+            if as_root && command -v apt-get >/dev/null; then
+                apt_install "$pkg"
+                "$py" -m venv "$dir"
+            else
+                die "'$py -m venv' failed; run: sudo apt-get install -y $pkg"
+            fi
+        fi
+    fi
+    echo "setup: installing $reqs into $dir (bpy is a ~400 MB download the first time)"
+    quiet "$dir/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip >/dev/null
+    quiet "$dir/bin/python" -m pip install -q --disable-pip-version-check -r "$reqs"
+    echo "$want" > "$stamp"
+    echo "setup: $dir done"
+}
+make_venv .venv "$PY" requirements.txt
+
+PY313=""
+for cand in "${PYTHON313:-}" python3.13 "${PYENV_ROOT:-$HOME/.pyenv}"/versions/3.13*/bin/python3.13; do
+    [ -n "$cand" ] || continue
+    if command -v "$cand" >/dev/null && "$cand" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 13))' 2>/dev/null; then
+        PY313=$(command -v "$cand"); break
+    fi
+done
+if [ -z "$PY313" ] && as_root && command -v apt-get >/dev/null && apt-cache show python3.13 >/dev/null 2>&1; then
+    apt_install python3.13 python3.13-venv
+    PY313=$(command -v python3.13)
+fi
+if [ -n "$PY313" ]; then
+    make_venv .venv-bpy5 "$PY313" requirements-bpy5.txt
+else
+    rm -f .venv-bpy5/.requirements.sha256
+    echo "setup: python3.13 not found: the bpy 5 tests are skipped (install python3.13, or set PYTHON313=/path/to/python3.13)" >&2
+fi
