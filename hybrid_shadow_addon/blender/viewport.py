@@ -111,7 +111,11 @@ class ViewportSync:
         if self.scene is None:
             plan.need_full("first update")
             return plan
-        for u in depsgraph.updates:
+        updates = list(depsgraph.updates)
+        # the node tree embedded in a light or world (Blender 5 updates it with its owner) is
+        # part of that light or world, not a material
+        owners = any(isinstance(u.id, (*_LIGHT_TYPES, bpy.types.World)) for u in updates)
+        for u in updates:
             idb = u.id
             if isinstance(idb, bpy.types.Object):
                 self._classify_object(u, idb, plan)
@@ -120,7 +124,8 @@ class ViewportSync:
             elif isinstance(idb, bpy.types.World):
                 plan.world = True
             elif isinstance(idb, _SHADING_TYPES):
-                plan.shading = True
+                if not (owners and isinstance(idb, bpy.types.ShaderNodeTree) and idb.is_embedded_data):
+                    plan.shading = True
             elif isinstance(idb, bpy.types.Collection):
                 if u.is_updated_transform or u.is_updated_geometry:
                     plan.need_full(f"collection '{idb.name}' changed")
