@@ -44,18 +44,14 @@ void main() {
     if (u_first_batch == 1) {
         c = albedo * u_world_color;
         for (int r = u_unmasked_begin; r < u_unmasked_end; ++r) {
-            vec3 l;
-            vec3 e = light_incident(r, p, l);
-            c += e * brdf_cos(n, l, v, albedo, mat.x, mat.y, u_specular);
+            c += light_contribution(r, p, n, v, albedo, mat.x, mat.y, u_specular);
         }
     }
     for (int k = 0; k < MAX_MASKS; ++k) {
         if (k >= u_masked_count) break;
         float m = mask_at(k, pix);
         if (m <= 0.0) continue;
-        vec3 l;
-        vec3 e = light_incident(u_masked_rows[k], p, l);
-        c += m * e * brdf_cos(n, l, v, albedo, mat.x, mat.y, u_specular);
+        c += m * light_contribution(u_masked_rows[k], p, n, v, albedo, mat.x, mat.y, u_specular);
     }
     o_color = vec4(c, u_first_batch == 1 ? 1.0 : 0.0);
 }

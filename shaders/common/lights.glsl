@@ -1,15 +1,23 @@
-// Blender lights, evaluated like Cycles/EEVEE for a delta light (units: core/gpu/lights.py; numpy mirror: core/oracle/lighting.py).
-// Light table: an RGBA32F texture, 4 texels per light (row r at x = 4r .. 4r+3):
+// Blender lights, evaluated as Cycles/EEVEE emit them (units: core/gpu/lights.py; numpy mirror:
+// core/oracle/lighting.py).
+// Light table: an RGBA32F texture, HS_LIGHT_TEXELS texels per light (row r at x = 5r .. 5r+4):
 //   t0: world position xyz, type (0 sun, 1 point, 2 spot, 3 area)
 //   t1: direction the light shines towards (unit), cos(spot_size / 2)
 //   t2: radiometric colour: sun irradiance S*colour (W/m^2); point/spot intensity
-//       P/(4 pi)*colour (W/sr); area (as a one-sided Lambertian point) P/pi*colour on its axis
-//   t3: spot_blend, 0, 0, 0
+//       P/(4 pi)*colour (W/sr); area radiance P/(pi A)*colour (W/m^2/sr), or for a zero-size
+//       area light its on-axis intensity P/pi*colour
+//   t3: spot_blend, area half height, area shape (0 rectangle, 1 ellipse), 0
+//   t4: area light's unit x axis, half width (0: a zero-size area light, a Lambertian point)
 #define LIGHT_SUN 0
 #define LIGHT_POINT 1
 #define LIGHT_SPOT 2
 #define LIGHT_AREA 3
+#define HS_LIGHT_TEXELS 5
+#define HS_PI 3.14159265358979
+#define HS_ELLIPSE_SIDES 24
 uniform sampler2D u_lights;
+
+vec4 light_texel(int row, int k) { return texelFetch(u_lights, ivec2(HS_LIGHT_TEXELS * row + k, 0), 0); }
 
 float smoothstep01(float x) {
     x = clamp(x, 0.0, 1.0);
@@ -17,11 +25,11 @@ float smoothstep01(float x) {
 }
 
 // Irradiance arriving at p from light `row` on a plane facing the light (before the cosine),
-// and the unit direction towards the light.
+// and the unit direction towards the light (an area light: its far field from its centre).
 vec3 light_incident(int row, vec3 p, out vec3 l) {
-    vec4 t0 = texelFetch(u_lights, ivec2(4 * row + 0, 0), 0);
-    vec4 t1 = texelFetch(u_lights, ivec2(4 * row + 1, 0), 0);
-    vec4 t2 = texelFetch(u_lights, ivec2(4 * row + 2, 0), 0);
+    vec4 t0 = light_texel(row, 0);
+    vec4 t1 = light_texel(row, 1);
+    vec4 t2 = light_texel(row, 2);
     int type = int(t0.w + 0.5);
     if (type == LIGHT_SUN) {
         l = -t1.xyz;
@@ -33,7 +41,7 @@ vec3 light_incident(int row, vec3 p, out vec3 l) {
     float k = 1.0 / r2;
     float t = dot(-l, t1.xyz);     // cosine between the light's axis and the light->point direction
     if (type == LIGHT_SPOT) {
-        float blend = texelFetch(u_lights, ivec2(4 * row + 3, 0), 0).x;
+        float blend = light_texel(row, 3).x;
         float ch = t1.w;
         float s = (blend > 0.0) ? smoothstep01((t - ch) / ((1.0 - ch) * blend)) : (t > ch ? 1.0 : 0.0);
         k *= s;
@@ -43,17 +51,122 @@ vec3 light_incident(int row, vec3 p, out vec3 l) {
     return t2.rgb * k;
 }
 
-// Lambert + normalised Blinn-Phong (F0 = 0.08 * specular, exponent from roughness).
+// Lambert + normalised Blinn-Phong (F0 = 0.08 * specular, exponent from roughness); the
+// diffuse and specular parts of BRDF * cos apart.
+vec3 specular_cos(vec3 n, vec3 l, vec3 v, float specular, float roughness) {
+    float c = dot(n, l);
+    if (c <= 0.0) return vec3(0.0);
+    float a = max(roughness * roughness, 0.03);
+    float s = clamp(2.0 / (a * a) - 2.0, 1.0, 2048.0);
+    vec3 h = normalize(l + v);
+    float nh = max(dot(n, h), 0.0);
+    return vec3(0.08 * specular * (s + 8.0) / (8.0 * HS_PI) * pow(nh, s) * c);
+}
+
 vec3 brdf_cos(vec3 n, vec3 l, vec3 v, vec3 albedo, float specular, float roughness, int use_specular) {
     float c = dot(n, l);
     if (c <= 0.0) return vec3(0.0);
-    vec3 f = albedo * (1.0 / 3.14159265358979);
-    if (use_specular == 1) {
-        float a = max(roughness * roughness, 0.03);
-        float s = clamp(2.0 / (a * a) - 2.0, 1.0, 2048.0);
-        vec3 h = normalize(l + v);
-        float nh = max(dot(n, h), 0.0);
-        f += vec3(0.08 * specular * (s + 8.0) / (8.0 * 3.14159265358979) * pow(nh, s));
+    vec3 f = albedo * (c / HS_PI);
+    if (use_specular == 1) f += specular_cos(n, l, v, specular, roughness);
+    return f;
+}
+
+// Irradiance at p (normal n) from a uniformly emitting polygon of unit radiance, the polygon
+// clipped to p's upper hemisphere (Lambert's formula: E = 1/2 sum over edges of the angle
+// subtended times the cosine of the edge plane's normal with n).
+float polygon_irradiance(vec3 verts[HS_ELLIPSE_SIDES], int count, vec3 p, vec3 n) {
+    float sum = 0.0;
+    vec3 prev = verts[count - 1] - p;
+    float hp = dot(prev, n);
+    vec3 first_in = vec3(0.0);
+    // Sutherland-Hodgman against the plane dot(x, n) = 0, integrating each kept edge at once
+    vec3 last = vec3(0.0);
+    bool have_last = false;
+    for (int i = 0; i < HS_ELLIPSE_SIDES; ++i) {
+        if (i >= count) break;
+        vec3 cur = verts[i] - p;
+        float hc = dot(cur, n);
+        vec3 outv[2];
+        int k = 0;
+        if (hc > 0.0) {
+            if (hp <= 0.0) outv[k++] = prev + (cur - prev) * (hp / (hp - hc));
+            outv[k++] = cur;
+        } else if (hp > 0.0) {
+            outv[k++] = prev + (cur - prev) * (hp / (hp - hc));
+        }
+        for (int j = 0; j < 2; ++j) {
+            if (j >= k) break;
+            vec3 u = normalize(outv[j]);
+            if (have_last) {
+                vec3 g = cross(last, u);
+                float lg = length(g);
+                if (lg > 0.0) sum += atan(lg, dot(last, u)) * dot(n, g) / lg;
+            } else {
+                first_in = u;
+            }
+            last = u;
+            have_last = true;
+        }
+        prev = cur;
+        hp = hc;
     }
-    return f * c;
+    if (have_last) {
+        vec3 g = cross(last, first_in);
+        float lg = length(g);
+        if (lg > 0.0) sum += atan(lg, dot(last, first_in)) * dot(n, g) / lg;
+    }
+    return 0.5 * abs(sum);
+}
+
+// Irradiance at p (normal n) from area light `row` (rectangle or equal-area 24-gon ellipse), 0
+// behind its emitting side.
+vec3 area_irradiance(int row, vec3 p, vec3 n) {
+    vec4 t0 = light_texel(row, 0);
+    vec4 t1 = light_texel(row, 1);
+    vec4 t3 = light_texel(row, 3);
+    vec4 t4 = light_texel(row, 4);
+    vec3 c = t0.xyz;
+    vec3 axis = t1.xyz;
+    if (dot(p - c, axis) <= 0.0) return vec3(0.0);
+    vec3 ex = t4.xyz * t4.w;
+    vec3 ey = normalize(cross(axis, t4.xyz)) * t3.y;
+    vec3 verts[HS_ELLIPSE_SIDES];
+    int count;
+    if (t3.z < 0.5) {
+        verts[0] = c - ex - ey; verts[1] = c + ex - ey; verts[2] = c + ex + ey; verts[3] = c - ex + ey;
+        count = 4;
+    } else {
+        // equal area: an inscribed N-gon of radius k covers (N/2) sin(2 pi/N) k^2 = pi
+        const float k = 1.00574;   // sqrt(2 pi / (N sin(2 pi / N))), N = 24
+        for (int i = 0; i < HS_ELLIPSE_SIDES; ++i) {
+            float a = 2.0 * HS_PI * float(i) / float(HS_ELLIPSE_SIDES);
+            verts[i] = c + k * (cos(a) * ex + sin(a) * ey);
+        }
+        count = HS_ELLIPSE_SIDES;
+    }
+    return light_texel(row, 2).rgb * polygon_irradiance(verts, count, p, n);
+}
+
+// Outgoing radiance at p from light `row`, before its shadow mask.
+vec3 light_contribution(int row, vec3 p, vec3 n, vec3 v, vec3 albedo, float specular, float roughness,
+                        int use_specular) {
+    int type = int(light_texel(row, 0).w + 0.5);
+    if (type == LIGHT_AREA && light_texel(row, 4).w > 0.0) {
+        // diffuse: the exact irradiance of the polygon; specular: its far field from the centre
+        vec3 c = albedo * (1.0 / HS_PI) * area_irradiance(row, p, n);
+        if (use_specular == 1) {
+            vec3 l;
+            vec3 d = light_texel(row, 0).xyz - p;
+            float r2 = max(dot(d, d), 1e-12);
+            l = d * inversesqrt(r2);
+            vec4 t3 = light_texel(row, 3);
+            float area = 4.0 * light_texel(row, 4).w * t3.y * (t3.z < 0.5 ? 1.0 : HS_PI / 4.0);
+            float t = max(dot(-l, light_texel(row, 1).xyz), 0.0);
+            c += light_texel(row, 2).rgb * (area * t / r2) * specular_cos(n, l, v, specular, roughness);
+        }
+        return c;
+    }
+    vec3 l;
+    vec3 e = light_incident(row, p, l);
+    return e * brdf_cos(n, l, v, albedo, specular, roughness, use_specular);
 }

@@ -4,8 +4,9 @@ pass (``shaders/common/lights.glsl``) and the ray pass's light uniforms.
 Units as Cycles/EEVEE use them (delta lights, no soft size): a sun of strength S gives
 irradiance S * colour on a surface facing it; a point of power P (W) radiant intensity
 P / (4 pi) * colour, inverse-square falloff; a spot the intensity of a point of equal power times
-Blender's cone mask; an area light (a point for now) a one-sided Lambertian emitter of power P,
-intensity P / pi * colour * max(cos, 0) around its -Z axis.
+Blender's cone mask; an area light (rectangle or ellipse, scaled by its object) a one-sided
+Lambertian emitter of power P and area A: radiance P / (pi A) * colour towards its -Z side, whose
+irradiance is integrated over the light's polygon clipped to the receiver's horizon.
 """
 from __future__ import annotations
 
@@ -14,17 +15,44 @@ import math
 import numpy as np
 
 LIGHT_CODES = {"SUN": 0, "POINT": 1, "SPOT": 2, "AREA": 3}
+AREA_SHAPES = {"SQUARE": 0, "RECTANGLE": 0, "DISK": 1, "ELLIPSE": 1}  # 0 rectangle, 1 ellipse
+LIGHT_TEXELS = 5  # RGBA32F texels per light in the light table (``shaders/common/lights.glsl``)
+
+
+def area_extent(light) -> tuple:
+    """``(x axis, half width, half height)`` of an area light in world units: Blender's
+    ``size``/``size_y`` scaled by the light object's X and Y axes (unit x axis, float64)."""
+    x = np.asarray(light.matrix[:3, 0], np.float64)
+    y = np.asarray(light.matrix[:3, 1], np.float64)
+    sx, sy = float(np.linalg.norm(x)), float(np.linalg.norm(y))
+    size_y = light.size_y if light.area_shape in ("RECTANGLE", "ELLIPSE") else light.size
+    ux = x / sx if sx > 0 else np.array([1.0, 0.0, 0.0])
+    return ux, 0.5 * float(light.size) * sx, 0.5 * float(size_y) * sy
+
+
+def area_of(light) -> float:
+    """Emitting area (m^2) of an area light."""
+    _, hx, hy = area_extent(light)
+    return 4.0 * hx * hy * (math.pi / 4 if AREA_SHAPES.get(light.area_shape, 0) == 1 else 1.0)
 
 
 def light_table(lights) -> np.ndarray:
-    """(N, 4, 4) float64 rows as ``shaders/common/lights.glsl`` reads them."""
-    out = np.zeros((len(lights), 4, 4))
+    """(N, LIGHT_TEXELS, 4) float64 rows as ``shaders/common/lights.glsl`` reads them."""
+    out = np.zeros((len(lights), LIGHT_TEXELS, 4))
     for i, light in enumerate(lights):
         color = np.asarray(light.color, np.float64)
         if light.type == "SUN":
             rad = light.power * color
         elif light.type == "AREA":
-            rad = light.power / math.pi * color
+            area = area_of(light)
+            # radiance of a one-sided Lambertian emitter of power P and area A: P / (pi A);
+            # a zero-size area light keeps its far field, intensity P / pi on its axis
+            rad = light.power / (math.pi * area) * color if area > 0 else light.power / math.pi * color
+            ux, hx, hy = area_extent(light)
+            out[i, 3, 1] = hy if area > 0 else 0.0
+            out[i, 3, 2] = AREA_SHAPES.get(light.area_shape, 0)
+            out[i, 4, :3] = ux
+            out[i, 4, 3] = hx if area > 0 else 0.0
         else:
             rad = light.power / (4 * math.pi) * color
         out[i, 0, :3] = light.position

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from ..gpu.lights import light_table
+from ..gpu.lights import area_of, light_table
 
 
 def _smoothstep01(x):
@@ -22,8 +22,9 @@ def _smoothstep01(x):
 
 
 def light_incident(row: np.ndarray, p: np.ndarray):
-    """Irradiance (..., 3) on a surface facing the light and unit directions to it (..., 3)."""
-    t0, t1, t2, t3 = row
+    """Irradiance (..., 3) on a surface facing the light and unit directions to it (..., 3)
+    (an area light: its far field from its centre)."""
+    t0, t1, t2, t3 = row[:4]
     code = int(round(t0[3]))
     if code == 0:
         l = np.broadcast_to(-t1[:3], p.shape)
@@ -39,6 +40,38 @@ def light_incident(row: np.ndarray, p: np.ndarray):
     elif code == 3:
         k = k * np.maximum(t, 0.0)
     return t2[:3] * k[..., None], l
+
+
+def area_irradiance(row: np.ndarray, p: np.ndarray, n: np.ndarray, order: int = 16) -> np.ndarray:
+    """Irradiance (..., 3) at points ``p`` (normals ``n``) from the area light of table ``row``,
+    by Gauss-Legendre quadrature over its surface (``order`` nodes per axis; an ellipse in polar
+    coordinates): the integral of L cos(receiver)+ cos(emitter)+ / d^2 over the light."""
+    t0, t1, t2, t3, t4 = row
+    c, axis, ux, hx, hy = t0[:3], t1[:3], t4[:3], t4[3], t3[1]
+    uy = np.cross(axis, ux)
+    uy = uy / np.linalg.norm(uy)
+    g, w = np.polynomial.legendre.leggauss(order)
+    if t3[2] < 0.5:  # rectangle: [-1, 1]^2
+        a, b = np.meshgrid(g, g, indexing="ij")
+        wt = np.outer(w, w).ravel() * hx * hy
+    else:  # ellipse: radius (0, 1] by Gauss-Legendre, angle by 4 * order equal steps
+        r = (g + 1) / 2
+        phi = (np.arange(4 * order) + 0.5) / (4 * order) * 2 * np.pi
+        rr, pp = np.meshgrid(r, phi, indexing="ij")
+        a, b = rr * np.cos(pp), rr * np.sin(pp)
+        wt = (np.outer(w / 2 * r, np.full(len(phi), 2 * np.pi / len(phi)))).ravel() * hx * hy
+    q = c + (a.ravel() * hx)[:, None] * ux + (b.ravel() * hy)[:, None] * uy  # (S, 3)
+    flat_p = p.reshape(-1, 3)
+    flat_n = n.reshape(-1, 3)
+    out = np.zeros(len(flat_p))
+    for s0 in range(0, len(flat_p), 8192):
+        pp_, nn = flat_p[s0:s0 + 8192], flat_n[s0:s0 + 8192]
+        d = q[None] - pp_[:, None]  # (P, S, 3) from the receiver to the light
+        r2 = np.maximum((d * d).sum(-1), 1e-12)
+        cos_r = np.maximum((d * nn[:, None]).sum(-1), 0.0) / np.sqrt(r2)
+        cos_l = np.maximum(-(d @ axis), 0.0) / np.sqrt(r2)
+        out[s0:s0 + 8192] = (cos_r * cos_l / r2) @ wt
+    return t2[:3] * out.reshape(p.shape[:-1])[..., None]
 
 
 def brdf_cos(n, l, v, albedo, specular, roughness, use_specular=True):
@@ -80,7 +113,13 @@ def shade(scene, gbuffer: dict, masks: dict | None = None, use_specular: bool = 
     masks = masks or {}
     for i in range(len(scene.lights)):
         e, l = light_incident(table[i], p)
-        contrib = e * brdf_cos(n, l, v, albedo, mat[..., 0], mat[..., 1], use_specular)
+        if int(round(table[i][0][3])) == 3 and table[i][4][3] > 0:  # an area light with a size
+            contrib = albedo / math.pi * area_irradiance(table[i], p, n)
+            if use_specular:
+                contrib = contrib + e * area_of(scene.lights[i]) * (
+                    brdf_cos(n, l, v, np.zeros_like(albedo), mat[..., 0], mat[..., 1], True))
+        else:
+            contrib = e * brdf_cos(n, l, v, albedo, mat[..., 0], mat[..., 1], use_specular)
         if i in masks:
             m = np.nan_to_num(np.asarray(masks[i], np.float64), nan=1.0)
             contrib = contrib * m[..., None]

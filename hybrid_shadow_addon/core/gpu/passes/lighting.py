@@ -2,14 +2,14 @@
 
 The lighting model (units in :mod:`..lights`, BRDF in ``shaders/common/lights.glsl``) has a
 numpy mirror in ``core/oracle/lighting.py``. Lights with a mask are multiplied by it; the others
-are unshadowed. The light table is a texture (4 RGBA32F texels per light).
+are unshadowed. The light table is a texture (``LIGHT_TEXELS`` RGBA32F texels per light).
 """
 from __future__ import annotations
 
 import moderngl
 import numpy as np
 
-from ..lights import light_table
+from ..lights import LIGHT_TEXELS, light_table
 from ..targets import TargetCache, set_uniforms
 from .base import Pass
 
@@ -32,9 +32,9 @@ class LightingPass(Pass):
 
     def _light_texture(self, table: np.ndarray):
         n = max(len(table), 1)
-        data = np.zeros((n, 4, 4), np.float32)
+        data = np.zeros((n, LIGHT_TEXELS, 4), np.float32)
         data[:len(table)] = table
-        tex = self._lights.texture("lights", 4 * n, 1)
+        tex = self._lights.texture("lights", LIGHT_TEXELS * n, 1)
         tex.write(data.tobytes())
         return tex
 
@@ -45,7 +45,7 @@ class LightingPass(Pass):
         unmasked = [i for i in range(len(scene.lights)) if i not in masks]
         masked = sorted(masks)
         order = unmasked + masked
-        table = light_table([scene.lights[i] for i in order]) if order else np.zeros((0, 4, 4))
+        table = light_table([scene.lights[i] for i in order]) if order else np.zeros((0, LIGHT_TEXELS, 4))
         lights_tex = self._light_texture(table)
         out = self._out.get("image", *gbuffer.size)
         out.use(ctx)
