@@ -85,7 +85,9 @@ def test_property_structured_equals_brute(seed, n, base, spheres, axis):
     s = baked.layout.node_sizes[0]
     k = rng.random(len(o)) < 0.3
     o[k, :2] = baked.layout.origin + np.round((o[k, :2] - baked.layout.origin) / s) * s
-    assert (trace_structured(baked, o, d, t) == trace_brute(scene, o, d, t)).all()
+    brute = trace_brute(scene, o, d, t)
+    assert (trace_structured(baked, o, d, t) == brute).all()
+    assert (trace_structured(bake_scene(scene, BakeConfig(structure="bvh")), o, d, t) == brute).all()
 
 
 @settings(max_examples=40, deadline=None)
@@ -99,7 +101,9 @@ def test_property_single_rays(ox, oy, oz, dx, dy, dz):
     if not d.any():
         d[0, 2] = 1.0
     for t in (np.inf, 2.0):
-        assert (trace_structured(_fixed_baked(), o, d, t) == trace_brute(scene, o, d, t)).all()
+        brute = trace_brute(scene, o, d, t)
+        assert (trace_structured(_fixed_baked(), o, d, t) == brute).all()
+        assert (trace_structured(_fixed_baked("bvh"), o, d, t) == brute).all()
 
 
 _CACHE = {}
@@ -113,7 +117,7 @@ def _fixed_scene():
     return _CACHE["s"]
 
 
-def _fixed_baked():
-    if "b" not in _CACHE:
-        _CACHE["b"] = bake_scene(_fixed_scene(), BakeConfig(base_node_size=1.0))
-    return _CACHE["b"]
+def _fixed_baked(structure="grid"):
+    if structure not in _CACHE:
+        _CACHE[structure] = bake_scene(_fixed_scene(), BakeConfig(base_node_size=1.0, structure=structure))
+    return _CACHE[structure]

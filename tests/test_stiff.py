@@ -189,8 +189,9 @@ def test_no_slip_through_shared_edges_numpy(seed, kind, far):
     o, d, t, ts = edge_and_vertex_rays(model, M, rng, 400)
     assert (ts < 0.9).all()
     scene = scene_of(model, M)
-    baked = bake_scene(scene)
-    assert trace_structured(baked, o, d, t).all()
+    for structure in ("grid", "bvh"):
+        baked = bake_scene(scene, BakeConfig(structure=structure))
+        assert trace_structured(baked, o, d, t).all(), structure
     assert trace_brute(scene, o, d, t).all()
 
 
@@ -227,8 +228,9 @@ def test_axis_rays_through_shared_edges_numpy(seed, kind):
         return
     o, d, t = np.array(o), np.array(d), np.array(t)
     scene = scene_of(model, M)
-    baked = bake_scene(scene)
-    assert trace_structured(baked, o, d, t).all()
+    for structure in ("grid", "bvh"):
+        baked = bake_scene(scene, BakeConfig(structure=structure))
+        assert trace_structured(baked, o, d, t).all(), structure
     assert trace_brute(scene, o, d, t).all()
 
 
@@ -286,9 +288,10 @@ def test_no_slip_through_shared_edges_glsl(gl_ctx, glsl):
             model = closed_mesh(kind)
             M = random_affine(rng, far)
             o, d, t, _ = edge_and_vertex_rays(model, M, rng, 3000)
-            baked = bake_scene(scene_of(model, M))
-            hit = glsl.gl_trace(gl_ctx, baked, o.astype(np.float32), d.astype(np.float32), t)
-            assert hit.all(), (kind, far, int((~hit).sum()))
+            for structure in ("grid", "bvh"):
+                baked = bake_scene(scene_of(model, M), BakeConfig(structure=structure))
+                hit = glsl.gl_trace(gl_ctx, baked, o.astype(np.float32), d.astype(np.float32), t)
+                assert hit.all(), (structure, kind, far, int((~hit).sum()))
 
 
 def test_axis_and_border_rays_glsl(gl_ctx, glsl):

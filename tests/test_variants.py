@@ -147,3 +147,26 @@ def test_lighting_shader_has_no_per_type_defines():
     src = (Path(__file__).resolve().parents[1] / "shaders" / "lighting.glsl").read_text()
     src += (Path(__file__).resolve().parents[1] / "shaders" / "common" / "lights.glsl").read_text()
     assert "#ifdef HS_LIGHT" not in src and "#if defined(HS_LIGHT" not in src
+
+
+# ---- structure "bvh": the two-level walk and nothing of the grid -------------------------------
+@pytest.mark.parametrize("meshes,spheres", [(True, False), (False, True), (True, True)])
+def test_bvh_structure_compiles_only_what_the_scene_has(gl_ctx, meshes, spheres):
+    scene = make_scene(meshes=meshes, spheres=spheres)
+    d, u, masks = trace(gl_ctx, scene, structure="bvh")
+    assert "HS_STRUCTURE_BVH" in d and "HS_GRID_LEVELS" not in d
+    assert ("HS_HAS_MESHES" in d) == meshes and ("HS_HAS_SPHERES" in d) == spheres
+    assert "hs_node_tex" in u and "hs_leaf_tex" in u
+    assert not {"hs_grid_tex", "hs_bvh_tex", "hs_tri_tex", "hs_grid_origin"} & u  # no grid code
+    _, _, grid_masks = trace(gl_ctx, scene)
+    for a, b in zip(masks, grid_masks):
+        assert np.array_equal(np.isnan(a), np.isnan(b)) and (a[np.isfinite(a)] == b[np.isfinite(b)]).mean() > 0.999
+    assert (masks[0][np.isfinite(masks[0])] < 0.5).any()
+
+
+def test_bvh_leaf_size_define_follows_the_config():
+    from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+
+    for k in (1, 3):
+        d = bake_scene(make_scene(), BakeConfig(structure="bvh", bvh_leaf_size=k)).defines
+        assert d["HS_BVH_LEAF_SIZE"] == k

@@ -1,8 +1,11 @@
 /* scene_data.glsl -- the baked scene textures and the shadow-ray traversal that reads them.
  *
  * #version-less: the loader adds "#version 410 core" and the #defines of BakedScene.defines.
- * Packer: hybrid_shadow_addon/core/bake (baked.py, bvh.py, grid.py, update.py).
+ * Packer: hybrid_shadow_addon/core/bake (baked.py, bvh.py, grid.py, update.py; twolevel.py, sah.py).
  * Oracle:  hybrid_shadow_addon/core/oracle/tracer.py (trace_structured mirrors this file step by step).
+ * Two structures (BakeConfig.structure / Settings.structure): "grid" (textures [grid] .. [tri]
+ * below, the walk in this file) and "bvh" (textures [node], [leaf], HS_STRUCTURE_BVH defined, the
+ * walk in common/scene_bvh.glsl). Each bake holds the textures of its structure only.
  *
  * ============================== SCENE TEXTURE LAYOUT ======================================
  * Every texture is a 2D ARRAY texture, HS_TEX_WIDTH (= 2^HS_TEX_WIDTH_LOG2 <= 16384) wide.
@@ -58,7 +61,36 @@
  *         vertex + index textures cost one more dependent fetch per vertex in the innermost loop;
  *         here the "vertex texture" holds each triangle's three vertices directly.
  *
- * Uniforms (BakedScene.uniforms): hs_grid_origin (vec2, world x/y of the grid corner),
+ * ---- structure "bvh" (two-level BVH, #define HS_STRUCTURE_BVH) ----
+ * [node]  RGBA32UI "hs_node_tex", 1 texel per node: every model tree (BLAS), then the top-level
+ *         tree over the instances (TLAS, [hs_tlas_root, hs_tlas_end)), each in depth-first
+ *         pre-order (left child = node + 1). Boxes are 16-bit integers on the tree's grid,
+ *         floor / ceil of the exact box (never smaller): model trees on the model's grid
+ *         (p_q = (p_model - base) * inv_s, [leaf] frame), the top level on the scene's grid
+ *         (p_q = (p_bake - hs_tlas_base) * hs_tlas_inv_scale); inv_s is a power of two.
+ *     .x  qmin.x | qmin.y << 16      .y  qmin.z | qmax.x << 16      .z  qmax.y | qmax.z << 16
+ *     .w  inner node: escape (absolute index of the node after its subtree);
+ *         leaf: 0x80000000 | payload (a leaf's escape is node + 1). Top-level payload = instance
+ *         id; model-tree payload = (first [leaf] texel << 3) | triangle count (1..HS_BVH_LEAF_SIZE).
+ *     The walk widens each box per ray by e = 2^-20 |o_q|_1 (model trees) or 2^-18 (|o_q|_1 +
+ *     hs_tlas_babs) (top level), which covers the rounding of o_q; top-level leaf boxes are the
+ *     world box of the model box corners padded by 2^-18 (|box|_inf + extent) (float32 inverses).
+ * [leaf]  RGBA32UI "hs_leaf_tex": instance records first (5 texels, texel 5 * id + k), then
+ *         the model leaves' triangles; the shader reads max(5, ceil(9 HS_BVH_LEAF_SIZE / 4))
+ *         texels from any record start (the texture has that much padding at its end).
+ *     instance k=0..2  bits(row k of the inverse world matrix, bake space -> model space)
+ *              k=3     .x model tree root [node], .y its end, .z model id | 0x80000000 if an
+ *                      analytic sphere, .w 0
+ *              k=4     mesh: bits(model grid base xyz, inv_s); sphere: bits(model-space sphere
+ *                      centre xyz, radius rounded up)
+ *     triangles: a leaf's triangles back to back, 9 floats each (bits of v0, v1, v2 in model
+ *              space), ceil(9 count / 4) texels, read with static swizzles.
+ * Uniforms: hs_tlas_base (vec3), hs_tlas_inv_scale, hs_tlas_babs (|base * inv_scale|_1),
+ *   hs_tlas_root, hs_tlas_end. Defines: HS_STRUCTURE_BVH, HS_TEX_WIDTH(_LOG2), HS_TEX_ROWS_LOG2,
+ *   HS_BVH_LEAF_SIZE, HS_HAS_MESHES / HS_HAS_SPHERES when the top level holds such casters.
+ *
+ * ---- both structures ----
+ * Uniforms of "grid" (BakedScene.uniforms): hs_grid_origin (vec2, world x/y of the grid corner),
  *   hs_node_size[l] (base * 2^l), hs_level_dims[l] (ivec2), hs_level_offset[l],
  *   hs_level_count[l] (objects in level l; empty levels are skipped), hs_outside_node,
  *   hs_scene_max_height.
@@ -85,21 +117,6 @@
 #define HS_OBVH_EPS 1.52587890625e-05         // 2^-16: object-BVH box widening (>= pre-test's)
 #define HS_SPHERE_FLAG 0x80000000u
 
-uniform usampler2DArray hs_grid_tex;
-uniform usampler2DArray hs_grid_index_tex;
-uniform sampler2DArray hs_object_tex;
-uniform usampler2DArray hs_model_tex;
-uniform usampler2DArray hs_bvh_tex;
-uniform sampler2DArray hs_tri_tex;
-
-uniform vec2 hs_grid_origin;
-uniform float hs_node_size[HS_GRID_LEVELS];
-uniform ivec2 hs_level_dims[HS_GRID_LEVELS];
-uniform int hs_level_offset[HS_GRID_LEVELS];
-uniform int hs_level_count[HS_GRID_LEVELS];
-uniform int hs_outside_node;
-uniform float hs_scene_max_height;
-
 // ---------------------------------------------------------------- fetches (row wrapping) --
 ivec3 hs_texel(int i)
 {
@@ -107,15 +124,6 @@ ivec3 hs_texel(int i)
                  (i >> HS_TEX_WIDTH_LOG2) & ((1 << HS_TEX_ROWS_LOG2) - 1),
                  i >> (HS_TEX_WIDTH_LOG2 + HS_TEX_ROWS_LOG2));
 }
-
-uvec4 hs_fetch_grid(int node)        { return texelFetch(hs_grid_tex, hs_texel(node), 0); }
-uvec2 hs_fetch_index(int entry)      { return texelFetch(hs_grid_index_tex, hs_texel(entry), 0).xy; }
-vec4  hs_fetch_object(int obj, int k){ return texelFetch(hs_object_tex, hs_texel(4 * obj + k), 0); }
-uvec4 hs_fetch_model(int model, int k){ return texelFetch(hs_model_tex, hs_texel(2 * model + k), 0); }
-#if defined(HS_HAS_MESHES) || defined(HS_HAS_NODE_BVH)
-uvec4 hs_fetch_bvh(int node, int k)  { return texelFetch(hs_bvh_tex, hs_texel(2 * node + k), 0); }
-#endif
-vec3  hs_fetch_vertex(int tri, int k){ return texelFetch(hs_tri_tex, hs_texel(3 * tri + k), 0).xyz; }
 
 // ---------------------------------------------------------------- primitive tests ---------
 // Watertight ray/triangle (Woop, Benthin, Wald 2013). Set-up once per (ray, object).
@@ -209,6 +217,34 @@ bool hs_slab_hit(vec3 o, vec3 inv, vec3 bmin, vec3 bmax, float tmax)
     float tf = min(min(tf3.x, tf3.y), tf3.z) * HS_TFAR_SCALE;
     return max(tn, 0.0) <= min(tf, tmax);
 }
+
+#ifdef HS_STRUCTURE_BVH
+#include "common/scene_bvh.glsl"
+#else
+// ================================ hierarchical grid (structure "grid") ==================
+uniform usampler2DArray hs_grid_tex;
+uniform usampler2DArray hs_grid_index_tex;
+uniform sampler2DArray hs_object_tex;
+uniform usampler2DArray hs_model_tex;
+uniform usampler2DArray hs_bvh_tex;
+uniform sampler2DArray hs_tri_tex;
+
+uniform vec2 hs_grid_origin;
+uniform float hs_node_size[HS_GRID_LEVELS];
+uniform ivec2 hs_level_dims[HS_GRID_LEVELS];
+uniform int hs_level_offset[HS_GRID_LEVELS];
+uniform int hs_level_count[HS_GRID_LEVELS];
+uniform int hs_outside_node;
+uniform float hs_scene_max_height;
+
+uvec4 hs_fetch_grid(int node)        { return texelFetch(hs_grid_tex, hs_texel(node), 0); }
+uvec2 hs_fetch_index(int entry)      { return texelFetch(hs_grid_index_tex, hs_texel(entry), 0).xy; }
+vec4  hs_fetch_object(int obj, int k){ return texelFetch(hs_object_tex, hs_texel(4 * obj + k), 0); }
+uvec4 hs_fetch_model(int model, int k){ return texelFetch(hs_model_tex, hs_texel(2 * model + k), 0); }
+#if defined(HS_HAS_MESHES) || defined(HS_HAS_NODE_BVH)
+uvec4 hs_fetch_bvh(int node, int k)  { return texelFetch(hs_bvh_tex, hs_texel(2 * node + k), 0); }
+#endif
+vec3  hs_fetch_vertex(int tri, int k){ return texelFetch(hs_tri_tex, hs_texel(3 * tri + k), 0).xyz; }
 
 // ---------------------------------------------------------------- BVH ---------------------
 #ifdef HS_HAS_MESHES
@@ -397,5 +433,7 @@ bool hs_occluded(vec3 o, vec3 d, float tmax)
     }
     return false;
 }
+
+#endif // HS_STRUCTURE_BVH
 
 #endif // HS_SCENE_DATA_GLSL

@@ -1,9 +1,10 @@
-"""Scene -> GPU textures: hierarchical 2D grid, per-model BVHs, packed textures, incremental updates.
+"""Scene -> GPU textures: hierarchical 2D grid over per-model BVHs (``structure="grid"``) or a
+two-level BVH (``structure="bvh"``, twolevel.py), packed textures, incremental updates.
 
 Public API::
 
-    baked = bake_scene(scene, BakeConfig())          # BakedScene
-    baked.textures   # {'grid', 'grid_index', 'object', 'model', 'bvh', 'tri'} -> TextureData
+    baked = bake_scene(scene, BakeConfig())          # BakedScene (BakeConfig(structure="bvh"))
+    baked.textures   # grid: {'grid', 'grid_index', 'object', 'model', 'bvh', 'tri'}; bvh: {'node', 'leaf'}
     baked.defines    # #defines for shaders/common/scene_data.glsl
     baked.uniforms   # uniform values (grid origin, node sizes, dims, scene max height, ...)
     baked.samplers   # texture name -> sampler uniform name

@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 from . import grid as _grid
+from . import twolevel as _twolevel
 from . import update as _update
 from .bvh import build_bvhs, build_trees, morton_order_groups
 from .state import (TEXTURE_NAMES, BakeConfig, GridState, InstanceState, ModelState, TextureSet, UpdateReport,
@@ -57,12 +58,20 @@ class BakedScene:
         self.models: ModelState = ModelState.empty()
         self.instances: InstanceState = InstanceState.empty()
         self.grid: GridState = GridState.empty()
+        #: the two-level BVH (``structure == "bvh"``), else None
+        self.bvh: _twolevel.TwoLevelState | None = None
         self.stats: dict = {}
+
+    @property
+    def structure(self) -> str:
+        return self.config.structure
 
     # ------------------------------------------------------------------ public read-outs --
     @property
     def textures(self) -> dict[str, TextureData]:
         """Every texture by name, in upload order."""
+        if self.bvh is not None:
+            return self.bvh.textures()
         return self.tex.as_dict()
 
     @property
@@ -73,6 +82,14 @@ class BakedScene:
     def defines(self) -> dict:
         """``#define``s for scene_data.glsl. Flags are present only when true (``#ifdef``)."""
         w = self.config.tex_width
+        if self.bvh is not None:
+            d = {"HS_STRUCTURE_BVH": 1, "HS_TEX_WIDTH": int(w), "HS_TEX_WIDTH_LOG2": int(w).bit_length() - 1,
+                 "HS_TEX_ROWS_LOG2": MAX_ROWS_LOG2, "HS_BVH_LEAF_SIZE": _twolevel.leaf_size(self.config)}
+            if self.has_meshes:
+                d["HS_HAS_MESHES"] = 1
+            if self.has_spheres:
+                d["HS_HAS_SPHERES"] = 1
+            return d
         d = {
             "HS_GRID_LEVELS": int(self.layout.levels),
             "HS_TEX_WIDTH": int(w),
@@ -91,6 +108,8 @@ class BakedScene:
     @property
     def uniforms(self) -> dict:
         """Uniform values by GLSL name (numpy arrays / Python scalars)."""
+        if self.bvh is not None:
+            return _twolevel.tlas_uniforms(self.bvh)
         lay = self.layout
         return {
             "hs_grid_origin": lay.origin.astype(np.float32),
@@ -105,10 +124,13 @@ class BakedScene:
     @property
     def samplers(self) -> dict:
         """GLSL sampler uniform name of each texture."""
-        return {name: f"hs_{name}_tex" for name in TEXTURE_NAMES}
+        names = _twolevel.NAMES if self.bvh is not None else TEXTURE_NAMES
+        return {name: f"hs_{name}_tex" for name in names}
 
     @property
     def has_meshes(self) -> bool:
+        if self.bvh is not None:
+            return bool((self.bvh.member & ~self.bvh.sphere_of).any()) if len(self.bvh.member) else False
         inst = self.instances
         c = inst.node >= 0
         if not c.any():
@@ -118,6 +140,8 @@ class BakedScene:
 
     @property
     def has_spheres(self) -> bool:
+        if self.bvh is not None:
+            return bool((self.bvh.member & self.bvh.sphere_of).any()) if len(self.bvh.member) else False
         return bool((self.instances.sphere & (self.instances.node >= 0)).any())
 
     @property
@@ -178,6 +202,8 @@ class BakedScene:
 
     def refresh_stats(self) -> dict:
         """Recompute the derived entries of :attr:`stats` (the timings stay)."""
+        if self.bvh is not None:
+            return self._refresh_bvh_stats()
         lay = self.layout
         counts = self.grid.count
         obvh = self.grid.obvh
@@ -208,14 +234,49 @@ class BakedScene:
         })
         return s
 
+    def _refresh_bvh_stats(self) -> dict:
+        t = self.bvh
+        tex_bytes = self.texture_bytes
+        self.stats.update({
+            "structure": "bvh",
+            "instances": int(len(t.member)),
+            "casters": int(t.member.sum()),
+            "models": int(len(t.node_count)),
+            "triangles": int(t.tri_count.sum()),
+            "bvh_nodes": int(t.node_count.sum()),
+            "bvh_max_depth": int(t.depth.max()) if len(t.depth) else 0,
+            "tlas_nodes": int(t.tlas_count),
+            "tlas_max_depth": int(t.tlas_depth.max()) if len(t.tlas_depth) else 0,
+            "origin": [float(x) for x in self.origin],
+            "bytes": tex_bytes,
+            "total_bytes": int(sum(tex_bytes.values())),
+        })
+        return self.stats
+
     # ------------------------------------------------------------------ updates ------------
     def update_instances(self, scene, indices) -> UpdateReport:
         """Instances ``indices`` moved (``scene.instances`` already holds their new matrices)."""
+        if self.bvh is not None:
+            t0 = time.perf_counter()
+            rep = _twolevel.update_instances(self, scene, indices)
+            self.refresh_stats()
+            rep.ms = (time.perf_counter() - t0) * 1e3
+            self.stats["last_update_ms"] = rep.ms
+            return rep
         return _update.update_instances(self, scene, indices)
 
     def update_model(self, scene, model_id: int) -> UpdateReport:
         """Mesh ``model_id`` was edited (or appended to ``scene.models``): rebuild that model's
         BVH and triangles only, then re-place its instances."""
+        if self.bvh is not None:
+            t0 = time.perf_counter()
+            old = self.defines
+            rep = _twolevel.update_model(self, scene, int(model_id), UpdateReport())
+            if self.defines != old:
+                rep.defines_changed = True
+            self.refresh_stats()
+            rep.ms = (time.perf_counter() - t0) * 1e3
+            return rep
         return _update.update_model(self, scene, model_id)
 
     # ------------------------------------------------------------------ writers ------------
@@ -405,6 +466,12 @@ def bake_scene(scene, config: BakeConfig | None = None) -> BakedScene:
     cfg = config or BakeConfig()
     t0 = time.perf_counter()
     b = BakedScene(cfg)
+    if cfg.structure == "bvh":
+        b.origin = choose_origin(scene) if cfg.origin is None else np.asarray(cfg.origin, np.float64).reshape(3)
+        b.bvh = _twolevel.bake_twolevel(b, scene)
+        b.stats = {"bake_ms": (time.perf_counter() - t0) * 1e3, "blas_ms": b.bvh.blas_ms, "tlas_ms": b.bvh.tlas_ms}
+        b.refresh_stats()
+        return b
     tex = b.tex
     n = len(scene.instances)
     models = list(scene.models)

@@ -11,6 +11,7 @@ from typing import Optional
 
 import numpy as np
 
+from ..settings import STRUCTURES  # "grid": grid.py + bvh.py; "bvh": twolevel.py
 from .grid import GridLayout, plan_grid
 from .textures import TextureData, alloc_texture, merge_ranges
 
@@ -44,13 +45,19 @@ class BakeConfig:
     origin: Optional[tuple] = None  # bake-space origin in world space; None: choose_origin()
     object_bvh_threshold: int = 32  # nodes with more objects than this get an object BVH
     object_leaf_size: int = 4  # grid-index entries per object-BVH leaf (1..7)
+    structure: str = "grid"  # one of STRUCTURES
+    bvh_leaf_size: int = 2  # structure "bvh": triangles per model-tree leaf (1..4)
 
     def __post_init__(self):
+        if self.structure not in STRUCTURES:
+            raise ValueError(f"structure must be one of {', '.join(STRUCTURES)}, not {self.structure!r}")
         w = int(self.tex_width)
         if w < 4 or w > 16384 or w & (w - 1):
             raise ValueError("tex_width must be a power of two between 4 and 16384")
         if not 1 <= int(self.leaf_size) <= 7:
             raise ValueError("leaf_size must be 1..7")
+        if not 1 <= int(self.bvh_leaf_size) <= 4:
+            raise ValueError("bvh_leaf_size must be 1..4")
         if not 1 <= int(self.object_leaf_size) <= 7:
             raise ValueError("object_leaf_size must be 1..7")
         if int(self.object_bvh_threshold) < 1:

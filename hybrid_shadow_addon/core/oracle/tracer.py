@@ -7,6 +7,8 @@
   the analytic sphere test or the stackless BVH walk and the watertight triangle test. It follows
   ``shaders/common/scene_data.glsl`` operation by operation in float32, but runs all rays in lock
   step (one numpy pass per DDA step / BVH step) instead of one ray per invocation.
+- for ``structure="bvh"`` bakes, :func:`trace_structured` runs ``_trace_bvh`` instead: the
+  two-level walk of ``shaders/common/scene_bvh.glsl`` (same nodes in the same order per ray).
 - :func:`trace_brute` tests every shadow caster of a :class:`Scene` (no acceleration structure)
   with the same float32 ray transform, triangle and sphere tests.
 
@@ -235,8 +237,11 @@ def _test_pairs(tex: _Tex, o, d, tmax, ray, entry, stats) -> np.ndarray:
 
 
 def trace_structured(baked, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
-    """Occlusion of each ray through the baked grid + BVH textures (the GPU algorithm).
+    """Occlusion of each ray through the baked textures (the GPU algorithm of the bake's
+    structure: the grid + BVH walk, or the two-level BVH walk of ``_trace_bvh``).
     ``origins`` are world space; they move into bake space (``baked.origin``) in float64."""
+    if getattr(baked, "bvh", None) is not None:
+        return _trace_bvh(baked, origins, dirs, tmax, stats)
     o, d, tm, valid = prepare_rays(bake_space(baked, origins), dirs, tmax)
     N = len(o)
     occ = np.zeros(N, bool)
@@ -399,6 +404,123 @@ def _walk_level(tex, o, d, tm, t_dda, occ, rays, gx, gy, s, nx, ny, off, stats):
             done |= (cx[idx] < 0) | (cx[idx] >= nx) | (cy[idx] < 0) | (cy[idx] >= ny)
             t_enter[idx] = tx_exit
             idx = idx[~done]
+
+
+# ------------------------------------------------------------------------------------------
+# two-level BVH: mirrors shaders/common/scene_bvh.glsl (all rays in lock step, one numpy pass
+# per loop iteration of the shader)
+# ------------------------------------------------------------------------------------------
+LEAF_FLAG = np.uint32(1 << 31)
+QEPS = F(2.0 ** -20)
+TLAS_EPS = F(2.0 ** -18)
+
+
+def _qbox_hit(rlo, rhi, inv, n, tmax) -> np.ndarray:
+    blo = np.stack([n[:, 0] & 0xFFFF, n[:, 0] >> 16, n[:, 1] & 0xFFFF], 1).astype(F)
+    bhi = np.stack([n[:, 1] >> 16, n[:, 2] & 0xFFFF, n[:, 2] >> 16], 1).astype(F)
+    with np.errstate(over="ignore", invalid="ignore"):
+        t1 = (blo - rlo) * inv
+        t2 = (bhi - rhi) * inv
+        tn = np.minimum(t1, t2).max(axis=1)
+        tf = np.maximum(t1, t2).min(axis=1) * TFAR_SCALE
+    return np.maximum(tn, F(0)) <= np.minimum(tf, tmax)
+
+
+def _l1(v):
+    a = np.abs(v)
+    return (a[:, 0] + a[:, 1]) + a[:, 2]
+
+
+def _trace_bvh(baked, origins, dirs, tmax, stats) -> np.ndarray:
+    o, d, tm, valid = prepare_rays(bake_space(baked, origins), dirs, tmax)
+    N = len(o)
+    occ = np.zeros(N, bool)
+    if stats is not None:
+        stats.update({"iterations": 0, "tlas_nodes": 0, "bvh_nodes": 0, "objects": 0, "triangles": 0})
+    t = baked.textures
+    node = t["node"].linear()
+    leafd = t["leaf"].linear()
+    tri = leafd.reshape(-1).view(F)
+    u = baked.uniforms
+    base = np.asarray(u["hs_tlas_base"], F)
+    qs = F(u["hs_tlas_inv_scale"])
+    end = int(u["hs_tlas_end"])
+    with np.errstate(over="ignore", invalid="ignore"):
+        toq = ((o - base) * qs).astype(F)
+        te = TLAS_EPS * (_l1(toq) + F(u["hs_tlas_babs"]))
+        t_lo = toq + te[:, None]
+        t_hi = toq - te[:, None]
+    t_inv = slab_inv((d * qs).astype(F))
+    q_lo, q_hi, q_inv = t_lo.copy(), t_hi.copy(), t_inv.copy()
+    i = np.full(N, int(u["hs_tlas_root"]), np.int64)
+    ret = np.full(N, -1, np.int64)
+    bend = np.zeros(N, np.int64)
+    om = np.zeros((N, 3), F)
+    dm = np.zeros((N, 3), F)
+    act = np.nonzero(valid)[0]
+    while act.size:
+        back = act[(ret[act] >= 0) & (i[act] >= bend[act])]
+        i[back] = ret[back]
+        ret[back] = -1
+        q_lo[back], q_hi[back], q_inv[back] = t_lo[back], t_hi[back], t_inv[back]
+        act = act[~((ret[act] < 0) & (i[act] >= end))]
+        if not act.size:
+            break
+        n = node[i[act]]
+        w = n[:, 3]
+        leaf = (w & LEAF_FLAG) != 0
+        in_tlas = ret[act] < 0
+        hit = _qbox_hit(q_lo[act], q_hi[act], q_inv[act], n, tm[act])
+        if stats is not None:
+            stats["iterations"] += act.size
+            stats["tlas_nodes"] += int(in_tlas.sum())
+            stats["bvh_nodes"] += int((~in_tlas).sum())
+        nxt = np.where(hit | leaf, i[act] + 1, w.astype(np.int64))
+        pay = (w & np.uint32(0x7FFFFFFF)).astype(np.int64)
+        # instances: transform, sphere test or enter the model tree
+        k = np.nonzero(hit & leaf & in_tlas)[0]
+        if k.size:
+            r = act[k]
+            rec = leafd[(5 * pay[k])[:, None] + np.arange(5)].reshape(-1, 20)
+            mo, md = transform_rays(rec[:, 0:12].view(F), o[r], d[r])
+            sph = (rec[:, 14] & SPHERE_FLAG) != 0
+            if stats is not None:
+                stats["objects"] += k.size
+            if sph.any():
+                s_ = np.nonzero(sph)[0]
+                sp = rec[s_, 16:20].view(F)
+                occ[r[s_]] |= sphere_hit(mo[s_], md[s_], sp[:, 0:3], sp[:, 3], tm[r[s_]])
+            m_ = np.nonzero(~sph)[0]
+            if m_.size:
+                rm = r[m_]
+                fr = rec[m_, 16:20].view(F)
+                with np.errstate(over="ignore", invalid="ignore"):
+                    oq = ((mo[m_] - fr[:, 0:3]) * fr[:, 3:4]).astype(F)
+                    e = QEPS * _l1(oq)
+                    q_lo[rm] = oq + e[:, None]
+                    q_hi[rm] = oq - e[:, None]
+                    q_inv[rm] = slab_inv((md[m_] * fr[:, 3:4]).astype(F))
+                om[rm], dm[rm] = mo[m_], md[m_]
+                ret[rm] = i[rm] + 1
+                nxt[k[m_]] = rec[m_, 12].astype(np.int64)
+                bend[rm] = rec[m_, 13].astype(np.int64)
+        # model leaves: up to 4 triangles, 9 floats each from texel (pay >> 3)
+        k = np.nonzero(hit & leaf & ~in_tlas)[0]
+        if k.size:
+            r = act[k]
+            first, cnt = pay[k] >> 3, pay[k] & 7
+            owner, j = _ragged(np.zeros(k.size, np.int64), cnt)
+            f0 = first[owner] * 4 + j * 9
+            v = tri[f0[:, None] + np.arange(9)].reshape(-1, 3, 3)
+            p = r[owner]
+            setup = woop_setup(dm[p])
+            h = woop_hit(om[p], setup, v[:, 0], v[:, 1], v[:, 2], tm[p])
+            if stats is not None:
+                stats["triangles"] += owner.size
+            occ[p[h]] = True
+        i[act] = nxt
+        act = act[~occ[act]]
+    return occ
 
 
 # ------------------------------------------------------------------------------------------

@@ -1,0 +1,210 @@
+/* scene_bvh.glsl -- the two-level BVH walk (HS_STRUCTURE_BVH), included by scene_data.glsl.
+ * Texture layout: scene_data.glsl ([node], [leaf]).
+ * Oracle: hybrid_shadow_addon/core/oracle/tracer.py (_trace_bvh mirrors this file step by step).
+ */
+#ifndef HS_SCENE_BVH_GLSL
+#define HS_SCENE_BVH_GLSL
+
+#define HS_LEAF_FLAG 0x80000000u
+#define HS_QEPS 9.5367431640625e-07     // 2^-20: per-ray widening of model boxes, x |o_q|_1
+#define HS_TLAS_EPS 3.814697265625e-06  // 2^-18: per-ray widening of top-level boxes
+
+uniform usampler2DArray hs_node_tex;
+uniform usampler2DArray hs_leaf_tex;
+uniform vec3 hs_tlas_base;
+uniform float hs_tlas_inv_scale;
+uniform float hs_tlas_babs;
+uniform int hs_tlas_root;
+uniform int hs_tlas_end;
+
+// Slab test against a quantised node: box = integer corners, ray = (lo, hi) origin planes
+// (o_q + e, o_q - e: the box widened by e) and 1/d_q; far t scaled like hs_slab_hit.
+bool hs_qbox_hit(vec3 rlo, vec3 rhi, vec3 inv, uvec4 n, float tmax)
+{
+    vec3 blo = vec3(float(n.x & 0xFFFFu), float(n.x >> 16u), float(n.y & 0xFFFFu));
+    vec3 bhi = vec3(float(n.y >> 16u), float(n.z & 0xFFFFu), float(n.z >> 16u));
+    vec3 t1 = (blo - rlo) * inv;
+    vec3 t2 = (bhi - rhi) * inv;
+    vec3 tn3 = min(t1, t2), tf3 = max(t1, t2);
+    float tn = max(max(tn3.x, tn3.y), tn3.z);
+    float tf = min(min(tf3.x, tf3.y), tf3.z) * HS_TFAR_SCALE;
+    return max(tn, 0.0) <= min(tf, tmax);
+}
+
+#ifdef HS_HAS_MESHES
+// The watertight test's permutation and shear as three rows (set up once per instance), so
+// the triangle test reads no component by a per-ray index: dot(mx, A) == A[kx] - Sx A[kz]
+// exactly (the other terms are exact zeros), dot(mz, A) == A[kz].
+struct HsShear { vec3 mx; vec3 my; vec3 mz; float sz; };
+
+HsShear hs_shear_setup(vec3 d)
+{
+    vec3 a = abs(d);
+    int kz = (a.x > a.y) ? ((a.x > a.z) ? 0 : 2) : ((a.y > a.z) ? 1 : 2);
+    int kx = kz + 1; if (kx == 3) kx = 0;
+    int ky = kx + 1; if (ky == 3) ky = 0;
+    float dz = d[kz];
+    if (dz < 0.0) { int t = kx; kx = ky; ky = t; }
+    vec3 ex = vec3(kx == 0, kx == 1, kx == 2);
+    vec3 ey = vec3(ky == 0, ky == 1, ky == 2);
+    vec3 ez = vec3(kz == 0, kz == 1, kz == 2);
+    float sx = d[kx] / dz, sy = d[ky] / dz;
+    HsShear s;
+    s.mx = ex - sx * ez;
+    s.my = ey - sy * ez;
+    s.mz = ez;
+    s.sz = 1.0 / dz;
+    return s;
+}
+
+float hs_row(vec3 m, vec3 a) { precise float r = (m.x * a.x + m.y * a.y) + m.z * a.z; return r; }
+
+bool hs_tri_hit(vec3 o, HsShear s, vec3 v0, vec3 v1, vec3 v2, float tmax)
+{
+    precise vec3 A = v0 - o;
+    precise vec3 B = v1 - o;
+    precise vec3 C = v2 - o;
+    precise float Akz = hs_row(s.mz, A), Bkz = hs_row(s.mz, B), Ckz = hs_row(s.mz, C);
+    precise float Ax = hs_row(s.mx, A), Ay = hs_row(s.my, A);
+    precise float Bx = hs_row(s.mx, B), By = hs_row(s.my, B);
+    precise float Cx = hs_row(s.mx, C), Cy = hs_row(s.my, C);
+    precise float U = Cx * By - Cy * Bx;
+    precise float V = Ax * Cy - Ay * Cx;
+    precise float W = Bx * Ay - By * Ax;
+    if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return false;
+    precise float det = U + V + W;
+    precise float T = (U * (s.sz * Akz) + V * (s.sz * Bkz)) + W * (s.sz * Ckz);
+    precise float td = tmax * det;
+    if (det > 0.0) return T > 0.0 && T < td;
+    if (det < 0.0) return T < 0.0 && T > td;
+    return false;
+}
+
+// One leaf: up to HS_BVH_LEAF_SIZE (<= 4) triangles, 9 floats each back to back in the texels
+// a..l (static swizzles; texels past the leaf size are not read).
+bool hs_leaf_hit(vec3 o, HsShear s, int cnt, vec4 a, vec4 b, vec4 c, vec4 d, vec4 e, vec4 g, vec4 h,
+                 vec4 k, vec4 l, float tmax)
+{
+    if (hs_tri_hit(o, s, a.xyz, vec3(a.w, b.xy), vec3(b.zw, c.x), tmax)) return true;
+#if HS_BVH_LEAF_SIZE > 1
+    if (cnt > 1 && hs_tri_hit(o, s, c.yzw, d.xyz, vec3(d.w, e.xy), tmax)) return true;
+#endif
+#if HS_BVH_LEAF_SIZE > 2
+    if (cnt > 2 && hs_tri_hit(o, s, vec3(e.zw, g.x), g.yzw, h.xyz, tmax)) return true;
+#endif
+#if HS_BVH_LEAF_SIZE > 3
+    if (cnt > 3 && hs_tri_hit(o, s, vec3(h.w, k.xy), vec3(k.zw, l.x), l.yzw, tmax)) return true;
+#endif
+    return false;
+}
+#endif
+
+// The shadow-ray query, "while-while" (Aila & Laine 2009): the inner loop walks nodes (top level
+// or model tree, one node per iteration) until the ray hits a leaf; the outer loop handles that
+// leaf (an instance: enter its model tree; a model leaf: its triangles) and resumes. The model
+// tree's end returns the walk to the top-level node after the instance's leaf. Per ray the nodes
+// are visited in the same order as by one flat loop; the split only keeps the leaf work out of
+// the node steps (a SIMD software rasteriser runs every branch of a loop body for all lanes).
+bool hs_occluded(vec3 o, vec3 d, float tmax)
+{
+    tmax = min(tmax, HS_FLT_BIG);
+    if (!(tmax > 0.0) || (d.x == 0.0 && d.y == 0.0 && d.z == 0.0)) return false;
+    precise vec3 toq = (o - hs_tlas_base) * hs_tlas_inv_scale;
+    vec3 tdq = d * hs_tlas_inv_scale;
+    vec3 ta = abs(toq);
+    precise float te = HS_TLAS_EPS * (((ta.x + ta.y) + ta.z) + hs_tlas_babs);
+    precise vec3 t_lo = toq + vec3(te);
+    precise vec3 t_hi = toq - vec3(te);
+    vec3 t_inv = hs_slab_inv(tdq);
+    vec3 q_lo = t_lo, q_hi = t_hi, q_inv = t_inv;
+    int i = hs_tlas_root;
+    int ret = -1;   // >= 0: inside a model tree, resume the top level there
+    int bend = 0;   // end of the current model tree
+#ifdef HS_HAS_MESHES
+    vec3 om = vec3(0.0);
+    HsShear sh;
+    sh.mx = vec3(0.0); sh.my = vec3(0.0); sh.mz = vec3(0.0); sh.sz = 0.0;
+#endif
+    for (;;) {
+        // nodes, until a leaf whose box the ray hits (a flag, not a nested break: llvmpipe
+        // miscompiled the break out of this inner loop, lanes lost their node index)
+        uint w = 0u;
+        bool found = false;
+        bool walking = true;
+        while (walking) {
+            if (ret >= 0 && i >= bend) { i = ret; ret = -1; q_lo = t_lo; q_hi = t_hi; q_inv = t_inv; }
+            if (ret < 0 && i >= hs_tlas_end) {
+                walking = false;
+            } else {
+                uvec4 n = texelFetch(hs_node_tex, hs_texel(i), 0);
+                bool leaf = (n.w & HS_LEAF_FLAG) != 0u;
+                bool hit = hs_qbox_hit(q_lo, q_hi, q_inv, n, tmax);
+                if (hit && leaf) {
+                    w = n.w;
+                    found = true;
+                    walking = false;
+                } else {
+                    i = (hit || leaf) ? i + 1 : int(n.w);
+                }
+            }
+        }
+        if (!found) break;
+        uint pay = w & 0x7FFFFFFFu;
+        int next = i + 1;
+        // the leaf's record: an instance (5 texels) or a model leaf's triangles (9 floats each),
+        // read as the same max(5, ceil(9 HS_BVH_LEAF_SIZE / 4)) texels either way
+        int at = ret < 0 ? 5 * int(pay) : int(pay >> 3u);
+        vec4 x0 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at), 0));
+        vec4 x1 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 1), 0));
+        vec4 x2 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 2), 0));
+        uvec4 u3 = texelFetch(hs_leaf_tex, hs_texel(at + 3), 0);
+        vec4 x3 = uintBitsToFloat(u3);
+        vec4 x4 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 4), 0));
+        vec4 x5 = vec4(0.0), x6 = vec4(0.0), x7 = vec4(0.0), x8 = vec4(0.0);
+#if defined(HS_HAS_MESHES) && HS_BVH_LEAF_SIZE > 2
+        x5 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 5), 0));
+        x6 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 6), 0));
+#endif
+#if defined(HS_HAS_MESHES) && HS_BVH_LEAF_SIZE > 3
+        x7 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 7), 0));
+        x8 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 8), 0));
+#endif
+        if (ret < 0) {
+            precise vec3 m_o = vec3(((x0.x * o.x + x0.y * o.y) + x0.z * o.z) + x0.w,
+                                    ((x1.x * o.x + x1.y * o.y) + x1.z * o.z) + x1.w,
+                                    ((x2.x * o.x + x2.y * o.y) + x2.z * o.z) + x2.w);
+            precise vec3 m_d = vec3((x0.x * d.x + x0.y * d.y) + x0.z * d.z,
+                                    (x1.x * d.x + x1.y * d.y) + x1.z * d.z,
+                                    (x2.x * d.x + x2.y * d.y) + x2.z * d.z);
+            bool is_sphere = (u3.z & HS_SPHERE_FLAG) != 0u;
+#ifdef HS_HAS_SPHERES
+            if (is_sphere && hs_sphere_hit(m_o, m_d, x4.xyz, x4.w, tmax)) return true;
+#endif
+#ifdef HS_HAS_MESHES
+            if (!is_sphere) {
+                precise vec3 oq = (m_o - x4.xyz) * x4.w;
+                vec3 aq = abs(oq);
+                precise float e = HS_QEPS * ((aq.x + aq.y) + aq.z);
+                precise vec3 qlo = oq + vec3(e);
+                precise vec3 qhi = oq - vec3(e);
+                q_lo = qlo; q_hi = qhi;
+                q_inv = hs_slab_inv(m_d * x4.w);
+                om = m_o;
+                sh = hs_shear_setup(m_d);
+                ret = i + 1;
+                next = int(u3.x);
+                bend = int(u3.y);
+            }
+#endif
+        }
+#ifdef HS_HAS_MESHES
+        else if (hs_leaf_hit(om, sh, int(pay & 7u), x0, x1, x2, x3, x4, x5, x6, x7, x8, tmax)) {
+            return true;
+        }
+#endif
+        i = next;
+    }
+    return false;
+}
+
+#endif // HS_SCENE_BVH_GLSL

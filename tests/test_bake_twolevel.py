@@ -1,0 +1,240 @@
+"""The two-level BVH (structure "bvh"): SAH build invariants, quantised boxes, the numpy walk
+against brute force, the GLSL walk against the numpy walk, and incremental updates."""
+import numpy as np
+import pytest
+
+from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+from hybrid_shadow_addon.core.bake.sah import build_sah
+from hybrid_shadow_addon.core.bake.twolevel import LEAF_FLAG, build_blas
+from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
+from hybrid_shadow_addon.core.scene import Instances, Model, Scene
+from hybrid_shadow_addon.core.settings import Settings
+
+from test_bake_scenes import (adversarial_scene, assert_equal_tracers, blob_model, plate_model, random_rays,
+                              random_scene)
+from test_bake_update import _assert_report_covers, _snapshot
+
+BVH = BakeConfig(structure="bvh")
+
+
+def _check_trees(b, lo, hi, gs, gc):
+    for g in range(len(gc)):
+        ns, nc = b.node_start[g], b.node_count[g]
+        items = []
+        for i in range(ns, ns + nc):
+            assert i < b.escape[i] <= ns + nc
+            if b.leaf_count[i]:
+                assert b.escape[i] == i + 1
+                it = b.perm[b.leaf_start[i]:b.leaf_start[i] + b.leaf_count[i]]
+                items += it.tolist()
+                assert (b.node_min[i] <= lo[it].min(0)).all() and (b.node_max[i] >= hi[it].max(0)).all()
+            else:
+                kids = [i + 1, b.escape[i + 1]]
+                assert b.escape[kids[1]] == b.escape[i]
+                assert (b.node_min[i] <= b.node_min[kids].min(0)).all()
+                assert (b.node_max[i] >= b.node_max[kids].max(0)).all()
+        assert sorted(items) == list(range(gs[g], gs[g] + gc[g]))
+
+
+@pytest.mark.parametrize("leaf", [1, 4])
+def test_sah_invariants(leaf):
+    rng = np.random.default_rng(0)
+    gc = np.array([1, 0, 2, 37, 500, 5])
+    gs = np.concatenate([[0], np.cumsum(gc)[:-1]])
+    lo = rng.random((gc.sum(), 3)) * 10
+    lo[gs[-1]:] = 3.0  # identical boxes: median split
+    hi = lo + rng.random(lo.shape) * [5.0, 0.01, 0.01]  # long thin items
+    b = build_sah(lo, hi, gs, gc, leaf_size=leaf, bins=8, sah_min=4)
+    assert b.node_count[1] == 0
+    _check_trees(b, lo, hi, gs, gc)
+
+
+def test_sah_separates_long_thin_items_better_than_the_median():
+    """Two bundles of long thin boxes: the root split separates the bundles."""
+    rng = np.random.default_rng(1)
+    n = 200
+    lo = np.zeros((n, 3))
+    lo[:, 1] = np.where(np.arange(n) < n // 4, 0.0, 10.0) + rng.random(n) * 0.1
+    lo[:, 0] = rng.random(n) * 0.1
+    hi = lo + [20.0, 0.05, 0.05]
+    b = build_sah(lo, hi, [0], [n], leaf_size=1)
+    # the left child of the root covers exactly one bundle
+    assert b.node_max[1, 1] < 5.0 or b.node_min[1, 1] > 5.0
+
+
+def test_blas_quantised_boxes_hold_their_triangles():
+    rng = np.random.default_rng(2)
+    models = [blob_model(rng, k) for k in (1, 3, 9, 200)] + [plate_model(6)]
+    bl = build_blas(models, 2)
+    for m, model in enumerate(models):
+        ns, nc = bl.node_start[m], bl.node_count[m]
+        base, s = bl.base[m], 1.0 / bl.inv_s[m]
+        for i in range(ns, ns + nc):
+            n = bl.nodes[i]
+            qlo = np.array([n[0] & 0xFFFF, n[0] >> 16, n[1] & 0xFFFF], np.float64)
+            qhi = np.array([n[1] >> 16, n[2] & 0xFFFF, n[2] >> 16], np.float64)
+            if n[3] & LEAF_FLAG:
+                pay = int(n[3] & 0x7FFFFFFF)
+                f, c = (pay >> 3) + int(bl.tri_start[m]), pay & 7
+                flat = bl.tri4.reshape(-1)[(f * 4):(f * 4) + 9 * c].reshape(-1, 3)
+                q = (flat.astype(np.float64) - base) / s
+                assert (q >= qlo - 1e-9).all() and (q <= qhi + 1e-9).all()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_random_scenes_bvh_equals_brute(seed):
+    rng = np.random.default_rng(seed)
+    scene = random_scene(rng, n_inst=150)
+    baked = bake_scene(scene, BVH)
+    o, d, t = random_rays(rng, scene, 3000)
+    hit = assert_equal_tracers(scene, baked, o, d, t)
+    assert hit.any() and (~hit).any()
+
+
+def test_adversarial_and_watertight():
+    rng = np.random.default_rng(7)
+    scene, o, d, t = adversarial_scene(rng)
+    baked = bake_scene(scene, BVH)
+    assert (trace_structured(baked, o, d, t) == trace_brute(scene, o, d, t)).all()
+    plate = Scene(models=[plate_model(8)], instances=Instances(names=["p"]))
+    xs = np.linspace(-1, 1, 9)[1:-1]
+    X, Y = np.meshgrid(xs, xs)
+    o = np.stack([X.ravel(), Y.ravel(), np.ones(X.size)], 1)
+    o = np.concatenate([o, o + [0.125, 0, 0], o + [0.0625, 0.0625, 0]])
+    d = np.tile([0.0, 0.0, -1.0], (len(o), 1))
+    assert trace_structured(bake_scene(plate, BVH), o, d, np.inf).all()
+
+
+def test_empty_and_far_from_origin():
+    baked = bake_scene(Scene(), BVH)
+    assert not trace_structured(baked, np.zeros((3, 3)), np.eye(3), np.inf).any()
+    rng = np.random.default_rng(11)
+    scene = random_scene(rng, n_inst=100, area=20)
+    scene.instances.matrices[:, 0, 3] += 10000.0
+    scene.instances.matrices[:, 1, 3] -= 7000.0
+    scene.instances.set_matrices(slice(None), scene.instances.matrices.copy())
+    baked = bake_scene(scene, BVH)
+    assert np.allclose(baked.origin, (10000.0, -7000.0, 0.0), atol=64)
+    o, d, t = random_rays(rng, scene, 2000)
+    assert_equal_tracers(scene, baked, o, d, t)
+
+
+def test_bvh_cost_is_logarithmic():
+    n = 158
+    xs = np.linspace(-10, 10, n + 1)
+    X, Y = np.meshgrid(xs, xs)
+    v = np.stack([X.ravel(), Y.ravel(), (0.2 * np.sin(X) * np.cos(Y)).ravel()], 1)
+    i = np.arange(n)
+    a = (i[None, :] + (n + 1) * i[:, None]).ravel()
+    tris = np.concatenate([np.stack([a, a + 1, a + n + 2], 1), np.stack([a, a + n + 2, a + n + 1], 1)])
+    scene = Scene(models=[Model("terrain", v, tris)], instances=Instances(names=["t"]))
+    baked = bake_scene(scene, BVH)
+    rng = np.random.default_rng(1)
+    R = 200
+    o = np.stack([rng.uniform(-9, 9, R), rng.uniform(-9, 9, R), np.full(R, 3.0)], 1)
+    d = np.stack([rng.normal(scale=0.2, size=R), rng.normal(scale=0.2, size=R), -np.ones(R)], 1)
+    stats = {}
+    assert trace_structured(baked, o, d, np.inf, stats=stats).all()
+    assert stats["iterations"] / R < 120 and stats["triangles"] / R < 40
+
+
+def test_move_instances_refits_and_reports_rows():
+    rng = np.random.default_rng(0)
+    scene = random_scene(rng, n_inst=250, tri_counts=(1, 12, 40))
+    baked = bake_scene(scene, BVH)
+    for step in range(4):
+        before = _snapshot(baked)
+        idx = rng.choice(len(scene.instances), 12, replace=False)
+        M = scene.instances.matrices[idx].copy()
+        M[:, :3, 3] += rng.normal(scale=[3, 3, 0.5], size=(12, 3))
+        if step == 2:
+            M[:, :3, :3] *= rng.uniform(0.5, 3.0, (12, 1, 1))
+        scene.instances.set_matrices(idx, M)
+        rep = baked.update_instances(scene, idx)
+        _assert_report_covers(baked, before, rep)
+        assert rep.objects == 12
+        o, d, t = random_rays(rng, scene, 600)
+        assert_equal_tracers(scene, baked, o, d, t)
+    o, d, t = random_rays(rng, scene, 1500)
+    assert (trace_structured(baked, o, d, t) == trace_structured(bake_scene(scene, BVH), o, d, t)).all()
+
+
+def test_move_far_rebuilds_top_level_and_caster_flag():
+    rng = np.random.default_rng(4)
+    scene = random_scene(rng, n_inst=120, tri_counts=(1, 12, 40))
+    baked = bake_scene(scene, BVH)
+    before = _snapshot(baked)
+    M = scene.instances.matrices[:3].copy()
+    M[:, :3, 3] += [500.0, 0.0, 0.0]  # outside the top level's quantisation frame
+    scene.instances.set_matrices(np.arange(3), M)
+    rep = baked.update_instances(scene, np.arange(3))
+    assert rep.regrid and rep.uniforms_changed
+    _assert_report_covers(baked, before, rep)
+    scene.instances.casts_shadow[5:9] = False
+    rep = baked.update_instances(scene, np.arange(5, 9))
+    assert rep.regrid
+    o, d, t = random_rays(rng, scene, 1500)
+    assert_equal_tracers(scene, baked, o, d, t)
+
+
+def test_update_model_rebuilds_that_model_only():
+    rng = np.random.default_rng(5)
+    scene = random_scene(rng, n_inst=100, spheres=0.0, tri_counts=(4, 30))
+    baked = bake_scene(scene, BVH)
+    # smaller mesh: in place; bigger: appended; a new model
+    for n_tri in (2, 400):
+        scene.models[0] = blob_model(rng, n_tri, size=1.5)
+        before = _snapshot(baked)
+        rep = baked.update_model(scene, 0)
+        _assert_report_covers(baked, before, rep)
+        o, d, t = random_rays(rng, scene, 1000)
+        assert_equal_tracers(scene, baked, o, d, t)
+    scene.models.append(blob_model(rng, 50, name="new"))
+    baked.update_model(scene, len(scene.models) - 1)
+    ids = scene.instances.model_ids.copy()
+    ids[:10] = len(scene.models) - 1
+    scene.instances.model_ids[:] = ids
+    baked.update_instances(scene, np.arange(10))
+    o, d, t = random_rays(rng, scene, 1000)
+    assert_equal_tracers(scene, baked, o, d, t)
+
+
+def test_structure_setting_and_config():
+    assert Settings(structure="bvh").structure == "bvh"
+    with pytest.raises(ValueError, match="structure"):
+        Settings(structure="octree")
+    with pytest.raises(ValueError, match="structure"):
+        BakeConfig(structure="octree")
+    with pytest.raises(ValueError):
+        BakeConfig(structure="bvh", bvh_leaf_size=5)
+
+
+# ------------------------------------------------------------------------------------ GLSL --
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("leaf", [1, 2, 4])
+def test_glsl_bvh_matches_numpy(gl_ctx, seed, leaf):
+    from test_bake_glsl import gl_trace
+
+    rng = np.random.default_rng(100 + seed)
+    scene = random_scene(rng, n_inst=300, spheres=0.3)
+    baked = bake_scene(scene, BakeConfig(structure="bvh", bvh_leaf_size=leaf))
+    o, d, t = random_rays(rng, scene, 20000)
+    ref = trace_structured(baked, o, d, t)
+    gl = gl_trace(gl_ctx, baked, o, d, t)
+    assert ref.any() and (~ref).any()
+    assert (ref == gl).mean() >= 0.999, f"{int((ref != gl).sum())} rays differ"
+    grid = trace_structured(bake_scene(scene), o, d, t)
+    assert (grid == ref).mean() >= 0.999
+
+
+def test_glsl_bvh_spheres_only_and_meshes_only(gl_ctx):
+    from test_bake_glsl import gl_trace
+
+    for spheres in (0.0, 1.0):
+        rng = np.random.default_rng(11)
+        scene = random_scene(rng, n_inst=120, spheres=spheres)
+        baked = bake_scene(scene, BVH)
+        assert ("HS_HAS_SPHERES" in baked.defines) == (spheres > 0)
+        assert ("HS_HAS_MESHES" in baked.defines) == (spheres < 1)
+        o, d, t = random_rays(rng, scene, 4000)
+        assert (trace_structured(baked, o, d, t) == gl_trace(gl_ctx, baked, o, d, t)).mean() >= 0.999
