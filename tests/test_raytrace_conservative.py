@@ -22,11 +22,12 @@ def masks_with_and_without(pipeline, scene, settings):
     return out
 
 
+@pytest.mark.parametrize("structure", ["grid", "bvh"])
 @pytest.mark.parametrize("name", list(TEST_SCENES))
-def test_conservative_maps_change_no_pixel(name, pipeline, loaded):
+def test_conservative_maps_change_no_pixel(name, structure, pipeline, loaded):
     scene = loaded(name)
-    pipeline.set_scene(scene)
-    plain, culled = masks_with_and_without(pipeline, scene, Settings(mode="raytrace"))
+    pipeline.set_scene(scene, structure)
+    plain, culled = masks_with_and_without(pipeline, scene, Settings(mode="raytrace", structure=structure))
     assert plain.keys() == culled.keys() and plain
     for li in plain:
         np.testing.assert_array_equal(culled[li], plain[li], err_msg=f"{name} light {scene.lights[li].name}")

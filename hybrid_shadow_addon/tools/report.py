@@ -7,6 +7,10 @@ import json
 from pathlib import Path
 
 
+#: the error axis of the plot is logarithmic: mismatches below this (% of pixels) sit on it
+ERROR_FLOOR_PCT = 1e-3
+
+
 def write_report(m: dict, out) -> None:
     """``error_vs_time.png``, ``metrics.json`` and ``report.html`` into the folder ``out``."""
     out = Path(out)
@@ -23,15 +27,16 @@ def plot_error_vs_time(m: dict, path) -> None:
     fig = Figure(figsize=(8, 5), dpi=110)
     ax = fig.subplots()
     colours = {"raytrace": "tab:red", "shadowmap": "tab:blue", "none": "tab:gray"}
+    floor = ERROR_FLOOR_PCT  # (log axis: a variant without error is drawn on the floor)
     for i, r in enumerate(sorted(rows, key=lambda r: r["total_ms"])):
-        t, e = r["total_ms"], r["overall"]["mismatch_pct"]
+        t, e = r["total_ms"], max(r["overall"]["mismatch_pct"], floor)
         ax.scatter([t], [e], s=46, color=colours.get(r["settings"]["mode"], "k"), zorder=3,
                    edgecolors="k" if r.get("pareto") else "none", linewidths=1.2)
         ax.annotate(r["label"], (t, e), textcoords="offset points", xytext=(6, 4 if i % 2 == 0 else -11), fontsize=8)
     front = sorted((r for r in rows if r.get("pareto")), key=lambda r: r["total_ms"])
     if len(front) > 1:
         xs = [r["total_ms"] for r in front]
-        ys = [r["overall"]["mismatch_pct"] for r in front]
+        ys = [max(r["overall"]["mismatch_pct"], floor) for r in front]
         ax.step(xs, ys, where="post", color="k", lw=1, ls="--", zorder=2, label="Pareto front")
     cyc = m["reference"]["total_ms"]
     if cyc > 0:
@@ -42,8 +47,9 @@ def plot_error_vs_time(m: dict, path) -> None:
     ax.xaxis.set_minor_formatter(matplotlib.ticker.FuncFormatter(
         lambda v, _: f"{v:g}" if f"{v:g}"[0] in "25" else ""))
     ax.set_xlabel("time per frame, ms (log; median of warm frames)")
-    ax.set_ylabel(f"mismatch, % of valid pixels (|Δ| > {m['threshold']})")
-    ax.set_ylim(bottom=min(0.0, ax.get_ylim()[0]))
+    ax.set_yscale("log")
+    ax.yaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.set_ylabel(f"mismatch, % of valid pixels (|Δ| > {m['threshold']}; log, floor {floor:g})")
     ax.grid(True, which="both", alpha=0.3)
     ax.set_title(f"{m['scene']} {m['resolution'][0]}x{m['resolution'][1]}: shadow error against run time")
     ax.legend(loc="upper right", fontsize=8)

@@ -43,5 +43,7 @@ class ShadowPass(Pass):
     needs_bake: bool = False
 
     def stats(self, job) -> dict:
-        """``mask_resolution``, ``rays`` and shader ``defines`` of the last render."""
-        return {"mask_resolution": list(job.size), "rays": 0, "defines": []}
+        """``mask_resolution``, ``rays`` (the rays a full trace of the mask would take),
+        ``rays_traced`` (the rays actually traced), ``pixels`` (pixels with geometry x shadowed
+        lights; 0 where a mode does not count them) and shader ``defines`` of the last render."""
+        return {"mask_resolution": list(job.size), "rays": 0, "rays_traced": 0, "pixels": 0, "defines": []}

@@ -1,18 +1,27 @@
-"""Shadow mode ``raytrace``: one shadow ray per mask texel and shadowed light
-(``shaders/raytrace.glsl``) through the baked scene (:class:`~..scene_textures.SceneTextures`).
+"""Shadow mode ``raytrace``: shadow rays (``shaders/raytrace.glsl``) through the baked scene
+(:class:`~..scene_textures.SceneTextures`), full-resolution masks for every quality.
+
+- ``high``: one ray per pixel and shadowed light.
+- ``medium`` / ``low``: coarse rays every 2nd / 4th pixel, then refinement (:mod:`.refine`):
+  pixels whose coarse neighbourhood agrees and stands for them take its answer, the others get
+  their own ray, the very ray ``high`` traces, as a compacted list. ``Settings.upsample ==
+  'nearest'`` skips the refinement and leaves the coarse mask to the upsample pass (the thesis'
+  blocky look, for comparisons).
+- ``interlace`` (any quality; thesis 3.5.2): one pixel of every 2x2 block per frame at full
+  resolution; pixels whose history is not up to date since the last :meth:`reset_history` are
+  refined from this frame's rays, so a change never leaves stale shadows behind, the first frame
+  after it is nearly exact and a still view is exact after four frames.
 
 The program is built from the bake's defines (grid levels, meshes and/or spheres present) plus
-``HS_MAX_DISTANCE`` and ``HS_INTERLACE`` when those settings are on, so a scene compiles only the
-code it needs. Interlacing (thesis 3.5.2) traces one texel of every 2x2 block per frame; texels
-whose history is not up to date since the last :meth:`reset_history` are filled from this
-frame's rays (``shaders/interlace_fill.glsl``), so a change never leaves stale shadows behind
-and a still view is exact after four frames.
+``HS_MAX_DISTANCE``, ``HS_INTERLACE`` and ``HS_COMPACT`` as needed, so a scene compiles only the
+code it needs. With ``Settings.conservative`` set (``sun``: suns only, ``all``: every light) each
+light first gets a conservative occupancy map (:mod:`.conservative`, ``HS_CONSERVATIVE``):
+receivers nearer the light than every caster in their map column are lit without a ray, the
+others trace only up to the first possible caster depth (exact: the masks do not change).
 
-With ``Settings.conservative`` set (``sun``: suns only, ``all``: every light) each light first
-gets a conservative occupancy map (:mod:`.conservative`, ``HS_CONSERVATIVE``): receivers nearer
-the light than every caster in their map column are lit without a ray, the others trace only up
-to the first possible caster depth. Exact: the masks equal those traced without the map.
-The numpy mirror of the rays traced here is ``core/oracle/rays.py``.
+``stats``: ``rays_traced`` counts the pixels the trace shaded (occlusion queries; facing-away
+and map-decided pixels among them cost no traversal), ``pixels`` the pixels with geometry times
+the shadowed lights. The numpy mirror of the rays traced here is ``core/oracle/rays.py``.
 """
 from __future__ import annotations
 
@@ -25,10 +34,12 @@ from ..lights import light_cone, light_ray_uniforms
 from ..targets import TargetCache, draw_fullscreen, set_uniforms
 from .base import ShadowPass
 from .conservative import ConservativeMaps
+from .refine import Refiner
 
 
 class RaytracePass(ShadowPass):
-    """Masks ``{light index: texture}`` at ``settings.mask_size`` of the G-buffer."""
+    """Masks ``{light index: texture}`` at the G-buffer's resolution (the coarse masks, at
+    ``settings.mask_size``, with ``upsample='nearest'``)."""
 
     light_label = "Ray tracing shadows"
     needs_bake = True
@@ -41,6 +52,8 @@ class RaytracePass(ShadowPass):
         self._targets = TargetCache(self.ctx, fill=1.0, what="mask")  # (light, role) -> target
         self._phase = 0
         self._valid_phases = 0
+        self.refiner = Refiner(gpu)
+        self._plan = self._last_plan = None
         self.last_defines: dict = {}
 
     def reset_history(self) -> None:
@@ -64,17 +77,52 @@ class RaytracePass(ShadowPass):
 
     def stats(self, job) -> dict:
         mw, mh = job.settings.mask_size(*job.size)
-        return {"mask_resolution": [mw, mh], "rays": int(mw * mh * len(job.lights)),
+        n = len(job.lights)
+        valid = self.refiner.count("valid") if n else 0
+        if self._plan == "full":
+            traced = valid * n
+        else:
+            traced = self.refiner.count("coarse") * n + self.refiner.count("refined")
+        return {"mask_resolution": [mw, mh], "rays": int(mw * mh * n),
+                "rays_traced": int(traced), "pixels": int(valid * n),
                 "defines": sorted(f"{k}={v}" for k, v in self.last_defines.items())}
+
+    def _plan_of(self, settings) -> str:
+        """``full`` (one ray per pixel), ``refine`` (coarse rays, then refinement), ``interlace``
+        (this frame's phase, refinement where history is missing) or ``coarse`` (the coarse mask
+        alone, upscaled by the upsample pass: ``upsample='nearest'``, the thesis' look)."""
+        if settings.interlace:
+            return "interlace"
+        if settings.mask_scale == 1:
+            return "full"
+        return "coarse" if settings.upsample == "nearest" else "refine"
 
     def render(self, job) -> dict:
         ctx = self.ctx
         scene, gbuffer, settings, lights = job.scene, job.gbuffer, job.settings, job.lights
-        w, h = settings.mask_size(gbuffer.width, gbuffer.height)
+        full = gbuffer.size
+        scale = settings.mask_scale
+        cw, ch = settings.mask_size(*full)
+        plan = self._plan = self._plan_of(settings)
+        if plan != self._last_plan:
+            self._valid_phases = 0
+            self._last_plan = plan
         self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
         self.last_defines = {}
         self.last_map_ms = 0.0
+        self.refiner.begin_frame()
         masks = {}
+        if lights:  # pixels with geometry (full resolution, and the coarse samples' pixels)
+            self.refiner.count_valid(gbuffer, full, 1, "valid")
+            if plan in ("refine", "coarse"):
+                self.refiner.count_valid(gbuffer, (cw, ch), scale, "coarse")
+            if plan == "refine":
+                self.refiner.prepare(gbuffer, scale, (scale // 2, scale // 2), False)
+            elif plan == "interlace":  # (this frame's phase: one pixel of each 2x2 block)
+                off = (self._phase & 1, self._phase >> 1)
+                grid = (max(1, -(-(full[0] - off[0]) // 2)), max(1, -(-(full[1] - off[1]) // 2)))
+                self.refiner.count_valid(gbuffer, grid, 2, "coarse", off)
+                self.refiner.prepare(gbuffer, 2, off, True)
         sun_maps = settings.conservative in ("sun", "all")
         local_maps = settings.conservative == "all"
         if sun_maps and lights and (local_maps or any(
@@ -98,33 +146,68 @@ class RaytracePass(ShadowPass):
             if cmap is not None:
                 defines["HS_CONSERVATIVE"] = 1
             self.last_defines.update(defines)
-            masks[li] = self._trace(li, scene.lights[li], vec, defines, gbuffer, settings, w, h, cmap)
-        if settings.interlace:
+            masks[li] = self._light(li, scene.lights[li], vec, defines, gbuffer, settings, plan, cmap)
+        if plan == "interlace":
             self._valid_phases |= 1 << self._phase
             self._phase = (self._phase + 1) % 4
         return masks
 
-    def _trace(self, li, light, light_vec, defines, gbuffer, settings, w, h, cmap=None):
+    def _program(self, defines, light, light_vec, gbuffer, settings, scale, cmap):
+        """The trace program of ``defines``, bound to this frame's inputs; ``(prog, vao, unit)``."""
         prog, vao = self.programs.fullscreen("raytrace", defines)
         unit = gbuffer.bind(prog)
         unit = self.scene_textures.bind(prog, unit)
         if cmap is not None:
             unit = self._bind_map(prog, unit, *cmap, self.scene_textures.baked.origin)
+        set_uniforms(prog, {"u_scale": int(scale), "u_full_size": (gbuffer.width, gbuffer.height)})
+        set_uniforms(prog, self._light_uniforms(light, light_vec, gbuffer, settings))
+        return prog, vao, unit
+
+    def _light_uniforms(self, light, light_vec, gbuffer, settings) -> dict:
         axis, cone = light_cone(light)
-        set_uniforms(prog, {
-            "u_scale": settings.mask_scale, "u_full_size": (gbuffer.width, gbuffer.height),
-            "u_light_vec": light_vec, "u_light_axis": axis, "u_light_cone": cone,
-            "u_cam_bake": tuple(float(v) for v in gbuffer.camera.cam_pos - self.scene_textures.baked.origin),
-            "u_max_distance": float(settings.max_distance)})
-        out = self._target((li, "out"), w, h)
-        if not settings.interlace:
-            draw_fullscreen(self.ctx, vao, out)
+        return {"u_light_vec": light_vec, "u_light_axis": axis, "u_light_cone": cone,
+                "u_cam_bake": tuple(float(v) for v in gbuffer.camera.cam_pos - self.scene_textures.baked.origin),
+                "u_max_distance": float(settings.max_distance)}
+
+    def _light(self, li, light, light_vec, defines, gbuffer, settings, plan, cmap=None):
+        full = gbuffer.size
+        ctx = self.ctx
+        if plan in ("full", "coarse"):
+            scale = 1 if plan == "full" else settings.mask_scale
+            size = full if plan == "full" else settings.mask_size(*full)
+            _, vao, _ = self._program(defines, light, light_vec, gbuffer, settings, scale, cmap)
+            out = self._target((li, "out" if plan == "full" else "coarse"), *size)
+            draw_fullscreen(ctx, vao, out)
             return out.texture
-        hist = self._target((li, "hist"), w, h)
-        hist.texture.use(unit)
-        set_uniforms(prog, {"u_history": unit, "u_phase": self._phase, "u_valid_phases": self._valid_phases})
-        draw_fullscreen(self.ctx, vao, out)
-        return self._fill(out, hist)
+        plain = {k: v for k, v in defines.items() if k != "HS_INTERLACE"}
+        uniforms = self._light_uniforms(light, light_vec, gbuffer, settings)
+        class_defs = {k: v for k, v in defines.items() if k in ("HS_LIGHT_LOCAL", "HS_LIGHT_SUN", "HS_MAX_DISTANCE",
+                                                                  "HS_INTERLACE")}
+        class_defs.update(self.refiner.defines())
+        if plan == "refine":
+            scale = settings.mask_scale
+            _, vao, _ = self._program(plain, light, light_vec, gbuffer, settings, scale, cmap)
+            coarse = self._target((li, "coarse"), *settings.mask_size(*full))
+            draw_fullscreen(ctx, vao, coarse)
+            dst = self._target((li, "out"), *full)
+            self.refiner.classify((li, "out"), dst, gbuffer, coarse.texture, class_defs, uniforms)
+        else:  # interlace: this frame's phase at full resolution, history elsewhere
+            prog, vao, unit = self._program(defines, light, light_vec, gbuffer, settings, 1, cmap)
+            out = self._target((li, "out"), *full)
+            hist = self._target((li, "hist"), *full)
+            hist.texture.use(unit)
+            set_uniforms(prog, {"u_history": unit, "u_phase": self._phase, "u_valid_phases": self._valid_phases})
+            draw_fullscreen(ctx, vao, out)
+            dst = hist
+            self.refiner.classify((li, "hist"), dst, gbuffer, out.texture, class_defs, uniforms)
+        key = (li, "hist" if plan == "interlace" else "out")
+        if self.refiner.method == "compact":
+            trace = self._program({**plain, "HS_COMPACT": 1}, light, light_vec, gbuffer, settings, 1, cmap)
+            self.refiner.refine_compact(key, dst, trace, gbuffer)
+        else:
+            _, vao, _ = self._program(plain, light, light_vec, gbuffer, settings, 1, cmap)
+            self.refiner.refine(key, dst, vao)
+        return dst.texture
 
     @staticmethod
     def _bind_map(prog, unit, tex, views, origin) -> int:
@@ -146,15 +229,7 @@ class RaytracePass(ShadowPass):
         prog["u_cm_margin"].value = float(views.margin)
         return unit + 1
 
-    def _fill(self, traced, hist):
-        """Write the finished mask into ``hist`` (read by the trace already): it is both this
-        frame's result and the next frame's history."""
-        prog, vao = self.programs.fullscreen("interlace_fill")
-        traced.texture.use(0)
-        set_uniforms(prog, {"u_traced": 0, "u_phase": self._phase})
-        draw_fullscreen(self.ctx, vao, hist)
-        return hist.texture
-
     def release(self) -> None:
+        self.refiner.release()
         self.maps.release()
         self._targets.release()

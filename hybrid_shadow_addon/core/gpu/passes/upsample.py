@@ -1,6 +1,11 @@
-"""Edge-aware upsample of reduced-resolution masks (``Settings.quality`` medium/low) to the
-G-buffer's resolution: a joint bilateral filter guided by the full-resolution G-buffer (depth
-via the tangent plane, normals), instead of the thesis' blocky nearest upscale (3.5.1)."""
+"""Upsample of reduced-resolution masks to the G-buffer's resolution: a joint bilateral filter
+guided by the full-resolution G-buffer (depth via the tangent plane, normals), or the thesis'
+blocky nearest upscale (3.5.1).
+
+The ray-traced pass makes full-resolution masks at every quality (refinement), which pass
+through unchanged; reduced masks reach this pass from ``quality`` medium/low with
+``Settings.upsample == 'nearest'`` (the coarse rays alone, for comparisons) and from callers
+that hand it one."""
 from __future__ import annotations
 
 import moderngl

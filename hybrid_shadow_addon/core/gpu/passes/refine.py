@@ -1,0 +1,297 @@
+"""Refinement of coarse shadow rays (``Settings.quality`` medium/low, and interlaced frames).
+
+A coarse set of rays (every 2nd or 4th pixel, or this frame's interlaced phase) is classified
+per full-resolution pixel: ``shaders/refine_geometry.glsl`` (once per frame: which surrounding
+samples lie on the pixel's surface), ``shaders/refine_cells.glsl`` (per light, at the coarse
+resolution: do the samples around a cell agree) and ``shaders/refine_classify.glsl`` (per light:
+the coarse answer, or a mark that the pixel needs its own ray, which is exactly the ray ``high``
+traces for it). The marks go to a depth buffer (0: ray, 1: done) and, for ``compact``, also to
+level 0 of a histogram pyramid. Two ways to trace only the marked pixels:
+
+- ``compact`` (default): the pyramid (``shaders/compact_reduce.glsl``, ``common/compact.glsl``)
+  turns the marks into a dense list; ``shaders/raytrace.glsl`` with ``HS_COMPACT`` traces it
+  (texel k -> k-th marked pixel, in quadtree order) over just the texels the list fills (its
+  length is read back, one texel per light), and ``shaders/compact_scatter.glsl`` copies each
+  result to its pixel under the depth test;
+- ``depth``: the full-resolution trace runs under the depth test.
+
+Both draw at window depth 0.5 with depth function ``>`` and no depth writes, so unmarked pixels
+are rejected before shading (early depth test). Occlusion queries count the pixels with
+geometry and the rays traced, without reading masks.
+"""
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+from ..targets import Target, TargetCache, create_texture, set_uniforms
+
+METHODS = ("compact", "depth")
+
+
+class Refiner:
+    """Classify, compaction and refine draws for the ray-traced pass, and their ray counts."""
+
+    #: default refinement rules (see the shaders named in the module docstring)
+    RULES = dict(plane_tol=0.02, normal_cos=0.9, grazing=0.05, ring=1)
+
+    def __init__(self, gpu, method: str = "compact", **rules):
+        if method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)}, not {method!r}")
+        self.ctx = gpu.ctx
+        self.programs = gpu.programs
+        self.method = method
+        self.rules = {**self.RULES, **rules}
+        self._work = TargetCache(self.ctx, what="refinement target")  # role -> target
+        self._depth = None
+        self._fbos: dict = {}  # key -> (attachments, framebuffer with the depth buffer)
+        self._pyr = None  # (size, layout, atlas targets)
+        self._grid: dict = {}
+        self._pool: list = []  # occlusion queries, reused
+        self._used = 0
+        self.counted: list = []  # (kind, key, query) of the last frame
+
+    # -- queries ------------------------------------------------------------------------------
+    def begin_frame(self) -> None:
+        self._used = 0
+        self.counted = []
+
+    def _query(self, kind: str, key):
+        if self._used == len(self._pool):
+            self._pool.append(self.ctx.query(samples=True))
+        q = self._pool[self._used]
+        self._used += 1
+        self.counted.append((kind, key, q))
+        return q
+
+    def count(self, kind: str) -> int:
+        """Samples passed by the last frame's draws of ``kind`` (waits for the GPU)."""
+        return int(sum(q.samples for k, _, q in self.counted if k == kind))
+
+    def count_valid(self, gbuffer, size, scale: int, kind: str, offset=None) -> None:
+        """Count the texels of a ``size`` grid whose source pixel (texel q: ``q * scale + offset``,
+        ``offset`` ``scale // 2`` by default, as ``mask_source_pixel``) has geometry."""
+        prog, vao = self.programs.fullscreen("ray_count")
+        gbuffer.bind(prog)
+        off = (scale // 2, scale // 2) if offset is None else tuple(int(v) for v in offset)
+        set_uniforms(prog, {"u_scale": int(scale), "u_offset": off, "u_full_size": gbuffer.size})
+        self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+        self._work.get("count", *size).use(self.ctx)
+        with self._query(kind, None):
+            vao.render(moderngl.TRIANGLES, vertices=3)
+
+    # -- per frame ----------------------------------------------------------------------------
+    def prepare(self, gbuffer, scale: int, offset, interlace: bool) -> None:
+        """Once per frame: the grid of coarse samples (spacing ``scale``, sample (0, 0) at pixel
+        ``offset``; ``interlace``: samples read from the full-resolution interlaced trace) and
+        which samples can stand for each pixel (``shaders/refine_geometry.glsl``)."""
+        ox, oy = (int(v) for v in offset)
+        w, h = gbuffer.size
+        if interlace:
+            cells = (max(1, -(-(w - ox) // scale)), max(1, -(-(h - oy) // scale)))
+        else:
+            cells = (max(1, -(-w // scale)), max(1, -(-h // scale)))
+        self._grid = dict(scale=int(scale), offset=(ox, oy), interlace=bool(interlace), cells=cells)
+        prog, vao = self.programs.fullscreen("refine_geometry", self._grid_defines())
+        unit = gbuffer.bind(prog)
+        set_uniforms(prog, {**self._grid_uniforms(gbuffer), "u_plane_tol": float(self.rules["plane_tol"]),
+                            "u_normal_cos": float(self.rules["normal_cos"])})
+        if not interlace:  # (sample_grid() reads the coarse mask's size: a texture of that size)
+            self._work.get("cells", *cells).texture.use(unit)
+            set_uniforms(prog, {"u_coarse": unit})
+        self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+        self._work.get("geometry", w, h).use(self.ctx)
+        vao.render(moderngl.TRIANGLES, vertices=3)
+
+    def _grid_defines(self) -> dict:
+        return {"HS_INTERLACE": 1} if self._grid["interlace"] else {}
+
+    def _grid_uniforms(self, gbuffer) -> dict:
+        g = self._grid
+        return {"u_scale": g["scale"], "u_offset": g["offset"], "u_full_size": gbuffer.size}
+
+    def defines(self) -> dict:
+        """Extra defines of the classify program for this method."""
+        return {"HS_COMPACT": 1} if self.method == "compact" else {}
+
+    # -- per light ----------------------------------------------------------------------------
+    def classify(self, key, target, gbuffer, coarse, defines: dict, uniforms: dict) -> None:
+        """Write the coarse answers into ``target`` (full resolution) and mark the pixels that
+        need their own ray. ``coarse``: the coarse mask (or, with ``HS_INTERLACE`` in
+        ``defines``, this frame's interlaced full-resolution trace); ``uniforms``: the light's."""
+        ctx = self.ctx
+        ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+        cprog, cvao = self.programs.fullscreen("refine_cells", self._grid_defines())
+        coarse.use(0)
+        set_uniforms(cprog, {**self._grid_uniforms(gbuffer), "u_coarse": 0, "u_ring": int(self.rules["ring"])})
+        cells = self._work.get("cells", *self._grid["cells"])
+        cells.use(ctx)
+        cvao.render(moderngl.TRIANGLES, vertices=3)
+        prog, vao = self.programs.fullscreen("refine_classify", defines)
+        unit = gbuffer.bind(prog)
+        coarse.use(unit)
+        cells.texture.use(unit + 1)
+        self._work.get("geometry", *gbuffer.size).texture.use(unit + 2)
+        set_uniforms(prog, {**uniforms, **self._grid_uniforms(gbuffer), "u_coarse": unit, "u_cells": unit + 1,
+                            "u_geometry": unit + 2, "u_grazing": float(self.rules["grazing"])})
+        fbo = self._fbo(key, target, with_need=self.method == "compact")
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.depth_func = "1"
+        fbo.depth_mask = True
+        fbo.use()
+        ctx.viewport = (0, 0, *target.texture.size)
+        vao.render(moderngl.TRIANGLES, vertices=3)
+        ctx.disable(moderngl.DEPTH_TEST)
+
+    def refine(self, key, target, vao) -> None:
+        """``depth``: draw the (already set up) full-resolution trace ``vao`` into ``target``
+        where :meth:`classify` marked pixels."""
+        fbo = self._fbo(key, target)
+        with self._masked(fbo, target):
+            with self._query("refined", key):
+                vao.render(moderngl.TRIANGLES, vertices=3)
+
+    def refine_compact(self, key, target, trace, gbuffer) -> None:
+        """``compact``: trace the marked pixels as a dense list and scatter the results into
+        ``target``. ``trace``: ``(prog, vao, next unit)`` of the ``HS_COMPACT`` trace, set up."""
+        ctx = self.ctx
+        w, h = target.texture.size
+        need = self._work.get("need", w, h)
+        layout, atlases = self._pyramid((w, h))
+        n = self._reduce(need.texture, layout, atlases)
+        if n == 0:
+            return
+        cw = -(-w // 4) * 4
+        rays = self._work.get("rays", cw, -(-h // 4) * 4)
+        rows = min(rays.texture.height, -(-n // (4 * cw)) * 4)  # the 4x4 blocks the list fills
+        prog, vao, unit = trace
+        self._bind_pyramid(prog, unit, need.texture, layout, atlases)
+        set_uniforms(prog, {"u_compact_width": cw})
+        ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+        rays.use(ctx, (0, 0, cw, rows))
+        with self._query("refined", key):
+            vao.render(moderngl.TRIANGLES, vertices=3)
+        sprog, svao = self.programs.fullscreen("compact_scatter")
+        rays.texture.use(0)
+        set_uniforms(sprog, {"u_rays": 0, "u_compact_width": cw})
+        self._bind_pyramid(sprog, 1, need.texture, layout, atlases)
+        fbo = self._fbo(key, target)  # (not the need texture: the scatter reads it)
+        with self._masked(fbo, target):
+            svao.render(moderngl.TRIANGLES, vertices=3)
+
+    # -- depth-masked targets -----------------------------------------------------------------
+    class _Masked:
+        def __init__(self, ctx, fbo, target):
+            self.ctx, self.fbo, self.target = ctx, fbo, target
+
+        def __enter__(self):
+            self.ctx.disable(moderngl.BLEND)
+            self.ctx.enable(moderngl.DEPTH_TEST)
+            self.ctx.depth_func = ">"
+            self.fbo.depth_mask = False
+            self.fbo.use()
+            self.ctx.viewport = (0, 0, *self.target.texture.size)
+
+        def __exit__(self, *exc):
+            self.ctx.disable(moderngl.DEPTH_TEST)
+            self.ctx.depth_func = "<"
+
+    def _masked(self, fbo, target):
+        return self._Masked(self.ctx, fbo, target)
+
+    def _fbo(self, key, target, with_need: bool = False):
+        size = target.texture.size
+        if self._depth is None or self._depth.size != size:
+            self._release_fbos()
+            if self._depth is not None:
+                self._depth.release()
+            self._depth = self.ctx.depth_texture(size)
+        colors = [target.texture]
+        if with_need:
+            colors.append(self._work.get("need", *size).texture)
+        k = (key, with_need)
+        hit = self._fbos.get(k)
+        if hit is None or len(hit[0]) != len(colors) or any(a is not b for a, b in zip(hit[0], colors)):
+            if hit is not None:
+                hit[1].release()
+            hit = self._fbos[k] = (colors, self.ctx.framebuffer(color_attachments=colors,
+                                                                depth_attachment=self._depth))
+        return hit[1]
+
+    # -- compaction ---------------------------------------------------------------------------
+    def _pyramid(self, size):
+        """Layout and atlases of the histogram pyramid over a ``size`` mask."""
+        if self._pyr is not None and self._pyr[0] == size:
+            return self._pyr[1:]
+        self._release_pyramid()
+        sizes = [tuple(size)]
+        while sizes[-1] != (1, 1):
+            w, h = sizes[-1]
+            sizes.append(((w + 1) // 2, (h + 1) // 2))
+        n = len(sizes)
+        offs = [(0, 0)] * n
+        extent = [[0, 0], [0, 0]]
+        for i in range(1, n):  # level i goes to atlas (n - 1 - i) % 2 (common/compact.glsl)
+            a = (n - 1 - i) % 2
+            offs[i] = (extent[a][0], 0)
+            extent[a][0] += sizes[i][0]
+            extent[a][1] = max(extent[a][1], sizes[i][1])
+        atlases = []
+        for a in range(2):
+            tex = create_texture(self.ctx, max(1, extent[a][0]), max(1, extent[a][1]), 1, "f4", 0.0)
+            atlases.append(Target(tex, self.ctx.framebuffer(color_attachments=[tex])))
+        self._pyr = (tuple(size), dict(levels=n, sizes=sizes, offs=offs), atlases)
+        return self._pyr[1:]
+
+    def _bind_pyramid(self, prog, unit: int, need_tex, layout, atlases) -> int:
+        need_tex.use(unit)
+        atlases[0].texture.use(unit + 1)
+        atlases[1].texture.use(unit + 2)
+        set_uniforms(prog, {"u_need": unit, "u_pyr0": unit + 1, "u_pyr1": unit + 2, "u_levels": layout["levels"]})
+        for name, vals in (("u_lvl_off", layout["offs"]), ("u_lvl_size", layout["sizes"])):
+            if name in prog:
+                u = prog[name]
+                arr = np.zeros((16, 2), np.int32)
+                arr[:len(vals)] = vals
+                u.write(arr[:max(1, u.array_length)].tobytes())
+        return unit + 3
+
+    def _reduce(self, need_tex, layout, atlases) -> int:
+        """Build the pyramid's levels 1 and up; returns the number of marked pixels."""
+        prog, vao = self.programs.fullscreen("compact_reduce")
+        ctx = self.ctx
+        ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+        n = layout["levels"]
+        if n == 1:
+            return int(round(float(np.frombuffer(need_tex.read(), np.float32)[0])))
+        for i in range(1, n):
+            src = need_tex if i == 1 else atlases[(n - i) % 2].texture
+            dst = atlases[(n - 1 - i) % 2]
+            src.use(0)
+            set_uniforms(prog, {"u_src": 0, "u_src_off": layout["offs"][i - 1], "u_src_size": layout["sizes"][i - 1],
+                                "u_dst_off": layout["offs"][i]})
+            dst.use(ctx, (*layout["offs"][i], *layout["sizes"][i]))
+            vao.render(moderngl.TRIANGLES, vertices=3)
+        top = atlases[0].fbo.read(viewport=(*layout["offs"][n - 1], 1, 1), components=1, dtype="f4")
+        return int(round(float(np.frombuffer(top, np.float32)[0])))
+
+    # -- release ------------------------------------------------------------------------------
+    def _release_fbos(self) -> None:
+        for _, fbo in self._fbos.values():
+            fbo.release()
+        self._fbos.clear()
+
+    def _release_pyramid(self) -> None:
+        if self._pyr is not None:
+            for t in self._pyr[2]:
+                t.release()
+            self._pyr = None
+
+    def release(self) -> None:
+        self._release_fbos()
+        self._release_pyramid()
+        self._work.release()
+        if self._depth is not None:
+            self._depth.release()
+            self._depth = None
+        self._pool.clear()

@@ -1,0 +1,71 @@
+// The shadow ray of one G-buffer pixel towards one light, shared by raytrace.glsl (which traces
+// it) and refine_classify.glsl (which decides whether the pixel needs it), so both see the very
+// same surface point, normal and facing/reach tests. Needs common/camera.glsl, common/gbuffer.glsl.
+// Defines: HS_LIGHT_SUN or HS_LIGHT_LOCAL, HS_MAX_DISTANCE.
+
+uniform vec3 u_light_vec;       // sun: unit direction towards it; else the light's position
+                                // (bake space: world - the bake's origin)
+uniform vec3 u_cam_bake;        // camera position in bake space (float64 on the CPU)
+#ifdef HS_LIGHT_LOCAL
+uniform vec3 u_light_axis;      // unit direction the light shines towards
+uniform float u_light_cone;     // no light where dot(light -> p, axis) <= this: a spot's
+                                // cos(size / 2), 0 behind an area light, -2 (never) for a point
+#endif
+#ifdef HS_MAX_DISTANCE
+uniform float u_max_distance;
+#endif
+
+// Ray origin pushed off the surface along the normal (Waechter & Binder, Ray Tracing Gems ch. 6):
+// a fixed number of float ULPs of each coordinate (scale-invariant, works far from the origin),
+// a small absolute step near the origin where ULPs vanish. 'slack' adds the G-buffer
+// reconstruction error, which grows with the distance from the camera.
+vec3 offset_origin(vec3 p, vec3 n, float slack)
+{
+    const float origin = 1.0 / 32.0;
+    const float float_scale = 1.0 / 65536.0;
+    const float int_scale = 256.0;
+    ivec3 of_i = ivec3(int_scale * n);
+    vec3 p_i = vec3(intBitsToFloat(floatBitsToInt(p.x) + ((p.x < 0.0) ? -of_i.x : of_i.x)),
+                    intBitsToFloat(floatBitsToInt(p.y) + ((p.y < 0.0) ? -of_i.y : of_i.y)),
+                    intBitsToFloat(floatBitsToInt(p.z) + ((p.z < 0.0) ? -of_i.z : of_i.z)));
+    vec3 q = vec3(abs(p.x) < origin ? p.x + float_scale * n.x : p_i.x,
+                  abs(p.y) < origin ? p.y + float_scale * n.y : p_i.y,
+                  abs(p.z) < origin ? p.z + float_scale * n.z : p_i.z);
+    return q + n * slack;
+}
+
+// The surface point of pixel px in bake space: the camera ray scaled to the G-buffer's view
+// depth, added to the camera's bake-space position. Rebuilt camera-relative, it keeps float32
+// precision wherever the scene sits in the world (100 km out as well as at the origin).
+vec3 surface_point(ivec2 px, float depth)
+{
+    vec3 o_rel, dir;
+    camera_ray(vec2(px) + 0.5, o_rel, dir);
+    vec3 p_rel = (u_ortho == 1) ? o_rel + dir * (depth - u_clip_start) : dir * (depth / u_clip_start);
+    return u_cam_bake + p_rel;
+}
+
+// What pixel px gets without a ray: 1 (background, beyond the max distance), 0 (faces away
+// from the light, out of its reach), or -1: it needs a ray; p, n, depth and to_light are then set.
+float shadow_ray_prelude(ivec2 px, out vec3 p, out vec3 n, out float depth, out vec3 to_light)
+{
+    p = vec3(0.0); n = vec3(0.0); depth = 0.0; to_light = vec3(0.0);
+    if (texelFetch(u_gb_position, px, 0).w == 0.0) return 1.0;
+    depth = texelFetch(u_gb_depth, px, 0).r;
+    p = surface_point(px, depth);
+#ifdef HS_MAX_DISTANCE
+    if (distance(p, u_cam_bake) > u_max_distance) return 1.0;
+#endif
+    n = texelFetch(u_gb_normal, px, 0).xyz;
+#ifdef HS_LIGHT_LOCAL
+    to_light = u_light_vec - p;
+#else
+    to_light = u_light_vec;
+#endif
+    float facing = dot(n, to_light);
+    if (facing <= 0.0) return 0.0;    // faces away: unlit, no ray
+#ifdef HS_LIGHT_LOCAL
+    if (dot(-normalize(to_light), u_light_axis) <= u_light_cone) return 0.0;  // out of reach
+#endif
+    return -1.0;
+}
