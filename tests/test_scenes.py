@@ -15,6 +15,7 @@ SMALL = {
     "clusters": "clusters:clusters=4,spheres=60",
     "city": "city:blocks=2",
     "scaling": "scaling:triangles=20000,instances=500,models=3",
+    "animated": "animated",
 }
 
 

@@ -1,6 +1,6 @@
 """Core scenes of a loaded bpy scene, frame by frame: the current frame
-(:func:`current_scene`) and its animation as a camera path (:class:`BlenderFrames`, the
-``bench`` tool's :class:`~hybrid_shadow_addon.tools.bench.FrameSource`)."""
+(:func:`current_scene`) and its animation (:class:`BlenderFrames`, the frame source of the
+``bench`` tool and of ``render --frames``)."""
 from __future__ import annotations
 
 import bpy
@@ -17,11 +17,13 @@ def current_scene(*, resolution=None) -> Scene:
 
 class BlenderFrames:
     """The frames ``frame_start..frame_end`` of ``bscene`` (the context's scene), exported one
-    at a time; ``name`` labels the results (default: the scene's name)."""
+    at a time; ``name`` labels the results (default: the scene's name); ``resolution``
+    overrides the render settings'."""
 
-    def __init__(self, bscene, name: str | None = None):
+    def __init__(self, bscene, name: str | None = None, resolution=None):
         self.bscene = bscene
         self.name = name or bscene.name
+        self.resolution = resolution
 
     @property
     def version(self) -> str:
@@ -34,4 +36,4 @@ class BlenderFrames:
     def scene_at(self, frame: int) -> Scene:
         """Set ``bscene`` to ``frame`` and export it."""
         self.bscene.frame_set(int(frame))
-        return current_scene()
+        return current_scene(resolution=self.resolution)

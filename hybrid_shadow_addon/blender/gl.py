@@ -89,7 +89,7 @@ def release_pipeline(pipeline) -> None:
 
 # one pipeline for final renders, shared by the engine instances of this process (compiled
 # programs survive from one F12 to the next); released when the add-on is disabled
-_final = {"pipeline": None}
+_final = {"pipeline": None, "state": {}}
 _final_lock = threading.Lock()
 
 
@@ -104,8 +104,16 @@ def final_scope():
             yield pipeline
 
 
+def final_state() -> dict:
+    """What final renders keep with the shared pipeline between frames (persistent data: the
+    last exported scene its bake holds); call it inside :func:`final_scope`. Emptied when the
+    pipeline is released."""
+    return _final["state"]
+
+
 def release_shared() -> None:
-    """Release the shared final-render pipeline."""
+    """Release the shared final-render pipeline (and what was kept with it)."""
     with _final_lock:
         release_pipeline(_final["pipeline"])
         _final["pipeline"] = None
+        _final["state"] = {}

@@ -171,6 +171,14 @@ class Instances:
             sphere=np.concatenate([p.sphere for p in parts]),
         )
 
+    def take(self, rows) -> "Instances":
+        """The instances at ``rows`` (indices or a boolean mask), in that order."""
+        rows = np.arange(len(self))[np.asarray(rows)] if len(self) else np.zeros(0, np.int64)
+        return Instances(names=[self.names[i] for i in rows.tolist()], model_ids=self.model_ids[rows],
+                         matrices=self.matrices[rows], inverse=self.inverse[rows],
+                         casts_shadow=self.casts_shadow[rows], base_color=self.base_color[rows],
+                         specular=self.specular[rows], roughness=self.roughness[rows], sphere=self.sphere[rows])
+
     def max_scale(self) -> np.ndarray:
         """(N,) largest axis scale of each world matrix (length of the 3x3 columns)."""
         return max_scale(self.matrices)

@@ -81,9 +81,41 @@ def check_renderable(scene) -> None:
     raise SceneError(f"scene '{scene.name}' is empty: no visible mesh objects to render")
 
 
+def write_outputs(out: Path, scene, frame, *, masks_dir=None, files=()) -> None:
+    """Write ``frame``'s image to ``out``, its masks under ``masks_dir`` and ``files`` (``(path,
+    text)`` pairs): staged next to each destination, renamed into place once all are written."""
+    staged = []  # (tmp, dest)
+    try:
+        t = _staged(out)
+        staged.append((t, out))
+        write_image(t, frame.image)
+        if masks_dir:
+            Path(masks_dir).mkdir(parents=True, exist_ok=True)  # only once the frame exists
+            for li in frame.lights:
+                dest = Path(masks_dir) / mask_filename(scene.lights[li].name)
+                t = _staged(dest)
+                staged.append((t, dest))
+                with open(t, "wb") as fh:
+                    np.save(fh, frame.mask_array(li).astype(np.float32), allow_pickle=False)
+        for dest, text in files:
+            t = _staged(Path(dest))
+            staged.append((t, Path(dest)))
+            Path(t).write_text(text)
+        for t, dest in staged:
+            os.replace(t, dest)
+        staged.clear()
+    finally:
+        for t, _ in staged:
+            try:
+                os.unlink(t)
+            except OSError:
+                pass
+
+
 def render_to_files(scene, settings, *, resolution=None, output: str, masks_dir: str | None = None,
-                    stats_path: str | None = None, pipeline=None) -> dict:
-    """Render ``scene`` once and write the outputs; returns the stats dict."""
+                    stats_path: str | None = None, pipeline=None, progress=None) -> dict:
+    """Render ``scene`` once and write the outputs; returns the stats dict. ``progress(done,
+    total, label)`` is called before each pass and shadowed light."""
     from ..core.gpu.pipeline import Pipeline
 
     out = Path(output)
@@ -103,34 +135,173 @@ def render_to_files(scene, settings, *, resolution=None, output: str, masks_dir:
     if not scene.lights:
         print(f"warning: scene '{scene.name}' has no lights: rendering the world colour (ambient) only",
               file=sys.stderr, flush=True)
-    bake_ms = pipe.set_scene(scene) if settings.mode == "raytrace" else 0.0
-    frame = pipe.render(scene, settings, width, height)
-    stats = frame_stats(scene, frame, bake_ms)
+    from ..core.scene_sync import bake_full
 
-    staged = []  # (tmp, dest)
-    try:
-        t = _staged(out)
-        staged.append((t, out))
-        write_image(t, frame.image)
-        if masks_dir:
-            Path(masks_dir).mkdir(parents=True, exist_ok=True)  # only once the frame exists
-            for li in frame.lights:
-                dest = Path(masks_dir) / mask_filename(scene.lights[li].name)
-                t = _staged(dest)
-                staged.append((t, dest))
-                with open(t, "wb") as fh:
-                    np.save(fh, frame.mask_array(li).astype(np.float32), allow_pickle=False)
-        if stats_path:
-            t = _staged(Path(stats_path))
-            staged.append((t, Path(stats_path)))
-            Path(t).write_text(json.dumps(stats, indent=2) + "\n")
-        for t, dest in staged:
-            os.replace(t, dest)
-        staged.clear()
-    finally:
-        for t, _ in staged:
-            try:
-                os.unlink(t)
-            except OSError:
-                pass
+    bake_ms = bake_full(pipe, scene, getattr(settings, "structure", None)) if settings.mode == "raytrace" else 0.0
+    frame = pipe.render(scene, settings, width, height, progress=progress)
+    stats = frame_stats(scene, frame, bake_ms)
+    if progress is not None:
+        progress(1, 1, "written")
+
+    write_outputs(out, scene, frame, masks_dir=masks_dir,
+                  files=[(Path(stats_path), json.dumps(stats, indent=2) + "\n")] if stats_path else [])
     return stats
+
+
+# ------------------------------------------------------------------------------------------------
+# Frame ranges
+# ------------------------------------------------------------------------------------------------
+class FrameRangeError(HybridShadowError):
+    """A ``--frames`` value that does not parse, or an empty or backwards range."""
+
+
+_RANGE = re.compile(r"^\s*(-?\d+)\s*(?:(?:-|\.\.)\s*(-?\d+)\s*)?(?::\s*(\d+)\s*)?$")
+#: more frames than this in one run is a typo, not an animation
+MAX_FRAMES = 1_000_000
+
+
+def parse_frames(text: str) -> list:
+    """Frames of ``A-B[:STEP]`` (inclusive, ``A..B`` too), a single ``N``, or a comma-separated
+    list of those, in the order given, each frame once."""
+    text = str(text).strip()
+    if not text:
+        raise FrameRangeError("frame range is empty: give N, A-B or A-B:STEP (e.g. 1-24 or 1-100:5)")
+    frames: list = []
+    seen = set()
+    for part in text.split(","):
+        m = _RANGE.match(part)
+        if not m:
+            raise FrameRangeError(f"bad frame range '{part.strip()}' in '{text}': give N, A-B or A-B:STEP "
+                                  "(e.g. 1-24 or 1-100:5)")
+        a = int(m.group(1))
+        b = int(m.group(2)) if m.group(2) is not None else a
+        step = int(m.group(3)) if m.group(3) is not None else 1
+        if step < 1:
+            raise FrameRangeError(f"frame range '{part.strip()}': the step must be at least 1")
+        if b < a:
+            raise FrameRangeError(f"frame range '{part.strip()}' ends before it starts ({b} < {a})")
+        if (b - a) // step + 1 + len(frames) > MAX_FRAMES:
+            raise FrameRangeError(f"frame range '{text}' has more than {MAX_FRAMES} frames")
+        for f in range(a, b + 1, step):
+            if f not in seen:
+                seen.add(f)
+                frames.append(f)
+    return frames
+
+
+def frame_path(pattern: str, frame: int) -> str:
+    """Blender's rule: the last run of ``#`` in the file name becomes the zero-padded frame
+    number (``name_####.png`` -> ``name_0007.png``); without ``#`` four digits go before the
+    extension (``name.png`` -> ``name0007.png``)."""
+    head, name = os.path.split(str(pattern))
+    runs = list(re.finditer(r"#+", name))
+    sign = "-" if frame < 0 else ""
+    if runs:
+        r = runs[-1]
+        digits = f"{sign}{abs(frame):0{r.end() - r.start()}d}"
+        return os.path.join(head, name[:r.start()] + digits + name[r.end():])
+    stem, suffix = os.path.splitext(name)
+    if suffix.lower() not in IMAGE_SUFFIXES:
+        stem, suffix = name, ""
+    return os.path.join(head, f"{stem}{sign}{abs(frame):04d}{suffix}")
+
+
+def frame_masks_dir(masks_dir: str, frame: int) -> str:
+    """``--masks-dir`` of one frame: its ``#`` replaced as in :func:`frame_path`, else a
+    ``NNNN`` folder per frame under it."""
+    if "#" in os.path.basename(os.path.normpath(masks_dir)):
+        return frame_path(os.path.normpath(masks_dir), frame)
+    return os.path.join(masks_dir, f"{'-' if frame < 0 else ''}{abs(frame):04d}")
+
+
+def _read_stats(path: Path) -> dict:
+    """Entries of an earlier run's ``--stats`` list by frame (for frames skipped now)."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(data, list):
+        return {}
+    return {e["frame"]: e for e in data if isinstance(e, dict) and isinstance(e.get("frame"), int)}
+
+
+def render_frames(source, frames, settings, *, output: str, resolution=None, masks_dir: str | None = None,
+                  stats_path: str | None = None, overwrite: bool = False, progress=None, pipeline=None) -> dict:
+    """Render ``frames`` of ``source`` (``source.scene_at(frame) -> Scene``) to ``output`` (a
+    ``#`` pattern, see :func:`frame_path`), baking once and updating the bake between frames
+    (:func:`~..core.scene_sync.sync_scene`). Each frame's files appear all at once; frames whose
+    image exists are skipped unless ``overwrite``. ``stats_path``: a JSON list, one entry per
+    frame (``frame``, ``bake``, the per-pass ms), rewritten after every frame. Returns
+    ``{"frames": [entries], "rendered": n, "skipped": n, "total_ms": ms}``."""
+    import time
+
+    from ..core.gpu.pipeline import Pipeline
+    from ..core.scene_sync import sync_scene
+
+    frames = list(frames)
+    if not frames:
+        raise FrameRangeError("no frames to render")
+    if Path(output).suffix.lower() not in IMAGE_SUFFIXES:
+        raise HybridShadowError(f"output '{output}' must end in {', '.join(IMAGE_SUFFIXES)}")
+    stats_file = Path(stats_path) if stats_path else None
+    if stats_file is not None and not stats_file.parent.is_dir():
+        raise HybridShadowError(f"folder '{stats_file.parent}' does not exist")
+    paths = {f: Path(frame_path(output, f)) for f in frames}
+    for p in {p.parent for p in paths.values()}:
+        p.mkdir(parents=True, exist_ok=True)  # as Blender does for its render output
+    todo = [f for f in frames if overwrite or not paths[f].exists()]
+    earlier = _read_stats(stats_file) if stats_file is not None and stats_file.exists() else {}
+    entries = {f: earlier.get(f, {"frame": f, "bake": "none", "output": str(paths[f])}) | {"skipped": True}
+               for f in frames if f not in todo}
+    pipe = pipeline or Pipeline()
+    raytrace = settings.mode == "raytrace"
+    prev = None
+    warned = False
+    t_start = time.perf_counter()
+    skipped = len(frames) - len(todo)
+    note = f", {skipped} already written" if skipped else ""
+    for k, f in enumerate(todo):
+        if progress is not None:
+            progress(k, len(todo), f"frame {f}{note}")
+        t0 = time.perf_counter()
+        scene = source.scene_at(f)
+        export_ms = (time.perf_counter() - t0) * 1e3
+        scene.validate()
+        check_renderable(scene)
+        check_light_count(pipe.ctx, len(scene.lights))
+        if not scene.lights and not warned:
+            warned = True
+            print(f"warning: scene '{scene.name}' has no lights: rendering the world colour (ambient) only",
+                  file=sys.stderr, flush=True)
+        sync = sync_scene(pipe, prev, scene, bake=raytrace, structure=getattr(settings, "structure", None))
+        prev = scene
+        width, height = resolution or scene.resolution
+        frame = pipe.render(scene, settings, width, height)
+        entry = {"frame": f, "bake": sync.kind, "output": str(paths[f]), "export_ms": export_ms}
+        entry.update(frame_stats(scene, frame, sync.ms))
+        entry["bake_updates"] = {"instances": len(sync.moved), "models": len(sync.models), "reason": sync.reason}
+        entries[f] = entry
+        listing = [entries[g] for g in frames if g in entries]
+        files = [(stats_file, json.dumps(listing, indent=2) + "\n")] if stats_file is not None else []
+        write_outputs(paths[f], scene, frame, masks_dir=frame_masks_dir(masks_dir, f) if masks_dir else None,
+                      files=files)
+    if progress is not None:
+        progress(len(todo), max(len(todo), 1), f"{len(todo)} frames rendered{note}")
+    if stats_file is not None and not todo:
+        write_outputs_text(stats_file, json.dumps([entries[g] for g in frames], indent=2) + "\n")
+    return {"frames": [entries[g] for g in frames], "rendered": len(todo), "skipped": skipped,
+            "total_ms": (time.perf_counter() - t_start) * 1e3}
+
+
+def write_outputs_text(dest: Path, text: str) -> None:
+    """Write one text file all at once (staged, renamed into place)."""
+    t = _staged(dest)
+    try:
+        Path(t).write_text(text)
+        os.replace(t, dest)
+    except BaseException:
+        try:
+            os.unlink(t)
+        except OSError:
+            pass
+        raise
