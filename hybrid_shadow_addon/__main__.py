@@ -18,19 +18,48 @@ from .core.errors import HybridShadowError, SceneError
 EXIT_USER_ERROR = 2
 
 
+#: ``--blender-log FILE``: where Blender's and Cycles' own output goes (None: stderr)
+_blender_log: str | None = None
+_terminal = None  # the original stderr, for progress bars while stderr goes to the log
+
+
+def terminal():
+    """The stream progress bars draw on: stderr, or with ``--blender-log`` the stderr the
+    command started with (Blender's output goes to the log meanwhile)."""
+    global _terminal
+    if _blender_log is None:
+        return sys.stderr
+    if _terminal is None:
+        _terminal = os.fdopen(os.dup(2), "w", buffering=1)
+    return _terminal
+
+
 @contextlib.contextmanager
 def blender_output_to_stderr():
     """Send whatever Blender prints on stdout (C level too) to stderr meanwhile, so our own
-    stdout stays clean (``--json`` output must parse)."""
+    stdout stays clean (``--json`` output must parse); with ``--blender-log`` send its stdout
+    and stderr to that file instead."""
+    terminal()
     sys.stdout.flush()
-    saved = os.dup(1)
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    log = os.open(_blender_log, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644) if _blender_log else None
     try:
-        os.dup2(2, 1)
+        if log is None:
+            os.dup2(2, 1)
+        else:
+            os.dup2(log, 1)
+            os.dup2(log, 2)
         yield
     finally:
         sys.stdout.flush()
-        os.dup2(saved, 1)
-        os.close(saved)
+        sys.stderr.flush()
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in saved:
+            os.close(fd)
+        if log is not None:
+            os.close(log)
 
 
 def load(scene_arg: str, frame: int | None = None):
@@ -82,12 +111,14 @@ def cmd_render(args) -> int:
     try:
         settings = Settings(mode=args.mode, quality=args.quality, max_shadowed_lights=args.max_shadowed_lights,
                         max_distance=args.max_distance, interlace=False,
-                        conservative=args.conservative_maps)
+                        conservative=args.conservative_maps, structure=args.structure or Settings.structure)
     except ValueError as e:
         raise SceneError(str(e)) from None
+    if args.frames is not None:
+        return _render_frames(args, settings)
     scene = load(args.scene, args.frame)
     stats = render_to_files(scene, settings, resolution=args.resolution, output=args.output,
-                            masks_dir=args.masks_dir, stats_path=args.stats)
+                            masks_dir=args.masks_dir, stats_path=args.stats, progress=_progress(args, "render"))
     t = stats
     print(f"rendered {t['resolution'][0]}x{t['resolution'][1]} {t['mode']}/{t['quality']} in {t['total_ms']:.0f} ms "
           f"(bake {t['bake_ms']:.0f}, g-buffer {t['gbuffer_ms']:.0f}, shadows {t['shadow_ms']:.0f}, "
@@ -95,11 +126,48 @@ def cmd_render(args) -> int:
     return 0
 
 
+def parse_frame_range(text: str) -> list:
+    from .tools.render import FrameRangeError, parse_frames
+
+    try:
+        return parse_frames(text)
+    except FrameRangeError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def _render_frames(args, settings) -> int:
+    """``render --frames``: load once, then export, update the bake and render frame by frame."""
+    from .tools.render import render_frames
+
+    if args.frame is not None:
+        raise SceneError("give --frame or --frames, not both")
+    with blender_output_to_stderr():
+        from .blender.frames import BlenderFrames
+        from .blender.load import open_scene
+
+        source = BlenderFrames(open_scene(args.scene), name=args.scene, resolution=args.resolution)
+    progress = _progress(args, "render")
+    try:
+        with blender_output_to_stderr():
+            r = render_frames(source, args.frames, settings, output=args.output, resolution=args.resolution,
+                              masks_dir=args.masks_dir, stats_path=args.stats, overwrite=args.overwrite,
+                              progress=progress)
+    finally:
+        getattr(progress, "close", lambda: None)()
+    done = [e for e in r["frames"] if not e.get("skipped")]
+    kinds = {k: sum(e["bake"] == k for e in done) for k in ("full", "incremental", "none")}
+    per = sum(e["total_ms"] + e["export_ms"] for e in done) / max(len(done), 1)
+    skipped = f", {r['skipped']} skipped (already written; --overwrite renders them again)" if r["skipped"] else ""
+    print(f"rendered {r['rendered']} frames{skipped} in {r['total_ms'] / 1e3:.1f} s ({per:.0f} ms per frame; "
+          f"bakes: {kinds['full']} full, {kinds['incremental']} incremental, {kinds['none']} none) -> {args.output}")
+    return 0
+
+
 def _progress(args, title):
     from .core.progress import null_progress
     from .tools.progress import TerminalProgress
 
-    return null_progress if getattr(args, "quiet", False) else TerminalProgress(title)
+    return null_progress if getattr(args, "quiet", False) else TerminalProgress(title, stream=terminal())
 
 
 def cmd_compare(args) -> int:
@@ -157,6 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="python -m hybrid_shadow_addon",
         description="Hybrid ray-traced shadows: inspect, render, compare with Cycles, benchmark.",
     )
+    p.add_argument("--blender-log", default=None, metavar="FILE",
+                   help="append Blender's and Cycles' own output to FILE instead of stderr")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     scene_help = ("a scene script (.py), a built-in scene name (e.g. forest, or "
                   "'scaling:triangles=100000,instances=1000'), or a .blend file")
@@ -181,12 +251,21 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--masks-dir", default=None, help="write mask_<light name>.npy per shadowed light here")
     pr.add_argument("--stats", default=None, help="write timings and counts as JSON here")
     pr.add_argument("--frame", type=int, default=None, help="frame to render (default: the scene's current)")
+    pr.add_argument("--frames", type=parse_frame_range, default=None, metavar="A-B[:STEP]",
+                    help="render these frames (N, A-B, A-B:STEP or a comma list): --output is then a pattern "
+                    "whose last run of # becomes the zero-padded frame number (name_####.png; without # "
+                    "four digits go before the extension). The bake is made once and updated between "
+                    "frames; frames already written are skipped; --stats is one JSON list, an entry per frame")
+    pr.add_argument("--overwrite", action="store_true", help="with --frames: render frames already written again")
+    pr.add_argument("--quiet", action="store_true", help="no progress bar")
     pr.add_argument("--max-shadowed-lights", type=int, default=None, metavar="N",
                     help="shadow only the N nearest lights (suns first); default: every shadow-casting light")
     pr.add_argument("--max-distance", type=float, default=0.0, metavar="M",
                     help="shadows only within M metres of the camera (default 0: no limit)")
     pr.add_argument("--conservative-maps", choices=("off", "sun", "all"), default="off",
                     help="raytrace: conservative occupancy maps skip or shorten rays (exact; default off)")
+    pr.add_argument("--structure", choices=("grid", "bvh"), default=None,
+                    help="raytrace: acceleration structure, hierarchical grid or two-level BVH (default: Settings')")
     pr.set_defaults(func=cmd_render)
 
     modes_help = ("variants to run, space or comma separated: raytrace-high, raytrace-medium, raytrace-low, "
@@ -234,8 +313,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    global _blender_log
     parser = build_parser()
     args = parser.parse_args(argv)
+    _blender_log = args.blender_log
     try:
         return args.func(args)
     except HybridShadowError as e:

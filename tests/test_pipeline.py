@@ -27,11 +27,13 @@ def reference_mask(frame, scene, baked, li, pixels):
     return out
 
 
+@pytest.mark.parametrize("structure", ["grid", "bvh"])
 @pytest.mark.parametrize("name", list(TEST_SCENES))
-def test_glsl_masks_equal_numpy_reference(name, pipeline, loaded):
+def test_glsl_masks_equal_numpy_reference(name, structure, pipeline, loaded):
     scene = loaded(name)
-    pipeline.set_scene(scene)
-    frame = pipeline.render(scene, Settings(mode="raytrace"), W, H)
+    pipeline.set_scene(scene, structure)
+    frame = pipeline.render(scene, Settings(mode="raytrace", structure=structure), W, H)
+    assert pipeline.baked.structure == structure
     assert frame.lights, "every test scene has shadowed lights"
     rng = np.random.default_rng(7)
     total = mismatched = 0
@@ -185,3 +187,69 @@ def test_progress_steps_and_cancel(pipeline, loaded):
 
     with pytest.raises(Stop):
         pipeline.render(scene, Settings(mode="shadowmap"), 40, 30, progress=cancel)
+
+
+@pytest.mark.parametrize("name", list(TEST_SCENES))
+def test_bvh_masks_equal_grid_masks(name, pipeline, loaded):
+    """Both structures trace the same triangles with the same tests: the masks agree."""
+    scene = loaded(name)
+    pipeline.set_scene(scene, "grid")
+    masks = {}
+    for structure in ("grid", "bvh"):
+        frame = pipeline.render(scene, Settings(mode="raytrace", structure=structure), W, H)
+        assert pipeline.baked.structure == structure  # the render re-baked for the structure
+        masks[structure] = [frame.mask_array(li) for li in frame.lights]
+    for a, b in zip(masks["grid"], masks["bvh"]):
+        same = (a == b) | (np.isnan(a) & np.isnan(b))
+        assert same.mean() >= 0.9999, f"{name}: {int((~same).sum())} pixels differ"
+
+
+def test_incremental_move_with_bvh_equals_fresh_bake(pipeline, loaded, gl_ctx):
+    scene = loaded("forest")
+    settings = Settings(mode="raytrace", structure="bvh")
+    pipeline.set_scene(scene, "bvh")
+    rng = np.random.default_rng(4)
+    idx = rng.choice(len(scene.instances), 20, replace=False)
+    before = scene.instances.matrices[idx].copy()
+    m = before.copy()
+    m[:, :3, 3] += rng.uniform(-15, 15, (20, 3)) * (1, 1, 0)
+    scene.instances.set_matrices(idx, m)
+    try:
+        pipeline.move_instances(scene, idx)
+        inc = pipeline.render(scene, settings, W, H)
+        assert pipeline.baked.structure == "bvh"
+        inc_masks = {li: inc.mask_array(li) for li in inc.lights}
+        fresh = Pipeline(gl_ctx)
+        fresh.set_scene(scene, "bvh")
+        full = fresh.render(scene, settings, W, H)
+        for li in full.lights:
+            np.testing.assert_array_equal(inc_masks[li], full.mask_array(li))
+        fresh.release()
+    finally:
+        scene.instances.set_matrices(idx, before)
+        pipeline.set_scene(scene)
+
+
+def test_a_cancelled_frame_leaves_nothing_behind(gl_ctx, loaded):
+    """A frame aborted inside the shadow-map pass (blending on, MIN equation) does not change
+    the next frame of the same pipeline."""
+    scene = loaded("forest")
+    pipe, fresh = Pipeline(gl_ctx), Pipeline(gl_ctx)
+    try:
+        pipe.set_scene(scene)
+
+        def cancel(done, total, label):
+            if label.startswith("Shadow map") and done > 2:
+                raise KeyboardInterrupt
+
+        with pytest.raises(KeyboardInterrupt):
+            pipe.render(scene, Settings(mode="shadowmap"), W, H, progress=cancel)
+        for settings in (Settings(mode="raytrace"), Settings(mode="raytrace", quality="medium"),
+                         Settings(mode="raytrace", structure="bvh"),
+                         Settings(mode="shadowmap")):
+            a = pipe.render(scene, settings, W, H)
+            b = fresh.render(scene, settings, W, H)
+            assert np.array_equal(a.image, b.image, equal_nan=True), settings
+    finally:
+        pipe.release()
+        fresh.release()

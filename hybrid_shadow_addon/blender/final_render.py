@@ -6,6 +6,12 @@ Normal (world-space shading normal), Albedo (base colour) and one ``Shadow <ligh
 shadow-casting light (1 lit, 0 shadowed; 1 where there is no geometry, and 1 everywhere for a
 light beyond ``max_shadowed_lights``: it is drawn unshadowed). Blender's pass rects are bottom-up;
 the pipeline's arrays are top-down.
+
+Persistent data (``scene.render.use_persistent_data``; Render ▸ Shadows ▸ Limits): the
+exported scene and its bake stay with the shared pipeline between frames, and the next frame
+only updates the bake (:func:`~..core.scene_sync.sync_scene`), so an animation render
+(``blender -b file.blend -a``) bakes once. Off: every frame bakes afresh. :data:`BAKES` counts
+the bakes of this process by kind.
 """
 from __future__ import annotations
 
@@ -14,8 +20,12 @@ import traceback
 import numpy as np
 
 from ..core.errors import Cancelled, HybridShadowError
+from ..core.scene_sync import FULL, INCREMENTAL, NONE, bake_full, sync_scene
 from . import export
-from .gl import final_scope
+from .gl import final_scope, final_state
+
+#: final-render bakes of this process by kind (``full``, ``incremental``, ``none``)
+BAKES = {FULL: 0, INCREMENTAL: 0, NONE: 0}
 
 SHADOW_PASS_PREFIX = "Shadow "
 BACKGROUND_DEPTH = 1.0e10
@@ -24,16 +34,43 @@ BACKGROUND_DEPTH = 1.0e10
 # ------------------------------------------------------------------------------------------------
 # Passes
 # ------------------------------------------------------------------------------------------------
+PASS_NAME_BYTES = 63  # Blender's pass names: 64 bytes with the terminating NUL
+
+
+def _cut_utf8(text: str, limit: int) -> str:
+    """``text`` cut to at most ``limit`` UTF-8 bytes, never inside a character."""
+    return text.encode("utf-8")[:limit].decode("utf-8", "ignore")
+
+
 def shadow_pass_name(light_name: str) -> str:
-    """``Shadow <light>``, cut to Blender's 63-character pass names."""
-    return (SHADOW_PASS_PREFIX + light_name)[:63]
+    """``Shadow <light>``, cut to Blender's 63-byte pass names (UTF-8, whole characters)."""
+    return _cut_utf8(SHADOW_PASS_PREFIX + light_name, PASS_NAME_BYTES)
 
 
-def shadow_pass_lights(scene) -> list:
-    """Names of the lights that get a shadow pass: the scene's render-visible lights with
-    ``use_shadow``, in the scene's object order (instanced lights get none)."""
-    return [ob.name for ob in scene.objects
-            if ob.type == "LIGHT" and ob.data.use_shadow and not ob.hide_render]
+def shadow_pass_names(light_names) -> dict:
+    """``{light name: pass name}``, unique: a name that its cut would make equal to an earlier
+    one gets ``.001``, ``.002``, ... (within the byte limit)."""
+    out, used = {}, set()
+    for name in light_names:
+        pname = shadow_pass_name(name)
+        k = 0
+        while pname in used:
+            k += 1
+            suffix = f".{k:03d}"
+            pname = _cut_utf8(SHADOW_PASS_PREFIX + name, PASS_NAME_BYTES - len(suffix)) + suffix
+        used.add(pname)
+        out[name] = pname
+    return out
+
+
+def shadow_pass_lights(scene, view_layer=None) -> list:
+    """Names of the lights that get a shadow pass: the render-visible lights with ``use_shadow``
+    of ``view_layer`` (its own objects: excluded collections leave theirs out; default: the
+    scene's), in object order (instanced lights get none)."""
+    objects = view_layer.objects if view_layer is not None else scene.objects
+    return [ob.name for ob in objects
+            if ob.type == "LIGHT" and ob.data.use_shadow and not ob.hide_render
+            and not any(c.hide_render for c in ob.users_collection)]
 
 
 def pass_layout(scene, view_layer) -> list:
@@ -47,7 +84,7 @@ def pass_layout(scene, view_layer) -> list:
     if hs is not None and hs.use_pass_albedo:
         out.append(("Albedo", 3, "RGB", "COLOR"))
     if hs is not None and hs.use_pass_shadow:
-        out += [(shadow_pass_name(n), 1, "X", "VALUE") for n in shadow_pass_lights(scene)]
+        out += [(p, 1, "X", "VALUE") for p in shadow_pass_names(shadow_pass_lights(scene, view_layer)).values()]
     return out
 
 
@@ -65,8 +102,39 @@ def settings_label(frame) -> str:
     return f"{mode}{q}, {s.get('shadowed_lights', 0)} shadowed lights"
 
 
-def _bottom_up(a: np.ndarray) -> np.ndarray:
-    return np.ascontiguousarray(a[::-1], np.float32)
+def border_region(scene, width: int, height: int) -> tuple:
+    """``(x0, y0, w, h)`` of the pixels a render fills, bottom-up: the whole frame, or with
+    ``use_border`` Blender's render border (its edges truncated to whole pixels, as Blender
+    does; the render result then holds only that region, whether cropped or not)."""
+    r = scene.render
+    if not r.use_border:
+        return 0, 0, width, height
+    x0, x1 = int(r.border_min_x * width), int(r.border_max_x * width)
+    y0, y1 = int(r.border_min_y * height), int(r.border_max_y * height)
+    return x0, y0, max(x1 - x0, 0), max(y1 - y0, 0)
+
+
+def _bottom_up(a: np.ndarray, region=None) -> np.ndarray:
+    """Rows flipped to Blender's bottom-up order, cut to ``region`` (:func:`border_region`)."""
+    a = a[::-1]
+    if region is not None:
+        x0, y0, w, h = region
+        a = a[y0:y0 + h, x0:x0 + w]
+    return np.ascontiguousarray(a, np.float32)
+
+
+def _stats(engine, text: str) -> None:
+    """The render's stats line. Blender 5 no longer prints it in background renders
+    (``blender -b``): there it goes to stdout as well, so batch logs keep the progress."""
+    engine.update_stats("", text)
+    if _print_stats():
+        print(text, flush=True)
+
+
+def _print_stats() -> bool:
+    import bpy
+
+    return bool(bpy.app.background) and bpy.app.version >= (5, 0, 0)
 
 
 class _Progress:
@@ -80,7 +148,7 @@ class _Progress:
     def __call__(self, done: int, total: int, label: str = "") -> None:
         if self.engine.test_break():
             raise Cancelled()
-        self.engine.update_stats("", f"Hybrid Shadows | {label}")
+        _stats(self.engine, f"Hybrid Shadows | {label}")
         self.engine.update_progress(self.start + (self.end - self.start) * min(1.0, done / max(1, total)))
 
 
@@ -101,21 +169,20 @@ def render(engine, depsgraph) -> None:
     width, height = export.render_resolution(scene)
     try:
         settings = scene.hybrid_shadows.to_settings()
-        engine.update_stats("", "Hybrid Shadows | Exporting scene")
+        _stats(engine, "Hybrid Shadows | Exporting scene")
         engine.update_progress(0.0)
         core = export.export_depsgraph(depsgraph, resolution=(width, height)).validate()
         if engine.test_break():
             return
         with final_scope() as pipe:
-            if settings.mode == "raytrace":
-                engine.update_stats("", f"Hybrid Shadows | Baking {len(core.instances)} objects")
-                engine.update_progress(0.1)
-                pipe.set_scene(core)
+            engine.update_progress(0.1)
+            bake = prepare_bake(engine, pipe, core, scene, view_layer, settings)
             if engine.test_break():
                 return
             frame = pipe.render(core, settings, width, height,
                                 film_transparent=bool(scene.render.film_transparent),
                                 progress=_Progress(engine, 0.2, 0.8))
+            frame.stats["bake"] = bake
             write_result(engine, core, frame, scene, view_layer, width, height)
     except Cancelled:  # before HybridShadowError, its base class: a cancel is no error
         return
@@ -126,30 +193,65 @@ def render(engine, depsgraph) -> None:
         _fail(engine, f"Hybrid Shadows internal error: {type(exc).__name__}: {exc}")
 
 
+def prepare_bake(engine, pipe, core, scene, view_layer, settings) -> str:
+    """Bake ``core`` for the frame, or with persistent data update the bake the previous frame
+    of this scene left; returns the kind (``full``, ``incremental``, ``none``)."""
+    state = final_state()
+    raytrace = settings.mode == "raytrace"
+    if not scene.render.use_persistent_data:
+        state.clear()
+        if not raytrace:
+            return NONE
+        _stats(engine, f"Hybrid Shadows | Baking {len(core.instances)} objects")
+        bake_full(pipe, core, getattr(settings, "structure", None))
+        BAKES[FULL] += 1
+        return FULL
+    import bpy
+
+    key = (bpy.data.filepath, scene.name_full, view_layer.name)
+    prev = state.get("scene") if state.get("key") == key else None
+    if raytrace:
+        _stats(engine, f"Hybrid Shadows | {'Updating the bake' if prev is not None else 'Baking'} "
+                                f"({len(core.instances)} objects)")
+    try:
+        kind = sync_scene(pipe, prev, core, bake=raytrace, structure=getattr(settings, "structure", None)).kind
+    except BaseException:
+        state.clear()
+        pipe.baked = None  # half-updated: the next frame bakes afresh
+        raise
+    state.update(key=key, scene=core)
+    BAKES[kind] += 1
+    return kind
+
+
 def write_result(engine, core, frame, scene, view_layer, width, height) -> None:
-    """Write a rendered ``frame`` into the passes of a new render result of ``view_layer``."""
+    """Write a rendered ``frame`` into the passes of a new render result of ``view_layer`` (only
+    the render border's pixels when a border is set)."""
     layout = {name: channels for name, channels, _, _ in pass_layout(scene, view_layer)}
-    result = engine.begin_result(0, 0, width, height, layer=view_layer.name)
+    region = border_region(scene, width, height)
+    if region[2] == 0 or region[3] == 0:
+        return  # an empty border: nothing to write
+    result = engine.begin_result(0, 0, region[2], region[3], layer=view_layer.name)
     cancelled = False
     try:
         passes = result.layers[0].passes
-        engine.update_stats("", "Hybrid Shadows | Writing passes")
-        passes["Combined"].rect.foreach_set(_bottom_up(frame.image).ravel())
+        _stats(engine, "Hybrid Shadows | Writing passes")
+        passes["Combined"].rect.foreach_set(_bottom_up(frame.image, region).ravel())
         gb = frame.gbuffer
         valid = gb.coverage()
         if "Depth" in layout and passes.get("Depth") is not None:
             d = gb.read("depth")
             d = d[..., 0] if d.ndim == 3 else d
-            passes["Depth"].rect.foreach_set(_bottom_up(np.where(valid, d, BACKGROUND_DEPTH)).ravel())
+            passes["Depth"].rect.foreach_set(_bottom_up(np.where(valid, d, BACKGROUND_DEPTH), region).ravel())
         if "Normal" in layout and passes.get("Normal") is not None:
             nrm = gb.read("shading_normal")[..., :3] * valid[..., None]
-            passes["Normal"].rect.foreach_set(_bottom_up(nrm).ravel())
+            passes["Normal"].rect.foreach_set(_bottom_up(nrm, region).ravel())
         if "Albedo" in layout and passes.get("Albedo") is not None:
             alb = gb.read("albedo")[..., :3] * valid[..., None]
-            passes["Albedo"].rect.foreach_set(_bottom_up(alb).ravel())
+            passes["Albedo"].rect.foreach_set(_bottom_up(alb, region).ravel())
         by_name = {core.lights[i].name: i for i in frame.lights}
         shadow_names = [n for n in layout if n.startswith(SHADOW_PASS_PREFIX)]
-        lights = {shadow_pass_name(l.name): l.name for l in core.lights}
+        lights = {p: n for n, p in shadow_pass_names(shadow_pass_lights(scene, view_layer)).items()}
         ones = None
         for k, pname in enumerate(shadow_names):
             if engine.test_break():
@@ -161,13 +263,15 @@ def write_result(engine, core, frame, scene, view_layer, width, height) -> None:
             engine.update_progress(0.8 + 0.2 * k / max(1, len(shadow_names)))
             li = by_name.get(lights.get(pname))
             if li is None:  # not shadowed in this frame (max_shadowed_lights): unshadowed
-                ones = np.ones(width * height, np.float32) if ones is None else ones
+                ones = np.ones(region[2] * region[3], np.float32) if ones is None else ones
                 rp.rect.foreach_set(ones)
                 continue
             m = np.nan_to_num(frame.mask_array(li), nan=1.0)
-            rp.rect.foreach_set(_bottom_up(m).ravel())
+            rp.rect.foreach_set(_bottom_up(m, region).ravel())
         t = frame.timings
-        engine.update_stats("", f"Hybrid Shadows | {settings_label(frame)} | {t.get('total_ms', 0):.0f} ms")
+        bake = frame.stats.get("bake")
+        _stats(engine, f"Hybrid Shadows | {settings_label(frame)} | {t.get('total_ms', 0):.0f} ms"
+                                + (f" | bake: {bake}" if bake else ""))
         engine.update_progress(1.0)
     finally:
         engine.end_result(result, cancel=cancelled)

@@ -42,6 +42,11 @@ CONSERVATIVE_ITEMS = (
     ("ALL", "All Lights", "Conservative occupancy maps for every light (a cube of six maps around point, "
                           "spot and area lights)", 2),
 )
+STRUCTURE_ITEMS = (
+    ("GRID", "Hierarchical Grid", "The thesis' hierarchical 2D grid over the instances, a BVH per model", 0),
+    ("BVH", "Two-Level BVH", "SAH tree over the instances whose leaves enter SAH trees per model "
+                             "(compact one-texel nodes)", 1),
+)
 DEBUG_ITEMS = (
     ("NONE", "None", "Show the lit image", 0),
     ("LIGHT_MASK", "Light Mask", "Show the shadow mask of one light (white lit, black shadowed, blue no geometry)", 1),
@@ -121,6 +126,10 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
                                     description="Ray traced: skip or shorten shadow rays with conservative "
                                                 "light-space occupancy maps; exact, it only changes the work",
                                     update=_tag_viewport)
+    structure: EnumProperty(name="Structure", items=STRUCTURE_ITEMS, default="GRID",
+                            description="Ray traced: acceleration structure the shadow rays walk (the masks "
+                                        "are the same; changing it re-bakes the scene)",
+                            update=_tag_viewport)
     use_specular: BoolProperty(name="Specular", default=True,
                                description="Add the specular lobe of the materials to the lighting",
                                update=_tag_viewport)
@@ -147,15 +156,15 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
             shadowmap_size=int(self.shadowmap_size), pcf=int(self.pcf), shadow_bias=float(self.shadow_bias),
             slope_bias=float(self.slope_bias), normal_offset=float(self.normal_offset),
             upsample=self.upsample.lower(), specular=bool(self.use_specular),
-            conservative=self.conservative_maps.lower(),
+            conservative=self.conservative_maps.lower(), structure=self.structure.lower(),
         )
 
 
 class HybridShadowsViewLayerSettings(bpy.types.PropertyGroup):
-    use_pass_shadow: BoolProperty(name="Shadow", default=True,
+    use_pass_shadow: BoolProperty(name="Shadow", default=False,
                                   description="One pass per shadow-casting light, named 'Shadow <light>': 1 lit, "
                                               "0 shadowed (1 where there is no geometry)")
-    use_pass_albedo: BoolProperty(name="Albedo", default=True,
+    use_pass_albedo: BoolProperty(name="Albedo", default=False,
                                   description="The base colour of the surfaces (Principled BSDF Base Color)")
 
 

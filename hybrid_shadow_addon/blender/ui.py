@@ -54,6 +54,7 @@ class RENDER_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         col.prop(props, "quality", text="Render Quality")
         col.prop(props, "upsample")
         col.prop(props, "conservative_maps")
+        col.prop(props, "structure")
         draw_compare_button(layout)
 
 
@@ -68,6 +69,7 @@ class RENDER_PT_hybrid_shadows_limits(RenderSubPanel, bpy.types.Panel):
         col.prop(props, "viewport_max_shadowed_lights", text="Shadowed Lights Viewport")
         col.prop(props, "max_shadowed_lights", text="Render")
         layout.prop(props, "max_distance")
+        layout.prop(context.scene.render, "use_persistent_data", text="Persistent Data")
 
 
 class RENDER_PT_hybrid_shadows_viewport(RenderSubPanel, bpy.types.Panel):
@@ -329,7 +331,7 @@ CLASSES = (
 
 #: standard panels (carrying the legacy 'BLENDER_RENDER' marker) that do not fit this engine
 EXCLUDED_PANELS = {
-    "VIEWLAYER_PT_filter", "VIEWLAYER_PT_layer_passes", "RENDER_PT_simplify", "RENDER_PT_freestyle",
+    "VIEWLAYER_PT_filter", "VIEWLAYER_PT_layer_passes", "RENDER_PT_freestyle",
     "RENDER_PT_color_management_curves", "DATA_PT_light_animation", "DATA_PT_preview",
 }
 

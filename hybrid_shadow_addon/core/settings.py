@@ -10,6 +10,7 @@ QUALITIES = ("high", "medium", "low")
 QUALITY_SCALE = {"high": 1, "medium": 2, "low": 4}  # mask resolution = full / scale
 UPSAMPLE_FILTERS = ("bilateral", "nearest")
 CONSERVATIVE_MAPS = ("off", "sun", "all")
+STRUCTURES = ("grid", "bvh")  # acceleration structures the bake can build
 
 
 @dataclass(frozen=True)
@@ -18,7 +19,8 @@ class Settings:
 
     - ``mode``: ``raytrace`` (rays through the grid), ``shadowmap`` or ``none`` (all lit).
     - ``quality``: mask resolution ``high`` = full, ``medium`` = 1/2, ``low`` = 1/4 per side;
-      lower-resolution masks are upsampled edge-aware to full resolution.
+      in ``raytrace`` mode the lower ones trace every 2nd / 4th pixel and refine the rest at
+      full resolution (their own ray where the coarse answer cannot stand for them).
     - ``max_distance``: shadows only within this camera distance in metres (0 = no limit).
     - ``max_shadowed_lights``: shadow only the nearest N shadow-casting lights (suns always
       count first); ``None`` = all.
@@ -27,13 +29,19 @@ class Settings:
     - ``pcf``: PCF kernel radius in shadow-map texels (0 = one tap).
     - ``shadow_bias``: constant depth bias in shadow-map texels; ``slope_bias``: slope-scaled
       factor; ``normal_offset``: receiver offset along the normal, in texels.
-    - ``upsample``: ``bilateral`` (depth/normal aware) or ``nearest`` (the thesis' blocky look).
+    - ``upsample``: how reduced-resolution masks reach full resolution: ``bilateral`` (depth/normal
+      aware; ray-traced medium/low refine instead, so their masks need none) or ``nearest`` (the
+      thesis' blocky look; ray-traced medium/low then keep their coarse rays unrefined).
     - ``specular``: Blinn-Phong highlights in the lighting (False: diffuse and ambient only).
     - ``conservative``: conservative light-space occupancy maps in ``raytrace`` mode, which let
       receivers no caster can reach skip their ray and cut the others short; exact (the masks
       do not change), only the work does. ``off`` (default: on a software GPU building the map
       costs about what it saves, see BENCHMARKS.md), ``sun`` (suns only) or ``all`` (every
       light; point, spot and area lights get a cube of six maps).
+    - ``structure``: the acceleration structure the shadow rays walk: ``grid`` (the thesis'
+      hierarchical 2D grid over per-model BVHs) or ``bvh`` (a two-level BVH: binned-SAH model
+      trees under a binned-SAH tree over the instances, quantised one-texel nodes). The masks
+      are the same; changing it re-bakes the scene.
     """
 
     mode: str = "raytrace"
@@ -49,6 +57,7 @@ class Settings:
     upsample: str = "bilateral"
     specular: bool = True
     conservative: str = "off"
+    structure: str = "grid"
 
     def __post_init__(self):
         self.validate()
@@ -85,6 +94,8 @@ class Settings:
             raise ValueError(f"quality must be one of {', '.join(QUALITIES)}, not {self.quality!r}")
         if self.conservative not in CONSERVATIVE_MAPS:
             raise ValueError(f"conservative must be one of {', '.join(CONSERVATIVE_MAPS)}, not {self.conservative!r}")
+        if self.structure not in STRUCTURES:
+            raise ValueError(f"structure must be one of {', '.join(STRUCTURES)}, not {self.structure!r}")
         if self.upsample not in UPSAMPLE_FILTERS:
             raise ValueError(f"upsample must be one of {', '.join(UPSAMPLE_FILTERS)}, not {self.upsample!r}")
         _number(self.max_distance, "max_distance", low=0.0)

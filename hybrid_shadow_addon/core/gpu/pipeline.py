@@ -12,9 +12,10 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+import moderngl
 import numpy as np
 
-from ..bake import bake_scene
+from ..bake import BakeConfig, bake_scene
 from ..errors import SceneError
 from ..progress import Progress
 from ..settings import Settings
@@ -86,10 +87,14 @@ class Pipeline:
         return [self.gbuffer_pass, *self._shadow.values(), self.upsample, self.lighting]
 
     # -- scene ------------------------------------------------------------------------------------
-    def set_scene(self, scene) -> float:
-        """Bake ``scene`` and upload its textures; returns the bake time in ms."""
+    def set_scene(self, scene, structure: str | None = None) -> float:
+        """Bake ``scene`` with acceleration ``structure`` (``Settings.structure``; None: the
+        default) and upload its textures; returns the bake time in ms. A render whose settings ask
+        for another structure bakes again."""
         t0 = time.perf_counter()
-        self.baked = bake_scene(scene)
+        if structure is None:
+            structure = Settings.structure
+        self.baked = bake_scene(scene, BakeConfig(structure=structure))
         self.scene_textures.upload(self.baked)
         self.reset_history()
         self.bake_ms = (time.perf_counter() - t0) * 1e3
@@ -125,8 +130,9 @@ class Pipeline:
         height = int(height or scene.resolution[1])
         check_render_size(self.ctx, width, height)
         shadow = self.shadow_pass(settings.mode)
-        if self.baked is None and shadow.needs_bake:
-            self.set_scene(scene)
+        if shadow.needs_bake and (self.baked is None or self.baked.structure != settings.structure):
+            self.set_scene(scene, settings.structure)
+        self._reset_gl_state()  # (a frame aborted by its progress callback may have left any)
         job = FrameJob(scene, settings, width, height, film_transparent,
                        lights=select_shadowed_lights(scene, settings))
         step = _Steps(progress, 4 + len(job.lights))
@@ -151,11 +157,21 @@ class Pipeline:
             "resolution": [width, height],
             "mask_resolution": shadow_stats["mask_resolution"],
             "rays": shadow_stats["rays"],
+            "rays_traced": shadow_stats.get("rays_traced", 0),
+            "pixels": shadow_stats.get("pixels", 0),
             "shadowed_lights": len(job.lights),
             "defines": shadow_stats["defines"],
         }
         return Frame(image=image, masks=job.masks, lights=job.lights, timings=timings, stats=stats,
                      gbuffer=job.gbuffer)
+
+    def _reset_gl_state(self) -> None:
+        ctx = self.ctx
+        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        ctx.blend_equation = moderngl.FUNC_ADD
+        ctx.blend_func = moderngl.ONE, moderngl.ZERO
+        ctx.depth_func = "<"
+        ctx.scissor = None
 
     def _timed(self, timings: dict, name: str, fn, *args):
         t0 = time.perf_counter()
