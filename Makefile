@@ -7,14 +7,17 @@ export PYTHONDONTWRITEBYTECODE := 1
 setup:
 	@bash tools/setup.sh
 
+DEMO_LOG := out/demo/blender.log
+
 demo: setup
-	$(PY) -m hybrid_shadow_addon info forest
-	@mkdir -p out/demo
-	$(PY) -m hybrid_shadow_addon render forest --output out/demo/forest.png \
+	@mkdir -p out/demo && rm -f $(DEMO_LOG)
+	$(PY) -m hybrid_shadow_addon --blender-log $(DEMO_LOG) info forest
+	$(PY) -m hybrid_shadow_addon --blender-log $(DEMO_LOG) render forest --output out/demo/forest.png \
 		--masks-dir out/demo --stats out/demo/stats.json
-	$(PY) -m hybrid_shadow_addon compare forest --resolution 320x180 --repeats 3 --warmup 1 \
-		--output-dir out/demo/compare
-	$(PY) tools/demo_blender.py
+	$(PY) -m hybrid_shadow_addon --blender-log $(DEMO_LOG) compare forest --resolution 320x180 --repeats 3 \
+		--warmup 1 --output-dir out/demo/compare
+	$(PY) tools/demo_blender.py --log $(DEMO_LOG)
+	@echo "Blender's and Cycles' own output: $(DEMO_LOG)"
 
 # the tests that run a second time on bpy 5.x (CPython 3.13, numpy 2): export, pipeline, add-on
 BPY5 := .venv-bpy5/bin/python

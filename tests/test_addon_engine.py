@@ -82,6 +82,9 @@ def driver(out_dir: str, zip_path: str) -> None:
     try:
         scene.render.engine = "HYBRID_SHADOWS"
         vl = scene.view_layers[0]
+        report["pass_defaults"] = {"shadow": vl.hybrid_shadows.use_pass_shadow,
+                                   "albedo": vl.hybrid_shadows.use_pass_albedo}
+        vl.hybrid_shadows.use_pass_shadow = vl.hybrid_shadows.use_pass_albedo = True
         vl.use_pass_z = True
         vl.use_pass_normal = True
         props = scene.hybrid_shadows
@@ -196,6 +199,10 @@ def test_compare_operator_from_the_installed_zip(run):
     msg = r["compare_missing"]
     assert msg is not None and "OpenEXR" in msg and "pip install" in msg and "\n" not in msg.strip()
     assert not r["compare_missing_wrote"]
+
+
+def test_shadow_and_albedo_passes_are_off_by_default(run):
+    assert run["report"]["pass_defaults"] == {"shadow": False, "albedo": False}
 
 
 def test_installed_and_enabled(run):

@@ -145,3 +145,14 @@ def test_exposure_temperature_and_normalize_reach_the_export(empty):
             on = export_light(_light_object("AREA", **kw), np.eye(4), "L")
             off = export_light(_light_object("AREA", normalize=False, **kw), np.eye(4), "L")
             assert math.isclose(on.power, 10.0) and math.isclose(off.power, 10.0 * area, rel_tol=1e-6), shape
+
+
+def test_preview_pixel_size(empty):
+    from hybrid_shadow_addon.blender.viewport_engine import preview_pixel_size
+
+    ctx = Ctx(scene=bpy.context.scene, preferences=bpy.context.preferences)
+    for size, want in (("1", 1), ("2", 2), ("4", 4), ("8", 8)):
+        bpy.context.scene.render.preview_pixel_size = size
+        assert preview_pixel_size(ctx) == want
+    bpy.context.scene.render.preview_pixel_size = "AUTO"
+    assert preview_pixel_size(ctx) == max(1, round(bpy.context.preferences.system.pixel_size))

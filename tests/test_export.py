@@ -443,3 +443,51 @@ def test_open_scene_keeps_bpy_scene():
     sc = open_scene("cube_on_plane", frame=2)
     assert sc == bpy.context.scene and sc.frame_current == 2
     assert {o.name for o in sc.objects} >= {"Cube", "Plane", "Sun", "Camera"}
+
+
+def test_the_viewport_shows_objects_hidden_from_render(scene):
+    """As Cycles' and EEVEE's rendered viewports: hidden from render is still drawn there."""
+    from hybrid_shadow_addon.blender.viewport import ViewportSync
+
+    me = _cube_mesh()
+    _add("Shown", me)
+    _add("Hidden", me).hide_render = True
+    light = _add("HiddenLamp", bpy.data.lights.new("L", "POINT"))
+    light.hide_render = True
+    sync = ViewportSync()
+    sync.full_export(bpy.context.evaluated_depsgraph_get())
+    assert sorted(sync.scene.instances.names) == ["Hidden", "Shown"]
+    assert [l.name for l in sync.scene.lights] == ["HiddenLamp"]
+    assert _export().instances.names == ["Shown"]  # what F12 renders
+
+
+def test_simplify_limits_subdivision(scene):
+    """Render ▸ Simplify (shown for this engine) reaches the export through the evaluated mesh."""
+    from hybrid_shadow_addon.blender import ui
+
+    ob = _add("Sub", _cube_mesh())
+    mod = ob.modifiers.new("sub", "SUBSURF")
+    mod.levels = 2
+    full = _export().triangle_count
+    scene.render.use_simplify = True
+    scene.render.simplify_subdivision = 0
+    assert _export().triangle_count == 12 < full
+    assert bpy.types.RENDER_PT_simplify in ui.get_panels()
+
+
+def test_the_viewport_in_local_view_shows_only_its_objects(scene):
+    from hybrid_shadow_addon.blender.viewport import ViewportSync
+
+    me = _cube_mesh()
+    _add("A", me)
+    _add("B", me)
+    _add("Lamp", bpy.data.lights.new("L", "POINT"))
+    dg = bpy.context.evaluated_depsgraph_get()
+    sync = ViewportSync()
+    sync.full_export(dg)
+    assert sorted(sync.scene.instances.names) == ["A", "B"]
+    assert sync.set_local_view(dg, ["A"])
+    assert sync.scene.instances.names == ["A"] and sync.scene.lights == []
+    assert not sync.set_local_view(dg, ["A"])  # unchanged: no export
+    assert sync.set_local_view(dg, None)
+    assert sorted(sync.scene.instances.names) == ["A", "B"] and [l.name for l in sync.scene.lights] == ["Lamp"]

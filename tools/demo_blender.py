@@ -5,7 +5,8 @@ into a temporary Blender user folder (BLENDER_USER_RESOURCES, XDG_CONFIG_HOME, X
 nothing touches $HOME), loads the forest scene, renders it with the Hybrid Shadows engine and
 saves a PNG. The bpy work runs in a child process so those variables are set before bpy starts.
 
-Usage: ``.venv/bin/python tools/demo_blender.py [--scene forest:...] [--mode raytrace] [--output out/demo_blender.png]``
+Usage: ``.venv/bin/python tools/demo_blender.py [--scene forest:...] [--mode raytrace] [--output out/demo_blender.png]
+[--log FILE]`` (``--log``: the extension build's and Blender's own output go to FILE, appended).
 """
 from __future__ import annotations
 
@@ -45,11 +46,16 @@ def main(argv=None) -> int:
     ap.add_argument("--mode", choices=("raytrace", "shadowmap", "none"), default="raytrace")
     ap.add_argument("--output", default=str(REPO / "out" / "demo_blender.png"))
     ap.add_argument("--platform", default=PLATFORM)
+    ap.add_argument("--log", default=None, metavar="FILE", help="append the build's and Blender's output here")
     args = ap.parse_args(argv)
     out = Path(args.output).resolve()
     out.parent.mkdir(parents=True, exist_ok=True)
+    log = open(args.log, "a") if args.log else None
+    sink = {"stdout": log, "stderr": subprocess.STDOUT} if log else {}
+    print(f"demo_blender: building the extension and rendering {args.scene} through it"
+          + (f" (Blender's output: {args.log})" if log else ""), flush=True)
     subprocess.run([sys.executable, str(REPO / "tools/build_extension.py"), "--platform", args.platform],
-                   check=True, cwd=REPO)
+                   check=True, cwd=REPO, **sink)
     version = next(line.split('"')[1] for line in (REPO / "blender_manifest.toml").read_text().splitlines()
                    if line.startswith("version"))
     zip_path = REPO / "dist" / f"hybrid_shadows-{version}-{args.platform.replace('-', '_')}.zip"
@@ -58,9 +64,11 @@ def main(argv=None) -> int:
         for var in ("BLENDER_USER_RESOURCES", "XDG_CONFIG_HOME", "XDG_CACHE_HOME"):
             env[var] = str(Path(tmp) / var.lower())
         proc = subprocess.run([sys.executable, __file__, "--child", str(zip_path), args.scene, args.mode, str(out)],
-                              env=env, cwd=REPO)
+                              env=env, cwd=REPO, **sink)
+    if log:
+        log.close()
     if proc.returncode != 0 or not out.is_file():
-        print("demo_blender: the render failed (see above)", file=sys.stderr)
+        print(f"demo_blender: the render failed (see {args.log or 'above'})", file=sys.stderr)
         return 1
     print(f"rendered {args.scene} with the installed Hybrid Shadows engine ({args.mode}) -> {out}")
     return 0

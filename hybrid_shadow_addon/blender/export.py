@@ -40,14 +40,18 @@ _GREY = (0.8, 0.8, 0.8, 1.0)
 _WHITE = (1.0, 1.0, 1.0, 1.0)
 
 
-def export_depsgraph(depsgraph, *, resolution=None) -> Scene:
+def export_depsgraph(depsgraph, *, resolution=None, render_visibility: bool | None = None) -> Scene:
     """The scene of an evaluated depsgraph at its current frame.
+
+    ``render_visibility``: drop what is hidden from render (default: for a viewport depsgraph,
+    so that it exports what F12 renders); False keeps what the viewport shows, as Cycles' and
+    EEVEE's rendered viewports do.
 
     ``resolution``: ``(width, height)`` overriding the render settings (default: resolution x/y
     times the percentage). Raises :class:`SceneError` naming the object for a NaN or infinite
     transform (``Scene.check_transforms``); the remaining checks are ``Scene.validate``'s.
     """
-    return _Exporter(depsgraph).run(resolution)
+    return _Exporter(depsgraph, render_visibility).run(resolution)
 
 
 # --------------------------------------------------------------------------------------------
@@ -159,10 +163,10 @@ def render_resolution(scene) -> tuple[int, int]:
             r.resolution_y * r.resolution_percentage // 100)
 
 
-def export_lights(depsgraph) -> list:
-    """The render-visible lights of a depsgraph (what ``export_depsgraph`` would list), without
-    reading any geometry."""
-    ex = _Exporter(depsgraph)
+def export_lights(depsgraph, render_visibility: bool | None = None) -> list:
+    """The lights of a depsgraph that ``export_depsgraph`` would list, without reading any
+    geometry."""
+    ex = _Exporter(depsgraph, render_visibility)
     lights = []
     for inst in depsgraph.object_instances:
         ob = inst.object
@@ -239,9 +243,10 @@ def export_camera(depsgraph) -> Camera | None:
 # The exporter
 # --------------------------------------------------------------------------------------------
 class _Exporter:
-    def __init__(self, depsgraph):
+    def __init__(self, depsgraph, render_visibility: bool | None = None):
         self.dg = depsgraph
-        self.check_render_visibility = depsgraph.mode != "RENDER"
+        self.check_render_visibility = (depsgraph.mode != "RENDER" if render_visibility is None
+                                        else bool(render_visibility) and depsgraph.mode != "RENDER")
         self.models: list[Model] = []
         self.model_of: dict = {}  # geometry key -> model id, -1 for geometry without triangles
         self.attrs: list[tuple] = []  # (casts_shadow, sphere, rgba, specular, roughness)

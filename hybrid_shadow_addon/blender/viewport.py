@@ -51,7 +51,7 @@ def _object_attributes(ob) -> tuple:
     slots = ob.material_slots
     mat = slots[0].material if len(slots) else None
     return (bool(ob.visible_shadow), export.is_sphere_primitive(ob),
-            None if mat is None else mat.as_pointer(), tuple(ob.color), bool(ob.hide_render))
+            None if mat is None else mat.as_pointer(), tuple(ob.color))
 
 
 class ViewportSync:
@@ -68,10 +68,14 @@ class ViewportSync:
         self.attributes: dict = {}  # object name -> _object_attributes
         self.baked = False  # the pipeline's bake matches self.scene
         self.log: list = []  # (action, detail) of the updates applied, newest last
+        self.only = None  # local view: names of the objects it shows (None: every object)
 
     # -- full export ------------------------------------------------------------------------------
     def full_export(self, depsgraph) -> None:
-        scene = export.export_depsgraph(depsgraph, resolution=(1, 1))
+        scene = export.export_depsgraph(depsgraph, resolution=(1, 1), render_visibility=False)
+        if self.only is not None:
+            scene.instances = scene.instances.take([self._local(n) for n in scene.instances.names])
+            scene.lights = self._local_lights(scene.lights)
         rows: dict = {}
         for i, name in enumerate(scene.instances.names):
             rows.setdefault(name, []).append(i)
@@ -87,6 +91,24 @@ class ViewportSync:
         self.scene = scene
         self.baked = False
         self.log.append(("full", len(scene.instances)))
+
+    def _local(self, name: str) -> bool:
+        """Whether the instance or light ``name`` (``object`` or ``instancer/object``) is in the
+        local view (always, outside one)."""
+        return self.only is None or name.split("/", 1)[0] in self.only
+
+    def _local_lights(self, lights: list) -> list:
+        return [light for light in lights if self._local(light.name)]
+
+    def set_local_view(self, depsgraph, names) -> bool:
+        """Enter (``names``: the objects of the local view) or leave (None) a local view;
+        exports again when that changes what is shown. Returns whether it changed."""
+        only = None if names is None else frozenset(names)
+        if only == self.only:
+            return False
+        self.only = only
+        self.full_export(depsgraph)
+        return True
 
     def ensure_baked(self) -> None:
         """Bake the scene into the pipeline if it changed structurally since the last bake."""
@@ -105,7 +127,8 @@ class ViewportSync:
           none of them re-bakes anything;
         - a new object, an instancer (collection instances, particles, geometry-nodes instances),
           a collection change, or a change of what the exporter reads from an object (shadow
-          visibility, sphere flag, material slot, render visibility) → ``full``.
+          visibility, sphere flag, material slot) → ``full``. Objects hidden from render are shown
+          (as Cycles' and EEVEE's viewports do); what the viewport hides is not in its depsgraph.
         """
         plan = UpdatePlan()
         if self.scene is None:
@@ -150,11 +173,9 @@ class ViewportSync:
             return
         owned = name in self.rows
         if not owned:
-            # known but exported no rows: hidden from render, no triangles, an empty, ...
+            # known but exported no rows: no triangles, an empty, ...
             if kind in export.GEOMETRY_TYPES and u.is_updated_geometry:
                 plan.need_full(f"'{name}' may have gained geometry")
-            elif kind in export.GEOMETRY_TYPES and not ob.original.hide_render and not u.is_updated_transform:
-                plan.need_full(f"'{name}' may have become renderable")
             return
         if u.is_updated_geometry:
             plan.geometry.add(name)
@@ -184,7 +205,7 @@ class ViewportSync:
         if moved:
             self._move(depsgraph, moved)
         if plan.lights:
-            self.scene.lights = export.export_lights(depsgraph)
+            self.scene.lights = self._local_lights(export.export_lights(depsgraph, render_visibility=False))
             self._reset_history()
             self.log.append(("lights", len(self.scene.lights)))
         if plan.world:

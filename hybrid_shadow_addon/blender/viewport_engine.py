@@ -53,12 +53,36 @@ def view_update(engine, context, depsgraph) -> None:
         report_error(engine, exc)
 
 
+def preview_pixel_size(context) -> int:
+    """Render ▸ Performance ▸ Viewport ▸ Pixel Size: ``AUTO`` follows the interface's pixel size
+    (2 on a high-DPI display), else 1, 2, 4 or 8 screen pixels per rendered pixel."""
+    size = context.scene.render.preview_pixel_size
+    if size == "AUTO":
+        return max(1, int(round(context.preferences.system.pixel_size)))
+    return max(1, int(size))
+
+
+def local_view_objects(context):
+    """Names of the objects of the 3D view's local view, or None outside one."""
+    space = getattr(context, "space_data", None)
+    if space is None or getattr(space, "local_view", None) is None:
+        return None
+    return [ob.name for ob in context.view_layer.objects if ob.local_view_get(space)]
+
+
 def view_draw(engine, context, depsgraph) -> None:
-    """Render when needed (:func:`view_render`), then draw the last image unless it failed."""
+    """Render when needed (:func:`view_render`, at the preview pixel size), then draw the last
+    image over the region unless it failed."""
     region, rv3d = context.region, context.region_data
     scene = depsgraph.scene
     try:
-        view_render(engine, scene, rv3d, region.width, region.height)
+        if engine._sync is not None and engine._sync.scene is not None:
+            pipe = engine._viewport_pipeline()
+            with gl_scope(pipe):
+                if engine._sync.set_local_view(depsgraph, local_view_objects(context)):
+                    engine._vp_state = None  # render again
+        px = preview_pixel_size(context)
+        view_render(engine, scene, rv3d, max(1, -(-region.width // px)), max(1, -(-region.height // px)))
     except Exception as exc:
         report_error(engine, exc)
     if engine._display is not None and engine._vp_error is None:

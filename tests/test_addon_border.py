@@ -1,0 +1,131 @@
+"""Final renders through the engine (bpy in a subprocess): a render border, cropped or not,
+fills exactly the border's pixels with what a full render has there; shadow passes follow the
+view layer's own lights and keep Blender's 63-byte pass names without splitting a character."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+BORDER = (0.23, 0.71, 0.12, 0.64)  # min x, max x, min y, max y
+W, H = 96, 64
+
+
+def driver(out_dir: str) -> None:
+    sys.path.insert(0, str(REPO))
+    import bpy
+
+    import hybrid_shadow_addon
+    from hybrid_shadow_addon.blender import final_render
+    from hybrid_shadow_addon.blender.load import open_scene
+
+    out = Path(out_dir)
+    report = {}
+    sc = open_scene("cube_on_plane")
+    hybrid_shadow_addon.register()
+    try:
+        sc.render.engine = "HYBRID_SHADOWS"
+        sc.render.resolution_x, sc.render.resolution_y, sc.render.resolution_percentage = W, H, 100
+        vl = sc.view_layers[0]
+        vl.hybrid_shadows.use_pass_shadow = True
+        captured = {}
+        orig = final_render.write_result
+
+        def spy(engine, core, frame, scene, view_layer, width, height):
+            captured["full"] = frame.image.copy()
+            captured["region"] = final_render.border_region(scene, width, height)
+            orig(engine, core, frame, scene, view_layer, width, height)
+            captured["combined"] = None
+
+        final_render.write_result = spy
+        for crop in (False, True):
+            sc.render.use_border = True
+            sc.render.border_min_x, sc.render.border_max_x, sc.render.border_min_y, sc.render.border_max_y = BORDER
+            sc.render.use_crop_to_border = crop
+            bpy.ops.render.render()
+            img = bpy.data.images["Render Result"]
+            path = out / f"border_{int(crop)}.exr"
+            sc.render.image_settings.file_format = "OPEN_EXR"
+            img.save_render(str(path))
+            np.save(out / f"full_{int(crop)}.npy", captured["full"])
+            report[f"region_{int(crop)}"] = list(captured["region"])
+        final_render.write_result = orig
+        sc.render.use_border = False
+        # pass names: a long multi-byte light name, two lights whose cut names collide, and a light
+        # in a collection excluded from the view layer
+        light = next(o for o in sc.objects if o.type == "LIGHT")
+        light.name = "Lumière " + "é" * 40
+        twin = light.copy()
+        twin.name = "Lumière " + "é" * 41
+        sc.collection.objects.link(twin)
+        hidden = bpy.data.collections.new("excluded")
+        sc.collection.children.link(hidden)
+        other = light.copy()
+        other.name = "Elsewhere"
+        hidden.objects.link(other)
+        vl.layer_collection.children["excluded"].exclude = True
+        vl.update()
+        layout = final_render.pass_layout(sc, vl)
+        report["shadow_passes"] = [n for n, *_ in layout if n.startswith("Shadow ")]
+        bpy.ops.render.render()
+    finally:
+        hybrid_shadow_addon.unregister()
+    (out / "report.json").write_text(json.dumps(report))
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("border")
+    proc = subprocess.run([sys.executable, __file__, str(tmp)], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return tmp, json.loads((tmp / "report.json").read_text())
+
+
+def _read_exr(path):
+    import OpenEXR
+
+    with OpenEXR.File(str(path), separate_channels=False) as f:
+        for part in f.parts:
+            for name, ch in part.channels.items():
+                if name.endswith("RGBA") or name == "RGBA":
+                    return np.asarray(ch.pixels, np.float32)
+    raise KeyError(path)
+
+
+@pytest.mark.parametrize("crop", [False, True])
+def test_border_render_fills_the_border(run, crop):
+    tmp, report = run
+    x0, y0, w, h = report[f"region_{int(crop)}"]
+    assert (x0, w) == (int(BORDER[0] * W), int(BORDER[1] * W) - int(BORDER[0] * W))
+    assert (y0, h) == (int(BORDER[2] * H), int(BORDER[3] * H) - int(BORDER[2] * H))
+    img = _read_exr(tmp / f"border_{int(crop)}.exr")  # rows top-down
+    full = np.load(tmp / f"full_{int(crop)}.npy")  # the frame the engine rendered, top-down
+    rows = slice(H - (y0 + h), H - y0)
+    want = full[rows, x0:x0 + w]
+    if crop:
+        assert img.shape[:2] == (h, w)
+        got = img
+    else:
+        assert img.shape[:2] == (H, W)
+        got = img[rows, x0:x0 + w]
+        outside = np.ones((H, W), bool)
+        outside[rows, x0:x0 + w] = False
+        assert np.all(img[outside][:, 3] == 0)  # nothing rendered outside the border
+    assert np.allclose(got, want, atol=1e-6)
+
+
+def test_shadow_pass_names(run):
+    names = run[1]["shadow_passes"]
+    assert not any("Elsewhere" in n for n in names)  # its collection is excluded from the layer
+    assert len(names) == len(set(names)) == 2
+    for n in names:
+        assert len(n.encode("utf-8")) <= 63
+        n.encode("utf-8").decode("utf-8")  # whole characters only
+    assert any(n.endswith(".001") for n in names)
+
+
+if __name__ == "__main__":
+    driver(sys.argv[1])
