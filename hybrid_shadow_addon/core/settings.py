@@ -40,8 +40,9 @@ class Settings:
       light; point, spot and area lights get a cube of six maps).
     - ``structure``: the acceleration structure the shadow rays walk: ``grid`` (the thesis'
       hierarchical 2D grid over per-model BVHs) or ``bvh`` (a two-level BVH: binned-SAH model
-      trees under a binned-SAH tree over the instances, quantised one-texel nodes). The masks
-      are the same; changing it re-bakes the scene.
+      trees under a binned-SAH tree over the instances, quantised one-texel nodes; faster, but
+      not yet exact where tiny and huge objects share the scene, see BENCHMARKS.md). Changing it
+      re-bakes the scene.
     """
 
     mode: str = "raytrace"
