@@ -66,6 +66,7 @@ def make_scene(lights=("SUN",), meshes=True, spheres=False, spread=1.0):
 def trace(gl_ctx, scene, **settings):
     from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 
+    settings.setdefault("structure", "grid")  # (the grid's variants; "bvh" below)
     pipe = Pipeline(gl_ctx)
     try:
         pipe.set_scene(scene)

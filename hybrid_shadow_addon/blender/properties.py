@@ -126,7 +126,7 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
                                     description="Ray traced: skip or shorten shadow rays with conservative "
                                                 "light-space occupancy maps; exact, it only changes the work",
                                     update=_tag_viewport)
-    structure: EnumProperty(name="Structure", items=STRUCTURE_ITEMS, default="GRID",
+    structure: EnumProperty(name="Structure", items=STRUCTURE_ITEMS, default="BVH",
                             description="Ray traced: acceleration structure the shadow rays walk (the masks "
                                         "are the same; changing it re-bakes the scene)",
                             update=_tag_viewport)

@@ -8,6 +8,7 @@
 #define HS_LEAF_FLAG 0x80000000u
 #define HS_QEPS 9.5367431640625e-07     // 2^-20: per-ray widening of model boxes, x |o_q|_1
 #define HS_TLAS_EPS 3.814697265625e-06  // 2^-18: per-ray widening of top-level boxes
+#define HS_TFLOOR 1.9073486328125e-06   // 2^-19: nearest hit, x the vertices' reach along the ray
 
 uniform usampler2DArray hs_node_tex;
 uniform usampler2DArray hs_leaf_tex;
@@ -75,8 +76,12 @@ bool hs_tri_hit(vec3 o, HsShear s, vec3 v0, vec3 v1, vec3 v2, float tmax)
     precise float det = U + V + W;
     precise float T = (U * (s.sz * Akz) + V * (s.sz * Bkz)) + W * (s.sz * Ckz);
     precise float td = tmax * det;
-    if (det > 0.0) return T > 0.0 && T < td;
-    if (det < 0.0) return T < 0.0 && T > td;
+    // hits nearer than the float32 error of T (which grows with the vertices' distance along
+    // the ray axis) are the receiver's own surface: a 5 km ground triangle under a ray that
+    // leaves it 16 um up would otherwise shadow itself
+    precise float tfloor = HS_TFLOOR * max(max(abs(Akz), abs(Bkz)), abs(Ckz)) * abs(s.sz);
+    if (det > 0.0) return T > tfloor * det && T < td;
+    if (det < 0.0) return T < tfloor * det && T > td;
     return false;
 }
 

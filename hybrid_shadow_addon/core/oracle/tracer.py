@@ -74,8 +74,13 @@ def woop_setup(d: np.ndarray):
     return kx, ky, kz, sx.astype(F), sy.astype(F), sz.astype(F)
 
 
-def woop_hit(o, setup, v0, v1, v2, tmax) -> np.ndarray:
-    """Watertight ray/triangle (Woop, Benthin, Wald 2013), double-sided, hit iff t in (0, tmax).
+TFLOOR = F(2.0 ** -19)  # the BVH walk's nearest hit, x the vertices' reach along the ray axis
+
+
+def woop_hit(o, setup, v0, v1, v2, tmax, floor: bool = False) -> np.ndarray:
+    """Watertight ray/triangle (Woop, Benthin, Wald 2013), double-sided, hit iff t in (0, tmax);
+    with ``floor`` (the BVH walk, ``scene_bvh.glsl``) only beyond ``TFLOOR * max|v_kz - o_kz| *
+    |Sz|``, the float32 error of t, so that a huge triangle never shadows its own surface.
     All arguments broadcast per pair: o (P,3), setup arrays (P,), v* (P,3), tmax (P,)."""
     kx, ky, kz, sx, sy, sz = setup
     n = np.arange(len(o))
@@ -97,8 +102,12 @@ def woop_hit(o, setup, v0, v1, v2, tmax) -> np.ndarray:
     T = (U * (sz * Akz) + V * (sz * Bkz)) + W * (sz * Ckz)
     with np.errstate(over="ignore", invalid="ignore"):
         td = tmax * det
-        pos = (det > 0) & (T > 0) & (T < td)
-        neg = (det < 0) & (T < 0) & (T > td)
+        lo = np.zeros_like(det)
+        if floor:
+            lo = (TFLOOR * np.maximum(np.maximum(np.abs(Akz), np.abs(Bkz)), np.abs(Ckz)) * np.abs(sz)).astype(F)
+            lo = (lo * det).astype(F)
+        pos = (det > 0) & (T > lo) & (T < td)
+        neg = (det < 0) & (T < lo) & (T > td)
     return inside & (pos | neg)
 
 
@@ -514,7 +523,7 @@ def _trace_bvh(baked, origins, dirs, tmax, stats) -> np.ndarray:
             v = tri[f0[:, None] + np.arange(9)].reshape(-1, 3, 3)
             p = r[owner]
             setup = woop_setup(dm[p])
-            h = woop_hit(om[p], setup, v[:, 0], v[:, 1], v[:, 2], tm[p])
+            h = woop_hit(om[p], setup, v[:, 0], v[:, 1], v[:, 2], tm[p], floor=True)
             if stats is not None:
                 stats["triangles"] += owner.size
             occ[p[h]] = True
