@@ -154,15 +154,20 @@ class OBJECT_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         layout.prop(ob, "hybrid_sphere")
 
 
-class DATA_PT_hybrid_shadows_light_settings(HybridShadowsPanel, bpy.types.Panel):
-    """What the engine reads of a light, below the stock Light panel (which draws its type)."""
+class LightPanel(HybridShadowsPanel):
+    """A panel of the Light tab (Object Data of a light)."""
 
-    bl_label = "Light Settings"
     bl_context = "data"
 
     @classmethod
     def poll(cls, context):
         return super().poll(context) and context.light is not None
+
+
+class DATA_PT_hybrid_shadows_light_settings(LightPanel, bpy.types.Panel):
+    """What the engine reads of a light, below the stock Light panel (which draws its type)."""
+
+    bl_label = "Light Settings"
 
     def draw(self, context):
         layout = self.split_layout()
@@ -200,13 +205,8 @@ class DATA_PT_hybrid_shadows_light_settings(HybridShadowsPanel, bpy.types.Panel)
             col.prop(light, "show_cone")
 
 
-class DATA_PT_hybrid_shadows_light(HybridShadowsPanel, bpy.types.Panel):
+class DATA_PT_hybrid_shadows_light(LightPanel, bpy.types.Panel):
     bl_label = "Shadow"
-    bl_context = "data"
-
-    @classmethod
-    def poll(cls, context):
-        return super().poll(context) and context.light is not None
 
     def draw_header(self, context):
         self.layout.prop(context.light, "use_shadow", text="")
