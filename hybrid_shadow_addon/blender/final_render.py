@@ -20,7 +20,7 @@ import traceback
 import numpy as np
 
 from ..core.errors import Cancelled, HybridShadowError
-from ..core.scene_sync import FULL, INCREMENTAL, NONE, bake_full, sync_scene
+from ..core.scene_sync import FULL, INCREMENTAL, NONE, sync_scene
 from . import export
 from .gl import final_scope, final_state
 
@@ -203,7 +203,7 @@ def prepare_bake(engine, pipe, core, scene, view_layer, settings) -> str:
         if not raytrace:
             return NONE
         _stats(engine, f"Hybrid Shadows | Baking {len(core.instances)} objects")
-        bake_full(pipe, core, getattr(settings, "structure", None))
+        pipe.set_scene(core, settings.structure)
         BAKES[FULL] += 1
         return FULL
     import bpy
@@ -214,7 +214,7 @@ def prepare_bake(engine, pipe, core, scene, view_layer, settings) -> str:
         _stats(engine, f"Hybrid Shadows | {'Updating the bake' if prev is not None else 'Baking'} "
                                 f"({len(core.instances)} objects)")
     try:
-        kind = sync_scene(pipe, prev, core, bake=raytrace, structure=getattr(settings, "structure", None)).kind
+        kind = sync_scene(pipe, prev, core, bake=raytrace, structure=settings.structure).kind
     except BaseException:
         state.clear()
         pipe.baked = None  # half-updated: the next frame bakes afresh

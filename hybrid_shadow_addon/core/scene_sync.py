@@ -13,11 +13,12 @@ object, so the GPU's vertex buffers are reused), new meshes appended.
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .scene import Instances, Scene
+from .scene import Scene
 
 FULL, INCREMENTAL, NONE = "full", "incremental", "none"
 
@@ -98,13 +99,8 @@ def _align_models(prev: Scene, scene: Scene):
     return sorted(changed)
 
 
-def bake_full(pipeline, scene, structure: str | None = None) -> float:
-    """``pipeline.set_scene`` with ``structure`` when one is given; the bake time in ms."""
-    return pipeline.set_scene(scene) if structure is None else pipeline.set_scene(scene, structure)
-
-
 def _bake(pipeline, scene, reason: str, structure) -> SyncReport:
-    return SyncReport(FULL, ms=bake_full(pipeline, scene, structure), reason=reason)
+    return SyncReport(FULL, ms=pipeline.set_scene(scene, structure), reason=reason)
 
 
 def sync_scene(pipeline, prev: Scene | None, scene: Scene, *, bake: bool = True,
@@ -114,8 +110,6 @@ def sync_scene(pipeline, prev: Scene | None, scene: Scene, *, bake: bool = True,
     no bake is made or updated, but an existing one is dropped when the geometry changed.
     ``structure``: the acceleration structure wanted (``Settings.structure``); a bake of
     another one is made afresh."""
-    import time
-
     if not bake:
         if pipeline.baked is not None and (prev is None or _geometry_changed(prev, scene)):
             pipeline.baked = None  # stale: the next ray-traced frame bakes afresh

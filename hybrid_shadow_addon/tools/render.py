@@ -10,6 +10,7 @@ import os
 import re
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -135,9 +136,7 @@ def render_to_files(scene, settings, *, resolution=None, output: str, masks_dir:
     if not scene.lights:
         print(f"warning: scene '{scene.name}' has no lights: rendering the world colour (ambient) only",
               file=sys.stderr, flush=True)
-    from ..core.scene_sync import bake_full
-
-    bake_ms = bake_full(pipe, scene, getattr(settings, "structure", None)) if settings.mode == "raytrace" else 0.0
+    bake_ms = pipe.set_scene(scene, settings.structure) if settings.mode == "raytrace" else 0.0
     frame = pipe.render(scene, settings, width, height, progress=progress)
     stats = frame_stats(scene, frame, bake_ms)
     if progress is not None:
@@ -233,8 +232,6 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
     image exists are skipped unless ``overwrite``. ``stats_path``: a JSON list, one entry per
     frame (``frame``, ``bake``, the per-pass ms), rewritten after every frame. Returns
     ``{"frames": [entries], "rendered": n, "skipped": n, "total_ms": ms}``."""
-    import time
-
     from ..core.gpu.pipeline import Pipeline
     from ..core.scene_sync import sync_scene
 
@@ -273,7 +270,7 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
             warned = True
             print(f"warning: scene '{scene.name}' has no lights: rendering the world colour (ambient) only",
                   file=sys.stderr, flush=True)
-        sync = sync_scene(pipe, prev, scene, bake=raytrace, structure=getattr(settings, "structure", None))
+        sync = sync_scene(pipe, prev, scene, bake=raytrace, structure=settings.structure)
         prev = scene
         width, height = resolution or scene.resolution
         frame = pipe.render(scene, settings, width, height)
