@@ -11,6 +11,9 @@
 // log(far / near)): the projection's hyperbolic depth in a 24-bit buffer resolves only ~6 cm at
 // 10 m when clip_start is 1e-4 (surfaces 2 cm apart z-fought); the log depth resolves ~1e-6 of
 // the distance for any clip range.
+// TEXTURED (models with UVs shown with a textured material): in_uv per vertex, in_matid per
+// instance (-1: none); the albedo is the colour image (mip mapped, common/alpha.glsl) times the
+// instance colour, and fragments whose alpha the material cuts are discarded.
 #include "common/camera.glsl"
 uniform float u_log_depth_scale;   // 1 / log2(clip_end / clip_start)
 
@@ -23,6 +26,12 @@ in vec4 in_m0; in vec4 in_m1; in vec4 in_m2;  // rows of the camera-relative wor
 in vec3 in_n0; in vec3 in_n1; in vec3 in_n2;  // rows of the normal matrix (inverse transpose)
 in vec4 in_color;
 in vec3 in_material;                          // specular, roughness, instance index
+#ifdef TEXTURED
+in vec2 in_uv;
+in float in_matid;
+out vec2 v_uv;
+flat out int v_matid;
+#endif
 #ifdef SPHERE
 in vec4 in_i0; in vec4 in_i1; in vec4 in_i2;  // rows of the inverse world matrix (camera-relative)
 in vec4 in_sphere;                            // model-space bounding sphere: centre, radius
@@ -52,11 +61,20 @@ void main() {
     v_n0 = in_n0; v_n1 = in_n1; v_n2 = in_n2;
     v_color = in_color;
     v_material = in_material;
+#ifdef TEXTURED
+    v_uv = in_uv;
+    v_matid = int(in_matid);
+#endif
     gl_Position = u_clip_from_rel * vec4(rel, 1.0);
 }
 #endif
 
 #ifdef FRAGMENT_SHADER
+#ifdef TEXTURED
+#include "common/alpha.glsl"
+in vec2 v_uv;
+flat in int v_matid;
+#endif
 flat in vec3 v_plane_point;
 flat in vec3 v_normal;
 flat in vec4 v_color;
@@ -77,6 +95,19 @@ layout(location = 4) out vec4 o_material;   // specular, roughness, instance ind
 layout(location = 5) out vec4 o_depth;      // r: view depth (metres along the view axis)
 
 void main() {
+    vec4 albedo = v_color;
+#ifdef TEXTURED
+    if (v_matid >= 0) {
+        // the mip level from the screen-space footprint of the image's texels (derivatives
+        // first: they need every lane of the quad)
+        vec2 tex_size = hs_material_color_size(v_matid);
+        vec2 tuv = hs_material_uv(v_matid, v_uv);
+        vec2 dx = dFdx(tuv) * tex_size, dy = dFdy(tuv) * tex_size;
+        float lod = 0.5 * log2(max(max(dot(dx, dx), dot(dy, dy)), 1e-30));
+        if (!hs_alpha_keeps(v_matid, v_uv)) discard;
+        albedo.rgb *= hs_material_color(v_matid, v_uv, lod);
+    }
+#endif
     vec3 ro, rd;
     camera_ray(gl_FragCoord.xy, ro, rd);
     vec3 p;
@@ -126,7 +157,7 @@ void main() {
     o_position = vec4(u_cam_pos + p, 1.0);
     o_normal = vec4(n, 1.0);
     o_shading = vec4(ns, 1.0);
-    o_albedo = v_color;
+    o_albedo = albedo;
     o_material = vec4(v_material, 1.0);
     float vd = view_depth(p);
     o_depth = vec4(vd, 0.0, 0.0, 1.0);

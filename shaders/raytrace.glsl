@@ -1,6 +1,6 @@
 // Pass 2, ray traced: one shadow ray per mask texel towards one light, through the baked scene.
 //
-// Output (R32F): 1 = lit, 0 = shadowed. Background texels are 1 (the lighting pass skips them).
+// Output (R32F): 1 = lit, 0 = shadowed (between: the light kept through alpha-cut casters). Background texels are 1 (the lighting pass skips them).
 // Texels whose surface faces away from the light, or that the light cannot reach (outside a
 // spot's cone, behind an area light) are 0 without a ray: unlit anyway.
 // Defines (besides scene_data.glsl's): HS_LIGHT_SUN or HS_LIGHT_LOCAL (point, spot, area) picks
@@ -89,6 +89,6 @@ void main()
         }
     }
 #endif
-    o_mask = hs_occluded(o, d, tmax) ? 0.0 : 1.0;
+    o_mask = hs_visibility(o, d, tmax);
 }
 #endif

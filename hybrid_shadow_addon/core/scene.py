@@ -9,6 +9,8 @@ Conventions (Blender's): right-handed, Z up, metres. Matrices are 4x4 float64, c
   100k instances cost arrays, not Python objects.
 - :class:`Light`: sun, point, spot, area (Blender's parameters and units).
 - :class:`Camera`: perspective or orthographic with Blender's sensor fit, shift and clip range.
+- :class:`Image`, :class:`Material`: textures and the alpha of textured/cut-out materials
+  (foliage cards, fences), referenced by instances through ``Instances.material_ids``.
 - :class:`Scene`: all of the above plus the world colour and the render resolution.
 
 ``Scene.validate()`` rejects NaN/inf (and other unusable values) with a message naming the object.
@@ -57,12 +59,15 @@ class Model:
     sphere_center: np.ndarray = None  # (3,) float32
     sphere_radius: float = None
     normals: np.ndarray = None  # (T, 3, 3) float32 smooth shading normal per corner; None: flat
+    uvs: np.ndarray = None  # (T, 3, 2) float32 texture coordinates per corner; None: no UV map
 
     def __post_init__(self):
         self.vertices = _f32(self.vertices, (3,))
         self.triangles = np.ascontiguousarray(self.triangles, dtype=np.uint32).reshape(-1, 3)
         if self.normals is not None:
             self.normals = _f32(self.normals).reshape(-1, 3, 3)
+        if self.uvs is not None:
+            self.uvs = _f32(self.uvs).reshape(-1, 3, 2)
         if self.bounds_min is None or self.bounds_max is None:
             if len(self.vertices):
                 self.bounds_min = self.vertices.min(axis=0)
@@ -110,6 +115,12 @@ class Model:
                                  f"{len(self.triangles)} triangles")
             if not np.isfinite(self.normals).all():
                 raise SceneError(f"mesh '{self.name}' has NaN or infinite normals")
+        if self.uvs is not None:
+            if self.uvs.shape != (len(self.triangles), 3, 2):
+                raise SceneError(f"mesh '{self.name}' has {len(self.uvs)} UV triples for "
+                                 f"{len(self.triangles)} triangles")
+            if not np.isfinite(self.uvs).all():
+                raise SceneError(f"mesh '{self.name}' has NaN or infinite UVs")
 
 
 # --------------------------------------------------------------------------------------------
@@ -134,6 +145,7 @@ class Instances:
     specular: np.ndarray = None  # (N,) float32, 0..1 (Principled "Specular IOR Level", clamped)
     roughness: np.ndarray = None  # (N,) float32
     sphere: np.ndarray = None  # (N,) bool
+    material_ids: np.ndarray = None  # (N,) int32 index into Scene.materials; -1: plain colour
 
     def __post_init__(self):
         n = len(self.names)
@@ -150,6 +162,8 @@ class Instances:
         self.specular = np.full(n, 0.5, np.float32) if self.specular is None else _f32(self.specular).reshape(n)
         self.roughness = np.full(n, 0.5, np.float32) if self.roughness is None else _f32(self.roughness).reshape(n)
         self.sphere = np.zeros(n, bool) if self.sphere is None else np.ascontiguousarray(self.sphere, bool).reshape(n)
+        self.material_ids = (np.full(n, -1, np.int32) if self.material_ids is None
+                             else np.ascontiguousarray(self.material_ids, np.int32).reshape(n))
 
     def __len__(self) -> int:
         return len(self.names)
@@ -169,6 +183,7 @@ class Instances:
             specular=np.concatenate([p.specular for p in parts]),
             roughness=np.concatenate([p.roughness for p in parts]),
             sphere=np.concatenate([p.sphere for p in parts]),
+            material_ids=np.concatenate([p.material_ids for p in parts]),
         )
 
     def take(self, rows) -> "Instances":
@@ -177,7 +192,8 @@ class Instances:
         return Instances(names=[self.names[i] for i in rows.tolist()], model_ids=self.model_ids[rows],
                          matrices=self.matrices[rows], inverse=self.inverse[rows],
                          casts_shadow=self.casts_shadow[rows], base_color=self.base_color[rows],
-                         specular=self.specular[rows], roughness=self.roughness[rows], sphere=self.sphere[rows])
+                         specular=self.specular[rows], roughness=self.roughness[rows], sphere=self.sphere[rows],
+                         material_ids=self.material_ids[rows])
 
     def max_scale(self) -> np.ndarray:
         """(N,) largest axis scale of each world matrix (length of the 3x3 columns)."""
@@ -210,6 +226,123 @@ def affine_inverse(m: np.ndarray) -> np.ndarray:
     out[ok, :3, 3] = -np.einsum("nij,nj->ni", inv3, m[ok, :3, 3])
     out[ok, 3] = (0, 0, 0, 1)
     return out
+
+
+# --------------------------------------------------------------------------------------------
+# Images and materials
+# --------------------------------------------------------------------------------------------
+IMAGE_EXTENSIONS = ("REPEAT", "EXTEND", "CLIP", "MIRROR")
+IMAGE_INTERPOLATIONS = ("Linear", "Closest")
+ALPHA_MODES = ("BLEND", "CLIP")
+ALPHA_CHANNELS = ("A", "LUMA")
+#: Rec. 709 luminance (Blender's default scene-linear space): a Color socket linked to a float one
+LUMA = (0.2126, 0.7152, 0.0722)
+
+
+@dataclass
+class Image:
+    """An image texture as Blender stores it: ``pixels`` (H, W, 4) uint8 RGBA, row 0 at the
+    bottom (v = 0), the stored values (``srgb``: the colour channels are sRGB-encoded and are
+    decoded for the albedo; alpha is always linear).
+
+    Sampling rule (the GPU and the numpy oracle both follow it): texel (i, j) has its centre at
+    ``((i + 0.5) / W, (j + 0.5) / H)``; ``"Linear"`` blends the 4 nearest texels bilinearly,
+    ``"Closest"`` takes ``floor(u W), floor(v H)``; outside [0, 1) ``"REPEAT"`` wraps, ``"EXTEND"``
+    clamps to the edge texel, ``"MIRROR"`` reflects, ``"CLIP"`` reads transparent black.
+    """
+
+    name: str
+    pixels: np.ndarray
+    srgb: bool = True
+    extension: str = "REPEAT"
+    interpolation: str = "Linear"
+
+    def __post_init__(self):
+        px = np.asarray(self.pixels)
+        if px.dtype != np.uint8:
+            with np.errstate(invalid="ignore"):
+                px = np.round(np.clip(np.nan_to_num(px.astype(np.float64)), 0.0, 1.0) * 255.0).astype(np.uint8)
+        if px.ndim == 2:
+            px = px[:, :, None]
+        if px.ndim != 3 or px.shape[2] not in (1, 3, 4):
+            raise SceneError(f"image '{self.name}' has pixels of shape {px.shape}; expected (H, W, 4)")
+        if px.shape[2] == 1:
+            px = np.concatenate([np.repeat(px, 3, axis=2), np.full(px.shape[:2] + (1,), 255, np.uint8)], axis=2)
+        elif px.shape[2] == 3:
+            px = np.concatenate([px, np.full(px.shape[:2] + (1,), 255, np.uint8)], axis=2)
+        self.pixels = np.ascontiguousarray(px)
+        self.extension = str(self.extension).upper()
+        self.interpolation = str(self.interpolation).capitalize()
+
+    @property
+    def size(self) -> tuple:
+        return int(self.pixels.shape[1]), int(self.pixels.shape[0])
+
+    def validate(self) -> None:
+        w, h = self.size
+        if w < 1 or h < 1:
+            raise SceneError(f"image '{self.name}' is empty ({w}x{h})")
+        if self.extension not in IMAGE_EXTENSIONS:
+            raise SceneError(f"image '{self.name}' has unsupported extension {self.extension!r}")
+        if self.interpolation not in IMAGE_INTERPOLATIONS:
+            raise SceneError(f"image '{self.name}' has unsupported interpolation {self.interpolation!r}")
+
+
+@dataclass
+class Material:
+    """What the engine reads of a (Principled) material beyond the instance's flat colour.
+
+    - ``color_image``: index into ``Scene.images`` whose RGB multiplies the instance's base
+      colour (the export sets that colour to white when Base Color is the image); -1: none.
+    - ``alpha`` (constant) or ``alpha_image`` (index; ``alpha_channel`` "A": the image's Alpha
+      output, "LUMA": its Color output through Rec. 709 luminance, as Blender converts a colour
+      linked to a float socket), times ``alpha`` when both are given.
+    - ``uv_transform``: (2, 3) affine map from the mesh's UVs to the image's (a Mapping node).
+    - ``alpha_mode``: "BLEND" (as Cycles: a shadow ray crossing the surface keeps 1 - alpha of
+      its light; the G-buffer keeps fragments with alpha >= 0.5) or "CLIP" (alpha below
+      ``alpha_threshold`` lets the ray through, the rest blocks it; the G-buffer discards the same).
+    - ``transparent_shadow``: False casts the whole surface's shadow (Blender's
+      ``use_transparent_shadow`` off); the G-buffer still cuts the alpha.
+
+    A material "cuts" (:attr:`has_alpha`) when its alpha can be below 1 somewhere.
+    """
+
+    name: str
+    color_image: int = -1
+    alpha: float = 1.0
+    alpha_image: int = -1
+    alpha_channel: str = "A"
+    uv_transform: np.ndarray = None
+    alpha_mode: str = "BLEND"
+    alpha_threshold: float = 0.5
+    transparent_shadow: bool = True
+
+    def __post_init__(self):
+        self.uv_transform = (np.float32([[1, 0, 0], [0, 1, 0]]) if self.uv_transform is None
+                             else _f32(self.uv_transform).reshape(2, 3))
+        self.alpha_mode = str(self.alpha_mode).upper()
+        self.alpha_channel = str(self.alpha_channel).upper()
+        self.alpha = float(self.alpha)
+        self.alpha_threshold = float(self.alpha_threshold)
+
+    @property
+    def has_alpha(self) -> bool:
+        return self.alpha_image >= 0 or self.alpha < 1.0
+
+    @property
+    def textured(self) -> bool:
+        return self.color_image >= 0 or self.alpha_image >= 0
+
+    def validate(self, n_images: int) -> None:
+        if self.alpha_mode not in ALPHA_MODES:
+            raise SceneError(f"material '{self.name}' has unsupported alpha mode {self.alpha_mode!r}")
+        if self.alpha_channel not in ALPHA_CHANNELS:
+            raise SceneError(f"material '{self.name}' has unsupported alpha channel {self.alpha_channel!r}")
+        for label, i in (("colour", self.color_image), ("alpha", self.alpha_image)):
+            if not -1 <= int(i) < n_images:
+                raise SceneError(f"material '{self.name}' refers to a missing {label} image ({i})")
+        if not (np.isfinite(self.uv_transform).all() and np.isfinite([self.alpha, self.alpha_threshold]).all()):
+            raise SceneError(f"material '{self.name}' has a NaN or infinite alpha or UV mapping")
 
 
 # --------------------------------------------------------------------------------------------
@@ -408,6 +541,8 @@ class Scene:
     world_color: np.ndarray = field(default_factory=lambda: np.float32([0.05, 0.05, 0.05]))
     resolution: tuple = (1920, 1080)
     frame: int = 1
+    materials: list = field(default_factory=list)  # list[Material], see Instances.material_ids
+    images: list = field(default_factory=list)  # list[Image], see Material
 
     def __post_init__(self):
         self.world_color = _f32(self.world_color).reshape(3)
@@ -430,6 +565,19 @@ class Scene:
         out = {t: 0 for t in LIGHT_TYPES}
         for light in self.lights:
             out[light.type] = out.get(light.type, 0) + 1
+        return out
+
+    def alpha_models(self) -> np.ndarray:
+        """(M,) bool: models shown by at least one shadow-casting instance whose material cuts
+        its shadow (alpha below 1 somewhere, transparent shadows on): their triangles need UVs
+        and the any-hit alpha test. An opaque scene has none."""
+        out = np.zeros(len(self.models), bool)
+        inst = self.instances
+        if not len(inst) or not self.materials:
+            return out
+        cuts = np.array([m.has_alpha and m.transparent_shadow for m in self.materials] + [False])
+        rows = cuts[inst.material_ids] & inst.casts_shadow & ~inst.sphere
+        out[np.unique(inst.model_ids[rows])] = True
         return out
 
     def instance_spheres(self, idx=None):
@@ -495,10 +643,23 @@ class Scene:
             bad_i = ~np.isfinite(inst.inverse).all(axis=(1, 2))
             if bad_i.any():
                 raise SceneError(f"object '{inst.names[int(np.argmax(bad_i))]}' has a zero scale (its transform cannot be inverted)")
+            if inst.material_ids.min() < -1 or inst.material_ids.max() >= len(self.materials):
+                bad = int(np.nonzero((inst.material_ids < -1) | (inst.material_ids >= len(self.materials)))[0][0])
+                raise SceneError(f"object '{inst.names[bad]}' refers to a missing material")
             for label, arr in (("colour", inst.base_color), ("specular", inst.specular)):
                 bad = ~np.isfinite(arr.reshape(n, -1)).all(axis=1)
                 if bad.any():
                     raise SceneError(f"object '{inst.names[int(np.argmax(bad))]}' has a NaN or infinite {label}")
+        for img in self.images:
+            img.validate()
+        for mat in self.materials:
+            mat.validate(len(self.images))
+        if n and self.materials:
+            for m in np.unique(inst.model_ids[inst.material_ids >= 0]).tolist():
+                rows = np.nonzero((inst.model_ids == m) & (inst.material_ids >= 0))[0]
+                if self.models[m].uvs is None and any(self.materials[k].textured for k in inst.material_ids[rows].tolist()):
+                    raise SceneError(f"object '{inst.names[int(rows[0])]}' has a textured material but its mesh "
+                                     f"'{self.models[m].name}' has no UV map")
         for light in self.lights:
             light.validate()
         if self.camera is None:
@@ -528,6 +689,9 @@ class Scene:
             "unique_triangles": self.unique_triangle_count,
             "lights": self.lights_by_type(),
             "shadowed_lights": sum(1 for l in self.lights if l.use_shadow),
+            "materials": len(self.materials),
+            "images": len(self.images),
+            "alpha_models": int(self.alpha_models().sum()),
             "camera": None if self.camera is None else {"name": self.camera.name, "type": self.camera.type},
             "world_bounds": None if b is None else {"min": [float(x) for x in b[0]], "max": [float(x) for x in b[1]]},
         }

@@ -60,8 +60,10 @@ HsShear hs_shear_setup(vec3 d)
 
 float hs_row(vec3 m, vec3 a) { precise float r = (m.x * a.x + m.y * a.y) + m.z * a.z; return r; }
 
-bool hs_tri_hit(vec3 o, HsShear s, vec3 v0, vec3 v1, vec3 v2, float tmax)
+// bary: the hit's barycentric weights of v0, v1, v2 (set on a hit)
+bool hs_tri_hit_b(vec3 o, HsShear s, vec3 v0, vec3 v1, vec3 v2, float tmax, out vec3 bary)
 {
+    bary = vec3(0.0);
     precise vec3 A = v0 - o;
     precise vec3 B = v1 - o;
     precise vec3 C = v2 - o;
@@ -80,9 +82,15 @@ bool hs_tri_hit(vec3 o, HsShear s, vec3 v0, vec3 v1, vec3 v2, float tmax)
     // the ray axis) are the receiver's own surface: a 5 km ground triangle under a ray that
     // leaves it 16 um up would otherwise shadow itself
     precise float tfloor = HS_TFLOOR * max(max(abs(Akz), abs(Bkz)), abs(Ckz)) * abs(s.sz);
-    if (det > 0.0) return T > tfloor * det && T < td;
-    if (det < 0.0) return T < tfloor * det && T > td;
-    return false;
+    bool hit = (det > 0.0) ? (T > tfloor * det && T < td) : (det < 0.0 && T < tfloor * det && T > td);
+    if (hit) bary = vec3(U, V, W) / det;
+    return hit;
+}
+
+bool hs_tri_hit(vec3 o, HsShear s, vec3 v0, vec3 v1, vec3 v2, float tmax)
+{
+    vec3 bary;
+    return hs_tri_hit_b(o, s, v0, v1, v2, tmax, bary);
 }
 
 // One leaf: up to HS_BVH_LEAF_SIZE (<= 4) triangles, 9 floats each back to back in the texels
@@ -102,6 +110,55 @@ bool hs_leaf_hit(vec3 o, HsShear s, int cnt, vec4 a, vec4 b, vec4 c, vec4 d, vec
 #endif
     return false;
 }
+
+#ifdef HS_HAS_ALPHA
+#include "common/alpha.glsl"
+// [uv] RGBA32F: the UVs of an alpha-cut model's triangles at the same texels as the triangles
+// in [leaf], 6 floats each back to back (u0 v0 u1 v1 u2 v2)
+uniform sampler2DArray hs_uv_tex;
+#define HS_VIS_MIN 1.0e-3   // less light than this left: the ray is blocked
+
+// Triangle k of the leaf at [leaf] texel at, of material mat: the light the ray keeps through it
+// (1 when it misses).
+float hs_alpha_tri(vec3 o, HsShear s, vec3 v0, vec3 v1, vec3 v2, float tmax, int mat, int at, int k)
+{
+    vec3 b;
+    if (!hs_tri_hit_b(o, s, v0, v1, v2, tmax, b)) return 1.0;
+    int t = at + (3 * k) / 2;
+    vec4 p = texelFetch(hs_uv_tex, hs_texel(t), 0);
+    vec4 q = texelFetch(hs_uv_tex, hs_texel(t + 1), 0);
+    bool odd = (k & 1) != 0;
+    vec2 a0 = odd ? p.zw : p.xy, a1 = odd ? q.xy : p.zw, a2 = odd ? q.zw : q.xy;
+    return hs_transmittance(mat, b.x * a0 + b.y * a1 + b.z * a2);
+}
+
+float hs_leaf_transmit(vec3 o, HsShear s, int cnt, vec4 a, vec4 b, vec4 c, vec4 d, vec4 e, vec4 g,
+                       vec4 h, vec4 k, vec4 l, float tmax, int mat, int at)
+{
+    float t = hs_alpha_tri(o, s, a.xyz, vec3(a.w, b.xy), vec3(b.zw, c.x), tmax, mat, at, 0);
+#if HS_BVH_LEAF_SIZE > 1
+    if (cnt > 1 && t > 0.0) t *= hs_alpha_tri(o, s, c.yzw, d.xyz, vec3(d.w, e.xy), tmax, mat, at, 1);
+#endif
+#if HS_BVH_LEAF_SIZE > 2
+    if (cnt > 2 && t > 0.0) t *= hs_alpha_tri(o, s, vec3(e.zw, g.x), g.yzw, h.xyz, tmax, mat, at, 2);
+#endif
+#if HS_BVH_LEAF_SIZE > 3
+    if (cnt > 3 && t > 0.0) t *= hs_alpha_tri(o, s, vec3(h.w, k.xy), vec3(k.zw, l.x), l.yzw, tmax, mat, at, 3);
+#endif
+    return t;
+}
+#define HS_TRACE_T float
+#define HS_BLOCKED 0.0
+#define HS_UNBLOCKED vis
+#else
+#define HS_TRACE_T bool
+#define HS_BLOCKED true
+#define HS_UNBLOCKED false
+#endif
+#else
+#define HS_TRACE_T bool
+#define HS_BLOCKED true
+#define HS_UNBLOCKED false
 #endif
 
 // The shadow-ray query, "while-while" (Aila & Laine 2009): the inner loop walks nodes (top level
@@ -110,10 +167,14 @@ bool hs_leaf_hit(vec3 o, HsShear s, int cnt, vec4 a, vec4 b, vec4 c, vec4 d, vec
 // tree's end returns the walk to the top-level node after the instance's leaf. Per ray the nodes
 // are visited in the same order as by one flat loop; the split only keeps the leaf work out of
 // the node steps (a SIMD software rasteriser runs every branch of a loop body for all lanes).
-bool hs_occluded(vec3 o, vec3 d, float tmax)
+HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax)
 {
+#ifdef HS_HAS_ALPHA
+    float vis = 1.0;   // light kept through the alpha-cut surfaces crossed so far
+    int amat = 0;      // 1 + material of the current instance when it cuts its shadow
+#endif
     tmax = min(tmax, HS_FLT_BIG);
-    if (!(tmax > 0.0) || (d.x == 0.0 && d.y == 0.0 && d.z == 0.0)) return false;
+    if (!(tmax > 0.0) || (d.x == 0.0 && d.y == 0.0 && d.z == 0.0)) return HS_UNBLOCKED;
     precise vec3 toq = (o - hs_tlas_base) * hs_tlas_inv_scale;
     vec3 tdq = d * hs_tlas_inv_scale;
     vec3 ta = abs(toq);
@@ -183,7 +244,7 @@ bool hs_occluded(vec3 o, vec3 d, float tmax)
                                     (x2.x * d.x + x2.y * d.y) + x2.z * d.z);
             bool is_sphere = (u3.z & HS_SPHERE_FLAG) != 0u;
 #ifdef HS_HAS_SPHERES
-            if (is_sphere && hs_sphere_hit(m_o, m_d, x4.xyz, x4.w, tmax)) return true;
+            if (is_sphere && hs_sphere_hit(m_o, m_d, x4.xyz, x4.w, tmax)) return HS_BLOCKED;
 #endif
 #ifdef HS_HAS_MESHES
             if (!is_sphere) {
@@ -199,17 +260,38 @@ bool hs_occluded(vec3 o, vec3 d, float tmax)
                 ret = i + 1;
                 next = int(u3.x);
                 bend = int(u3.y);
+#ifdef HS_HAS_ALPHA
+                amat = int(u3.w);
+#endif
             }
 #endif
         }
 #ifdef HS_HAS_MESHES
-        else if (hs_leaf_hit(om, sh, int(pay & 7u), x0, x1, x2, x3, x4, x5, x6, x7, x8, tmax)) {
-            return true;
+        else {
+#ifdef HS_HAS_ALPHA
+            if (amat != 0) {
+                vis *= hs_leaf_transmit(om, sh, int(pay & 7u), x0, x1, x2, x3, x4, x5, x6, x7, x8, tmax,
+                                        amat - 1, at);
+                if (vis < HS_VIS_MIN) return HS_BLOCKED;
+            } else
+#endif
+            if (hs_leaf_hit(om, sh, int(pay & 7u), x0, x1, x2, x3, x4, x5, x6, x7, x8, tmax)) return HS_BLOCKED;
         }
 #endif
         i = next;
     }
-    return false;
+    return HS_UNBLOCKED;
 }
+
+#ifdef HS_HAS_ALPHA
+// Visibility in [0, 1]: the product of the transmittances of every alpha-cut surface the ray
+// crosses in (0, tmax), 0 at an opaque one.
+float hs_visibility(vec3 o, vec3 d, float tmax) { return hs_trace(o, d, tmax); }
+bool hs_occluded(vec3 o, vec3 d, float tmax) { return hs_trace(o, d, tmax) == 0.0; }
+#else
+bool hs_occluded(vec3 o, vec3 d, float tmax) { return hs_trace(o, d, tmax); }
+float hs_visibility(vec3 o, vec3 d, float tmax) { return hs_trace(o, d, tmax) ? 0.0 : 1.0; }
+#endif
+
 
 #endif // HS_SCENE_BVH_GLSL

@@ -434,6 +434,8 @@ bool hs_occluded(vec3 o, vec3 d, float tmax)
     return false;
 }
 
+float hs_visibility(vec3 o, vec3 d, float tmax) { return hs_occluded(o, d, tmax) ? 0.0 : 1.0; }
+
 #endif // HS_STRUCTURE_BVH
 
 #endif // HS_SCENE_DATA_GLSL

@@ -21,6 +21,7 @@ from . import update as _update
 from .bvh import build_bvhs, build_trees, morton_order_groups
 from .state import (TEXTURE_NAMES, BakeConfig, GridState, InstanceState, ModelState, TextureSet, UpdateReport,
                     new_texture)
+from .materials import MaterialBake, bake_materials
 from .textures import (BVH_TEXELS, EMPTY_HEIGHT, GRID_TEXELS, INDEX_TEXELS, MAX_ROWS_LOG2, MODEL_TEXELS,
                        OBJECT_TEXELS, REL_EPS, SPHERE_FLAG, TRI_TEXELS, TextureData, f32_bits, f32_down, f32_up,
                        grow_texture)
@@ -60,6 +61,8 @@ class BakedScene:
         self.grid: GridState = GridState.empty()
         #: the two-level BVH (``structure == "bvh"``), else None
         self.bvh: _twolevel.TwoLevelState | None = None
+        #: textured / alpha-cut materials (atlas + records), None when the scene has none
+        self.materials: MaterialBake | None = None
         self.stats: dict = {}
 
     @property
@@ -70,9 +73,15 @@ class BakedScene:
     @property
     def textures(self) -> dict[str, TextureData]:
         """Every texture by name, in upload order."""
-        if self.bvh is not None:
-            return self.bvh.textures()
-        return self.tex.as_dict()
+        out = self.bvh.textures() if self.bvh is not None else self.tex.as_dict()
+        if self.materials is not None:
+            out = dict(out, mat=self.materials.mat, atlas=self.materials.atlas)
+        return out
+
+    @property
+    def has_alpha(self) -> bool:
+        """Some caster's material cuts its shadow: the traversal runs the any-hit alpha test."""
+        return self.bvh is not None and self.bvh.uv_models is not None
 
     @property
     def layout(self) -> _grid.GridLayout:
@@ -89,6 +98,8 @@ class BakedScene:
                 d["HS_HAS_MESHES"] = 1
             if self.has_spheres:
                 d["HS_HAS_SPHERES"] = 1
+            if self.has_alpha:
+                d["HS_HAS_ALPHA"] = 1
             return d
         d = {
             "HS_GRID_LEVELS": int(self.layout.levels),
@@ -124,8 +135,7 @@ class BakedScene:
     @property
     def samplers(self) -> dict:
         """GLSL sampler uniform name of each texture."""
-        names = _twolevel.NAMES if self.bvh is not None else TEXTURE_NAMES
-        return {name: f"hs_{name}_tex" for name in names}
+        return {name: f"hs_{name}_tex" for name in self.textures}
 
     @property
     def has_meshes(self) -> bool:
@@ -466,6 +476,7 @@ def bake_scene(scene, config: BakeConfig | None = None) -> BakedScene:
     cfg = config or BakeConfig()
     t0 = time.perf_counter()
     b = BakedScene(cfg)
+    b.materials = bake_materials(scene, cfg.tex_width)
     if cfg.structure == "bvh":
         b.origin = choose_origin(scene) if cfg.origin is None else np.asarray(cfg.origin, np.float64).reshape(3)
         b.bvh = _twolevel.bake_twolevel(b, scene)

@@ -39,7 +39,7 @@ FLT_BIG = np.float32(3.0e38)  # "infinite" tmax is clamped to this (GLSL has no 
 #: relative enlargement of stored boxes, spheres and heights: float32 rounding never culls a hit
 REL_EPS = 2.0 ** -20
 
-FORMATS = {"f4": np.float32, "u4": np.uint32}
+FORMATS = {"f4": np.float32, "u4": np.uint32, "f1": np.uint8}  # f1: normalised RGBA8 (the atlas)
 
 
 @dataclass
@@ -85,6 +85,8 @@ class TextureData:
     @property
     def gl_internal_format(self) -> str:
         base = "RGBA"[: self.components] if self.components > 1 else "R"
+        if self.fmt == "f1":
+            return f"{base}8"
         return f"{base}32{'F' if self.fmt == 'f4' else 'UI'}"
 
     def linear(self) -> np.ndarray:

@@ -39,8 +39,8 @@ NODE_TEXELS = 1  # [node] u4: quantised box (3 x 2 x 16 bits), escape or LEAF_FL
 TRI4_FLOATS = 9  # [leaf] triangles: a leaf's triangles back to back, 9 float bits each
 LEAF_READ = 9  # texels the shader reads from any [leaf] record start (the tail is padded)
 
-FORMATS = {"node": (4, "u4"), "leaf": (4, "u4")}
-NAMES = tuple(FORMATS)
+FORMATS = {"node": (4, "u4"), "leaf": (4, "u4"), "uv": (4, "f4")}
+NAMES = tuple(FORMATS)  # "uv" (UVs at the [leaf] texels of alpha-cut models) only when present
 
 
 def leaf_size(config) -> int:
@@ -94,17 +94,22 @@ class BlasBuild:
     inv_s: np.ndarray  # (M,)
     nodes: np.ndarray  # (Nn, 4) uint32 packed, leaf payloads local to tri_start = 0, escapes local
     tri4: np.ndarray  # (texels, 4) float32
+    uv4: np.ndarray = None  # (texels, 4) float32 UVs at the triangles' texels (6 per triangle), or None
 
 
-def build_blas(models, leaf_size: int = 4) -> BlasBuild:
+def build_blas(models, leaf_size: int = 4, uv_models=None) -> BlasBuild:
+    """Model trees of ``models``; ``uv_models`` (bool per model): pack those models' UVs into
+    ``uv4`` at the same texels as their triangles (the any-hit alpha test reads them)."""
     M = len(models)
     L = int(min(max(leaf_size, 1), 4))
     tc = np.array([m.triangle_count for m in models], np.int64)
     total = int(tc.sum())
     tris = np.empty((total, 3, 3), np.float32)
+    want_uv = uv_models is not None and bool(np.any(uv_models))
+    uvs = np.zeros((total, 3, 2), np.float32) if want_uv else None
     t0 = np.concatenate([[0], np.cumsum(tc)[:-1]]).astype(np.int64) if M else np.zeros(0, np.int64)
     third = np.float32(1.0 / 3.0)
-    for m, s0 in zip(models, t0.tolist()):
+    for mi, (m, s0) in enumerate(zip(models, t0.tolist())):
         T = m.triangle_count
         if not T:
             continue
@@ -113,7 +118,10 @@ def build_blas(models, leaf_size: int = 4) -> BlasBuild:
         cmin, cmax = cen.min(axis=0), cen.max(axis=0)
         span = np.maximum(cmax - cmin, np.float32(1e-30))
         q = np.clip((cen - cmin) * (np.float32(1023.0) / span), 0, 1023).astype(np.uint32)
-        tris[s0:s0 + T] = tr[np.argsort(_morton3(q), kind="stable")]
+        order = np.argsort(_morton3(q), kind="stable")
+        tris[s0:s0 + T] = tr[order]
+        if want_uv and uv_models[mi] and m.uvs is not None:
+            uvs[s0:s0 + T] = m.uvs[order]
     # clusters of L consecutive triangles per model
     ncl = -(-tc // L)
     c0 = np.concatenate([[0], np.cumsum(ncl)[:-1]]).astype(np.int64) if M else np.zeros(0, np.int64)
@@ -153,13 +161,19 @@ def build_blas(models, leaf_size: int = 4) -> BlasBuild:
     src = cl_tri0[lcl][own] + k
     dst = (lfirst[own] * 4)[:, None] + k[:, None] * 9 + np.arange(9)
     flat[dst.ravel()] = tris[src].reshape(-1)
+    uv4 = None
+    if want_uv:
+        uflat = np.zeros_like(flat)
+        udst = (lfirst[own] * 4)[:, None] + k[:, None] * 6 + np.arange(6)
+        uflat[udst.ravel()] = uvs[src].reshape(-1)
+        uv4 = uflat.reshape(-1, 4)
     # packed nodes
     qlo, qhi = quantise(b.node_min, b.node_max, base[nmod], inv_s[nmod])
     w = np.where(leaf, 0, b.escape).astype(np.uint32)
     lpay = ((lfirst - tri_start[lmod]) << 3) | lcnt
     w[leaf] = LEAF_FLAG | lpay.astype(np.uint32)
     return BlasBuild(b, b.node_start, b.node_count, tri_start, tri_texels_m, tc, b.depth, base, inv_s,
-                     pack_nodes(qlo, qhi, w), flat.reshape(-1, 4))
+                     pack_nodes(qlo, qhi, w), flat.reshape(-1, 4), uv4)
 
 
 @dataclass
@@ -200,9 +214,10 @@ class TwoLevelState:
     tlas_area: float = 0.0
     blas_ms: float = 0.0  # bake timings
     tlas_ms: float = 0.0
+    uv_models: np.ndarray = None  # (M,) bool: models whose UVs are in "uv" (alpha-cut shadows)
 
     def textures(self) -> dict:
-        return {n: self.tex[n] for n in NAMES}
+        return {n: self.tex[n] for n in NAMES if n in self.tex}
 
 
 def _new(name, n, width) -> TextureData:
@@ -215,6 +230,8 @@ def _grow(st, name, need, rep=None) -> None:
     if grow_texture(tex, need) and rep is not None:
         rep.resized.add(name)
     tex.used = max(tex.used, need)
+    if name == "leaf" and "uv" in st.tex:  # the UVs mirror the [leaf] texels
+        _grow(st, "uv", need, rep)
 
 
 # ------------------------------------------------------------------------------------- bake --
@@ -227,7 +244,8 @@ def bake_twolevel(b, scene) -> TwoLevelState:
     M = len(models)
     n = len(scene.instances)
     t0 = time.perf_counter()
-    bl = build_blas(models, leaf_size(cfg))
+    uv_models = scene.alpha_models() if b.materials is not None and b.materials.cuts_shadows else None
+    bl = build_blas(models, leaf_size(cfg), uv_models)
     st.blas_ms = (time.perf_counter() - t0) * 1e3
     inst_end = n * INST_TEXELS
     st.node_start = bl.node_start.copy()
@@ -243,6 +261,11 @@ def bake_twolevel(b, scene) -> TwoLevelState:
     st.tex["leaf"] = _new("leaf", st.leaf_tail + LEAF_READ, W)
     st.tex["leaf"].used = st.leaf_tail
     st.tex["leaf"].linear()[inst_end:st.leaf_tail] = bl.tri4.view(np.uint32)
+    if bl.uv4 is not None:
+        st.uv_models = np.asarray(uv_models, bool).copy()
+        st.tex["uv"] = _new("uv", st.tex["leaf"].capacity, W)
+        st.tex["uv"].used = st.leaf_tail
+        st.tex["uv"].linear()[inst_end:st.leaf_tail] = bl.uv4
     st.mbox = np.zeros((M, 2, 3))
     for m in range(M):
         st.mbox[m] = _model_box(models[m], False)
@@ -302,6 +325,9 @@ def write_instances(b, st, scene, idx) -> None:
     block[:, 12] = np.where(sph, 0, root)
     block[:, 13] = np.where(sph, 0, root + st.node_count[mid])
     block[:, 14] = mid.astype(np.uint32) | np.where(sph, SPHERE_FLAG, np.uint32(0))
+    if st.uv_models is not None:  # 1 + material of an alpha-cut caster (its model has UVs), else 0
+        slot = b.materials.instance_slots(inst.material_ids[idx])
+        block[:, 15] = np.where(st.uv_models[mid] & ~sph, slot, 0)
     frame = np.zeros((len(idx), 4), np.float32)
     frame[:, 0:3] = st.base[mid]
     frame[:, 3] = st.inv_s[mid]
@@ -517,7 +543,12 @@ def update_model(b, scene, m: int, rep: UpdateReport) -> UpdateReport:
             setattr(st, name, np.concatenate([getattr(st, name), [0]]).astype(getattr(st, name).dtype))
         st.base = np.concatenate([st.base, np.zeros((1, 3))])
         st.mbox = np.concatenate([st.mbox, np.zeros((1, 2, 3))])
-    bl = build_blas([scene.models[m]], leaf_size(b.config))
+    uvm = None
+    if st.uv_models is not None:
+        if m == len(st.uv_models):
+            st.uv_models = np.concatenate([st.uv_models, [False]])
+        uvm = st.uv_models[m:m + 1]
+    bl = build_blas([scene.models[m]], leaf_size(b.config), uvm)
     nc, tt = int(bl.node_count[0]), int(bl.tri_texels[0])
     if nc <= st.node_cap[m] and tt <= st.tri_cap[m]:
         nb, tb = int(st.node_start[m]), int(st.tri_start[m])
@@ -538,8 +569,12 @@ def update_model(b, scene, m: int, rep: UpdateReport) -> UpdateReport:
         _relocate(nodes, np.array([nb]), bl.node_start, bl.node_count, np.array([tb]), bl.tri_start)
         st.tex["node"].linear()[nb:nb + nc] = nodes
         st.tex["leaf"].linear()[tb:tb + tt] = bl.tri4.view(np.uint32)
+        if bl.uv4 is not None:
+            st.tex["uv"].linear()[tb:tb + tt] = bl.uv4
     rep.ranges += texel_rows("node", nb, nb + nc, W)
     rep.ranges += texel_rows("leaf", tb, tb + tt, W)
+    if bl.uv4 is not None:
+        rep.ranges += texel_rows("uv", tb, tb + tt, W)
     users = np.nonzero(scene.instances.model_ids == m)[0] if len(scene.instances) else np.zeros(0, np.int64)
     if users.size:
         update_instances(b, scene, users, rep)

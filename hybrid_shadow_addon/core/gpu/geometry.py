@@ -15,6 +15,7 @@ def unit_cube() -> np.ndarray:
 # The vertex layout of every model buffer (de-indexed: 3 vertices per triangle, model space).
 VERTEX_FORMAT = "3f 3f 3f"
 VERTEX_ATTRS = ("in_pos", "in_face_normal", "in_shading_normal")
+UV_FORMAT = "2f"  # the UV buffers (de-indexed like the model buffers)
 POSITION_FORMAT = "3f 24x"  # the same buffers read for positions only (depth-only passes)
 
 
@@ -48,6 +49,7 @@ class ModelBufferCache:
     def __init__(self, ctx):
         self.ctx = ctx
         self._entries: dict = {}  # id(model) -> (model, vbo, vertex_count)
+        self._uv: dict = {}  # id(model) -> (model, uv vbo, the uvs array it holds)
 
     def get(self, model):
         """``(vbo, vertex_count)``; vbo is None for a model without triangles."""
@@ -61,12 +63,24 @@ class ModelBufferCache:
             self._entries[id(model)] = e
         return e[1], e[2]
 
+    def uv(self, model):
+        """De-indexed (3T, 2) float32 UV buffer of a model with a UV map (``UV_FORMAT``)."""
+        e = self._uv.get(id(model))
+        if e is None or e[0] is not model or e[2] is not model.uvs:
+            if e is not None:
+                e[1].release()
+            e = (model, self.ctx.buffer(np.ascontiguousarray(model.uvs, np.float32).tobytes()), model.uvs)
+            self._uv[id(model)] = e
+        return e[1]
+
     def prune(self, models) -> None:
         keep = {id(m) for m in models}
         for k in [k for k in self._entries if k not in keep]:
             vbo = self._entries.pop(k)[1]
             if vbo is not None:
                 vbo.release()
+        for k in [k for k in self._uv if k not in keep]:
+            self._uv.pop(k)[1].release()
 
     def buffer_ids(self) -> dict:
         return {k: id(e[1]) for k, e in self._entries.items()}
@@ -85,9 +99,10 @@ class InstanceBatch:
         self.capacity = 0
         self._key = None
 
-    def upload(self, data: np.ndarray, prog, vbo, vbo_format, vbo_attrs, inst_format, inst_attrs):
+    def upload(self, data: np.ndarray, prog, vbo, vbo_format, vbo_attrs, inst_format, inst_attrs, extra=()):
+        """``extra``: more per-vertex buffers, ``(buffer, format, *attrs)`` each."""
         nbytes = data.nbytes
-        key = (id(prog), id(vbo))
+        key = (id(prog), id(vbo), tuple(id(x[0]) for x in extra))
         if self.ibuf is None or self.capacity < nbytes or key != self._key:
             if self.vao is not None:
                 self.vao.release()
@@ -96,7 +111,7 @@ class InstanceBatch:
                     self.ibuf.release()
                 self.capacity = max(nbytes, 2 * self.capacity, 256)
                 self.ibuf = self.ctx.buffer(reserve=self.capacity, dynamic=True)
-            self.vao = self.ctx.vertex_array(prog, [(vbo, vbo_format, *vbo_attrs),
+            self.vao = self.ctx.vertex_array(prog, [(vbo, vbo_format, *vbo_attrs), *extra,
                                                     (self.ibuf, inst_format, *inst_attrs)], skip_errors=True)
             self._key = key
         self.ibuf.write(data.tobytes())

@@ -4,7 +4,9 @@ One instanced draw call per model: a de-indexed vertex buffer (position + face n
 normal, :class:`~..geometry.ModelBufferCache`) and a per-model instance buffer (camera-relative
 world matrix rows, normal matrix, colour, specular/roughness/index) re-uploaded each render.
 Sphere primitives (``Instances.sphere``) are drawn as their model's bounding sphere
-(ray/ellipsoid per fragment).
+(ray/ellipsoid per fragment). Models with UVs shown with a textured material draw with the
+``TEXTURED`` variant: a UV buffer, the material per instance, the colour image's texel (mip
+mapped) times the instance colour, and the fragments that the material's alpha cuts discarded.
 
 World positions are the pixel-centre camera ray intersected with the triangle's plane (see
 ``shaders/gbuffer.glsl``), so they match an exact ray cast of ``Camera.pixel_rays``. The depth
@@ -18,13 +20,16 @@ import numpy as np
 from ...errors import SceneError
 from ..context import check_render_size
 from ..frame import GBUFFER_TARGETS, CameraUniforms, GBuffer
-from ..geometry import VERTEX_ATTRS, VERTEX_FORMAT, InstanceBatch, ProxyMesh, unit_cube
+from ...bake.materials import bake_materials
+from ..geometry import UV_FORMAT, VERTEX_ATTRS, VERTEX_FORMAT, InstanceBatch, ProxyMesh, unit_cube
 from ..targets import create_texture
 from .base import Pass
 
 INSTANCE_FORMAT = "4f 4f 4f 3f 3f 3f 4f 3f/i"
 INSTANCE_ATTRS = ("in_m0", "in_m1", "in_m2", "in_n0", "in_n1", "in_n2", "in_color", "in_material")
 SPHERE_FORMAT = INSTANCE_FORMAT.replace("/i", "") + " 4f 4f 4f 4f/i"
+TEXTURED_FORMAT = INSTANCE_FORMAT.replace("/i", "") + " 1f/i"  # + the material (-1: none)
+TEXTURED_ATTRS = INSTANCE_ATTRS + ("in_matid",)
 SPHERE_ATTRS = INSTANCE_ATTRS + ("in_i0", "in_i1", "in_i2", "in_sphere")
 
 
@@ -48,6 +53,7 @@ class GBufferPass(Pass):
         self._batches: dict = {}  # model index -> InstanceBatch
         self._gbuffer: GBuffer | None = None
         self._cube = ProxyMesh(self.ctx, unit_cube)
+        self._own_materials = None  # (scene materials, images, MaterialBake, {name: texture}) without a bake
         self.draw_calls = 0
 
     # -- targets -------------------------------------------------------------------------------
@@ -89,6 +95,32 @@ class GBufferPass(Pass):
             cols += [inv[:, 0, :], inv[:, 1, :], inv[:, 2, :], sph.reshape(-1, 4)]
         return np.ascontiguousarray(np.concatenate(cols, axis=1), dtype=np.float32)
 
+    def _material_textures(self, scene) -> dict:
+        """``{sampler name: texture}`` of the scene's atlas and material records: the bake's
+        when the pipeline has uploaded one for this scene, else made here (passes run alone)."""
+        st = self.gpu.scene_textures
+        baked = st.baked
+        if baked is not None and baked.materials is not None and "mat" in st.textures:
+            return {"hs_mat_tex": st.textures["mat"], "hs_atlas_tex": st.textures["atlas"]}
+        own = self._own_materials
+        if own is None or own[0] is not scene.materials or own[1] is not scene.images:
+            self._release_own()
+            mb = bake_materials(scene, 4096)
+            tex = {}
+            for name, td in (("hs_mat_tex", mb.mat), ("hs_atlas_tex", mb.atlas)):
+                t = self.ctx.texture_array((td.width, td.height, td.layers), td.components,
+                                           np.ascontiguousarray(td.data).tobytes(), dtype=td.fmt)
+                t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+                tex[name] = t
+            own = self._own_materials = (scene.materials, scene.images, mb, tex)
+        return own[3]
+
+    def _release_own(self) -> None:
+        if self._own_materials is not None:
+            for t in self._own_materials[3].values():
+                t.release()
+            self._own_materials = None
+
     # -- render ----------------------------------------------------------------------------------
     def render(self, job) -> GBuffer:
         scene = job.scene
@@ -115,14 +147,29 @@ class GBufferPass(Pass):
             order = np.argsort(inst.model_ids, kind="stable")
             tri_rows = order[~inst.sphere[order]]
             bounds = np.searchsorted(inst.model_ids[tri_rows], np.arange(len(scene.models) + 1))
+            tprog = None
+            if scene.materials:
+                tprog = self.programs.get("gbuffer", {"TEXTURED": 1})
+                cam.apply(tprog)
+                tprog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
+                for unit, (name, tex) in enumerate(self._material_textures(scene).items()):
+                    if name in tprog:
+                        tex.use(unit)
+                        tprog[name].value = unit
             for mi, model in enumerate(scene.models):
                 rows = tri_rows[bounds[mi]:bounds[mi + 1]]
                 if not len(rows) or not model.triangle_count:
                     continue
                 vbo, nverts = self.models.get(model)
                 data = self.instance_data(scene, rows, cam.cam_pos)
-                vao = self._batch(mi).upload(data, prog, vbo, VERTEX_FORMAT, VERTEX_ATTRS,
-                                             INSTANCE_FORMAT, INSTANCE_ATTRS)
+                if tprog is not None and model.uvs is not None and (inst.material_ids[rows] >= 0).any():
+                    data = np.ascontiguousarray(np.concatenate(
+                        [data, inst.material_ids[rows].astype(np.float32)[:, None]], axis=1))
+                    vao = self._batch(mi).upload(data, tprog, vbo, VERTEX_FORMAT, VERTEX_ATTRS, TEXTURED_FORMAT,
+                                                 TEXTURED_ATTRS, extra=[(self.models.uv(model), UV_FORMAT, "in_uv")])
+                else:
+                    vao = self._batch(mi).upload(data, prog, vbo, VERTEX_FORMAT, VERTEX_ATTRS,
+                                                 INSTANCE_FORMAT, INSTANCE_ATTRS)
                 vao.render(moderngl.TRIANGLES, vertices=nverts, instances=len(rows))
                 self.draw_calls += 1
             sph_rows = np.nonzero(inst.sphere)[0]
@@ -144,6 +191,7 @@ class GBufferPass(Pass):
             b.release()
         self._batches.clear()
         self._cube.release()
+        self._release_own()
         if self._gbuffer is not None:
             self._gbuffer.release()
             self._gbuffer = None
