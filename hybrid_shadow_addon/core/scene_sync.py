@@ -3,8 +3,8 @@
 :func:`sync_scene` compares the previous frame's :class:`~.scene.Scene` with the next one and
 applies the difference to the pipeline's bake: moved (or re-flagged) instances become
 ``move_instances``, edited or added meshes ``update_model``; what the bake cannot update in
-place (instances added or removed, renamed ones) is a full bake. Camera, light and material
-changes need no bake, only ``reset_history``.
+place (instances added or removed, renamed ones, changed textured materials or images) is a full
+bake. Camera, light and flat-colour changes need no bake, only ``reset_history``.
 
 Instances are matched by name (``Instances.names``), models by name and content. The next scene
 is aligned to the previous one in place, as the bake's indices require: its instance rows in the
@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .bake.materials import material_signature
 from .scene import Scene
 
 FULL, INCREMENTAL, NONE = "full", "incremental", "none"
@@ -44,10 +45,11 @@ def same_model(a, b) -> bool:
         return True
     if a.vertices.shape != b.vertices.shape or a.triangles.shape != b.triangles.shape:
         return False
-    if (a.normals is None) != (b.normals is None):
+    if (a.normals is None) != (b.normals is None) or (a.uvs is None) != (b.uvs is None):
         return False
     return (np.array_equal(a.vertices, b.vertices) and np.array_equal(a.triangles, b.triangles)
-            and (a.normals is None or np.array_equal(a.normals, b.normals)))
+            and (a.normals is None or np.array_equal(a.normals, b.normals))
+            and (a.uvs is None or np.array_equal(a.uvs, b.uvs)))
 
 
 def _align_instances(prev: Scene, scene: Scene) -> bool:
@@ -121,6 +123,9 @@ def sync_scene(pipeline, prev: Scene | None, scene: Scene, *, bake: bool = True,
         return _bake(pipeline, scene, f"acceleration structure changed to {structure}", structure)
     if not _align_instances(prev, scene):
         return _bake(pipeline, scene, "instances added, removed or renamed", structure)
+    if material_signature(prev) != material_signature(scene) or (
+            len(scene.instances) and (prev.instances.material_ids != scene.instances.material_ids).any()):
+        return _bake(pipeline, scene, "materials or images changed", structure)
     t0 = time.perf_counter()
     changed = _align_models(prev, scene)
     stale = len(scene.models) - len(set(scene.instances.model_ids.tolist()) if len(scene.instances) else set())

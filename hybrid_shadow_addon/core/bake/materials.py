@@ -17,6 +17,8 @@ Textures (layouts documented in ``shaders/common/alpha.glsl``):
 """
 from __future__ import annotations
 
+import time
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,6 +87,22 @@ def shelf_pack(sizes: list, layer: int) -> np.ndarray:
     return pos
 
 
+def image_signature(img) -> tuple:
+    """Content key of an :class:`~..scene.Image` (its pixels' CRC, cached on the object)."""
+    crc = getattr(img, "_crc", None)
+    if crc is None or crc[0] is not img.pixels:
+        crc = (img.pixels, zlib.crc32(np.ascontiguousarray(img.pixels).data))
+        img._crc = crc
+    return (img.name, img.pixels.shape, crc[1], bool(img.srgb), img.extension, img.interpolation)
+
+
+def material_signature(scene) -> tuple:
+    """Content key of the scene's materials and images: equal keys bake to equal textures."""
+    mats = tuple((m.name, m.color_image, m.alpha_image, m.alpha, m.alpha_channel, m.alpha_mode,
+                  m.alpha_threshold, m.transparent_shadow, m.uv_transform.tobytes()) for m in scene.materials)
+    return mats + tuple(image_signature(i) for i in scene.images)
+
+
 @dataclass
 class MaterialBake:
     atlas: TextureData  # RGBA8 "f1", (layers, S, S, 4)
@@ -92,6 +110,7 @@ class MaterialBake:
     image_record: np.ndarray  # (I,) first [mat] texel of each image's record (-1: unused)
     alpha_slot: np.ndarray  # (K,) per material: 1 + its index when it cuts shadows, else 0
     atlas_ms: float = 0.0
+    signature: tuple = ()  # material_signature() of the scene baked
 
     @property
     def cuts_shadows(self) -> bool:
@@ -109,7 +128,6 @@ class MaterialBake:
 
 def bake_materials(scene, width: int, layer_size: int = DEFAULT_LAYER_SIZE) -> MaterialBake | None:
     """The atlas and records of ``scene``'s materials, or None when it has none."""
-    import time
     t0 = time.perf_counter()
     mats = list(scene.materials)
     if not mats:
@@ -172,7 +190,7 @@ def bake_materials(scene, width: int, layer_size: int = DEFAULT_LAYER_SIZE) -> M
             lin[r + 1 + l] = (x, y, lay, px.shape[1] | (px.shape[0] << 16))
     rec.used = nxt
     return MaterialBake(TextureData("atlas", atlas, "f1", n_layers * side * side), rec, image_record, alpha_slot,
-                        (time.perf_counter() - t0) * 1e3)
+                        (time.perf_counter() - t0) * 1e3, material_signature(scene))
 
 
 def model_uvs(model) -> np.ndarray:

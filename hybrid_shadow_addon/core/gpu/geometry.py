@@ -181,6 +181,20 @@ class ProxyMesh:
 
 CASTER_FORMAT = "4f 4f 4f/i"
 CASTER_ATTRS = ("in_m0", "in_m1", "in_m2")
+ALPHA_CASTER_FORMAT = "4f 4f 4f 1f/i"  # + the material whose alpha cuts the shadow
+ALPHA_CASTER_ATTRS = CASTER_ATTRS + ("in_matid",)
+
+
+def alpha_caster_rows(scene, rows) -> np.ndarray:
+    """(len(rows),) bool: instances whose material cuts their shadow (alpha, transparent
+    shadows) on a model with UVs; the light-space passes draw them with the alpha test."""
+    inst = scene.instances
+    rows = np.asarray(rows, np.int64)
+    if not scene.materials or not len(rows):
+        return np.zeros(len(rows), bool)
+    cuts = np.array([m.has_alpha and m.transparent_shadow for m in scene.materials] + [False])
+    has_uv = np.array([m.uvs is not None for m in scene.models] + [False])
+    return cuts[inst.material_ids[rows]] & has_uv[inst.model_ids[rows]] & ~inst.sphere[rows]
 
 
 class CasterDraws:
@@ -218,14 +232,38 @@ class CasterDraws:
                           nverts, len(srows)))
         return draws
 
-    def _upload(self, key, matrices, origin, prog, vbo):
+    def build_alpha(self, scene, rows: np.ndarray, origin, prog) -> list:
+        """Like :meth:`build` for alpha-cut casters (:func:`alpha_caster_rows`): ``prog`` also
+        reads ``in_uv`` and ``in_matid`` (its fragment stage drops what the alpha lets through)."""
+        inst = scene.instances
+        rows = np.asarray(rows, np.int64)
+        draws = []
+        mids = inst.model_ids[rows]
+        for mi in np.unique(mids):
+            model = scene.models[int(mi)]
+            if not model.triangle_count:
+                continue
+            sel = rows[mids == mi]
+            vbo, nverts = self.models.get(model)
+            extra = [(self.models.uv(model), UV_FORMAT, "in_uv")]
+            mat = inst.material_ids[sel].astype(np.float32)[:, None]
+            draws.append((self._upload(("a", int(mi)), inst.matrices[sel], origin, prog, vbo, mat, extra),
+                          nverts, len(sel)))
+        return draws
+
+    def _upload(self, key, matrices, origin, prog, vbo, more=None, extra=()):
         m = np.array(matrices, np.float64)
         m[:, :3, 3] -= np.asarray(origin, np.float64)
-        data = np.ascontiguousarray(m[:, :3, :].reshape(len(m), 12), dtype=np.float32)
+        data = m[:, :3, :].reshape(len(m), 12)
+        fmt, attrs = CASTER_FORMAT, CASTER_ATTRS
+        if more is not None:
+            data = np.concatenate([data, more], axis=1)
+            fmt, attrs = ALPHA_CASTER_FORMAT, ALPHA_CASTER_ATTRS
+        data = np.ascontiguousarray(data, dtype=np.float32)
         b = self._batches.get(key)
         if b is None:
             b = self._batches[key] = InstanceBatch(self.ctx)
-        return b.upload(data, prog, vbo, POSITION_FORMAT, ("in_pos",), CASTER_FORMAT, CASTER_ATTRS)
+        return b.upload(data, prog, vbo, POSITION_FORMAT, ("in_pos",), fmt, attrs, extra=extra)
 
     def release(self) -> None:
         for b in self._batches.values():

@@ -3,6 +3,9 @@ vertex buffers and the baked scene textures."""
 from __future__ import annotations
 
 import moderngl
+import numpy as np
+
+from ..bake.materials import bake_materials, material_signature
 
 from .geometry import ModelBufferCache
 from .programs import ProgramCache
@@ -18,8 +21,48 @@ class GpuResources:
         self.programs = programs if programs is not None else ProgramCache(ctx)
         self.models = ModelBufferCache(ctx)
         self.scene_textures = SceneTextures(ctx)
+        self._own_materials = None  # (material_signature, None, {sampler: texture}) made without a bake
+
+    def material_textures(self, scene) -> dict:
+        """``{sampler name: texture}`` of the scene's image atlas and material records
+        (``shaders/common/alpha.glsl``): the bake's when one is uploaded for a scene with
+        materials, else made here from ``scene`` (passes run on their own, e.g. in tests)."""
+        st = self.scene_textures
+        sig = material_signature(scene)
+        if (st.baked is not None and st.baked.materials is not None and "mat" in st.textures
+                and st.baked.materials.signature == sig):
+            return {"hs_mat_tex": st.textures["mat"], "hs_atlas_tex": st.textures["atlas"]}
+        own = self._own_materials
+        if own is None or own[0] != sig:
+            self._release_own()
+            mb = bake_materials(scene, 4096)
+            tex = {}
+            for name, td in (("hs_mat_tex", mb.mat), ("hs_atlas_tex", mb.atlas)):
+                t = self.ctx.texture_array((td.width, td.height, td.layers), td.components,
+                                           np.ascontiguousarray(td.data).tobytes(), dtype=td.fmt)
+                t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+                tex[name] = t
+            own = self._own_materials = (sig, None, tex)
+        return own[2]
+
+    def bind_materials(self, prog, scene, first_unit: int = 0) -> int:
+        """Bind :meth:`material_textures` to ``prog`` from ``first_unit``; the next free unit."""
+        unit = first_unit
+        for name, tex in self.material_textures(scene).items():
+            if name in prog:
+                tex.use(unit)
+                prog[name].value = unit
+                unit += 1
+        return unit
+
+    def _release_own(self) -> None:
+        if self._own_materials is not None:
+            for t in self._own_materials[2].values():
+                t.release()
+            self._own_materials = None
 
     def release(self) -> None:
+        self._release_own()
         self.models.release()
         self.scene_textures.release()
         self.programs.release()

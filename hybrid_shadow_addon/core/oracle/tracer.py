@@ -569,3 +569,108 @@ def trace_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21) -> np.n
             h = woop_hit(om[rr], s, v[tt, 0], v[tt, 1], v[tt, 2], tm[rays[rr]])
             occ[rays[sl]] |= h.reshape(n, T).any(axis=1)
     return occ
+
+
+# ------------------------------------------------------------------------------------------
+# alpha-textured shadows: the watertight test with barycentrics, brute-force visibility
+# ------------------------------------------------------------------------------------------
+def woop_hit_bary(o, setup, v0, v1, v2, tmax, floor: bool = False):
+    """:func:`woop_hit` (same float32 operations, same ``floor`` semantics, the same hits) that
+    also returns the hit's barycentric weights and distance.
+
+    Returns ``(hit (P,) bool, bary (P, 3) float64, t (P,) float64)``: ``bary`` = (U, V, W) / det,
+    the weights of v0, v1, v2 (U = Cx By - Cy Bx, ...), non-negative and summing to 1; ``t`` =
+    T / det in units of |d| (U, V, W, T are the test's float32 values; det = U + V + W is summed
+    in float64 so the weights sum to 1). Both are 0 where there is no hit."""
+    kx, ky, kz, sx, sy, sz = setup
+    n = np.arange(len(o))
+    A = (v0 - o).astype(F)
+    B = (v1 - o).astype(F)
+    C = (v2 - o).astype(F)
+    Akz, Bkz, Ckz = A[n, kz], B[n, kz], C[n, kz]
+    Ax = A[n, kx] - sx * Akz
+    Ay = A[n, ky] - sy * Akz
+    Bx = B[n, kx] - sx * Bkz
+    By = B[n, ky] - sy * Bkz
+    Cx = C[n, kx] - sx * Ckz
+    Cy = C[n, ky] - sy * Ckz
+    U = Cx * By - Cy * Bx
+    V = Ax * Cy - Ay * Cx
+    W = Bx * Ay - By * Ax
+    inside = ~(((U < 0) | (V < 0) | (W < 0)) & ((U > 0) | (V > 0) | (W > 0)))
+    det = U + V + W
+    T = (U * (sz * Akz) + V * (sz * Bkz)) + W * (sz * Ckz)
+    with np.errstate(over="ignore", invalid="ignore"):
+        td = tmax * det
+        lo = np.zeros_like(det)
+        if floor:
+            lo = (TFLOOR * np.maximum(np.maximum(np.abs(Akz), np.abs(Bkz)), np.abs(Ckz)) * np.abs(sz)).astype(F)
+            lo = (lo * det).astype(F)
+        pos = (det > 0) & (T > lo) & (T < td)
+        neg = (det < 0) & (T < lo) & (T > td)
+    hit = inside & (pos | neg)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        uvw = np.stack([U, V, W], axis=1).astype(np.float64)
+        dd = np.where(hit, uvw.sum(axis=1), 1.0)  # det in float64: the weights sum to 1
+        bary = uvw / dd[:, None]
+        t = T.astype(np.float64) / dd
+    bary = np.where(hit[:, None], bary, 0.0)
+    t = np.where(hit, t, 0.0)
+    return hit, bary, t
+
+
+def visibility_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21) -> np.ndarray:
+    """(N,) float64 visibility in [0, 1] of each ray against every shadow caster of ``scene``
+    (small scenes only): the product, over every caster surface the ray crosses at t in
+    (0, tmax), of that surface's transmittance (:func:`core.oracle.alpha.transmittance`:
+    0 for opaque surfaces and analytic spheres; BLEND 1 - alpha(uv); CLIP alpha < threshold).
+
+    Same ray preparation, float32 transform and watertight test (``floor=False``) as
+    :func:`trace_brute`, so ``visibility == 0`` exactly where ``trace_brute`` reports occluded
+    on a scene without alpha. A triangle's UV is the barycentric blend of its corners' UVs
+    (``Model.uvs``). Invalid rays (zero direction, tmax <= 0, NaN) get 1."""
+    from .alpha import is_opaque, transmittance
+
+    o, d, tm, valid = prepare_rays(origins, dirs, tmax)
+    vis = np.ones(len(o), np.float64)
+    inst = scene.instances
+    if not len(inst):
+        return vis
+    for i in np.nonzero(inst.casts_shadow)[0].tolist():
+        rays = np.nonzero(valid & (vis > 0))[0]
+        if not rays.size:
+            break
+        model = scene.models[int(inst.model_ids[i])]
+        rows = np.broadcast_to(inst.inverse[i, :3, :].astype(F).reshape(1, 12), (rays.size, 12))
+        om, dm = transform_rays(rows, o[rays], d[rays])
+        if inst.sphere[i]:
+            c = np.broadcast_to(model.sphere_center.astype(F), om.shape)
+            r = np.broadcast_to(f32_up(model.sphere_radius), (rays.size,))
+            vis[rays[sphere_hit(om, dm, c, r, tm[rays])]] = 0.0
+            continue
+        T = model.triangle_count
+        if T == 0:
+            continue
+        mid = int(inst.material_ids[i])
+        opaque = is_opaque(scene, mid)
+        v = model.vertices[model.triangles]  # (T, 3, 3)
+        uvs = (model.uvs.astype(np.float64) if model.uvs is not None
+               else np.zeros((T, 3, 2), np.float64))
+        setup = woop_setup(dm)
+        per = max(1, chunk // T)
+        for a in range(0, rays.size, per):
+            n = min(per, rays.size - a)
+            rr = np.repeat(np.arange(a, a + n), T)
+            tt = np.tile(np.arange(T), n)
+            s = tuple(x[rr] for x in setup)
+            if opaque:
+                h = woop_hit(om[rr], s, v[tt, 0], v[tt, 1], v[tt, 2], tm[rays[rr]])
+                vis[rays[a:a + n][h.reshape(n, T).any(axis=1)]] = 0.0
+                continue
+            h, bary, _ = woop_hit_bary(om[rr], s, v[tt, 0], v[tt, 1], v[tt, 2], tm[rays[rr]])
+            k = np.nonzero(h)[0]
+            if not k.size:
+                continue
+            uv = np.einsum("pc,pcj->pj", bary[k], uvs[tt[k]])
+            np.multiply.at(vis, rays[rr[k]], transmittance(scene, mid, uv))
+    return vis

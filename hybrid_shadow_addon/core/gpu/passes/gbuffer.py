@@ -20,7 +20,6 @@ import numpy as np
 from ...errors import SceneError
 from ..context import check_render_size
 from ..frame import GBUFFER_TARGETS, CameraUniforms, GBuffer
-from ...bake.materials import bake_materials
 from ..geometry import UV_FORMAT, VERTEX_ATTRS, VERTEX_FORMAT, InstanceBatch, ProxyMesh, unit_cube
 from ..targets import create_texture
 from .base import Pass
@@ -53,7 +52,6 @@ class GBufferPass(Pass):
         self._batches: dict = {}  # model index -> InstanceBatch
         self._gbuffer: GBuffer | None = None
         self._cube = ProxyMesh(self.ctx, unit_cube)
-        self._own_materials = None  # (scene materials, images, MaterialBake, {name: texture}) without a bake
         self.draw_calls = 0
 
     # -- targets -------------------------------------------------------------------------------
@@ -95,32 +93,6 @@ class GBufferPass(Pass):
             cols += [inv[:, 0, :], inv[:, 1, :], inv[:, 2, :], sph.reshape(-1, 4)]
         return np.ascontiguousarray(np.concatenate(cols, axis=1), dtype=np.float32)
 
-    def _material_textures(self, scene) -> dict:
-        """``{sampler name: texture}`` of the scene's atlas and material records: the bake's
-        when the pipeline has uploaded one for this scene, else made here (passes run alone)."""
-        st = self.gpu.scene_textures
-        baked = st.baked
-        if baked is not None and baked.materials is not None and "mat" in st.textures:
-            return {"hs_mat_tex": st.textures["mat"], "hs_atlas_tex": st.textures["atlas"]}
-        own = self._own_materials
-        if own is None or own[0] is not scene.materials or own[1] is not scene.images:
-            self._release_own()
-            mb = bake_materials(scene, 4096)
-            tex = {}
-            for name, td in (("hs_mat_tex", mb.mat), ("hs_atlas_tex", mb.atlas)):
-                t = self.ctx.texture_array((td.width, td.height, td.layers), td.components,
-                                           np.ascontiguousarray(td.data).tobytes(), dtype=td.fmt)
-                t.filter = (moderngl.NEAREST, moderngl.NEAREST)
-                tex[name] = t
-            own = self._own_materials = (scene.materials, scene.images, mb, tex)
-        return own[3]
-
-    def _release_own(self) -> None:
-        if self._own_materials is not None:
-            for t in self._own_materials[3].values():
-                t.release()
-            self._own_materials = None
-
     # -- render ----------------------------------------------------------------------------------
     def render(self, job) -> GBuffer:
         scene = job.scene
@@ -152,10 +124,7 @@ class GBufferPass(Pass):
                 tprog = self.programs.get("gbuffer", {"TEXTURED": 1})
                 cam.apply(tprog)
                 tprog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
-                for unit, (name, tex) in enumerate(self._material_textures(scene).items()):
-                    if name in tprog:
-                        tex.use(unit)
-                        tprog[name].value = unit
+                self.gpu.bind_materials(tprog, scene)
             for mi, model in enumerate(scene.models):
                 rows = tri_rows[bounds[mi]:bounds[mi + 1]]
                 if not len(rows) or not model.triangle_count:
@@ -191,7 +160,6 @@ class GBufferPass(Pass):
             b.release()
         self._batches.clear()
         self._cube.release()
-        self._release_own()
         if self._gbuffer is not None:
             self._gbuffer.release()
             self._gbuffer = None

@@ -17,7 +17,7 @@ import math
 import moderngl
 import numpy as np
 
-from ..geometry import CasterDraws
+from ..geometry import CasterDraws, alpha_caster_rows
 from ..projection import CUBE_AXES, look_basis, ortho, perspective, view_from_rel
 from ..targets import Target, TargetCache, create_texture, set_uniforms
 from .base import ShadowPass
@@ -136,7 +136,14 @@ class ShadowMapPass(ShadowPass):
         max_tex = int(ctx.info.get("GL_MAX_TEXTURE_SIZE", 16384))
         depth_prog = self.programs.get("shadowmap_depth")
         casters = np.nonzero(scene.instances.casts_shadow)[0] if len(scene.instances) else np.zeros(0, np.int64)
-        draws = self.casters.build(scene, casters, cam.cam_pos, depth_prog)
+        cut = alpha_caster_rows(scene, casters)
+        draws = [(depth_prog, *d) for d in self.casters.build(scene, casters[~cut], cam.cam_pos, depth_prog)]
+        progs = [depth_prog]
+        if cut.any():
+            alpha_prog = self.programs.get("shadowmap_depth", {"ALPHA": 1})
+            self.gpu.bind_materials(alpha_prog, scene)
+            progs.append(alpha_prog)
+            draws += [(alpha_prog, *d) for d in self.casters.build_alpha(scene, casters[cut], cam.cam_pos, alpha_prog)]
         mask_prog, vao = self.programs.fullscreen("shadowmap_mask")
         out = {}
         self.views = {}
@@ -161,10 +168,11 @@ class ShadowMapPass(ShadowPass):
             for m, f, (x0, y0, s) in zip(views.matrices, views.forwards, views.tiles):
                 fbo.clear(1e30, 1e30, 1e30, 1e30, viewport=(x0, y0, s, s))
                 ctx.viewport = (x0, y0, s, s)
-                depth_prog["u_light_clip_from_rel"].write(m.T.astype("f4").tobytes())
-                depth_prog["u_light_origin_rel"].value = tuple(views.light_pos_rel)
-                depth_prog["u_light_fwd"].value = tuple(f)
-                for dvao, nverts, ninst in draws:
+                for prog in progs:
+                    prog["u_light_clip_from_rel"].write(m.T.astype("f4").tobytes())
+                    prog["u_light_origin_rel"].value = tuple(views.light_pos_rel)
+                    prog["u_light_fwd"].value = tuple(f)
+                for _, dvao, nverts, ninst in draws:
                     dvao.render(moderngl.TRIANGLES, vertices=nverts, instances=ninst)
             ctx.disable(moderngl.BLEND)
             ctx.blend_equation = moderngl.FUNC_ADD

@@ -1,0 +1,187 @@
+"""numpy reference for textured materials: image sampling, material alpha, shadow transmittance
+and albedo (the oracle the GPU's alpha-tested shadows and G-buffer albedo are checked against).
+
+Everything follows the rules documented on :class:`core.scene.Image` and
+:class:`core.scene.Material`, in float64:
+
+- :func:`sample_image`: texel (i, j) has its centre at ``((i + 0.5) / W, (j + 0.5) / H)``, row 0
+  is v near 0 (the bottom); ``"Linear"`` blends the 4 nearest texels bilinearly (the extension
+  rule applied to each texel index), ``"Closest"`` takes ``floor(u W), floor(v H)``.
+  ``REPEAT`` wraps the index, ``EXTEND`` clamps it, ``MIRROR`` reflects it (period 2W),
+  ``CLIP`` gives (0, 0, 0, 0) for a UV outside [0, 1) and, for ``"Linear"``, reads texels
+  beyond the image as transparent black. Values are the stored bytes / 255 (no colour-space
+  decoding; a non-finite UV samples (0, 0, 0, 0)).
+- :func:`material_alpha`: the material's alpha at mesh UVs (its ``uv_transform`` applied).
+- :func:`transmittance`: what a shadow ray keeps crossing the surface: 0 when opaque (no
+  material, a material without alpha, or ``transparent_shadow`` off); BLEND ``1 - alpha``;
+  CLIP ``1 if alpha < alpha_threshold else 0``.
+- :func:`albedo`: instance base colour x the colour image's (decoded) RGB.
+
+Colour-space order: the sRGB decoding is applied to the *filtered* sample (as Cycles does for
+byte sRGB images: interpolate the stored values, then convert to scene linear).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..scene import LUMA
+
+__all__ = ["sample_image", "srgb_to_linear", "apply_uv_transform", "material_alpha", "transmittance",
+           "albedo", "is_opaque"]
+
+
+# ------------------------------------------------------------------------------------------
+# image sampling
+# ------------------------------------------------------------------------------------------
+def _wrap(i: np.ndarray, n: int, extension: str):
+    """Texel index ``i`` (int64) through the extension rule: (index in [0, n), valid mask)."""
+    if extension == "REPEAT":
+        return np.mod(i, n), np.ones(i.shape, bool)
+    if extension == "EXTEND":
+        return np.clip(i, 0, n - 1), np.ones(i.shape, bool)
+    if extension == "MIRROR":
+        m = np.mod(i, 2 * n)
+        return np.where(m < n, m, 2 * n - 1 - m), np.ones(i.shape, bool)
+    if extension == "CLIP":
+        ok = (i >= 0) & (i < n)
+        return np.clip(i, 0, n - 1), ok
+    raise ValueError(f"unsupported image extension {extension!r}")
+
+
+def sample_image(image, uv) -> np.ndarray:
+    """(N, 4) float64 RGBA of ``image`` (a :class:`core.scene.Image`) at ``uv`` (N, 2), the
+    stored values / 255 (sRGB colour channels are *not* decoded here)."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    px = np.asarray(image.pixels)
+    H, W = int(px.shape[0]), int(px.shape[1])
+    tex = px.reshape(H * W, -1).astype(np.float64) / 255.0
+    ext = str(image.extension).upper()
+    interp = str(image.interpolation).capitalize()
+    n = len(uv)
+    out = np.zeros((n, 4), np.float64)
+    if n == 0:
+        return out
+    finite = np.isfinite(uv).all(axis=1)
+    if ext == "CLIP":
+        finite &= (uv >= 0).all(axis=1) & (uv < 1).all(axis=1)
+    sel = np.nonzero(finite)[0]
+    if not sel.size:
+        return out
+    u, v = uv[sel, 0], uv[sel, 1]
+    if interp == "Closest":
+        i, j = np.floor(u * W).astype(np.int64), np.floor(v * H).astype(np.int64)
+        if ext == "CLIP":  # u < 1 but u * W rounding up to W: still the last texel
+            i, j = np.clip(i, 0, W - 1), np.clip(j, 0, H - 1)
+        i, _ = _wrap(i, W, ext)
+        j, _ = _wrap(j, H, ext)
+        out[sel] = tex[j * W + i]
+        return out
+    if interp != "Linear":
+        raise ValueError(f"unsupported image interpolation {interp!r}")
+    x = u * W - 0.5
+    y = v * H - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+    ia, oka = _wrap(x0, W, ext)
+    ib, okb = _wrap(x0 + 1, W, ext)
+    ja, okc = _wrap(y0, H, ext)
+    jb, okd = _wrap(y0 + 1, H, ext)
+
+    def texel(i, j, ok):
+        return np.where(ok[:, None], tex[j * W + i], 0.0)
+
+    t00 = texel(ia, ja, oka & okc)
+    t10 = texel(ib, ja, okb & okc)
+    t01 = texel(ia, jb, oka & okd)
+    t11 = texel(ib, jb, okb & okd)
+    out[sel] = (t00 * (1 - fx) + t10 * fx) * (1 - fy) + (t01 * (1 - fx) + t11 * fx) * fy
+    return out
+
+
+def srgb_to_linear(c) -> np.ndarray:
+    """The standard sRGB EOTF, elementwise (float64)."""
+    c = np.asarray(c, np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((np.maximum(c, 0.04045) + 0.055) / 1.055) ** 2.4)
+
+
+# ------------------------------------------------------------------------------------------
+# materials
+# ------------------------------------------------------------------------------------------
+def apply_uv_transform(material, uv) -> np.ndarray:
+    """(N, 2) float64: ``material.uv_transform @ (u, v, 1)`` of mesh UVs ``uv`` (N, 2)."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    m = np.asarray(material.uv_transform, np.float64).reshape(2, 3)
+    return uv @ m[:, :2].T + m[:, 2]
+
+
+def is_opaque(scene, material_index: int) -> bool:
+    """True when a surface of this material blocks shadow rays outright (transmittance 0
+    everywhere): no material (-1), a material without alpha, or ``transparent_shadow`` off."""
+    k = int(material_index)
+    if k < 0:
+        return True
+    mat = scene.materials[k]
+    return not (mat.has_alpha and mat.transparent_shadow)
+
+
+def material_alpha(scene, material_index: int, uv) -> np.ndarray:
+    """(N,) float64 alpha of ``scene.materials[material_index]`` at mesh UVs ``uv`` (N, 2):
+    ``alpha_image`` sampled at the transformed UV (channel "A": its alpha; "LUMA": Rec. 709
+    luminance of its RGB, sRGB-decoded first when the image is sRGB) times ``material.alpha``;
+    with no alpha image, ``material.alpha``. ``material_index`` -1 (plain colour) gives 1."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    n = len(uv)
+    k = int(material_index)
+    if k < 0:
+        return np.ones(n, np.float64)
+    mat = scene.materials[k]
+    if mat.alpha_image < 0:
+        return np.full(n, float(mat.alpha), np.float64)
+    img = scene.images[int(mat.alpha_image)]
+    s = sample_image(img, apply_uv_transform(mat, uv))
+    if mat.alpha_channel == "LUMA":
+        rgb = srgb_to_linear(s[:, :3]) if img.srgb else s[:, :3]
+        a = rgb @ np.asarray(LUMA, np.float64)
+    else:
+        a = s[:, 3]
+    return a * float(mat.alpha)
+
+
+def transmittance(scene, material_index: int, uv) -> np.ndarray:
+    """(N,) float64 in [0, 1]: the fraction of a shadow ray's light that passes a surface of
+    material ``material_index`` at mesh UVs ``uv`` (N, 2). Opaque (see :func:`is_opaque`): 0;
+    BLEND: ``1 - alpha`` (alpha clamped to [0, 1]); CLIP: 1 where ``alpha < alpha_threshold``
+    else 0."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    n = len(uv)
+    if is_opaque(scene, material_index):
+        return np.zeros(n, np.float64)
+    mat = scene.materials[int(material_index)]
+    a = material_alpha(scene, material_index, uv)
+    if mat.alpha_mode == "CLIP":
+        return (a < float(mat.alpha_threshold)).astype(np.float64)
+    return 1.0 - np.clip(a, 0.0, 1.0)
+
+
+def albedo(scene, instance_rows, uv) -> np.ndarray:
+    """(N, 3) float64 albedo of instances ``instance_rows`` (N,) at mesh UVs ``uv`` (N, 2):
+    the instance's linear base colour RGB x its material's colour image RGB (sampled at the
+    transformed UV, mip level 0, sRGB-decoded when the image is sRGB). Rows with no material or
+    no colour image get the base colour alone."""
+    rows = np.asarray(instance_rows, np.int64).reshape(-1)
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    inst = scene.instances
+    out = np.asarray(inst.base_color, np.float64)[rows, :3].copy()
+    mids = np.asarray(inst.material_ids)[rows]
+    for k in np.unique(mids[mids >= 0]).tolist():
+        mat = scene.materials[k]
+        if mat.color_image < 0:
+            continue
+        img = scene.images[int(mat.color_image)]
+        sel = np.nonzero(mids == k)[0]
+        rgb = sample_image(img, apply_uv_transform(mat, uv[sel]))[:, :3]
+        if img.srgb:
+            rgb = srgb_to_linear(rgb)
+        out[sel] *= rgb
+    return out
