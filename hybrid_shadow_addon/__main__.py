@@ -111,7 +111,8 @@ def cmd_render(args) -> int:
     try:
         settings = Settings(mode=args.mode, quality=args.quality, max_shadowed_lights=args.max_shadowed_lights,
                         max_distance=args.max_distance, interlace=False,
-                        conservative=args.conservative_maps, structure=args.structure or Settings.structure)
+                        conservative=args.conservative_maps, structure=args.structure or Settings.structure,
+                        samples=args.samples if args.samples is not None else Settings.samples, hard=args.hard)
     except ValueError as e:
         raise SceneError(str(e)) from None
     if args.frames is not None:
@@ -266,6 +267,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="raytrace: conservative occupancy maps skip or shorten rays (exact; default off)")
     pr.add_argument("--structure", choices=("grid", "bvh"), default=None,
                     help="raytrace: acceleration structure, hierarchical grid or two-level BVH (default: Settings')")
+    pr.add_argument("--samples", type=int, default=None, metavar="N",
+                    help="raytrace: shadow rays per pixel towards a light with a size (soft shadows; "
+                    "default: Settings'); pixels away from any penumbra take 4")
+    pr.add_argument("--hard", action="store_true",
+                    help="every light hard: one ray to its centre, sizes ignored (as compare's references)")
     pr.set_defaults(func=cmd_render)
 
     modes_help = ("variants to run, space or comma separated: raytrace-high, raytrace-medium, raytrace-low, "

@@ -10,7 +10,10 @@
 // that texel's phase is in u_valid_phases, else write -1 for refine_classify.glsl to refine),
 // HS_CONSERVATIVE (a conservative occupancy map of the light decides or shortens the ray),
 // HS_COMPACT (texel k of a compacted list traces the k-th pixel that refine_classify.glsl marked,
-// see common/compact.glsl; texels past the list's end are discarded).
+// see common/compact.glsl; texels past the list's end are discarded), HS_SOFT with HS_SOFT_SHAPE
+// (an extended light: u_samples rays towards points on it, common/soft_light.glsl; the mask is
+// the weighted share of the light the pixel sees; HS_SOFT_PROBE traces HS_PROBES of them,
+// HS_SOFT_REFINE then traces all of them only near pixels whose probes disagree).
 
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
@@ -26,6 +29,12 @@
 #endif
 #ifdef HS_CONSERVATIVE
 #include "common/conservative_lookup.glsl"
+#endif
+#ifdef HS_SOFT
+#include "common/soft_light.glsl"
+#ifdef HS_SOFT_REFINE
+uniform sampler2D u_probe;      // the probe pass's mask (full resolution)
+#endif
 #endif
 
 uniform int u_scale;            // mask texel = u_scale x u_scale full-resolution pixels
@@ -64,6 +73,45 @@ void main()
     if (known >= 0.0) { o_mask = known; return; }
 
     vec3 o = offset_origin(p, n, depth * 3.0e-6);
+#ifdef HS_SOFT
+    // an extended light: the weighted share of u_samples points on it that o sees
+#ifdef HS_SOFT_PROBE
+    int n_samples = min(u_samples, HS_PROBES);
+#else
+    int n_samples = u_samples;
+#ifdef HS_SOFT_REFINE
+    // the probe pass traced HS_PROBES rays per pixel: where every probe nearby saw all or none
+    // of the light alike, this pixel lies outside any penumbra and keeps its probe answer
+    {
+        float pv = texelFetch(u_probe, px, 0).r;
+        bool uniform_area = pv == 0.0 || pv == 1.0;
+        ivec2 lim = textureSize(u_probe, 0) - 1;
+        for (int dy = -HS_PROBE_RADIUS; dy <= HS_PROBE_RADIUS; ++dy)
+            for (int dx = -HS_PROBE_RADIUS; dx <= HS_PROBE_RADIUS; ++dx) {
+                float q = texelFetch(u_probe, clamp(px + ivec2(dx, dy), ivec2(0), lim), 0).r;
+                if (q != pv && texelFetch(u_gb_position, clamp(px + ivec2(dx, dy), ivec2(0), lim), 0).w != 0.0)
+                    uniform_area = false;
+            }
+        if (uniform_area) { o_mask = pv; return; }
+    }
+#endif
+#endif
+    float sw = 0.0, sv = 0.0;
+    for (int k = 0; k < n_samples; ++k) {
+        vec3 sd;
+        float stm, w;
+        hs_light_sample(o, n, hs_sample2(px, u_sample_base + k), sd, stm, w);
+#ifdef HS_MAX_DISTANCE
+        stm = min(stm, u_max_distance / length(sd));
+#endif
+        if (w > 0.0) {
+            sv += w * hs_visibility(o, sd, stm);
+            sw += w;
+        }
+    }
+    o_mask = sw > 0.0 ? sv / sw : 0.0;
+    return;
+#endif
 #ifdef HS_LIGHT_LOCAL
     vec3 d = u_light_vec - o;     // the light is at t = 1
     float tmax = 1.0;

@@ -293,3 +293,66 @@ def instance_on_points(name, collection, positions, rotations=None, scales=None,
 def hidden_collection(name):
     """A collection not linked to the scene: holds instancing sources that do not render."""
     return bpy.data.collections.new(name)
+
+
+# --------------------------------------------------------------------------------------------
+# Image textures and UV-mapped materials
+# --------------------------------------------------------------------------------------------
+def image_from_array(name, rgba, colorspace="sRGB"):
+    """A packed byte image from ``rgba`` (H, W, 4) floats 0..1, row 0 at the bottom (Blender's
+    order); packed so that it survives saving the .blend."""
+    rgba = np.clip(np.asarray(rgba, np.float32), 0.0, 1.0)
+    h, w = rgba.shape[:2]
+    img = bpy.data.images.new(name, w, h, alpha=True)
+    img.colorspace_settings.name = colorspace
+    img.pixels.foreach_set(rgba.ravel())
+    img.pack()
+    return img
+
+
+def set_uvs(me, uvs, name="UVMap"):
+    """A UV map of ``uvs`` (one (u, v) per loop, in loop order) on mesh ``me``."""
+    layer = me.uv_layers.new(name=name)
+    layer.uv.foreach_set("vector", np.asarray(uvs, np.float32).ravel())
+    return layer
+
+
+def uv_quad(name, size_x, size_y, upright=False, base_at_origin=False, materials=()):
+    """A ``size_x`` x ``size_y`` quad with UVs 0..1 (u along x, v along y or, ``upright``, along
+    z: it then stands in the xz plane facing -y). Centred on the origin, or with its bottom edge
+    on it (``base_at_origin``)."""
+    hx, hy = size_x / 2, size_y / 2
+    y0, y1 = (0.0, size_y) if base_at_origin else (-hy, hy)
+    if upright:
+        verts = [(-hx, 0, y0), (hx, 0, y0), (hx, 0, y1), (-hx, 0, y1)]
+    else:
+        verts = [(-hx, y0, 0), (hx, y0, 0), (hx, y1, 0), (-hx, y1, 0)]
+    me = mesh(name, verts, [[0, 1, 2, 3]], materials=materials)
+    set_uvs(me, [(0, 0), (1, 0), (1, 1), (0, 1)])
+    return me
+
+
+def textured_material(name, image, color=(0.8, 0.8, 0.8), use_color=True, use_alpha=True, alpha_from="Alpha",
+                      scale=None, extension="REPEAT", interpolation="Linear", roughness=0.5, specular=0.5):
+    """A Principled BSDF material reading ``image`` at the mesh's UVs: Base Color from its Color
+    output (``use_color``; else ``color``), Alpha from its ``alpha_from`` output ("Alpha" or
+    "Color"; ``use_alpha``). ``scale`` (su, sv): a Mapping node (point) repeating the image."""
+    mat = material(name, color, roughness, specular)
+    nodes, link = mat.node_tree.nodes, mat.node_tree.links.new
+    bsdf = nodes["Principled BSDF"]
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image, tex.extension, tex.interpolation = image, extension, interpolation
+    if scale is not None:
+        coords = nodes.new("ShaderNodeTexCoord")
+        mapping = nodes.new("ShaderNodeMapping")
+        mapping.vector_type = "POINT"
+        mapping.inputs["Scale"].default_value = (scale[0], scale[1], 1.0)
+        link(coords.outputs["UV"], mapping.inputs["Vector"])
+        link(mapping.outputs["Vector"], tex.inputs["Vector"])
+    if use_color:
+        link(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    if use_alpha:
+        link(tex.outputs[alpha_from], bsdf.inputs["Alpha"])
+    if hasattr(mat, "use_transparent_shadow"):  # EEVEE's setting (Cycles' shadows are always transparent)
+        mat.use_transparent_shadow = True
+    return mat

@@ -16,6 +16,7 @@ SMALL = {
     "city": "city:blocks=2",
     "scaling": "scaling:triangles=20000,instances=500,models=3",
     "animated": "animated",
+    "alpha_cards": "alpha_cards",
 }
 
 

@@ -9,6 +9,10 @@ keeps the scene's light sizes). Pixels without full geometry
 coverage, or that the light does not reach even unshadowed (facing away, outside a spot cone),
 are invalid (NaN).
 
+Transparent bounces are raised to :data:`TRANSPARENT_BOUNCES` so that shadow rays cross stacks
+of alpha cards (Cycles' shadows of an alpha < 1 surface are always transparent).
+:func:`render_diffuse_color` renders the Diffuse Color pass (the albedo) with the same set-up.
+
 The user's scene is restored afterwards, whatever happens. Works with bpy 4.5 and 5.0 (which
 name and split the EXR layers differently).
 
@@ -28,6 +32,8 @@ import numpy as np
 from ..core.errors import HybridShadowError
 
 UNSHADOWED_MIN = 1e-4
+#: transparent bounces of the reference renders: enough for stacks of alpha cards and fences
+TRANSPARENT_BOUNCES = 64
 RECIPE_VERSION = 2  # bump when the reference recipe changes: invalidates the cached references
 
 
@@ -98,6 +104,8 @@ def _configure(bscene, saved: _Saved, resolution, samples: int, filepath: str) -
     saved.set(c, "device", "CPU")
     saved.set(c, "samples", int(samples))
     saved.set(c, "max_bounces", 0)
+    # alpha cards: a shadow or camera ray crosses many cut-out surfaces (Cycles' default is 8)
+    saved.set(c, "transparent_max_bounces", TRANSPARENT_BOUNCES)
     saved.set(c, "use_denoising", False)
     saved.set(c, "use_adaptive_sampling", False)
     saved.set(c, "filter_width", 0.01)
@@ -181,6 +189,49 @@ def render_reference(bscene, light_names=None, *, resolution=None, samples: int 
             per_light.restore()
             saved.restore()
     return ref
+
+
+def _diffuse_color(channels: dict) -> np.ndarray:
+    try:
+        return _find(channels, ".DiffCol", "DiffCol", "Diffuse Color")[..., :3]
+    except KeyError:
+        return np.stack([_find(channels, f"DiffCol.{c}", f"Diffuse Color.{c}") for c in "RGB"], axis=-1)
+
+
+def render_diffuse_color(bscene, resolution=None, *, samples: int = 1, base_color: bool = True) -> np.ndarray:
+    """Cycles' Diffuse Color pass of ``bscene``: (H, W, 3) float32 linear RGB, row 0 the top row
+    of the image (as :func:`render_reference`'s arrays), NaN where the pixel centre does not see
+    full geometry coverage (Combined alpha < 1: background, or partly transparent cards in front
+    of nothing).
+
+    The same set-up as the visibility renders (pixel-centre samples, ``samples`` of them, no
+    bounces, no world, :data:`TRANSPARENT_BOUNCES`); ``resolution`` ``(width, height)`` as
+    there (default: the scene's render size). The pass is the diffuse closure's weight, which a
+    Principled BSDF's specular layer lowers (by a few %, view-dependent); ``base_color`` (default)
+    sets every Principled BSDF's Specular IOR Level to 0 for the render, so that the pass is the
+    base colour times its image (for metallic 0, no transmission, coat or sheen). The scene and
+    its materials are restored afterwards."""
+    saved = _Saved()
+    with tempfile.TemporaryDirectory(prefix="hs-cycles-") as tmp:
+        path = os.path.join(tmp, "albedo.exr")
+        try:
+            _configure(bscene, saved, resolution, samples, path)
+            saved.set(bscene.view_layers[0], "use_pass_diffuse_color", True)
+            if base_color:
+                for mat in bpy.data.materials:
+                    if mat.node_tree is None or mat.library is not None:
+                        continue
+                    for node in mat.node_tree.nodes:
+                        sock = node.inputs.get("Specular IOR Level") if node.type == "BSDF_PRINCIPLED" else None
+                        if sock is not None and not sock.is_linked:
+                            saved.set(sock, "default_value", 0.0)
+            bpy.ops.render.render(write_still=True, scene=bscene.name)
+            channels = _read_exr(path)
+        finally:
+            saved.restore()
+    color = _diffuse_color(channels).astype(np.float32, copy=True)
+    color[_find(channels, ".Combined", "Combined")[..., 3] < 1.0 - 1e-6] = np.nan
+    return color
 
 
 class CyclesReferenceProvider:

@@ -20,16 +20,27 @@ A ``RENDER`` depsgraph (a render engine's) already holds exactly the renderable 
 render; they are dropped here (``hide_render`` of the object or of all its collections, checked
 on top-level objects and instancers), but objects hidden in the viewport are simply absent from
 it, and modifiers use their viewport settings.
+
+Materials (:func:`read_material`): per instance its first slot's material. A Principled BSDF
+whose Base Color and/or Alpha come from an Image Texture node (directly, or through Mapping nodes
+fed by a UV Map node or a Texture Coordinate's UV output; a Math "Greater Than" on the alpha, as
+Blender 4.2 writes for old Alpha Clip materials, is the CLIP mode), or whose unlinked Alpha is
+below 1, becomes a :class:`~hybrid_shadow_addon.core.scene.Material`; any other node set-up
+falls back to the sockets' default values with one :class:`ExportWarning` per material. Plain
+materials stay ``material_ids = -1``, so an opaque scene has no materials, images or UVs. Only
+meshes shown with a textured material get ``Model.uvs``.
 """
 from __future__ import annotations
 
 import itertools
+import warnings
+from dataclasses import dataclass, field
 
 import bpy
 import numpy as np
 
 from ..core.errors import SceneError
-from ..core.scene import Camera, Instances, Light, Model, Scene, affine_inverse
+from ..core.scene import Camera, Image, Instances, Light, Material, Model, Scene, affine_inverse
 
 #: Object types whose evaluated geometry can be a mesh.
 GEOMETRY_TYPES = frozenset({"MESH", "CURVE", "SURFACE", "FONT", "META"})
@@ -38,6 +49,17 @@ SPHERE_PROPERTY = "hybrid_sphere"
 
 _GREY = (0.8, 0.8, 0.8, 1.0)
 _WHITE = (1.0, 1.0, 1.0, 1.0)
+_IDENTITY_UV = np.float64([[1, 0, 0], [0, 1, 0], [0, 0, 1]])
+
+
+class ExportWarning(UserWarning):
+    """Part of the scene the export cannot read as Blender renders it (a material's node set-up,
+    an image without pixels, a textured mesh without UVs): it falls back and says so, once per
+    material, image or mesh."""
+
+
+def _warn(message: str) -> None:
+    warnings.warn(message, ExportWarning, stacklevel=3)
 
 
 def export_depsgraph(depsgraph, *, resolution=None, render_visibility: bool | None = None) -> Scene:
@@ -122,6 +144,263 @@ def material_surface(material, object_color=_WHITE) -> tuple:
         rgba = tuple(material.diffuse_color)
         spec, rough = float(material.specular_intensity), float(material.roughness)
     return rgba, min(max(spec, 0.0), 1.0), min(max(rough, 0.0), 1.0)
+
+
+# --------------------------------------------------------------------------------------------
+# Textured and alpha materials
+# --------------------------------------------------------------------------------------------
+@dataclass
+class TextureLink:
+    """An Image Texture node feeding a Principled input: ``output`` ("Color" or "Alpha") of
+    ``node``, looked up at UV map ``uv_map`` ("": the mesh's active render UV map) through the
+    (3, 3) homogeneous 2D affine ``uv_affine`` (the Mapping nodes on the way)."""
+
+    node: object
+    output: str
+    uv_map: str = ""
+    uv_affine: np.ndarray = field(default_factory=lambda: _IDENTITY_UV.copy())
+
+    def same_mapping(self, other: "TextureLink") -> bool:
+        return self.uv_map == other.uv_map and np.allclose(self.uv_affine, other.uv_affine, atol=1e-7)
+
+
+@dataclass
+class MaterialReading:
+    """What :func:`read_material` finds in a material (no images read yet).
+
+    ``rgba``, ``specular``, ``roughness``: :func:`material_surface` (the unlinked values);
+    ``color``/``alpha_texture``: the supported image links of Base Color / Alpha; ``alpha``: the
+    constant alpha (1 when Alpha is an image); ``problems``: the links read as their defaults."""
+
+    name: str
+    rgba: tuple
+    specular: float
+    roughness: float
+    color: TextureLink | None = None
+    alpha_texture: TextureLink | None = None
+    alpha: float = 1.0
+    alpha_mode: str = "BLEND"
+    alpha_threshold: float = 0.5
+    transparent_shadow: bool = True
+    problems: list = field(default_factory=list)
+
+
+def _link_source(socket):
+    """``(node, output socket)`` feeding input ``socket`` (through reroutes), None when unlinked
+    (a muted link counts as none, as in Blender)."""
+    seen = 0
+    while socket.is_linked and seen < 64:
+        link = socket.links[0]
+        if link.is_muted:
+            return None
+        node = link.from_node
+        if node.type == "REROUTE":
+            socket, seen = node.inputs[0], seen + 1
+            continue
+        return node, link.from_socket
+    return None
+
+
+def _describe(node) -> str:
+    return f"'{node.name}' ({node.bl_idname})"
+
+
+def _euler_matrix(rx: float, ry: float, rz: float) -> np.ndarray:
+    """Blender's XYZ Euler rotation matrix (Rz @ Ry @ Rx)."""
+    cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+    x = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return z @ y @ x
+
+
+def mapping_affine(node) -> np.ndarray | None:
+    """(3, 3) homogeneous 2D affine of a Mapping node applied to a UV vector (z = 0), as Blender
+    computes it (POINT: ``R (S v) + L``; VECTOR: ``R (S v)``; TEXTURE: ``R^T (v - L) / S``, 0
+    where S is 0); None for a NORMAL mapping or linked Location/Rotation/Scale inputs. Exact for
+    a flat image lookup: only x and y of the result are read, and z of a UV is 0."""
+    kind = node.vector_type
+    if kind not in ("POINT", "VECTOR", "TEXTURE"):
+        return None
+    if any(node.inputs[n].is_linked for n in ("Location", "Rotation", "Scale")):
+        return None
+    loc = np.array(node.inputs["Location"].default_value[:3], np.float64)
+    rot = _euler_matrix(*node.inputs["Rotation"].default_value[:3])
+    scale = np.array(node.inputs["Scale"].default_value[:3], np.float64)
+    if kind == "TEXTURE":
+        inv = np.divide(1.0, scale, out=np.zeros(3), where=scale != 0)
+        m3 = inv[:, None] * rot.T
+        off = -m3 @ loc
+    else:
+        m3 = rot * scale[None, :]
+        off = loc if kind == "POINT" else np.zeros(3)
+    out = np.eye(3)
+    out[:2, :2] = m3[:2, :2]
+    out[:2, 2] = off[:2]
+    return out
+
+
+def _uv_source(socket, label: str, problems: list):
+    """``(uv_map, affine)`` of an Image Texture's Vector input, None (with a problem) when it is
+    not a UV lookup through Mapping nodes."""
+    affine = _IDENTITY_UV.copy()
+    src = _link_source(socket)
+    if src is None:
+        return "", affine
+    for _ in range(16):
+        node, out = src
+        if node.mute:
+            problems.append(f"{label} reads its UVs through the muted node {_describe(node)}")
+            return None
+        if node.type in ("UVMAP", "TEX_COORD") and getattr(node, "from_instancer", False):
+            problems.append(f"{label} reads the instancer's UVs ({_describe(node)}, From Instancer)")
+            return None
+        if node.type == "UVMAP":
+            return node.uv_map, affine
+        if node.type == "TEX_COORD" and out.identifier == "UV":
+            return "", affine
+        if node.type != "MAPPING":
+            problems.append(f"{label} reads its UVs from the unsupported node {_describe(node)}")
+            return None
+        m = mapping_affine(node)
+        if m is None:
+            problems.append(f"{label} reads its UVs through the Mapping node {_describe(node)} "
+                            f"({node.vector_type.lower()}, or with linked inputs), which the export does not read")
+            return None
+        affine = affine @ m  # the node nearest the image is applied last
+        src = _link_source(node.inputs["Vector"])
+        if src is None:
+            problems.append(f"{label} reads a constant vector through {_describe(node)}, not UVs")
+            return None
+    problems.append(f"{label} reads its UVs through too many Mapping nodes")
+    return None
+
+
+def _image_link(socket, label: str, problems: list, outputs=("Color",)):
+    """The :class:`TextureLink` feeding ``socket`` when it is an Image Texture read at UVs; None
+    when unlinked, or (with a problem) when it is anything else."""
+    src = _link_source(socket)
+    if src is None:
+        return None
+    node, out = src
+    if node.type != "TEX_IMAGE" or node.mute:
+        what = "the muted node" if node.mute else "the unsupported node"
+        problems.append(f"{label} is linked from {what} {_describe(node)}")
+        return None
+    image = node.image
+    if image is None:
+        problems.append(f"{label} is linked from the Image Texture {_describe(node)} without an image")
+        return None
+    if node.projection != "FLAT":
+        problems.append(f"{label} is linked from the Image Texture {_describe(node)} with "
+                        f"{node.projection.lower()} projection (flat only)")
+        return None
+    if image.source not in ("FILE", "GENERATED"):
+        problems.append(f"{label} is linked from the Image Texture {_describe(node)} whose image "
+                        f"'{image.name}' is a {image.source.lower()} (single images only)")
+        return None
+    if out.identifier not in outputs:
+        problems.append(f"{label} is linked from the {out.name} output of {_describe(node)}")
+        return None
+    uv = _uv_source(node.inputs["Vector"], label, problems)
+    if uv is None:
+        return None
+    return TextureLink(node=node, output=out.identifier, uv_map=uv[0], uv_affine=uv[1])
+
+
+def blend_settings(material) -> tuple:
+    """``(alpha_mode, alpha_threshold, transparent_shadow)`` from a material's settings: "CLIP"
+    for the Alpha Clip blend method (before Blender 4.2, which turns it into a Math node on the
+    alpha, see :func:`read_material`), else "BLEND" (Cycles' semantics); transparent shadows
+    from ``use_transparent_shadow`` (4.2+) or ``shadow_method`` (older: OPAQUE is off). Read with
+    ``getattr``: Blender 5 drops some of these."""
+    mode = "CLIP" if getattr(material, "blend_method", None) == "CLIP" else "BLEND"
+    threshold = float(getattr(material, "alpha_threshold", 0.5))
+    transparent = getattr(material, "use_transparent_shadow", None)
+    if transparent is None:
+        transparent = getattr(material, "shadow_method", "HASHED") != "OPAQUE"
+    return mode, threshold, bool(transparent)
+
+
+def read_material(material) -> MaterialReading | None:
+    """Base Color, Alpha and the blend settings of a material's Principled BSDF (None for no
+    material). Unsupported links are listed in ``problems`` and read as their default value."""
+    if material is None:
+        return None
+    rgba, spec, rough = material_surface(material)
+    mode, threshold, transparent = blend_settings(material)
+    r = MaterialReading(name=material.name, rgba=rgba, specular=spec, roughness=rough, alpha=float(rgba[3]),
+                        alpha_mode=mode, alpha_threshold=threshold, transparent_shadow=transparent)
+    node = principled_node(material.node_tree) if material.use_nodes and material.node_tree else None
+    if node is None:
+        return r
+    r.color = _image_link(node.inputs["Base Color"], "Base Color", r.problems)
+    alpha_in = node.inputs["Alpha"]
+    src = _link_source(alpha_in)
+    if src is not None and src[0].type == "MATH" and src[0].operation == "GREATER_THAN" and not src[0].mute \
+            and not src[0].inputs[1].is_linked:
+        math = src[0]  # Blender 4.2's Alpha Clip: alpha > threshold
+        r.alpha_mode, r.alpha_threshold = "CLIP", float(math.inputs[1].default_value)
+        alpha_in = math.inputs[0]
+        if not alpha_in.is_linked:
+            r.alpha = float(float(alpha_in.default_value) > r.alpha_threshold)
+            return r
+    r.alpha_texture = _image_link(alpha_in, "Alpha", r.problems, outputs=("Alpha", "Color"))
+    if r.alpha_texture is not None:
+        r.alpha = 1.0
+    return r
+
+
+def _is_srgb(image) -> bool:
+    """Whether the stored (byte) colour values are sRGB-encoded. Float images are kept in scene
+    linear by Blender whatever their file's colour space."""
+    cs = image.colorspace_settings
+    if image.is_float or getattr(cs, "is_data", False):
+        return False
+    name = cs.name.lower()
+    return name.startswith("srgb") and "linear" not in name
+
+
+def image_pixels(image) -> tuple | None:
+    """``(pixels (H, W, C) uint8, srgb)`` of an image as stored (row 0 at the bottom), via
+    ``pixels.foreach_get``; None when it has no pixels (a missing file)."""
+    try:
+        w, h = (int(x) for x in image.size)
+        ch = int(image.channels)
+        if w < 1 or h < 1 or ch not in (1, 3, 4):
+            return None
+        buf = np.empty(w * h * ch, np.float32)
+        image.pixels.foreach_get(buf)
+    except (RuntimeError, ReferenceError, ValueError, TypeError):
+        return None
+    buf = np.fmin(np.fmax(buf, 0.0), 1.0)  # NaN -> 0
+    px = (buf * 255.0 + 0.5).astype(np.uint8).reshape(h, w, ch)
+    if ch == 4 and getattr(image, "alpha_mode", "STRAIGHT") == "NONE":
+        px[..., 3] = 255
+    return px, _is_srgb(image)
+
+
+def mesh_uv_layer(mesh, name: str = ""):
+    """The UV layer named ``name``, or ("") the active render one (else the active, else the
+    first); None when the mesh has no such layer."""
+    layers = mesh.uv_layers
+    if not len(layers):
+        return None
+    if name:
+        return layers.get(name)
+    return next((l for l in layers if l.active_render), None) or layers.active or layers[0]
+
+
+def mesh_uvs(mesh, layer) -> np.ndarray:
+    """(T, 3, 2) float32 UVs of each loop triangle's corners from ``layer``, via ``foreach_get``."""
+    buf = np.empty(len(mesh.loops) * 2, np.float32)
+    if hasattr(layer, "uv"):
+        layer.uv.foreach_get("vector", buf)
+    else:
+        layer.data.foreach_get("uv", buf)
+    loops = np.empty(len(mesh.loop_triangles) * 3, np.int32)
+    mesh.loop_triangles.foreach_get("loops", loops)
+    return buf.reshape(-1, 2)[loops].reshape(-1, 3, 2)
 
 
 def world_background(world):
@@ -249,9 +528,17 @@ class _Exporter:
                                         else bool(render_visibility) and depsgraph.mode != "RENDER")
         self.models: list[Model] = []
         self.model_of: dict = {}  # geometry key -> model id, -1 for geometry without triangles
-        self.attrs: list[tuple] = []  # (casts_shadow, sphere, rgba, specular, roughness)
+        # (casts_shadow, sphere, rgba, specular, roughness, material id, fallback rgba)
+        self.attrs: list[tuple] = []
         self.attr_of: dict = {}
-        self.surface_of: dict = {}  # material pointer -> material_surface()
+        self.dropped_of: dict = {}  # attrs row -> the same row without its material
+        self.surface_of: dict = {}  # material pointer -> (rgba, specular, roughness, material id, fallback rgba)
+        self.materials: list[Material] = []
+        self.material_uv: list[str] = []  # UV map name of each material ("": active render)
+        self.images: list[Image] = []
+        self.image_of: dict = {}  # (image pointer, extension, interpolation) -> image id or -1
+        self.pixels_of: dict = {}  # image pointer -> image_pixels()
+        self.uv_of: dict = {}  # (model id, UV map name) -> bool (the model has those UVs)
         self.renderable_of: dict = {}  # original object pointer -> bool
         self.hidden_collections = None
         # one row per instance found by the iterator
@@ -272,7 +559,7 @@ class _Exporter:
         result = Scene(name=scene.name, models=self.models, instances=instances,
                        lights=self.lights, camera=camera, world_color=world_color(scene.world),
                        resolution=render_resolution(scene) if resolution is None else resolution,
-                       frame=scene.frame_current)
+                       frame=scene.frame_current, materials=self.materials, images=self.images)
         return result.check_transforms()
 
     def _walk(self) -> None:
@@ -346,13 +633,110 @@ class _Exporter:
             skey = key[1]
             surface = self.surface_of.get(skey) if skey is not None else None
             if surface is None:
-                surface = material_surface(material, ob.color)
-                if skey is not None:
+                if material is None:
+                    rgba, spec, rough = material_surface(None, ob.color)
+                    surface = (rgba, spec, rough, -1, rgba)
+                else:
+                    surface = self._material(material)
                     self.surface_of[skey] = surface
             aid = len(self.attrs)
             self.attrs.append((bool(ob.visible_shadow), is_sphere_primitive(ob)) + surface)
             self.attr_of[key] = aid
         return aid
+
+    def _material(self, material) -> tuple:
+        """``(rgba, specular, roughness, material id, fallback rgba)`` of a Blender material: a
+        new entry of ``self.materials`` when it is textured or its alpha is below 1 (id -1
+        otherwise); the fallback colour is the unlinked Base Color and Alpha (the material
+        without its textures). Warns once for what it reads as defaults."""
+        r = read_material(material)
+        problems = r.problems
+        fallback = tuple(r.rgba)
+        color_img = self._image_index(r.color, problems, "Base Color") if r.color is not None else -1
+        alpha_img = self._image_index(r.alpha_texture, problems, "Alpha") if r.alpha_texture is not None else -1
+        alpha = r.alpha if alpha_img >= 0 or r.alpha_texture is None else float(fallback[3])
+        if color_img >= 0 and alpha_img >= 0 and not r.color.same_mapping(r.alpha_texture):
+            problems.append("Base Color and Alpha use different UV maps or mappings; the colour image "
+                            "is dropped")
+            color_img = -1
+        link = r.alpha_texture if alpha_img >= 0 else r.color if color_img >= 0 else None
+        rgb = (1.0, 1.0, 1.0) if color_img >= 0 else tuple(fallback[:3])
+        if problems:
+            _warn(f"material '{material.name}': {'; '.join(problems)}: the export uses the default "
+                  f"value{'s' if len(problems) > 1 else ''} instead")
+        mid = -1
+        if color_img >= 0 or alpha_img >= 0 or alpha < 1.0:
+            mid = len(self.materials)
+            self.materials.append(Material(
+                name=material.name, color_image=color_img, alpha=min(max(alpha, 0.0), 1.0), alpha_image=alpha_img,
+                alpha_channel="LUMA" if alpha_img >= 0 and r.alpha_texture.output == "Color" else "A",
+                uv_transform=(_IDENTITY_UV if link is None else link.uv_affine)[:2],
+                alpha_mode=r.alpha_mode, alpha_threshold=r.alpha_threshold,
+                transparent_shadow=r.transparent_shadow))
+            self.material_uv.append("" if link is None else link.uv_map)
+        return rgb + (alpha,), r.specular, r.roughness, mid, fallback
+
+    def _image_index(self, link: TextureLink, problems: list, label: str) -> int:
+        """Index in ``self.images`` of the image an Image Texture node reads (one per image,
+        extension and interpolation; the pixels read once per image); -1 (with a problem) when
+        it has no pixels."""
+        node = link.node
+        image = node.image
+        interp = node.interpolation if node.interpolation in ("Linear", "Closest") else "Linear"
+        key = (image.as_pointer(), node.extension, interp)
+        idx = self.image_of.get(key)
+        if idx is None:
+            ptr = image.as_pointer()
+            if ptr not in self.pixels_of:
+                self.pixels_of[ptr] = image_pixels(image)
+            px = self.pixels_of[ptr]
+            idx = -1
+            if px is not None:
+                idx = len(self.images)
+                self.images.append(Image(name=image.name, pixels=px[0], srgb=px[1], extension=node.extension,
+                                         interpolation=interp))
+            self.image_of[key] = idx
+        if idx < 0:
+            problems.append(f"{label} reads the image '{image.name}', whose pixels cannot be read "
+                            f"(missing file?)")
+        return idx
+
+    def _checked(self, aid: int, mid: int, mesh, name: str) -> int:
+        """``aid``, or the same attributes without the material when it is textured and the
+        model's mesh has no UVs for it (warned once per mesh and UV map). Gives the model its
+        UVs when a textured material shows it."""
+        k = self.attrs[aid][5]
+        if k < 0 or not self.materials[k].textured:
+            return aid
+        uv_map = self.material_uv[k]
+        key = (mid, uv_map)
+        ok = self.uv_of.get(key)
+        if ok is None:
+            model = self.models[mid]
+            layer = mesh_uv_layer(mesh, uv_map)
+            if layer is None:
+                ok = False
+                _warn(f"object '{name}': its material '{self.materials[k].name}' is textured but its mesh "
+                      f"'{model.name}' has no UV map" + (f" named '{uv_map}'" if uv_map else "")
+                      + ": exported without the material")
+            elif model.uvs is None:
+                model.uvs = mesh_uvs(mesh, layer)
+                self.uv_of[(mid, layer.name)] = ok = True
+            else:
+                ok = True
+                if (mid, layer.name) not in self.uv_of:
+                    _warn(f"object '{name}': its material '{self.materials[k].name}' reads UV map "
+                          f"'{layer.name}' of mesh '{model.name}', which is already exported with "
+                          f"another UV map: using that one")
+            self.uv_of[key] = ok
+        if ok:
+            return aid
+        dropped = self.dropped_of.get(aid)
+        if dropped is None:
+            shadow, sphere, _, spec, rough, _, fallback = self.attrs[aid]
+            dropped = self.dropped_of[aid] = len(self.attrs)
+            self.attrs.append((shadow, sphere, fallback, spec, rough, -1, fallback))
+        return dropped
 
     @staticmethod
     def _first_material(ob):
@@ -371,23 +755,31 @@ class _Exporter:
         self.names.append(name)
         self.model_ids.append(mid)
         self.matrices.append(matrix.copy())
-        self.attr_ids.append(self._attributes(ob, self._first_material(ob)))
+        self.attr_ids.append(self._checked(self._attributes(ob, self._first_material(ob)), mid, mesh, name))
 
     def _add_converted_instance(self, ob, matrix, name) -> None:
         """A non-mesh object without a mesh component: its ``to_mesh()`` triangles, if any."""
         key = ("to_mesh", ob.original.as_pointer())
-        if key not in self.model_of:
+        aid = self._attributes(ob, self._first_material(ob))
+        k = self.attrs[aid][5]
+        needs_uvs = k >= 0 and self.materials[k].textured
+        mid = self.model_of.get(key)
+        if mid is None or (needs_uvs and mid >= 0 and (mid, self.material_uv[k]) not in self.uv_of):
             mesh = ob.to_mesh()
             try:
-                self._model(key, mesh, ob.original.name)
+                mid = self._model(key, mesh, ob.original.name)
+                if mid >= 0:
+                    aid = self._checked(aid, mid, mesh, name)
             finally:
                 ob.to_mesh_clear()
-        if self.model_of[key] < 0:
+        elif mid >= 0:
+            aid = self._checked(aid, mid, None, name)  # UVs already read (or found missing)
+        if mid < 0:
             return
         self.names.append(name)
-        self.model_ids.append(self.model_of[key])
+        self.model_ids.append(mid)
         self.matrices.append(matrix.copy())
-        self.attr_ids.append(self._attributes(ob, self._first_material(ob)))
+        self.attr_ids.append(aid)
 
     def _iterated_instances(self) -> Instances:
         if not self.names:
@@ -403,6 +795,7 @@ class _Exporter:
             base_color=np.array([a[2] for a in attrs], np.float32),
             specular=np.array([a[3] for a in attrs], np.float32),
             roughness=np.array([a[4] for a in attrs], np.float32),
+            material_ids=np.array([a[5] for a in attrs], np.int32),
         )
 
     # -- geometry-nodes instances, vectorised -------------------------------------------------
@@ -425,8 +818,9 @@ class _Exporter:
                 aid = self._attributes(source, self._first_material(source))
             if mid < 0:
                 continue
+            aid = self._checked(aid, mid, mesh, source.name if source is not None else f"{ob.name}/{label}")
             n = len(index)
-            shadow, sphere, rgba, spec, rough = self.attrs[aid]
+            shadow, sphere, rgba, spec, rough, material_id, _ = self.attrs[aid]
             prefix = f"{ob.name}/{label}"
             self.parts.append(Instances(
                 names=[f"{prefix}[{i}]" for i in index.tolist()],
@@ -438,6 +832,7 @@ class _Exporter:
                 base_color=np.tile(np.float32(rgba), (n, 1)),
                 specular=np.full(n, spec, np.float32),
                 roughness=np.full(n, rough, np.float32),
+                material_ids=np.full(n, material_id, np.int32),
             ))
         return True
 

@@ -43,6 +43,12 @@ class Settings:
       trees under a binned-SAH tree over the instances, quantised one-texel nodes; the default:
       its shadow rays are 3-6x faster, see BENCHMARKS.md). The masks are the same; changing it
       re-bakes the scene.
+    - ``samples``: shadow rays per pixel towards a light with a size (a sun's angle, a point or
+      spot light's radius, an area light), well spread over it: the mask is the share of the
+      light the pixel sees (soft shadows). A probe pass traces 4 of them per pixel first; only
+      pixels within 2 pixels of a probe that saw part of the light (penumbrae) trace them all.
+    - ``hard``: every light hard (one ray to its centre, sizes ignored), as the hard Cycles
+      references of ``compare`` are rendered.
     """
 
     mode: str = "raytrace"
@@ -59,6 +65,8 @@ class Settings:
     specular: bool = True
     conservative: str = "off"
     structure: str = "bvh"
+    samples: int = 64
+    hard: bool = False
 
     def __post_init__(self):
         self.validate()
@@ -104,6 +112,9 @@ class Settings:
             _integer(self.max_shadowed_lights, "max_shadowed_lights (or None for all)", low=0)
         if not isinstance(self.interlace, bool):
             raise ValueError(f"interlace must be True or False, not {self.interlace!r}")
+        if not isinstance(self.hard, bool):
+            raise ValueError(f"hard must be True or False, not {self.hard!r}")
+        _integer(self.samples, "samples", low=1, high=4096)
         if not isinstance(self.specular, bool):
             raise ValueError(f"specular must be True or False, not {self.specular!r}")
         _integer(self.shadowmap_size, "shadowmap_size", low=16, high=16384)

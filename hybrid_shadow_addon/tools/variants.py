@@ -17,15 +17,21 @@ class Variant:
     settings: Settings
 
 
+# ``compare`` measures against hard Cycles references (every light made hard): its variants
+# render every light hard too
+HARD = {"hard": True}
+
+
 def _variants() -> dict:
     out = {}
     for q in ("high", "medium", "low"):
-        out[f"raytrace-{q}"] = Variant(f"raytrace-{q}", f"raytrace {q}", Settings(mode="raytrace", quality=q))
+        out[f"raytrace-{q}"] = Variant(f"raytrace-{q}", f"raytrace {q}", Settings(mode="raytrace", quality=q, **HARD))
     out["raytrace-interlaced"] = Variant("raytrace-interlaced", "raytrace high interlaced",
-                                         Settings(mode="raytrace", quality="high", interlace=True))
+                                         Settings(mode="raytrace", quality="high", interlace=True, **HARD))
     for s in (512, 1024, 2048, 4096):
-        out[f"shadowmap-{s}"] = Variant(f"shadowmap-{s}", f"shadowmap {s}", Settings(mode="shadowmap", shadowmap_size=s))
-    out["none"] = Variant("none", "none", Settings(mode="none"))
+        out[f"shadowmap-{s}"] = Variant(f"shadowmap-{s}", f"shadowmap {s}",
+                                        Settings(mode="shadowmap", shadowmap_size=s, **HARD))
+    out["none"] = Variant("none", "none", Settings(mode="none", **HARD))
     return out
 
 
@@ -53,7 +59,7 @@ def resolve_variants(names=None) -> list:
             elif re.fullmatch(r"shadowmap-\d+", part):
                 size = int(part.split("-")[1])
                 try:
-                    picked.append(Variant(part, f"shadowmap {size}", Settings(mode="shadowmap", shadowmap_size=size)))
+                    picked.append(Variant(part, f"shadowmap {size}", Settings(mode="shadowmap", shadowmap_size=size, **HARD)))
                 except ValueError as e:
                     raise HybridShadowError(f"--modes {part}: {e}") from None
             else:

@@ -60,6 +60,17 @@
  *         triangles reordered per model into BVH leaf order. De-indexed on purpose: the thesis'
  *         vertex + index textures cost one more dependent fetch per vertex in the innermost loop;
  *         here the "vertex texture" holds each triangle's three vertices directly.
+ * -- alpha-cut shadows only (HS_HAS_ALPHA: some caster's material cuts its shadow; opaque scenes
+ *    have neither texture; the materials are [mat] / [atlas] of common/alpha.glsl) --
+ * [uv]  RGBA32F "hs_uv_tex", 2 texels per [tri] record (texel 2*tri + k), mirroring [tri]: the
+ *         mesh UVs of the triangle's corners, k=0 (u0 v0 u1 v1), k=1 (u2 v2 0 0). Filled for
+ *         the models of alpha-cut casters (Scene.alpha_models), zeros elsewhere.
+ * [object_mat]  R32UI "hs_object_mat_tex", 1 texel per instance (texel id, all instances as
+ *         [object]): 1 + the material index (a [mat] record) when the walk runs the any-hit
+ *         alpha test on the instance's triangles (its material cuts its shadow and its model's
+ *         UVs are in [uv]), 0: opaque (also for analytic spheres). A texture of its own rather
+ *         than a spare field: [object] and [grid_index] have none, and only alpha scenes pay
+ *         for the fetch.
  *
  * ---- structure "bvh" (two-level BVH, #define HS_STRUCTURE_BVH) ----
  * [node]  RGBA32UI "hs_node_tex", 1 texel per node: every model tree (BLAS), then the top-level
@@ -96,13 +107,20 @@
  *   hs_scene_max_height.
  * Defines (BakedScene.defines): HS_GRID_LEVELS, HS_TEX_WIDTH, HS_TEX_WIDTH_LOG2,
  *   HS_TEX_ROWS_LOG2 (14), HS_BVH_LEAF_SIZE, and HS_HAS_MESHES / HS_HAS_SPHERES only when the
- *   scene has such casters, HS_HAS_NODE_BVH only when some grid node has an object BVH (test
- *   with #ifdef).
+ *   scene has such casters, HS_HAS_NODE_BVH only when some grid node has an object BVH,
+ *   HS_HAS_ALPHA only with [uv] / [object_mat] (both structures; test with #ifdef).
  * =========================================================================================
  *
  * Ray convention: world-space origin o, direction d (not necessarily unit), occluded when any
  * caster is hit at t in (0, tmax), tmax in units of |d| ("infinite": pass any value >= 3e38).
  * Model-space rays are o' = Minv o, d' = Minv d with d' NOT renormalised, so t is shared.
+ * hs_visibility(o, d, tmax): 1 lit, 0 occluded; with HS_HAS_ALPHA the product of the
+ * transmittances (common/alpha.glsl hs_transmittance) of every alpha-cut triangle crossed in
+ * (0, tmax), 0 at an opaque hit or once below HS_VIS_MIN. The grid walk tests every object at
+ * most once per ray (each caster sits in exactly one grid node, the DDA visits a node at most
+ * once, the outside node once, an object BVH each leaf once) and a model BVH each triangle at
+ * most once, so no crossing is counted twice (a ray exactly through a shared edge hits both
+ * triangles, as the oracle's watertight test does too).
  */
 
 #ifndef HS_SCENE_DATA_GLSL
@@ -218,6 +236,10 @@ bool hs_slab_hit(vec3 o, vec3 inv, vec3 bmin, vec3 bmax, float tmax)
     return max(tn, 0.0) <= min(tf, tmax);
 }
 
+#ifdef HS_HAS_ALPHA
+#include "common/alpha.glsl"
+#endif
+
 #ifdef HS_STRUCTURE_BVH
 #include "common/scene_bvh.glsl"
 #else
@@ -245,6 +267,17 @@ uvec4 hs_fetch_model(int model, int k){ return texelFetch(hs_model_tex, hs_texel
 uvec4 hs_fetch_bvh(int node, int k)  { return texelFetch(hs_bvh_tex, hs_texel(2 * node + k), 0); }
 #endif
 vec3  hs_fetch_vertex(int tri, int k){ return texelFetch(hs_tri_tex, hs_texel(3 * tri + k), 0).xyz; }
+
+#ifdef HS_HAS_ALPHA
+// (common/alpha.glsl is included above, before the structure branch: the loader expands an
+// include once, at its first textual occurrence, whatever #ifdef surrounds it)
+uniform sampler2DArray hs_uv_tex;
+uniform usampler2DArray hs_object_mat_tex;
+#define HS_VIS_MIN 1.0e-3   // less light than this left: the ray is blocked (as scene_bvh.glsl)
+// Light kept through the alpha-cut surfaces crossed so far by the current ray (reset by
+// hs_occluded; the walk returns "occluded" once it falls below HS_VIS_MIN).
+float hs_vis = 1.0;
+#endif
 
 // ---------------------------------------------------------------- BVH ---------------------
 #ifdef HS_HAS_MESHES
@@ -274,6 +307,67 @@ bool hs_bvh_occluded(vec3 o, vec3 d, int root, int count, float tmax)
     }
     return false;
 }
+
+#ifdef HS_HAS_ALPHA
+// hs_triangle_hit (the very same operations and hits) that also gives the hit's barycentric
+// weights of v0, v1, v2.
+bool hs_triangle_hit_b(vec3 o, HsWoop w, vec3 v0, vec3 v1, vec3 v2, float tmax, out vec3 bary)
+{
+    bary = vec3(0.0);
+    precise vec3 A = v0 - o;
+    precise vec3 B = v1 - o;
+    precise vec3 C = v2 - o;
+    float Akz = A[w.k.z], Bkz = B[w.k.z], Ckz = C[w.k.z];
+    precise float Ax = A[w.k.x] - w.s.x * Akz;
+    precise float Ay = A[w.k.y] - w.s.y * Akz;
+    precise float Bx = B[w.k.x] - w.s.x * Bkz;
+    precise float By = B[w.k.y] - w.s.y * Bkz;
+    precise float Cx = C[w.k.x] - w.s.x * Ckz;
+    precise float Cy = C[w.k.y] - w.s.y * Ckz;
+    precise float U = Cx * By - Cy * Bx;
+    precise float V = Ax * Cy - Ay * Cx;
+    precise float W = Bx * Ay - By * Ax;
+    if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return false;
+    precise float det = U + V + W;
+    precise float T = (U * (w.s.z * Akz) + V * (w.s.z * Bkz)) + W * (w.s.z * Ckz);
+    precise float td = tmax * det;
+    bool hit = (det > 0.0) ? (T > 0.0 && T < td) : (det < 0.0 && T < 0.0 && T > td);
+    if (hit) bary = vec3(U, V, W) / det;
+    return hit;
+}
+
+// hs_bvh_occluded for an alpha-cut object of material mat: every triangle the ray crosses
+// multiplies hs_vis by its transmittance at the hit's UV ([uv]); true once hs_vis < HS_VIS_MIN.
+bool hs_bvh_transmit(vec3 o, vec3 d, int root, int count, float tmax, int mat)
+{
+    HsWoop w = hs_woop_setup(d);
+    vec3 inv = hs_slab_inv(d);
+    int i = root;
+    int end = root + count;
+    while (i < end) {
+        uvec4 n0 = hs_fetch_bvh(i, 0);
+        uvec4 n1 = hs_fetch_bvh(i, 1);
+        bool hit = hs_slab_hit(o, inv, uintBitsToFloat(n0.xyz), uintBitsToFloat(n1.xyz), tmax);
+        if (hit && n1.w != 0u) {
+            int first = int(n1.w >> 3u);
+            int cnt = int(n1.w & 7u);
+            for (int k = 0; k < cnt; ++k) {
+                int t = first + k;
+                vec3 b;
+                if (hs_triangle_hit_b(o, w, hs_fetch_vertex(t, 0), hs_fetch_vertex(t, 1),
+                                      hs_fetch_vertex(t, 2), tmax, b)) {
+                    vec4 p = texelFetch(hs_uv_tex, hs_texel(2 * t), 0);
+                    vec4 q = texelFetch(hs_uv_tex, hs_texel(2 * t + 1), 0);
+                    hs_vis *= hs_transmittance(mat, b.x * p.xy + b.y * p.zw + b.z * q.xy);
+                    if (hs_vis < HS_VIS_MIN) return true;
+                }
+            }
+        }
+        i = (hit && n1.w == 0u) ? i + 1 : int(n0.w);
+    }
+    return false;
+}
+#endif
 #endif
 
 // ---------------------------------------------------------------- objects -----------------
@@ -301,6 +395,10 @@ bool hs_object_occludes(vec3 o, vec3 d, float tmax, uvec2 entry)
 #ifdef HS_HAS_MESHES
     uvec4 info = hs_fetch_model(model, 1);
     if (info.y == 0u) return false;
+#ifdef HS_HAS_ALPHA
+    uint amat = texelFetch(hs_object_mat_tex, hs_texel(obj), 0).x;
+    if (amat != 0u) return hs_bvh_transmit(om, dm, int(info.x), int(info.y), tmax, int(amat) - 1);
+#endif
     return hs_bvh_occluded(om, dm, int(info.x), int(info.y), tmax);
 #else
     return false;
@@ -413,9 +511,13 @@ bool hs_walk_level(vec3 o, vec3 d, float tmax, float t_dda, int lvl)
     return false;
 }
 
-// The shadow-ray query: true when a caster is hit at t in (0, tmax).
+// The shadow-ray query: true when a caster is hit at t in (0, tmax) (HS_HAS_ALPHA: an opaque
+// one, or the light kept through alpha-cut ones, hs_vis, fell below HS_VIS_MIN).
 bool hs_occluded(vec3 o, vec3 d, float tmax)
 {
+#ifdef HS_HAS_ALPHA
+    hs_vis = 1.0;
+#endif
     tmax = min(tmax, HS_FLT_BIG);
     if (!(tmax > 0.0) || (d.x == 0.0 && d.y == 0.0 && d.z == 0.0)) return false;
     float H = hs_scene_max_height;
@@ -434,7 +536,13 @@ bool hs_occluded(vec3 o, vec3 d, float tmax)
     return false;
 }
 
+#ifdef HS_HAS_ALPHA
+// Visibility in [0, 1]: the product of the transmittances of every alpha-cut surface the ray
+// crosses in (0, tmax), 0 at an opaque one.
+float hs_visibility(vec3 o, vec3 d, float tmax) { return hs_occluded(o, d, tmax) ? 0.0 : hs_vis; }
+#else
 float hs_visibility(vec3 o, vec3 d, float tmax) { return hs_occluded(o, d, tmax) ? 0.0 : 1.0; }
+#endif
 
 #endif // HS_STRUCTURE_BVH
 

@@ -1,7 +1,8 @@
 // The shadow ray of one G-buffer pixel towards one light, shared by raytrace.glsl (which traces
 // it) and refine_classify.glsl (which decides whether the pixel needs it), so both see the very
 // same surface point, normal and facing/reach tests. Needs common/camera.glsl, common/gbuffer.glsl.
-// Defines: HS_LIGHT_SUN or HS_LIGHT_LOCAL, HS_MAX_DISTANCE.
+// Defines: HS_LIGHT_SUN or HS_LIGHT_LOCAL, HS_MAX_DISTANCE, HS_SOFT (no facing test: an
+// extended light's samples weigh the horizon themselves).
 
 uniform vec3 u_light_vec;       // sun: unit direction towards it; else the light's position
                                 // (bake space: world - the bake's origin)
@@ -62,8 +63,10 @@ float shadow_ray_prelude(ivec2 px, out vec3 p, out vec3 n, out float depth, out 
 #else
     to_light = u_light_vec;
 #endif
+#ifndef HS_SOFT
     float facing = dot(n, to_light);
     if (facing <= 0.0) return 0.0;    // faces away: unlit, no ray
+#endif                                // (an extended light can be partly above the horizon)
 #ifdef HS_LIGHT_LOCAL
     if (dot(-normalize(to_light), u_light_axis) <= u_light_cone) return 0.0;  // out of reach
 #endif

@@ -8,6 +8,11 @@ Crowded grid nodes (more than ``BakeConfig.object_bvh_threshold`` objects) also 
 in [bvh] (after the model BVHs): a stackless tree over the bake-space boxes of their objects'
 stored spheres, leaves of ``object_leaf_size`` consecutive [grid_index] entries (the node's list is
 kept in the tree's Morton leaf order). ``place_object_bvhs`` builds them, vectorised over nodes.
+
+Alpha-cut shadows (some caster's material cuts its shadow, ``Scene.alpha_models``): two more
+textures, [uv] (the UVs of the alpha models' triangles, mirroring [tri]: ``UV_TEXELS`` per
+triangle record) and [object_mat] (per instance 1 + its material when the walk must run the
+any-hit alpha test on it, else 0), and ``HS_HAS_ALPHA``. Opaque scenes have neither.
 """
 from __future__ import annotations
 
@@ -19,12 +24,12 @@ from . import grid as _grid
 from . import twolevel as _twolevel
 from . import update as _update
 from .bvh import build_bvhs, build_trees, morton_order_groups
-from .state import (TEXTURE_NAMES, BakeConfig, GridState, InstanceState, ModelState, TextureSet, UpdateReport,
+from .state import (UV_TEXELS, BakeConfig, GridState, InstanceState, ModelState, TextureSet, UpdateReport,
                     new_texture)
-from .materials import MaterialBake, bake_materials
+from .materials import MaterialBake, bake_materials, model_uvs
 from .textures import (BVH_TEXELS, EMPTY_HEIGHT, GRID_TEXELS, INDEX_TEXELS, MAX_ROWS_LOG2, MODEL_TEXELS,
                        OBJECT_TEXELS, REL_EPS, SPHERE_FLAG, TRI_TEXELS, TextureData, f32_bits, f32_down, f32_up,
-                       grow_texture)
+                       grow_texture, texel_rows)
 
 
 def choose_origin(scene) -> np.ndarray:
@@ -80,8 +85,11 @@ class BakedScene:
 
     @property
     def has_alpha(self) -> bool:
-        """Some caster's material cuts its shadow: the traversal runs the any-hit alpha test."""
-        return self.bvh is not None and self.bvh.uv_models is not None
+        """Some caster's material cuts its shadow: the traversal runs the any-hit alpha test
+        (``HS_HAS_ALPHA``; the UVs are baked, and some mesh caster has triangles to test)."""
+        if self.bvh is not None:
+            return self.bvh.uv_models is not None and self.has_meshes
+        return self.tex.uv is not None and self.has_meshes
 
     @property
     def layout(self) -> _grid.GridLayout:
@@ -114,6 +122,8 @@ class BakedScene:
             d["HS_HAS_SPHERES"] = 1
         if (self.grid.obvh >= 0).any():
             d["HS_HAS_NODE_BVH"] = 1
+        if self.has_alpha:
+            d["HS_HAS_ALPHA"] = 1
         return d
 
     @property
@@ -239,6 +249,7 @@ class BakedScene:
             "max_objects_per_node": int(counts.max()) if len(counts) else 0,
             "object_bvh_nodes": int((obvh >= 0).sum()),
             "object_bvh_objects": int(counts[obvh >= 0].sum()),
+            "alpha_models": int(models.uv.sum()) if models.uv is not None else 0,  # UVs in [uv]
             "bytes": tex_bytes,
             "total_bytes": int(sum(tex_bytes.values())),
         })
@@ -310,6 +321,52 @@ class BakedScene:
         rec[idx] = block
         st.model[idx] = inst.model_ids[idx]
         st.sphere[idx] = inst.sphere[idx]
+        if self.tex.object_mat is not None:
+            self.tex.object_mat.linear()[idx, 0] = self.alpha_slots(scene, idx)
+
+    # ------------------------------------------------------------------ alpha-cut shadows --
+    def alpha_slots(self, scene, idx: np.ndarray) -> np.ndarray:
+        """[object_mat] of instances ``idx``: 1 + material index when the instance's material
+        cuts its shadow and its model's UVs are in [uv] (never for analytic spheres), else 0."""
+        inst = scene.instances
+        idx = np.asarray(idx, np.int64)
+        slot = self.materials.instance_slots(inst.material_ids[idx])
+        mid = inst.model_ids[idx]
+        ok = self.models.uv[mid] & ~inst.sphere[idx]
+        return np.where(ok, slot, 0).astype(np.uint32)
+
+    def write_model_uvs(self, scene, m: int, tri_src: np.ndarray, tri_base: int) -> None:
+        """[uv] records of model ``m`` at [tri] records ``tri_base ..``: its UVs in the stored
+        triangle order ``tri_src`` (``BVHBuild.tri_src``), zeros when its UVs are not kept."""
+        tc = len(tri_src)
+        block = np.zeros((tc, UV_TEXELS * 4), np.float32)
+        if self.models.uv[m] and tc:
+            block[:, :6] = model_uvs(scene.models[m])[np.asarray(tri_src, np.int64)].reshape(tc, 6)
+        self.tex.uv.records(UV_TEXELS)[tri_base:tri_base + tc] = block
+
+    def ensure_model_uvs(self, scene, idx: np.ndarray) -> list:
+        """Instances ``idx`` may have been given an alpha-cut material since the bake: store the
+        UVs of their models that [uv] lacks (their triangles as stored: the model BVH built
+        again gives the same order). Returns the [uv] row ranges written."""
+        if self.tex.uv is None or self.materials is None:
+            return []
+        inst = scene.instances
+        idx = np.asarray(idx, np.int64)
+        slot = self.materials.instance_slots(inst.material_ids[idx])
+        mid = inst.model_ids[idx]
+        need = np.unique(mid[(slot > 0) & ~inst.sphere[idx] & ~self.models.uv[mid]])
+        ranges = []
+        w = self.config.tex_width
+        for m in need.tolist():
+            self.models.uv[m] = True
+            tc = int(self.models.tri_count[m])
+            if not tc:
+                continue
+            src = build_bvhs([scene.models[m]], self.config.leaf_size).tri_src
+            t0 = int(self.models.tri_start[m])
+            self.write_model_uvs(scene, m, src, t0)
+            ranges += texel_rows("uv", t0 * UV_TEXELS, (t0 + tc) * UV_TEXELS, w)
+        return ranges
 
     def index_code(self, obj: np.ndarray) -> np.ndarray:
         st = self.instances
@@ -500,12 +557,23 @@ def bake_scene(scene, config: BakeConfig | None = None) -> BakedScene:
     if tex.bvh_tail:
         b._write_bvh_block(build, 0, tex.bvh_tail, 0, tex.tri_tail, 0, 0)
     b.write_models(np.arange(m_count), scene)
+    if b.materials is not None and b.materials.cuts_shadows:
+        uvm = scene.alpha_models()
+        if uvm.any():  # alpha-cut shadows: [uv] mirrors [tri], [object_mat] below
+            b.models.uv = uvm.copy()
+            tex.uv = new_texture("uv", tex.tri_tail * UV_TEXELS, cfg.tex_width)
+            ms = b.models
+            for m in np.nonzero(uvm)[0].tolist():
+                ts, tc = int(build.tri_start[m]), int(build.tri_count[m])
+                b.write_model_uvs(scene, m, build.tri_src[ts:ts + tc], int(ms.tri_start[m]))
     t_bvh = time.perf_counter() - tb
 
     # objects ------------------------------------------------------------------------------
     to = time.perf_counter()
     b.instances = InstanceState.empty(n)
     tex.object = new_texture("object", n * OBJECT_TEXELS, cfg.tex_width)
+    if tex.uv is not None:
+        tex.object_mat = new_texture("object_mat", n, cfg.tex_width)
     b.origin = choose_origin(scene) if cfg.origin is None else np.asarray(cfg.origin, np.float64).reshape(3)
     if n:
         b.write_objects(scene, np.arange(n))

@@ -23,8 +23,16 @@ TEXTURE_FORMATS = {
     "model": (4, "u4"),
     "bvh": (4, "u4"),
     "tri": (3, "f4"),
+    # alpha-cut shadows only (scenes whose casters' materials cut their shadows; else absent)
+    "uv": (4, "f4"),
+    "object_mat": (1, "u4"),
 }
 TEXTURE_NAMES = tuple(TEXTURE_FORMATS)
+#: the textures every grid bake has; the others (ALPHA_TEXTURE_NAMES) only when needed
+BASE_TEXTURE_NAMES = TEXTURE_NAMES[:6]
+ALPHA_TEXTURE_NAMES = ("uv", "object_mat")
+#: [uv] texels per [tri] record: (u0 v0 u1 v1), (u2 v2 0 0)
+UV_TEXELS = 2
 
 
 def new_texture(name: str, n_texels: int, width: int) -> TextureData:
@@ -66,7 +74,8 @@ class BakeConfig:
 
 @dataclass
 class TextureSet:
-    """The six scene textures and how many records of [bvh] and [tri] are allocated."""
+    """The six scene textures, the two of alpha-cut shadows (None unless the scene has such
+    casters) and how many records of [bvh] and [tri] are allocated."""
 
     grid: TextureData
     grid_index: TextureData
@@ -76,18 +85,20 @@ class TextureSet:
     tri: TextureData
     bvh_tail: int = 0  # [bvh] records allocated: model BVHs, then the grid's object BVHs
     tri_tail: int = 0  # [tri] records allocated
+    uv: Optional[TextureData] = None  # [uv]: UV_TEXELS per [tri] record (mirrors [tri])
+    object_mat: Optional[TextureData] = None  # [object_mat]: 1 texel per instance
 
     @classmethod
     def empty(cls, width: int) -> "TextureSet":
-        return cls(**{name: new_texture(name, 0, width) for name in TEXTURE_NAMES})
+        return cls(**{name: new_texture(name, 0, width) for name in BASE_TEXTURE_NAMES})
 
     def __getitem__(self, name: str) -> TextureData:
-        if name not in TEXTURE_FORMATS:
+        if name not in TEXTURE_FORMATS or getattr(self, name) is None:
             raise KeyError(name)
         return getattr(self, name)
 
     def as_dict(self) -> dict[str, TextureData]:
-        return {name: getattr(self, name) for name in TEXTURE_NAMES}
+        return {name: getattr(self, name) for name in TEXTURE_NAMES if getattr(self, name) is not None}
 
 
 @dataclass
@@ -101,6 +112,8 @@ class ModelState:
     node_cap: np.ndarray  # [bvh] records allocated to the model (an edit fitting them stays)
     tri_cap: np.ndarray  # [tri] records allocated
     depth: np.ndarray  # BVH depth
+    #: (M,) bool: the model's UVs are in [uv] (alpha-cut shadows); None: the bake has no [uv]
+    uv: Optional[np.ndarray] = None
 
     @classmethod
     def empty(cls, m: int = 0) -> "ModelState":
@@ -117,6 +130,8 @@ class ModelState:
         """One more model, with nothing allocated yet."""
         for name in ("node_start", "node_count", "tri_start", "tri_count", "node_cap", "tri_cap", "depth"):
             setattr(self, name, np.concatenate([getattr(self, name), [0]]).astype(np.int64))
+        if self.uv is not None:
+            self.uv = np.concatenate([self.uv, [False]])
 
     def __len__(self) -> int:
         return len(self.node_count)

@@ -490,6 +490,32 @@ def _inside_frame(st, idx) -> bool:
     return bool((lo >= 0).all() and (hi <= QMAX).all())
 
 
+def _ensure_uvs(b, scene, models, rep: UpdateReport) -> None:
+    """Store the UVs of ``models`` that now need them (an instance of theirs got an alpha-cut
+    material since the bake): the "uv" texture is created when the bake had none."""
+    st = b.bvh
+    if b.materials is None:
+        return  # no material records baked: a scene with new materials needs a new bake
+    need = scene.alpha_models()
+    todo = [m for m in models if m < len(need) and need[m] and (st.uv_models is None or not st.uv_models[m])]
+    if not todo:
+        return
+    W = b.config.tex_width
+    if st.uv_models is None:
+        st.uv_models = np.zeros(len(st.node_count), bool)
+        st.tex["uv"] = _new("uv", st.tex["leaf"].capacity, W)
+        st.tex["uv"].used = st.leaf_tail
+        rep.resized.add("uv")
+    for m in todo:
+        st.uv_models[m] = True
+        # the same build as the baked tree (deterministic): its triangles sit in the same order
+        bl = build_blas([scene.models[m]], leaf_size(b.config), np.array([True]))
+        tb, tt = int(st.tri_start[m]), int(bl.tri_texels[0])
+        if bl.uv4 is not None and tt:
+            st.tex["uv"].linear()[tb:tb + tt] = bl.uv4
+            rep.ranges += texel_rows("uv", tb, tb + tt, W)
+
+
 def update_instances(b, scene, indices, rep: UpdateReport | None = None) -> UpdateReport:
     st = b.bvh
     rep = rep or UpdateReport()
@@ -502,6 +528,7 @@ def update_instances(b, scene, indices, rep: UpdateReport | None = None) -> Upda
     old_member = st.member[idx].copy()
     old_uniforms = tlas_uniforms(st)
     old_defines = b.defines
+    _ensure_uvs(b, scene, np.unique(scene.instances.model_ids[idx]).tolist(), rep)
     write_instances(b, st, scene, idx)
     rep.ranges += rows_of_texels("leaf", (idx[:, None] * INST_TEXELS + np.arange(INST_TEXELS)).ravel(), W)
     rep.objects += int(idx.size)
@@ -547,6 +574,8 @@ def update_model(b, scene, m: int, rep: UpdateReport) -> UpdateReport:
     if st.uv_models is not None:
         if m == len(st.uv_models):
             st.uv_models = np.concatenate([st.uv_models, [False]])
+        need = scene.alpha_models()
+        st.uv_models[m] = bool(need[m]) and b.materials is not None
         uvm = st.uv_models[m:m + 1]
     bl = build_blas([scene.models[m]], leaf_size(b.config), uvm)
     nc, tt = int(bl.node_count[0]), int(bl.tri_texels[0])
@@ -575,6 +604,7 @@ def update_model(b, scene, m: int, rep: UpdateReport) -> UpdateReport:
     rep.ranges += texel_rows("leaf", tb, tb + tt, W)
     if bl.uv4 is not None:
         rep.ranges += texel_rows("uv", tb, tb + tt, W)
+    _ensure_uvs(b, scene, [m], rep)
     users = np.nonzero(scene.instances.model_ids == m)[0] if len(scene.instances) else np.zeros(0, np.int64)
     if users.size:
         update_instances(b, scene, users, rep)

@@ -9,7 +9,8 @@ Model BVHs are untouched by moves; a crowded node (object BVH, see ``place_objec
 update touches (objects left, entered or moved inside it) rebuilds its object BVH, in place when
 it fits the node's [bvh] allocation, else at the [bvh] tail. An edited mesh rebuilds that model's
 BVH only: in place when it fits the model's old allocation, else appended (the texture grows when
-needed).
+needed). Alpha-cut shadows: [object_mat] follows the moved instances' materials (a model that gets
+an alpha-cut instance gets its UVs into [uv]); [uv] follows the edited model's [tri] records.
 """
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ import numpy as np
 
 from . import grid as _grid
 from .bvh import build_bvhs
-from .state import UpdateReport
+from .state import UV_TEXELS, UpdateReport
 from .textures import (BVH_TEXELS, MODEL_TEXELS, OBJECT_TEXELS, TRI_TEXELS, grow_texture, merge_ranges,
                        rows_of_texels, texel_rows)
 
@@ -61,8 +62,11 @@ def update_instances(b, scene, indices) -> UpdateReport:
     old_maxh = b.scene_max_height
 
     # object texels ------------------------------------------------------------------------
+    rep.ranges += b.ensure_model_uvs(scene, idx)
     b.write_objects(scene, idx)
     rep.ranges += rows_of_texels("object", (idx[:, None] * OBJECT_TEXELS + np.arange(OBJECT_TEXELS)).ravel(), w)
+    if b.tex.object_mat is not None:
+        rep.ranges += rows_of_texels("object_mat", idx, w)
     rep.objects = int(idx.size)
 
     # grid: nodes left and entered ---------------------------------------------------------
@@ -191,6 +195,14 @@ def update_model(b, scene, model_id: int) -> UpdateReport:
     if nc:
         b.write_bvh(build, node_base, tri_base, 0)
     b.write_models(np.array([m]), scene)
+    if tex.uv is not None:  # alpha-cut shadows: [uv] mirrors [tri]
+        n_uv = tex.tri_tail * UV_TEXELS
+        if grow_texture(tex.uv, n_uv):
+            rep.resized.add("uv")
+        tex.uv.used = max(tex.uv.used, n_uv)
+        ms.uv[m] = bool(scene.alpha_models()[m])
+        b.write_model_uvs(scene, m, build.tri_src[:tc], tri_base)
+        rep.ranges += texel_rows("uv", tri_base * UV_TEXELS, (tri_base + tc) * UV_TEXELS, w)
     rep.ranges += texel_rows("bvh", node_base * BVH_TEXELS, (node_base + nc) * BVH_TEXELS, w)
     rep.ranges += texel_rows("tri", tri_base * TRI_TEXELS, (tri_base + tc) * TRI_TEXELS, w)
     rep.ranges += texel_rows("model", m * MODEL_TEXELS, (m + 1) * MODEL_TEXELS, w)

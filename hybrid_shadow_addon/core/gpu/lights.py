@@ -93,6 +93,43 @@ def light_ray_uniforms(light, origin=(0.0, 0.0, 0.0)) -> tuple[bool, tuple]:
     return True, tuple(float(v) for v in light.position - np.asarray(origin, np.float64))
 
 
+SOFT_SHAPES = {"SUN": 0, "SPHERE": 1, "RECTANGLE": 2, "ELLIPSE": 3}
+
+
+def soft_shape(light, hard: bool = False) -> dict | None:
+    """The extended light ``shaders/common/soft_light.glsl`` samples, or None for a hard one
+    (``hard``, or size 0): ``{"shape": HS_SOFT_SHAPE, "u_light_u", "u_light_v",
+    "u_light_radius"}`` (world axes, float tuples)."""
+    if hard:
+        return None
+    zero = (0.0, 0.0, 0.0)
+    if light.type == "SUN":
+        if not light.angle > 0:
+            return None
+        d = -np.asarray(light.direction, np.float64)
+        a = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        u = np.cross(d, a)
+        u /= np.linalg.norm(u)
+        v = np.cross(d, u)
+        t = math.tan(0.5 * min(float(light.angle), math.radians(179.0)))
+        return {"shape": SOFT_SHAPES["SUN"], "u_light_u": tuple(u * t), "u_light_v": tuple(v * t),
+                "u_light_radius": 0.0}
+    if light.type in ("POINT", "SPOT"):
+        if not light.radius > 0:
+            return None
+        return {"shape": SOFT_SHAPES["SPHERE"], "u_light_u": zero, "u_light_v": zero,
+                "u_light_radius": float(light.radius)}
+    ux, hx, hy = area_extent(light)
+    if not (hx > 0 and hy > 0):
+        return None
+    y = np.asarray(light.matrix[:3, 1], np.float64)
+    ny = np.linalg.norm(y)
+    uy = y / ny if ny > 0 else np.cross(np.asarray(light.direction, np.float64), ux)
+    shape = "ELLIPSE" if AREA_SHAPES.get(light.area_shape, 0) == 1 else "RECTANGLE"
+    return {"shape": SOFT_SHAPES[shape], "u_light_u": tuple(ux * hx), "u_light_v": tuple(uy * hy),
+            "u_light_radius": 0.0}
+
+
 def light_cone(light) -> tuple[tuple, float]:
     """(u_light_axis, u_light_cone) of a local light: where ``dot(light -> p, axis)`` is at most
     the cone value the light does not shine (as ``shaders/common/lights.glsl`` evaluates it)."""

@@ -159,6 +159,7 @@ class Pipeline:
             "rays": shadow_stats["rays"],
             "rays_traced": shadow_stats.get("rays_traced", 0),
             "pixels": shadow_stats.get("pixels", 0),
+            "samples": shadow_stats.get("samples", 1),
             "shadowed_lights": len(job.lights),
             "defines": shadow_stats["defines"],
         }

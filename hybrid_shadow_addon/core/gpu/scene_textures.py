@@ -45,7 +45,9 @@ class SceneTextures:
         written = 0
         textures = baked.textures
         for name in report.resized:
-            self.textures[name].release()
+            old = self.textures.pop(name, None)  # (a texture the update added has none)
+            if old is not None:
+                old.release()
             td = textures[name]
             self.textures[name] = self._create(td)
             written += td.nbytes

@@ -26,15 +26,19 @@ the shadowed lights. The numpy mirror of the rays traced here is ``core/oracle/r
 from __future__ import annotations
 
 import time
+import zlib
 
 import moderngl
 import numpy as np
 
-from ..lights import light_cone, light_ray_uniforms
+from ..lights import light_cone, light_ray_uniforms, soft_shape
 from ..targets import TargetCache, draw_fullscreen, set_uniforms
 from .base import ShadowPass
 from .conservative import ConservativeMaps
 from .refine import Refiner
+
+
+SOFT_PROBES = 4  # HS_PROBES of shaders/common/soft_light.glsl
 
 
 class RaytracePass(ShadowPass):
@@ -55,14 +59,19 @@ class RaytracePass(ShadowPass):
         self.refiner = Refiner(gpu)
         self._plan = self._last_plan = None
         self.last_defines: dict = {}
+        self.last_samples = 1  # rays per pixel of the softest light of the last frame
+        self.sample_base = 0  # first sample index of this frame (the viewport advances it)
 
     def reset_history(self) -> None:
         """Forget interlacing history (any camera, object, light or setting change)."""
         self._valid_phases = 0
 
-    def defines(self, settings, local: bool) -> dict:
+    def defines(self, settings, local: bool, soft: dict | None = None) -> dict:
         d = dict(self.scene_textures.baked.defines)
         d["HS_LIGHT_LOCAL" if local else "HS_LIGHT_SUN"] = 1
+        if soft is not None:
+            d["HS_SOFT"] = 1
+            d["HS_SOFT_SHAPE"] = int(soft["shape"])
         if settings.max_distance > 0:
             d["HS_MAX_DISTANCE"] = 1
         if settings.interlace:
@@ -84,7 +93,7 @@ class RaytracePass(ShadowPass):
         else:
             traced = self.refiner.count("coarse") * n + self.refiner.count("refined")
         return {"mask_resolution": [mw, mh], "rays": int(mw * mh * n),
-                "rays_traced": int(traced), "pixels": int(valid * n),
+                "rays_traced": int(traced), "pixels": int(valid * n), "samples": int(self.last_samples),
                 "defines": sorted(f"{k}={v}" for k, v in self.last_defines.items())}
 
     def _plan_of(self, settings) -> str:
@@ -131,10 +140,14 @@ class RaytracePass(ShadowPass):
             self.maps.begin_frame(scene, gbuffer)
             self.last_map_ms += (time.perf_counter() - t0) * 1e3
         origin = self.scene_textures.baked.origin
+        self.last_samples = 1
         for li in lights:
             job.light_started(li)
             local, vec = light_ray_uniforms(scene.lights[li], origin)
-            defines = self.defines(settings, local)
+            soft = soft_shape(scene.lights[li], settings.hard)
+            if soft is not None:
+                self.last_samples = max(self.last_samples, int(settings.samples))
+            defines = self.defines(settings, local, soft)
             cmap = None
             if sun_maps and (local_maps or not local):
                 ctx.finish()  # (so last_map_ms holds the maps alone, not the previous light's rays)
@@ -165,9 +178,20 @@ class RaytracePass(ShadowPass):
 
     def _light_uniforms(self, light, light_vec, gbuffer, settings) -> dict:
         axis, cone = light_cone(light)
-        return {"u_light_vec": light_vec, "u_light_axis": axis, "u_light_cone": cone,
-                "u_cam_bake": tuple(float(v) for v in gbuffer.camera.cam_pos - self.scene_textures.baked.origin),
-                "u_max_distance": float(settings.max_distance)}
+        u = {"u_light_vec": light_vec, "u_light_axis": axis, "u_light_cone": cone,
+             "u_cam_bake": tuple(float(v) for v in gbuffer.camera.cam_pos - self.scene_textures.baked.origin),
+             "u_max_distance": float(settings.max_distance)}
+        soft = soft_shape(light, settings.hard)
+        if soft is not None:
+            u.update({k: v for k, v in soft.items() if k != "shape"})
+            u.update({"u_samples": int(settings.samples), "u_sample_base": int(self.sample_base),
+                      "u_seed": self._seed(light)})
+        return u
+
+    @staticmethod
+    def _seed(light) -> int:
+        """A per-light seed of the sample pattern (stable across frames and sessions)."""
+        return zlib.crc32(light.name.encode("utf-8")) & 0x7FFFFFFF
 
     def _light(self, li, light, light_vec, defines, gbuffer, settings, plan, cmap=None):
         full = gbuffer.size
@@ -175,14 +199,26 @@ class RaytracePass(ShadowPass):
         if plan in ("full", "coarse"):
             scale = 1 if plan == "full" else settings.mask_scale
             size = full if plan == "full" else settings.mask_size(*full)
-            _, vao, _ = self._program(defines, light, light_vec, gbuffer, settings, scale, cmap)
             out = self._target((li, "out" if plan == "full" else "coarse"), *size)
+            if plan == "full" and "HS_SOFT" in defines and settings.samples > SOFT_PROBES:
+                # soft light: a few probe rays per pixel, then all the samples only near the
+                # pixels whose probes disagree (penumbrae); elsewhere the probes are exact
+                _, pvao, _ = self._program({**defines, "HS_SOFT_PROBE": 1}, light, light_vec, gbuffer, settings,
+                                           1, cmap)
+                probe = self._target((li, "probe"), *full)
+                draw_fullscreen(ctx, pvao, probe)
+                prog, vao, unit = self._program({**defines, "HS_SOFT_REFINE": 1}, light, light_vec, gbuffer,
+                                                settings, 1, cmap)
+                probe.texture.use(unit)
+                prog["u_probe"].value = unit
+            else:
+                _, vao, _ = self._program(defines, light, light_vec, gbuffer, settings, scale, cmap)
             draw_fullscreen(ctx, vao, out)
             return out.texture
         plain = {k: v for k, v in defines.items() if k != "HS_INTERLACE"}
         uniforms = self._light_uniforms(light, light_vec, gbuffer, settings)
         class_defs = {k: v for k, v in defines.items() if k in ("HS_LIGHT_LOCAL", "HS_LIGHT_SUN", "HS_MAX_DISTANCE",
-                                                                  "HS_INTERLACE")}
+                                                                  "HS_INTERLACE", "HS_SOFT")}
         class_defs.update(self.refiner.defines())
         if plan == "refine":
             scale = settings.mask_scale
