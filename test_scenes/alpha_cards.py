@@ -8,7 +8,11 @@ A sun at 40° elevation behind the fence and a spot light cast the cards' and th
 shadows on the ground, in front of the camera. 320x240.
 
 PARAMS: ``opaque=1``: the same scene with the cards' and the fence's Alpha unlinked (alpha 1,
-the cost of the alpha test by comparison); ``width``, ``height``; ``seed``.
+the cost of the alpha test by comparison); ``closest=1``: the leaf's and the fence's alpha
+strictly binary (no one-texel ramp, Closest interpolation), so that no pixel centre sees a surface
+of fractional alpha: Cycles then never blends two surfaces into one pixel, which the per-light
+visibility of ``compare`` would count as mismatches (tests/test_alpha_cycles.py); ``width``,
+``height``; ``seed``.
 """
 import math
 import os
@@ -19,6 +23,8 @@ import numpy as np
 lib = runpy.run_path(os.path.join(os.path.dirname(__file__), "_lib.py"))
 PARAMS = globals().get("PARAMS", {})
 OPAQUE = bool(int(PARAMS.get("opaque", 0)))
+CLOSEST = bool(int(PARAMS.get("closest", 0)))
+ALPHA_INTERPOLATION = "Closest" if CLOSEST else "Linear"
 rng = np.random.default_rng(int(PARAMS.get("seed", 3)))
 #: the fence image repeats this many times across and up the fence quad
 FENCE_REPEAT = (24.0, 8.0)
@@ -55,7 +61,7 @@ def leaf_image(w=128, h=192):
     for cu, cv, r in ((0.62, 0.55, 0.07), (0.3, 0.7, 0.05), (0.8, 0.35, 0.045), (0.45, 0.86, 0.035)):
         hole = (np.hypot((U - cu) * w, (V - cv) * h) - r * w)
         d = np.minimum(d, hole)
-    alpha = np.clip(d + 0.5, 0, 1)
+    alpha = (d > 0).astype(float) if CLOSEST else np.clip(d + 0.5, 0, 1)
     vein = np.exp(-(x * 30) ** 2) + 0.5 * np.exp(-((np.abs(x) - 0.6 * (t - 0.1)) * 25) ** 2 * (np.sin(t * 40) > 0.6))
     g = np.clip(0.35 + 0.25 * t - 0.2 * np.clip(vein, 0, 1), 0.05, 1)
     rgb = np.stack([0.25 * g, g, 0.12 * g], axis=-1)
@@ -86,7 +92,8 @@ lib["add_object"]("Ground", lib["uv_quad"]("Ground", 14.0, 14.0, materials=[grou
 
 # leaf cards: colour and alpha from one image
 leaf_img = lib["image_from_array"]("leaf", leaf_image())
-leaf = lib["textured_material"]("Leaf", leaf_img, use_alpha=not OPAQUE, extension="CLIP", roughness=0.6)
+leaf = lib["textured_material"]("Leaf", leaf_img, use_alpha=not OPAQUE, extension="CLIP",
+                            interpolation=ALPHA_INTERPOLATION, roughness=0.6)
 card = lib["uv_quad"]("Leaf card", 0.8, 1.2, materials=[leaf])
 for name, loc, rot in (("Card flat", (-2.2, 0.3, 1.2), (0.0, 0.0, 0.4)),
                        ("Card tilted", (-0.8, -0.4, 1.6), (0.7, 0.3, -0.5)),
@@ -106,7 +113,8 @@ lib["instance_on_points"]("Leaf cluster", sprigs, pts, rotations=rot, scales=rng
 # chain-link fence: one big upright quad, the wire image repeated by a Mapping node, and posts
 wire_img = lib["image_from_array"]("fence_wire", wire_image(), colorspace="sRGB")
 fence = lib["textured_material"]("Fence", wire_img, color=(0.55, 0.56, 0.6), use_color=False, use_alpha=not OPAQUE,
-                                 scale=FENCE_REPEAT, extension="REPEAT", roughness=0.35, specular=0.8)
+                                 scale=FENCE_REPEAT, extension="REPEAT", interpolation=ALPHA_INTERPOLATION,
+                                 roughness=0.35, specular=0.8)
 lib["add_object"]("Fence", lib["uv_quad"]("Fence", 8.0, 2.5, upright=True, base_at_origin=True, materials=[fence]),
                   location=(0.0, 2.5, 0.0))
 post = lib["box"]("Fence post", (0.08, 0.08, 2.6), base_at_origin=True,

@@ -130,6 +130,18 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
                             description="Ray traced: acceleration structure the shadow rays walk (the masks "
                                         "are the same; changing it re-bakes the scene)",
                             update=_tag_viewport)
+    use_soft_shadows: BoolProperty(name="Soft Shadows", default=True,
+                                   description="Honour the lights' sizes (sun angle, point and spot radius, area "
+                                               "light size) with several shadow rays per pixel; off: every light "
+                                               "is hard, one ray to its centre")
+    samples: IntProperty(name="Shadow Samples", default=64, min=1, max=4096, soft_max=256,
+                         description="Final render: shadow rays per pixel towards each light with a size "
+                                     "(pixels away from any penumbra take 4)")
+    viewport_samples: IntProperty(name="Viewport Samples", default=64, min=1, max=4096, soft_max=256,
+                                  description="Viewport: shadow rays per pixel a still view accumulates towards each "
+                                              "light with a size, a few per redraw (the first redraws filtered)")
+    viewport_frame_samples: IntProperty(name="Samples per Redraw", default=4, min=1, max=64,
+                                        description="Viewport: shadow rays per pixel and soft light each redraw adds")
     use_specular: BoolProperty(name="Specular", default=True,
                                description="Add the specular lobe of the materials to the lighting",
                                update=_tag_viewport)
@@ -148,8 +160,12 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
             quality = self.navigation_quality if navigating else self.viewport_quality
             limit = self.viewport_max_shadowed_lights
             interlace = bool(self.use_interlace)
+            samples, frame_samples = int(self.viewport_samples), int(self.viewport_frame_samples)
+            if navigating:  # the fast pass: a few rays, no probe pass (its accumulation starts after)
+                samples = frame_samples
         else:
             quality, limit, interlace = self.quality, self.max_shadowed_lights, False
+            samples, frame_samples = int(self.samples), 4
         return Settings(
             mode=self.mode.lower(), quality=quality.lower(), max_distance=float(self.max_distance),
             max_shadowed_lights=int(limit) if limit > 0 else None, interlace=interlace,
@@ -157,6 +173,7 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
             slope_bias=float(self.slope_bias), normal_offset=float(self.normal_offset),
             upsample=self.upsample.lower(), specular=bool(self.use_specular),
             conservative=self.conservative_maps.lower(), structure=self.structure.lower(),
+            samples=samples, hard=not self.use_soft_shadows, accumulate=viewport, frame_samples=frame_samples,
         )
 
 

@@ -55,6 +55,12 @@ class RENDER_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         col.prop(props, "upsample")
         col.prop(props, "conservative_maps")
         col.prop(props, "structure")
+        col = layout.column()
+        col.active = props.mode == "RAYTRACE"
+        col.prop(props, "use_soft_shadows")
+        sub = col.column()
+        sub.active = props.use_soft_shadows
+        sub.prop(props, "samples", text="Render Samples")
         draw_compare_button(layout)
 
 
@@ -84,6 +90,10 @@ class RENDER_PT_hybrid_shadows_viewport(RenderSubPanel, bpy.types.Panel):
         col.prop(props, "viewport_quality", text="Quality")
         col.prop(props, "navigation_quality")
         col.prop(props, "use_interlace")
+        sub = col.column(align=True)
+        sub.active = props.use_soft_shadows
+        sub.prop(props, "viewport_samples", text="Soft Samples")
+        sub.prop(props, "viewport_frame_samples")
 
 
 class RENDER_PT_hybrid_shadows_shadowmap(RenderSubPanel, bpy.types.Panel):

@@ -141,7 +141,12 @@ def view_render(engine, scene, rv3d, width, height) -> None:
             image = frame.image
     engine._display.upload(image)
     engine._vp_error = None
+    acc = frame.stats.get("accumulated_samples")
+    if acc is not None and settings.accumulate and acc < settings.samples:
+        engine._refine = max(engine._refine, 1)  # soft lights still converging: one more redraw
     left = f", refining ({engine._refine} left)" if engine._refine > 0 else ""
+    if acc is not None:
+        left += f", {acc}/{settings.samples} soft samples"
     engine.update_stats("", f"Hybrid Shadows | {settings_label(frame)} | "
                             f"{frame.timings.get('total_ms', 0):.0f} ms{left}")
     if engine._refine > 0:

@@ -49,6 +49,10 @@ class Settings:
       pixels within 2 pixels of a probe that saw part of the light (penumbrae) trace them all.
     - ``hard``: every light hard (one ray to its centre, sizes ignored), as the hard Cycles
       references of ``compare`` are rendered.
+    - ``accumulate`` (the viewport, ``raytrace`` at ``high``): each frame traces
+      ``frame_samples`` rays per pixel towards each soft light and adds them to the mean of
+      the frames before, until ``samples`` are reached; the first frames are filtered within
+      their penumbrae. Any change (``Pipeline.reset_history``) starts afresh.
     """
 
     mode: str = "raytrace"
@@ -67,6 +71,8 @@ class Settings:
     structure: str = "bvh"
     samples: int = 64
     hard: bool = False
+    accumulate: bool = False
+    frame_samples: int = 4
 
     def __post_init__(self):
         self.validate()
@@ -115,6 +121,9 @@ class Settings:
         if not isinstance(self.hard, bool):
             raise ValueError(f"hard must be True or False, not {self.hard!r}")
         _integer(self.samples, "samples", low=1, high=4096)
+        _integer(self.frame_samples, "frame_samples", low=1, high=4096)
+        if not isinstance(self.accumulate, bool):
+            raise ValueError(f"accumulate must be True or False, not {self.accumulate!r}")
         if not isinstance(self.specular, bool):
             raise ValueError(f"specular must be True or False, not {self.specular!r}")
         _integer(self.shadowmap_size, "shadowmap_size", low=16, high=16384)

@@ -160,6 +160,7 @@ class Pipeline:
             "rays_traced": shadow_stats.get("rays_traced", 0),
             "pixels": shadow_stats.get("pixels", 0),
             "samples": shadow_stats.get("samples", 1),
+            "accumulated_samples": shadow_stats.get("accumulated_samples"),
             "shadowed_lights": len(job.lights),
             "defines": shadow_stats["defines"],
         }

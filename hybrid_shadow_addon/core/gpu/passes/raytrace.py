@@ -39,6 +39,15 @@ from .refine import Refiner
 
 
 SOFT_PROBES = 4  # HS_PROBES of shaders/common/soft_light.glsl
+DENOISE_SAMPLES = 64  # accumulated masks with fewer samples per pixel are filtered
+
+
+def denoise_radius(samples: int) -> int:
+    """Filter radius (pixels) of a soft mask with ``samples`` per pixel: 4 at 4 samples,
+    shrinking as 1/sqrt(samples) (the noise does), none from DENOISE_SAMPLES on."""
+    if samples >= DENOISE_SAMPLES:
+        return 0
+    return max(1, int(round(8.0 / np.sqrt(max(samples, 1)))))
 
 
 class RaytracePass(ShadowPass):
@@ -60,11 +69,15 @@ class RaytracePass(ShadowPass):
         self._plan = self._last_plan = None
         self.last_defines: dict = {}
         self.last_samples = 1  # rays per pixel of the softest light of the last frame
-        self.sample_base = 0  # first sample index of this frame (the viewport advances it)
+        self.sample_base = 0  # first sample index of this frame (accumulation advances it)
+        self._accum: dict = {}  # light -> (frames accumulated, current target index, settings key)
+        self.accumulated = None  # fewest samples per pixel of the soft lights' accumulated masks
 
     def reset_history(self) -> None:
-        """Forget interlacing history (any camera, object, light or setting change)."""
+        """Forget interlacing and accumulation history (any camera, object, light or setting
+        change)."""
         self._valid_phases = 0
+        self._accum.clear()
 
     def defines(self, settings, local: bool, soft: dict | None = None) -> dict:
         d = dict(self.scene_textures.baked.defines)
@@ -94,6 +107,7 @@ class RaytracePass(ShadowPass):
             traced = self.refiner.count("coarse") * n + self.refiner.count("refined")
         return {"mask_resolution": [mw, mh], "rays": int(mw * mh * n),
                 "rays_traced": int(traced), "pixels": int(valid * n), "samples": int(self.last_samples),
+                "accumulated_samples": self.accumulated,
                 "defines": sorted(f"{k}={v}" for k, v in self.last_defines.items())}
 
     def _plan_of(self, settings) -> str:
@@ -141,6 +155,7 @@ class RaytracePass(ShadowPass):
             self.last_map_ms += (time.perf_counter() - t0) * 1e3
         origin = self.scene_textures.baked.origin
         self.last_samples = 1
+        self.accumulated = None
         for li in lights:
             job.light_started(li)
             local, vec = light_ray_uniforms(scene.lights[li], origin)
@@ -196,6 +211,8 @@ class RaytracePass(ShadowPass):
     def _light(self, li, light, light_vec, defines, gbuffer, settings, plan, cmap=None):
         full = gbuffer.size
         ctx = self.ctx
+        if plan == "full" and "HS_SOFT" in defines and settings.accumulate:
+            return self._accumulate(li, light, light_vec, defines, gbuffer, settings, cmap)
         if plan in ("full", "coarse"):
             scale = 1 if plan == "full" else settings.mask_scale
             size = full if plan == "full" else settings.mask_size(*full)
@@ -244,6 +261,50 @@ class RaytracePass(ShadowPass):
             _, vao, _ = self._program(plain, light, light_vec, gbuffer, settings, 1, cmap)
             self.refiner.refine(key, dst, vao)
         return dst.texture
+
+    def _accumulate(self, li, light, light_vec, defines, gbuffer, settings, cmap):
+        """One more frame of a soft light's running mean (``Settings.accumulate``): trace
+        ``frame_samples`` rays per pixel continuing each pixel's sequence, add them to the mean,
+        filter the mean's penumbrae while it has few samples. Converged (``samples`` reached):
+        the mean as it is, no rays."""
+        ctx = self.ctx
+        full = gbuffer.size
+        fs = int(settings.frame_samples)
+        key = (fs, int(settings.samples))
+        n, cur, k = self._accum.get(li, (0, 0, key))
+        if k != key:
+            n, cur = 0, 0
+        if n * fs < settings.samples:
+            base = self.sample_base
+            self.sample_base = n * fs
+            frame_settings = settings.replace(samples=fs)
+            prog, vao, _ = self._program(defines, light, light_vec, gbuffer, frame_settings, 1, cmap)
+            self.sample_base = base
+            new = self._target((li, "new"), *full)
+            draw_fullscreen(ctx, vao, new)
+            acc_prog, acc_vao = self.programs.fullscreen("soft_accumulate", {"ACCUMULATE": 1})
+            src = self._target((li, "acc", cur), *full)
+            dst = self._target((li, "acc", 1 - cur), *full)
+            new.texture.use(0)
+            src.texture.use(1)
+            set_uniforms(acc_prog, {"u_new": 0, "u_acc": 1, "u_count": float(n)})
+            draw_fullscreen(ctx, acc_vao, dst)
+            n, cur = n + 1, 1 - cur
+            self._accum[li] = (n, cur, key)
+        mean = self._target((li, "acc", cur), *full)
+        got = min(n * fs, int(settings.samples))
+        self.accumulated = got if self.accumulated is None else min(self.accumulated, got)
+        radius = denoise_radius(got)
+        if radius == 0:
+            return mean.texture
+        dn_prog, dn_vao = self.programs.fullscreen("soft_accumulate", {"DENOISE": 1})
+        unit = gbuffer.bind(dn_prog, 1)
+        mean.texture.use(0)
+        set_uniforms(dn_prog, {"u_mask": 0, "u_radius": radius, "u_plane_sigma": 0.02})
+        out = self._target((li, "denoised"), *full)
+        draw_fullscreen(ctx, dn_vao, out)
+        del unit
+        return out.texture
 
     @staticmethod
     def _bind_map(prog, unit, tex, views, origin) -> int:

@@ -1,0 +1,80 @@
+// Soft shadows in the viewport: the running mean of a light's masks over still frames
+// (ACCUMULATE), and a penumbra-only, edge-aware filter of that mean while it has few samples
+// (DENOISE). Each frame's mask traces a few samples per pixel, continuing every pixel's sample
+// sequence (u_sample_base), so the mean converges to the exact share of the light; anything
+// that changes resets it (RaytracePass.reset_history), so no old frame survives a change.
+//
+// DENOISE: pixels whose neighbourhood (HS_PROBE_RADIUS) holds one value only, 0 or 1, lie in
+// an umbra or in the light and keep it: hard edges stay hard. The others (penumbrae) average
+// the neighbours within u_radius pixels that lie on the same surface (tangent-plane distance
+// against the view depth, normal agreement); u_radius shrinks as the
+// samples add up (the filter's blur fades while the noise it hides does).
+#include "common/camera.glsl"
+#include "common/gbuffer.glsl"
+
+#ifdef VERTEX_SHADER
+#include "common/fullscreen.glsl"
+#endif
+
+#ifdef FRAGMENT_SHADER
+layout(location = 0) out float o_mask;
+
+#ifdef ACCUMULATE
+uniform sampler2D u_new;        // this frame's mask
+uniform sampler2D u_acc;        // the mean of the u_count frames before
+uniform float u_count;
+
+void main() {
+    ivec2 px = ivec2(gl_FragCoord.xy);
+    float v = texelFetch(u_new, px, 0).r;
+    o_mask = u_count > 0.0 ? (texelFetch(u_acc, px, 0).r * u_count + v) / (u_count + 1.0) : v;
+}
+#endif
+
+#ifdef DENOISE
+#define HS_PROBE_RADIUS 2
+uniform sampler2D u_mask;
+uniform int u_radius;
+uniform float u_plane_sigma;    // tangent-plane distance, relative to the view depth
+
+bool in_penumbra(ivec2 px, ivec2 lim)
+{
+    float c = texelFetch(u_mask, px, 0).r;
+    if (c > 0.0 && c < 1.0) return true;
+    for (int dy = -HS_PROBE_RADIUS; dy <= HS_PROBE_RADIUS; ++dy)
+        for (int dx = -HS_PROBE_RADIUS; dx <= HS_PROBE_RADIUS; ++dx) {
+            ivec2 q = clamp(px + ivec2(dx, dy), ivec2(0), lim);
+            if (texelFetch(u_gb_position, q, 0).w != 0.0 && texelFetch(u_mask, q, 0).r != c) return true;
+        }
+    return false;
+}
+
+void main() {
+    ivec2 px = ivec2(gl_FragCoord.xy);
+    ivec2 lim = textureSize(u_mask, 0) - 1;
+    float c = texelFetch(u_mask, px, 0).r;
+    vec4 pos = texelFetch(u_gb_position, px, 0);
+    if (pos.w == 0.0 || u_radius <= 0 || !in_penumbra(px, lim)) { o_mask = c; return; }
+    vec3 p = pos.xyz;
+    vec3 n = texelFetch(u_gb_normal, px, 0).xyz;
+    float depth = max(texelFetch(u_gb_depth, px, 0).r, 1e-6);
+    float sum = 0.0, wsum = 0.0;
+    for (int dy = -u_radius; dy <= u_radius; ++dy)
+        for (int dx = -u_radius; dx <= u_radius; ++dx) {
+            ivec2 q = px + ivec2(dx, dy);
+            if (any(lessThan(q, ivec2(0))) || any(greaterThan(q, lim))) continue;
+            vec4 qp = texelFetch(u_gb_position, q, 0);
+            if (qp.w == 0.0) continue;
+            float plane = abs(dot(qp.xyz - p, n)) / (u_plane_sigma * depth);
+            float nd = max(dot(texelFetch(u_gb_normal, q, 0).xyz, n), 0.0);
+            float r2 = float(dx * dx + dy * dy) / float((u_radius + 1) * (u_radius + 1));
+            float w = exp(-plane * plane - 2.0 * r2) * pow(nd, 8.0);
+            if (w <= 1e-4) continue;
+            float v = texelFetch(u_mask, q, 0).r;
+            sum += w * v;
+            wsum += w;
+        }
+    o_mask = wsum > 0.0 ? sum / wsum : c;
+}
+#endif
+#endif

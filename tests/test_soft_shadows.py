@@ -1,0 +1,169 @@
+"""Soft shadows of extended lights (a wide sun, a sphere light, square / rectangle / disk area
+lights): the GPU's masks against the numpy soft oracle (``core/oracle/soft.py``), hard lights
+unchanged, convergence with the sample count, the viewport's accumulation (no ghost after a
+move, the first frame already close) and soft shadows through alpha-cut cards."""
+import numpy as np
+import pytest
+
+from hybrid_shadow_addon.core.gpu.passes.raytrace import denoise_radius
+from hybrid_shadow_addon.core.oracle.soft import light_samples, soft_visibility
+from hybrid_shadow_addon.core.scene import Light
+from hybrid_shadow_addon.core.scene_sync import sync_scene
+from hybrid_shadow_addon.core.settings import Settings
+from tests.test_alpha_shadows import _shadow_rays, alpha_scene
+from tests.test_gpu_scenes import basic_scene, trs
+
+LIGHTS = [
+    Light("sun", "SUN", power=3.0, matrix=trs((0, 0, 10), rot_z=2.6, rot_x=0.9), angle=np.radians(15)),
+    Light("ball", "POINT", power=500.0, matrix=trs((1.5, -1.0, 3.5)), radius=0.4),
+    Light("square", "AREA", power=500.0, matrix=trs((-1.0, 1.0, 3.0), rot_x=0.3), size=0.9, area_shape="SQUARE"),
+    Light("rect", "AREA", power=500.0, matrix=trs((1.0, 1.5, 3.0), rot_z=0.4), size=1.2, size_y=0.5,
+          area_shape="RECTANGLE"),
+    Light("disk", "AREA", power=500.0, matrix=trs((0.5, -0.5, 3.2)), size=1.0, area_shape="DISK"),
+]
+
+
+def soft_scene(lights=LIGHTS):
+    return basic_scene(lights=[Light(l.name, l.type, power=l.power, matrix=l.matrix.copy(), radius=l.radius,
+                                     angle=l.angle, size=l.size, size_y=l.size_y, area_shape=l.area_shape)
+                               for l in lights])
+
+
+def frame_of(pipeline, scene, **kw):
+    pipeline.set_scene(scene, "bvh")
+    return pipeline.render(scene, Settings(mode="raytrace", quality="high", **kw))
+
+
+PIXELS = 3000  # covered pixels per light the oracle checks (a fixed random subset: the brute force is slow)
+
+
+@pytest.fixture(scope="module")
+def oracle(pipeline):
+    """Per light: (pixel rows, pixel columns, the oracle's share of the light there, 256 samples)."""
+    sc = soft_scene()
+    f = frame_of(pipeline, sc, hard=True)
+    out = []
+    rng = np.random.default_rng(3)
+    for li in range(len(sc.lights)):
+        ok, o, d, tmax, facing = _shadow_rays(f, sc, li)
+        n = f.gbuffer.read("normal")[..., :3][ok]
+        pick = np.sort(rng.choice(len(o), min(PIXELS, len(o)), replace=False))
+        rows, cols = np.nonzero(ok)
+        out.append((rows[pick], cols[pick], soft_visibility(sc, li, o[pick], n[pick], samples=256)))
+    return sc, out
+
+
+def errors(frame, oracle_lights):
+    return [np.abs(frame.mask_array(li)[r, c] - ref) for li, (r, c, ref) in enumerate(oracle_lights)]
+
+
+def test_soft_masks_match_the_oracle(pipeline, oracle):
+    sc, ref = oracle
+    f = frame_of(pipeline, sc)
+    assert f.stats["samples"] == Settings().samples
+    assert any("HS_SOFT_SHAPE=" in d for d in f.stats["defines"])
+    for li, e in enumerate(errors(f, ref)):
+        name = sc.lights[li].name
+        # the oracle's own noise (400 samples) is ~0.005 in a penumbra
+        assert e.mean() < 0.006, f"{name}: mean error {e.mean():.4f}"
+        assert (e > 0.1).mean() < 0.002, f"{name}: {(e > 0.1).sum()} pixels off by more than 0.1"
+        penumbra = (ref[li][2] > 0.05) & (ref[li][2] < 0.95)
+        assert penumbra.sum() > 100, f"{name}: the test scene should have a penumbra"
+
+
+def test_error_falls_with_the_samples(pipeline, oracle):
+    sc, ref = oracle
+    maes = {}
+    for n in (4, 16, 64):
+        f = frame_of(pipeline, sc, samples=n)
+        maes[n] = np.mean([e.mean() for e in errors(f, ref)])
+    assert maes[4] > maes[16] > maes[64]
+    # 1/sqrt(samples) would give 4x from 4 to 64; the oracle's own noise floors it a little
+    assert maes[4] / maes[64] > 2.5, maes
+
+
+def test_hard_lights_are_unchanged(pipeline):
+    sc = soft_scene()
+    hard = frame_of(pipeline, sc, hard=True)
+    zero = soft_scene([Light(l.name, l.type, power=l.power, matrix=l.matrix) for l in LIGHTS])
+    f0 = frame_of(pipeline, zero)  # size 0: one ray per pixel, exactly as before soft shadows
+    assert f0.stats["samples"] == 1 and not any("HS_SOFT" in d for d in f0.stats["defines"])
+    for li in range(len(LIGHTS)):
+        a, b = hard.mask_array(li), f0.mask_array(li)
+        np.testing.assert_array_equal(np.nan_to_num(a, nan=-1), np.nan_to_num(b, nan=-1))
+        assert set(np.unique(a[np.isfinite(a)])) <= {0.0, 1.0}
+
+
+def test_viewport_accumulation_converges_and_first_frame_is_close(pipeline, oracle):
+    sc, ref = oracle
+    pipeline.set_scene(sc, "bvh")
+    s = Settings(mode="raytrace", quality="high", accumulate=True, frame_samples=4, samples=64)
+    first = pipeline.render(sc, s)
+    assert first.stats["accumulated_samples"] == 4
+    e1 = [e.mean() for e in errors(first, ref)]
+    assert max(e1) < 0.02, e1  # filtered: already smooth and plausible
+    for _ in range(15):
+        last = pipeline.render(sc, s)
+    assert last.stats["accumulated_samples"] == 64
+    e16 = [e.mean() for e in errors(last, ref)]
+    assert max(e16) < 0.006 and np.mean(e16) < np.mean(e1)
+    t0 = last.timings["shadow_ms"]
+    again = pipeline.render(sc, s)  # converged: no more rays
+    assert again.timings["shadow_ms"] < t0 and again.stats["accumulated_samples"] == 64
+    np.testing.assert_array_equal(np.nan_to_num(again.mask_array(0)), np.nan_to_num(last.mask_array(0)))
+
+
+def test_no_ghost_after_a_move(pipeline):
+    a = soft_scene()
+    pipeline.set_scene(a, "bvh")
+    s = Settings(mode="raytrace", quality="high", accumulate=True, frame_samples=4, samples=64)
+    for _ in range(6):
+        pipeline.render(a, s)
+    b = soft_scene()
+    b.instances.set_matrices([1], trs((-1.2, 0.8, 1.0))[None])  # the cube moves
+    rep = sync_scene(pipeline, a, b, structure="bvh")
+    assert 1 in rep.moved
+    after = pipeline.render(b, s)
+    assert after.stats["accumulated_samples"] == 4  # started afresh
+    c = soft_scene()
+    c.instances.set_matrices([1], trs((-1.2, 0.8, 1.0))[None])
+    pipeline.set_scene(c, "bvh")
+    fresh = pipeline.render(c, s)
+    for li in range(len(LIGHTS)):
+        np.testing.assert_array_equal(np.nan_to_num(after.mask_array(li), nan=-1),
+                                      np.nan_to_num(fresh.mask_array(li), nan=-1))
+
+
+def test_soft_shadows_through_alpha_cards(pipeline):
+    sc = alpha_scene(lights=("sun",))
+    sc.lights[0].angle = np.radians(6)
+    f = frame_of(pipeline, sc)
+    ok, o, d, tmax, facing = _shadow_rays(f, sc, 0)
+    n = f.gbuffer.read("normal")[..., :3][ok]
+    pick = np.sort(np.random.default_rng(5).choice(len(o), min(PIXELS, len(o)), replace=False))
+    ref = soft_visibility(sc, 0, o[pick], n[pick], samples=144)
+    assert ((ref > 0.05) & (ref < 0.95)).sum() > 50  # partial light: soft edges, the cards
+    e = np.abs(f.mask_array(0)[ok][pick] - ref)
+    assert e.mean() < 0.008 and (e > 0.1).mean() < 0.004
+
+
+def test_oracle_light_distributions():
+    # an unoccluded point sees all of every light; weights are positive above the horizon
+    sc = soft_scene()
+    o = np.array([[0.0, 0.0, 50.0]])
+    nrm = np.array([[0.0, 0.0, 1.0]])
+    for li, light in enumerate(sc.lights):
+        if light.type != "SUN":
+            continue
+        assert soft_visibility(sc, li, o, nrm, samples=16)[0] == 1.0
+    # sample points lie on the light: area lights within their extent, sphere rays end on it
+    rng = np.random.default_rng(1)
+    xi = rng.random((500, 2))
+    p = np.zeros((500, 3))
+    nz = np.tile([0.0, 0.0, 1.0], (500, 1))
+    d, tmax, w = light_samples(sc.lights[1], p, nz, xi)
+    np.testing.assert_allclose(np.linalg.norm(p + d - sc.lights[1].position, axis=1), 0.4, rtol=1e-6)
+    d, tmax, w = light_samples(sc.lights[4], p, nz, xi)
+    q = p + d - sc.lights[4].position
+    assert np.abs(q[:, 2]).max() < 1e-9 and np.hypot(q[:, 0], q[:, 1]).max() <= 0.5 + 1e-9
+    assert denoise_radius(4) == 4 and denoise_radius(64) == 0
