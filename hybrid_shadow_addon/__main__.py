@@ -186,10 +186,11 @@ def cmd_compare(args) -> int:
         scene = current_scene(resolution=args.resolution)
     progress = _progress(args, "compare")
     with blender_output_to_stderr():
-        m = run_compare(scene, args.output_dir, reference=CyclesReferenceProvider(bscene),
+        m = run_compare(scene, args.output_dir, reference=CyclesReferenceProvider(bscene, hard=not args.soft),
                         resolution=args.resolution, variants=variants, repeats=args.repeats, warmup=args.warmup,
                         samples=args.samples, cache_dir=args.cache_dir, use_cache=not args.no_cache,
-                        progress=progress, scene_label=args.scene)
+                        progress=progress, scene_label=args.scene, soft=args.soft,
+                        shadow_samples=args.shadow_samples)
     print(text_table(m))
     print(f"report: {os.path.join(args.output_dir, 'report.html')}")
     return 0
@@ -292,7 +293,15 @@ def build_parser() -> argparse.ArgumentParser:
     pc.add_argument("--warmup", type=int, default=2, metavar="N",
                     help="untimed frames per variant first (shader compilation; default 2)")
     pc.add_argument("--frame", type=int, default=None, help="frame to compare (default: the scene's current)")
-    pc.add_argument("--samples", type=int, default=1, metavar="N", help="Cycles samples per pixel (default 1)")
+    pc.add_argument("--samples", type=int, default=None, metavar="N",
+                    help="Cycles samples per pixel, all at the pixel centre (default 1; with --soft 256)")
+    pc.add_argument("--soft", action="store_true",
+                    help="soft shadows: the lights keep their sizes (sun angle, radius, area size and shape) in "
+                    "the Cycles reference (cached apart from the hard one) and in ours; error: the mean absolute "
+                    "error and the %% of valid pixels off by more than 0.1 (default: every light hard, error: "
+                    "the %% of pixels lit in one and shadowed in the other)")
+    pc.add_argument("--shadow-samples", type=int, default=None, metavar="N",
+                    help="with --soft: our shadow rays per pixel towards a light with a size (default: Settings')")
     pc.add_argument("--cache-dir", default=None, help="Cycles reference cache (default: "
                     "$XDG_CACHE_HOME/hybrid_shadows/cycles)")
     pc.add_argument("--no-cache", action="store_true", help="always render the Cycles reference, store nothing")

@@ -1,4 +1,20 @@
 // Shadow-map mask: full-screen over the G-buffer; 1 = lit, 0 = shadowed, PCF fractions between.
+//
+// HS_PCSS (a light with a size, Settings.hard False): percentage-closer soft shadows (Fernando
+// 2005), the filter shaped like the light. HS_SOFT_SHAPE as in common/soft_light.glsl: 0 a sun of
+// angular radius atan(|u_light_u|), 1 a sphere of radius u_light_radius, 2 a rectangle, 3 an
+// ellipse (half-extent axes u_light_u, u_light_v). Each tap is a point c of the light's unit
+// shape (an R2 sequence, Cranley-Patterson rotated per pixel) and reads the map where the ray from
+// the receiver to that point of the light crosses a depth z: the taps at depth z cover the light
+// as seen from the receiver through that plane, the similar-triangles footprint. (1) Blocker
+// search at depth z_s, where the footprint is u_max_kernel texels (or the nearest caster
+// depth), taps concentrated towards the centre; a caster found counts when the line from the
+// receiver through it meets the light. (2) Their mean depth d_b gives the penumbra: the filter
+// taps cross depth d_b, i.e. a kernel of radius (sun) tan(angle/2) (d_r - d_b) or (local)
+// size (d_r - d_b) / d_b at the receiver, clamped to u_pcf .. u_max_kernel texels. (3) PCF
+// over them, each tap weighted as core/oracle/soft.py weights that point of the light; depths
+// are compared against the receiver's plane at each tap (receiver-plane depth bias) less the
+// usual constant + slope bias. Without HS_PCSS the shader is the hard PCF below, unchanged.
 #include "common/camera.glsl"
 #include "common/gbuffer.glsl"
 
@@ -22,6 +38,232 @@ uniform float u_normal_offset;          // receiver offset along the normal, tex
 uniform int u_pcf;                      // kernel radius in texels
 uniform float u_max_distance;           // > 0: lit beyond this camera distance
 layout(location = 0) out float o_mask;
+
+#ifdef HS_PCSS
+uniform vec3 u_light_u;                 // sun: tangent axis x tan(angle / 2); area: half-extent axes
+uniform vec3 u_light_v;
+uniform float u_light_radius;           // sphere light radius
+uniform int u_search_taps;              // blocker-search taps
+uniform int u_filter_taps;              // PCF taps
+uniform float u_max_kernel;             // largest search / filter radius, texels at the receiver
+uniform float u_depth_min;              // sun: least caster depth; others: distance to the casters' box
+uniform uint u_seed;                    // per light
+
+uint hs_pcss_hash(uvec3 v)
+{
+    // pcg3d (Jarzynski & Olano 2020), first component
+    v = v * 1664525u + 1013904223u;
+    v.x += v.y * v.z; v.y += v.z * v.x; v.z += v.x * v.y;
+    v ^= v >> 16u;
+    v.x += v.y * v.z; v.y += v.z * v.x; v.z += v.x * v.y;
+    return v.x;
+}
+
+// sample k of a pixel's sequence: R2 (Roberts 2018), shifted by a per-pixel hash
+vec2 hs_pcss_xi(ivec2 px, int k, uint salt)
+{
+    uint h = hs_pcss_hash(uvec3(uvec2(px), u_seed ^ salt));
+    uint h2 = hs_pcss_hash(uvec3(h, 0x9E3779B9u, u_seed));
+    vec2 rot = vec2(float(h >> 8u), float(h2 >> 8u)) * (1.0 / 16777216.0);
+    return fract(rot + float(k) * vec2(0.7548776662466927, 0.5698402909980532));
+}
+
+// a point of the light's unit shape: the square [-1, 1]^2 (rectangles) or the unit disk
+vec2 hs_pcss_shape(vec2 xi)
+{
+    vec2 a = 2.0 * xi - 1.0;
+#if HS_SOFT_SHAPE == 2
+    return a;
+#else
+    if (a.x == 0.0 && a.y == 0.0) return vec2(0.0);
+    float r, phi;
+    if (abs(a.x) > abs(a.y)) { r = a.x; phi = 0.7853981633974483 * (a.y / a.x); }
+    else { r = a.y; phi = 1.5707963267948966 - 0.7853981633974483 * (a.x / a.y); }
+    return r * vec2(cos(phi), sin(phi));
+#endif
+}
+
+// the sphere light's disk seen from q: radius (cone of its silhouette) and axes across q -> light
+void hs_pcss_sphere(vec3 q, out float rad, out vec3 t1, out vec3 t2)
+{
+    vec3 w0 = u_light_pos_rel - q;
+    float d2 = dot(w0, w0);
+    float r2 = u_light_radius * u_light_radius;
+    rad = u_light_radius * sqrt(d2 / max(d2 - r2, 1e-12 * d2));
+    vec3 ax = w0 / sqrt(max(d2, 1e-30));
+    t1 = normalize(abs(ax.x) > 0.5 ? cross(ax, vec3(0.0, 1.0, 0.0)) : cross(ax, vec3(1.0, 0.0, 0.0)));
+    t2 = cross(ax, t1);
+}
+
+// point c of the light seen from q (normal n): d from q to it (sun: the unit direction) and the
+// weight core/oracle/soft.py gives it (receiver cosine; area lights their cosine and 1/r^2 too)
+void hs_pcss_light(vec2 c, vec3 q, vec3 n, out vec3 d, out float w)
+{
+#if HS_SOFT_SHAPE == 0
+    d = normalize(-u_light_dir + c.x * u_light_u + c.y * u_light_v);
+    w = max(dot(n, d), 0.0);
+#elif HS_SOFT_SHAPE == 1
+    float rad; vec3 t1, t2;
+    hs_pcss_sphere(q, rad, t1, t2);
+    d = u_light_pos_rel + rad * (c.x * t1 + c.y * t2) - q;
+    w = max(dot(n, normalize(d)), 0.0);
+#else
+    d = u_light_pos_rel + c.x * u_light_u + c.y * u_light_v - q;
+    float l2 = dot(d, d);
+    w = max(dot(n, d), 0.0) * max(-dot(d, u_light_dir), 0.0) / max(l2 * l2, 1e-30);
+#endif
+}
+
+// whether the line from q along e (towards the light) meets the light
+bool hs_pcss_hits(vec3 q, vec3 e)
+{
+#if HS_SOFT_SHAPE == 0
+    float a = -dot(e, u_light_dir);
+    if (a <= 0.0) return false;
+    vec3 r = e / a + u_light_dir;
+    vec2 cc = vec2(dot(r, u_light_u) / dot(u_light_u, u_light_u), dot(r, u_light_v) / dot(u_light_v, u_light_v));
+    return dot(cc, cc) <= 1.0;
+#elif HS_SOFT_SHAPE == 1
+    vec3 w0 = u_light_pos_rel - q;
+    float d2 = dot(w0, w0);
+    float r2 = u_light_radius * u_light_radius;
+    if (d2 <= r2) return true;
+    float ce = dot(normalize(e), w0) / sqrt(d2);
+    return ce > 0.0 && ce * ce >= 1.0 - r2 / d2;
+#else
+    float den = dot(e, u_light_dir);
+    if (den >= 0.0) return false;
+    float t = dot(u_light_pos_rel - q, u_light_dir) / den;
+    if (t <= 0.0) return false;
+    vec3 y = q + t * e - u_light_pos_rel;
+    vec2 cc = vec2(dot(y, u_light_u) / dot(u_light_u, u_light_u), dot(y, u_light_v) / dot(u_light_v, u_light_v));
+#if HS_SOFT_SHAPE == 2
+    return max(abs(cc.x), abs(cc.y)) <= 1.0;
+#else
+    return dot(cc, cc) <= 1.0;
+#endif
+#endif
+}
+
+// depth (along fwd) of the first caster on the map's line through x; 1e30 where none
+float hs_pcss_map(vec3 x, vec3 origin, vec3 fwd)
+{
+    vec3 w = x - origin;
+    int view = 0;
+    if (u_cube == 1) {
+        vec3 a = abs(w);
+        if (a.x >= a.y && a.x >= a.z) view = w.x >= 0.0 ? 0 : 1;
+        else if (a.y >= a.z) view = w.y >= 0.0 ? 2 : 3;
+        else view = w.z >= 0.0 ? 4 : 5;
+    }
+    vec4 clip = u_view_clip_from_rel[view] * vec4(x, 1.0);
+    if (clip.w <= 0.0) return 1e30;
+    vec2 uv = clip.xy / clip.w * 0.5 + 0.5;
+    if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1e30;
+    vec4 tile = u_view_tile[view];
+    ivec2 lo = ivec2(tile.xy);
+    ivec2 hi = lo + ivec2(tile.z) - 1;
+    float s = texelFetch(u_shadowmap, clamp(lo + ivec2(floor(uv * tile.z)), lo, hi), 0).r;
+    if (u_ortho_light == 1 || view == 0 && u_cube == 0) return s;
+    return s * dot(w, fwd) / max(dot(w, u_view_fwd[view]), 1e-30);   // that face's axis -> fwd
+}
+
+// the receiver plane (q, n) on the map's line through x: its depth there less dq, within
+// 10 x the lateral distance (the hard path's slope clamp)
+float hs_pcss_plane(vec3 x, vec3 q, vec3 n, vec3 origin, vec3 fwd, float dq)
+{
+    if (u_ortho_light == 1) {
+        vec3 lat = (x - q) - fwd * dot(x - q, fwd);
+        float den = dot(fwd, n);
+        float lim = 10.0 * length(lat);
+        return abs(den) < 1e-6 ? lim : clamp(-dot(lat, n) / den, -lim, lim);
+    }
+    vec3 w = x - origin;
+    float wf = dot(w, fwd);
+    if (wf <= 0.0) return 0.0;
+    float lim = 10.0 * length(origin + w * (dq / wf) - q);
+    float s = dot(q - origin, n) / dot(w, n);   // the line o + s w meets the plane at s
+    if (!(s > 0.0)) return lim;                 // never in front of the light: no receiver there
+    return clamp(s * wf - dq, -lim, lim);
+}
+
+// the point where the ray q + t d (t in [0, tmax]) crosses depth z
+vec3 hs_pcss_at(vec3 q, vec3 d, float dq, float z, vec3 fwd)
+{
+    float df = dot(d, fwd);
+#if HS_SOFT_SHAPE == 0
+    float tmax = 1e30;
+#else
+    float tmax = 1.0;
+#endif
+    float t = df < 0.0 ? min((z - dq) / df, tmax) : tmax;
+    return q + d * max(t, 0.0);
+}
+
+// the depth at which the light's footprint through it spans rho texels
+float hs_pcss_depth_for(float rho, float dq, float size)
+{
+    if (u_ortho_light == 1) return dq - rho * u_texel_world / max(size, 1e-9);
+    return size / (rho * u_texel_world + size / dq);
+}
+
+float hs_pcss(ivec2 pix, vec3 q, vec3 n, vec3 origin, vec3 fwd, float bias)
+{
+    float dq = dot(q - origin, fwd);
+    // the light's radius for the footprint estimates (sun: tan of its angular radius)
+#if HS_SOFT_SHAPE == 0
+    float size = length(u_light_u);
+#elif HS_SOFT_SHAPE == 1
+    float size; vec3 t1, t2;
+    hs_pcss_sphere(q, size, t1, t2);
+#else
+    float size = max(length(u_light_u), length(u_light_v));
+#endif
+    // 1. blocker search
+    float zs = hs_pcss_depth_for(u_max_kernel, dq, size);
+    if (u_ortho_light == 1) zs = max(zs, u_depth_min);
+    else zs = max(zs, u_depth_min * dot(normalize(q - origin), fwd));
+    zs = min(zs, dq);
+    float zsum = 0.0, nb = 0.0, sw = 0.0;
+    for (int k = 0; k < u_search_taps; ++k) {
+        vec2 c = hs_pcss_shape(hs_pcss_xi(pix, k, 0x5bd1e995u));
+#if HS_SOFT_SHAPE == 2
+        c *= max(abs(c.x), abs(c.y));   // denser towards the centre, where deep blockers are
+#else
+        c *= length(c);
+#endif
+        vec3 d; float w;
+        hs_pcss_light(c, q, n, d, w);
+        sw += w;
+        vec3 x = hs_pcss_at(q, d, dq, zs, fwd);
+        float s = hs_pcss_map(x, origin, fwd);
+        if (s >= dq + hs_pcss_plane(x, q, n, origin, fwd, dq) - bias) continue;
+        vec3 b = (u_ortho_light == 1) ? x + fwd * (s - dot(x, fwd))
+                                      : origin + (x - origin) * (s / max(dot(x - origin, fwd), 1e-30));
+        if (!hs_pcss_hits(q, b - q)) continue;   // cannot shadow this receiver
+        zsum += s;
+        nb += 1.0;
+    }
+    if (nb == 0.0) return sw > 0.0 ? 1.0 : 0.0;
+    // 2. penumbra: the filter's taps cross the mean blocker depth, its footprint within limits
+    float zf = clamp(zsum / nb, hs_pcss_depth_for(u_max_kernel, dq, size),
+                     hs_pcss_depth_for(float(u_pcf), dq, size));
+    // 3. PCF over the light's footprint
+    float lit = 0.0;
+    sw = 0.0;
+    for (int k = 0; k < u_filter_taps; ++k) {
+        vec2 c = hs_pcss_shape(hs_pcss_xi(pix, k, 0u));
+        vec3 d; float w;
+        hs_pcss_light(c, q, n, d, w);
+        if (w <= 0.0) continue;
+        vec3 x = hs_pcss_at(q, d, dq, zf, fwd);
+        float s = hs_pcss_map(x, origin, fwd);
+        lit += s >= dq + hs_pcss_plane(x, q, n, origin, fwd, dq) - bias ? w : 0.0;
+        sw += w;
+    }
+    return sw > 0.0 ? lit / sw : 0.0;
+}
+#endif
 
 void main() {
     ivec2 pix = ivec2(gl_FragCoord.xy);
@@ -52,6 +294,10 @@ void main() {
         o_mask = 1.0;   // outside the map: beyond the fitted range / the spot cone
         return;
     }
+#ifdef HS_PCSS
+    o_mask = hs_pcss(pix, q, n, origin, fwd, texel * (u_bias + u_slope_bias * tan_t));
+    return;
+#endif
     float receiver = dot(q - origin, fwd) - texel * (u_bias + u_slope_bias * tan_t);
     vec4 tile = u_view_tile[view];
     ivec2 lo = ivec2(tile.xy);

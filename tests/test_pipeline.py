@@ -32,7 +32,7 @@ def reference_mask(frame, scene, baked, li, pixels):
 def test_glsl_masks_equal_numpy_reference(name, structure, pipeline, loaded):
     scene = loaded(name)
     pipeline.set_scene(scene, structure)
-    frame = pipeline.render(scene, Settings(mode="raytrace", structure=structure), W, H)
+    frame = pipeline.render(scene, Settings(hard=True, mode="raytrace", structure=structure), W, H)
     assert pipeline.baked.structure == structure
     assert frame.lights, "every test scene has shadowed lights"
     rng = np.random.default_rng(7)
@@ -77,9 +77,9 @@ def lit_region(frame, light) -> np.ndarray:
 def test_shadowmap_agrees_with_rays_away_from_edges(name, pipeline, loaded):
     scene = loaded(name)
     pipeline.set_scene(scene)
-    rt = pipeline.render(scene, Settings(mode="raytrace"), W, H)
+    rt = pipeline.render(scene, Settings(hard=True, mode="raytrace"), W, H)
     rays = {li: rt.mask_array(li) for li in rt.lights}
-    sm = pipeline.render(scene, Settings(mode="shadowmap", shadowmap_size=2048), W, H)
+    sm = pipeline.render(scene, Settings(hard=True, mode="shadowmap", shadowmap_size=2048), W, H)
     for li in sm.lights:
         far = edge_distance_mask(rays[li], 3) & lit_region(sm, scene.lights[li])
         if far.sum() < 50:  # (a spot aimed outside the view)
@@ -92,11 +92,11 @@ def test_shadowmap_agrees_with_rays_away_from_edges(name, pipeline, loaded):
 def test_quality_levels_and_upsample(pipeline, loaded):
     scene = loaded("cube_on_plane")
     pipeline.set_scene(scene)
-    full = pipeline.render(scene, Settings(mode="raytrace", quality="high"), W, H)
+    full = pipeline.render(scene, Settings(hard=True, mode="raytrace", quality="high"), W, H)
     ref = full.mask_array(full.lights[0])
     for quality, floor in (("medium", 0.97), ("low", 0.93)):
-        frame = pipeline.render(scene, Settings(mode="raytrace", quality=quality), W, H)
-        assert frame.stats["mask_resolution"] == list(Settings(quality=quality).mask_size(W, H))
+        frame = pipeline.render(scene, Settings(hard=True, mode="raytrace", quality=quality), W, H)
+        assert frame.stats["mask_resolution"] == list(Settings(hard=True, quality=quality).mask_size(W, H))
         m = frame.mask_array(frame.lights[0])
         assert m.shape == (H, W)
         ok = ~np.isnan(ref) & ~np.isnan(m)
@@ -106,9 +106,9 @@ def test_quality_levels_and_upsample(pipeline, loaded):
 def test_interlacing_converges_and_never_keeps_stale_shadows(pipeline, loaded):
     scene = loaded("cube_on_plane")
     pipeline.set_scene(scene)
-    exact = pipeline.render(scene, Settings(mode="raytrace"), W, H)
+    exact = pipeline.render(scene, Settings(hard=True, mode="raytrace"), W, H)
     exact_mask = exact.mask_array(exact.lights[0])
-    inter = Settings(mode="raytrace", interlace=True)
+    inter = Settings(hard=True, mode="raytrace", interlace=True)
     pipeline.reset_history()
     for _ in range(4):
         frame = pipeline.render(scene, inter, W, H)
@@ -139,11 +139,11 @@ def test_incremental_move_equals_fresh_bake(pipeline, loaded, gl_ctx):
     scene.instances.set_matrices(idx, m)
     try:
         pipeline.move_instances(scene, idx)
-        inc = pipeline.render(scene, Settings(mode="raytrace"), W, H)
+        inc = pipeline.render(scene, Settings(hard=True, mode="raytrace"), W, H)
         inc_masks = {li: inc.mask_array(li) for li in inc.lights}
         fresh = Pipeline(gl_ctx)
         fresh.set_scene(scene)
-        full = fresh.render(scene, Settings(mode="raytrace"), W, H)
+        full = fresh.render(scene, Settings(hard=True, mode="raytrace"), W, H)
         for li in full.lights:
             np.testing.assert_array_equal(inc_masks[li], full.mask_array(li))
         fresh.release()
@@ -155,12 +155,12 @@ def test_incremental_move_equals_fresh_bake(pipeline, loaded, gl_ctx):
 def test_shader_variants_hold_only_what_the_scene_needs(pipeline, loaded):
     scene = loaded("cube_on_plane")  # one sun, meshes only
     pipeline.set_scene(scene)
-    frame = pipeline.render(scene, Settings(mode="raytrace"), W, H)
+    frame = pipeline.render(scene, Settings(hard=True, mode="raytrace"), W, H)
     defines = set(frame.stats["defines"])
     assert "HS_LIGHT_SUN=1" in defines and "HS_HAS_MESHES=1" in defines
     assert not any(d.startswith(("HS_LIGHT_LOCAL", "HS_HAS_SPHERES", "HS_MAX_DISTANCE", "HS_INTERLACE"))
                    for d in defines)
-    frame = pipeline.render(scene, Settings(mode="raytrace", max_distance=5.0), W, H)
+    frame = pipeline.render(scene, Settings(hard=True, mode="raytrace", max_distance=5.0), W, H)
     assert "HS_MAX_DISTANCE=1" in frame.stats["defines"]
     forest = loaded("forest")
     assert "HS_HAS_SPHERES" in bake_scene(forest).defines
@@ -170,7 +170,7 @@ def test_progress_steps_and_cancel(pipeline, loaded):
     scene = loaded("forest")
     pipeline.set_scene(scene)
     seen = []
-    frame = pipeline.render(scene, Settings(mode="raytrace"), 40, 30, progress=lambda done, total, label: seen.append((label, done, total)))
+    frame = pipeline.render(scene, Settings(hard=True, mode="raytrace"), 40, 30, progress=lambda done, total, label: seen.append((label, done, total)))
     labels = [label for label, _, _ in seen]
     assert labels[0] == "G-buffer" and labels[-1] == "Reading the image"
     for li in frame.lights:
@@ -186,7 +186,7 @@ def test_progress_steps_and_cancel(pipeline, loaded):
             raise Stop
 
     with pytest.raises(Stop):
-        pipeline.render(scene, Settings(mode="shadowmap"), 40, 30, progress=cancel)
+        pipeline.render(scene, Settings(hard=True, mode="shadowmap"), 40, 30, progress=cancel)
 
 
 @pytest.mark.parametrize("name", list(TEST_SCENES) + ["stiff/stadium", "stiff/clip_range", "stiff/far_away"])
@@ -197,7 +197,7 @@ def test_bvh_masks_equal_grid_masks(name, pipeline, loaded):
     pipeline.set_scene(scene, "grid")
     masks = {}
     for structure in ("grid", "bvh"):
-        frame = pipeline.render(scene, Settings(mode="raytrace", structure=structure), W, H)
+        frame = pipeline.render(scene, Settings(hard=True, mode="raytrace", structure=structure), W, H)
         assert pipeline.baked.structure == structure  # the render re-baked for the structure
         masks[structure] = [frame.mask_array(li) for li in frame.lights]
     for a, b in zip(masks["grid"], masks["bvh"]):
@@ -207,7 +207,7 @@ def test_bvh_masks_equal_grid_masks(name, pipeline, loaded):
 
 def test_incremental_move_with_bvh_equals_fresh_bake(pipeline, loaded, gl_ctx):
     scene = loaded("forest")
-    settings = Settings(mode="raytrace", structure="bvh")
+    settings = Settings(hard=True, mode="raytrace", structure="bvh")
     pipeline.set_scene(scene, "bvh")
     rng = np.random.default_rng(4)
     idx = rng.choice(len(scene.instances), 20, replace=False)
@@ -244,10 +244,10 @@ def test_a_cancelled_frame_leaves_nothing_behind(gl_ctx, loaded):
                 raise KeyboardInterrupt
 
         with pytest.raises(KeyboardInterrupt):
-            pipe.render(scene, Settings(mode="shadowmap"), W, H, progress=cancel)
-        for settings in (Settings(mode="raytrace"), Settings(mode="raytrace", quality="medium"),
-                         Settings(mode="raytrace", structure="bvh"),
-                         Settings(mode="shadowmap")):
+            pipe.render(scene, Settings(hard=True, mode="shadowmap"), W, H, progress=cancel)
+        for settings in (Settings(hard=True, mode="raytrace"), Settings(hard=True, mode="raytrace", quality="medium"),
+                         Settings(hard=True, mode="raytrace", structure="bvh"),
+                         Settings(hard=True, mode="shadowmap")):
             a = pipe.render(scene, settings, W, H)
             b = fresh.render(scene, settings, W, H)
             assert np.array_equal(a.image, b.image, equal_nan=True), settings

@@ -27,7 +27,7 @@ def masks_with_and_without(pipeline, scene, settings):
 def test_conservative_maps_change_no_pixel(name, structure, pipeline, loaded):
     scene = loaded(name)
     pipeline.set_scene(scene, structure)
-    plain, culled = masks_with_and_without(pipeline, scene, Settings(mode="raytrace", structure=structure))
+    plain, culled = masks_with_and_without(pipeline, scene, Settings(hard=True, mode="raytrace", structure=structure))
     assert plain.keys() == culled.keys() and plain
     for li in plain:
         np.testing.assert_array_equal(culled[li], plain[li], err_msg=f"{name} light {scene.lights[li].name}")
@@ -37,7 +37,7 @@ def test_conservative_maps_change_no_pixel(name, structure, pipeline, loaded):
 def test_conservative_maps_at_reduced_mask_resolution(quality, pipeline, loaded):
     scene = loaded("forest")
     pipeline.set_scene(scene)
-    plain, culled = masks_with_and_without(pipeline, scene, Settings(mode="raytrace", quality=quality,
+    plain, culled = masks_with_and_without(pipeline, scene, Settings(hard=True, mode="raytrace", quality=quality,
                                                                      max_distance=60.0))
     for li in plain:
         np.testing.assert_array_equal(culled[li], plain[li])
@@ -59,7 +59,7 @@ def test_point_light_touching_the_casters(height, pipeline, loaded):
         lights.append(Light(name=f"P{k}", type="POINT", matrix=m))
     scene.lights = lights
     pipeline.set_scene(scene)
-    plain, culled = masks_with_and_without(pipeline, scene, Settings(mode="raytrace"))
+    plain, culled = masks_with_and_without(pipeline, scene, Settings(hard=True, mode="raytrace"))
     for li in plain:
         np.testing.assert_array_equal(culled[li], plain[li], err_msg=f"light {li} at height {height}")
     pipeline.set_scene(base)
@@ -69,7 +69,7 @@ def test_maps_skip_most_rays_on_the_forest(pipeline, loaded):
     """The point of it: most receivers are decided or cut short (map statistics sanity)."""
     scene = loaded("forest")
     pipeline.set_scene(scene)
-    pipeline.render(scene, Settings(mode="raytrace", conservative="all"), W, H)
+    pipeline.render(scene, Settings(hard=True, mode="raytrace", conservative="all"), W, H)
     stats = pipeline.shadow_pass("raytrace").maps.stats
     assert stats and all(s["views"] >= 1 for s in stats.values())
     # the sun's casters are culled against the receivers' window

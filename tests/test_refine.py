@@ -56,11 +56,11 @@ def test_medium_and_low_match_high(name, pipeline, loaded):
     scene = loaded(name)
     pipeline.set_scene(scene)
     w, h = size_of(name, scene)
-    _, high = masks(pipeline, scene, Settings(quality="high"), w, h)
+    _, high = masks(pipeline, scene, Settings(hard=True, quality="high"), w, h)
     assert high, "no shadowed light"
     for quality in ("medium", "low"):
         limit = EXCEPTIONS.get((name, quality), LIMIT_PCT)
-        frame, got = masks(pipeline, scene, Settings(quality=quality), w, h)
+        frame, got = masks(pipeline, scene, Settings(hard=True, quality=quality), w, h)
         assert set(got) == set(high)
         for li in got:
             assert got[li].shape == (h, w)
@@ -92,10 +92,10 @@ def test_refined_pixels_equal_high(name, quality, pipeline, loaded):
     scene = loaded(name)
     pipeline.set_scene(scene)
     w, h = size_of(name, scene)
-    _, high = masks(pipeline, scene, Settings(quality="high"), w, h)
+    _, high = masks(pipeline, scene, Settings(hard=True, quality="high"), w, h)
     rp, marks, orig = _capture_marks(pipeline)
     try:
-        frame, got = masks(pipeline, scene, Settings(quality=quality), w, h)
+        frame, got = masks(pipeline, scene, Settings(hard=True, quality=quality), w, h)
     finally:
         rp._light = orig
     assert set(marks) == set(got)
@@ -113,16 +113,16 @@ def test_refined_pixels_equal_high(name, quality, pipeline, loaded):
 def test_stats_count_pixels_and_rays(pipeline, loaded):
     scene = loaded("forest")
     pipeline.set_scene(scene)
-    high = pipeline.render(scene, Settings(quality="high"), W, H)
+    high = pipeline.render(scene, Settings(hard=True, quality="high"), W, H)
     valid = int(high.gbuffer.coverage().sum())
     n = len(high.lights)
     assert high.stats["pixels"] == valid * n
     assert high.stats["rays_traced"] == valid * n
     for q, most in (("medium", 0.6), ("low", 0.5)):
-        st = pipeline.render(scene, Settings(quality=q), W, H).stats
+        st = pipeline.render(scene, Settings(hard=True, quality=q), W, H).stats
         assert st["pixels"] == valid * n
         assert 0.05 * st["pixels"] < st["rays_traced"] < most * st["pixels"], (q, st)
-    none = pipeline.render(scene, Settings(mode="none"), W, H).stats
+    none = pipeline.render(scene, Settings(hard=True, mode="none"), W, H).stats
     assert none["rays_traced"] == 0 and "pixels" in none
 
 
@@ -134,7 +134,7 @@ def test_compact_and_depth_methods_agree(pipeline, loaded):
     try:
         for method in ("compact", "depth"):
             rp.refiner.method = method
-            f, m = masks(pipeline, scene, Settings(quality="medium"), W, H)
+            f, m = masks(pipeline, scene, Settings(hard=True, quality="medium"), W, H)
             out[method] = (m, f.stats["rays_traced"])
     finally:
         rp.refiner.method = "compact"
@@ -146,7 +146,7 @@ def test_compact_and_depth_methods_agree(pipeline, loaded):
 def test_nearest_gives_the_blocky_coarse_masks(pipeline, loaded):
     scene = loaded("cube_on_plane")
     pipeline.set_scene(scene)
-    f = pipeline.render(scene, Settings(quality="low", upsample="nearest"), W, H)
+    f = pipeline.render(scene, Settings(hard=True, quality="low", upsample="nearest"), W, H)
     assert f.stats["rays_traced"] < f.stats["pixels"] / 8  # the coarse rays alone
     m = f.mask_array(f.lights[0])
     assert m.shape == (H, W)
@@ -159,8 +159,8 @@ def test_nearest_gives_the_blocky_coarse_masks(pipeline, loaded):
 def test_interlacing_refines_its_first_frame_and_converges(quality, pipeline, loaded):
     scene = loaded("forest")
     pipeline.set_scene(scene)
-    _, high = masks(pipeline, scene, Settings(quality="high"), W, H)
-    inter = Settings(quality=quality, interlace=True)
+    _, high = masks(pipeline, scene, Settings(hard=True, quality="high"), W, H)
+    inter = Settings(hard=True, quality=quality, interlace=True)
     pipeline.reset_history()
     frames = [masks(pipeline, scene, inter, W, H) for _ in range(4)]
     first_pct, _ = mismatch_pct(frames[0][1], high)

@@ -17,6 +17,7 @@ SMALL = {
     "scaling": "scaling:triangles=20000,instances=500,models=3",
     "animated": "animated",
     "alpha_cards": "alpha_cards",
+    "soft_lights": "soft_lights",
 }
 
 

@@ -29,6 +29,8 @@ class Settings:
     - ``pcf``: PCF kernel radius in shadow-map texels (0 = one tap).
     - ``shadow_bias``: constant depth bias in shadow-map texels; ``slope_bias``: slope-scaled
       factor; ``normal_offset``: receiver offset along the normal, in texels.
+    - ``pcss_samples``: ``shadowmap`` mode, lights with a size (unless ``hard``): PCF taps per
+      pixel of the percentage-closer soft shadow filter (its blocker search takes half as many).
     - ``upsample``: how reduced-resolution masks reach full resolution: ``bilateral`` (depth/normal
       aware; ray-traced medium/low refine instead, so their masks need none) or ``nearest`` (the
       thesis' blocky look; ray-traced medium/low then keep their coarse rays unrefined).
@@ -65,6 +67,7 @@ class Settings:
     shadow_bias: float = 1.0
     slope_bias: float = 2.0
     normal_offset: float = 1.5
+    pcss_samples: int = 32
     upsample: str = "bilateral"
     specular: bool = True
     conservative: str = "off"
@@ -131,6 +134,7 @@ class Settings:
         _number(self.shadow_bias, "shadow_bias", low=0.0)
         _number(self.slope_bias, "slope_bias", low=0.0)
         _number(self.normal_offset, "normal_offset", low=0.0)
+        _integer(self.pcss_samples, "pcss_samples", low=1, high=1024)
 
 
 def _integer(v, name, low=None, high=None):

@@ -12,6 +12,17 @@ For one core scene:
 3. ``metrics.json``, ``images/*.png`` (reference, our mask and the false-colour difference per
    variant and light), ``error_vs_time.png`` and ``report.html`` (:mod:`.report`).
 
+Two modes. *Hard* (the default): the reference's lights are made hard (a provider with
+``hard=True``) and so are the variants' (:mod:`.variants`); the error that counts is the
+mismatch (|Δ| > 0.5, lit against shadowed). *Soft* (``soft=True``, ``compare --soft``): the
+reference keeps the lights' sizes (a provider with ``hard=False``; many samples at the pixel
+centre, :data:`SOFT_REFERENCE_SAMPLES` by default), the variants render with ``hard=False`` and
+``shadow_samples`` rays per pixel (default: :class:`Settings`'), and shadow maps with their
+soft filter, which ``hard=False`` switches on (percentage-closer soft shadows,
+``Settings.pcss_samples`` taps; :func:`soft_shadowmap_filter`); the errors
+that count are the mean absolute error and the share of valid pixels off by more than 0.1
+(``off_pct``). The soft reference is cached apart from the hard one.
+
 :func:`compare_steps` is a generator of steps so the Blender operator can run it from a modal
 timer and cancel between steps; :func:`run_compare` drives it with a progress callback.
 """
@@ -19,7 +30,7 @@ from __future__ import annotations
 
 import contextlib
 import re
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -27,34 +38,82 @@ import numpy as np
 from ..core.errors import HybridShadowError
 from ..core.image import write_png
 from ..core.progress import call
+from ..core.settings import Settings
 from . import metrics
 from .reference import default_cache_dir, load_cached, reference_key, save_cached
 from .report import write_report
-from .variants import as_variants
+from .variants import Variant, as_variants
 
 INTERLACE_EXTRA = 4  # extra untimed frames of an interlaced variant: its history fills up
+HARD_REFERENCE_SAMPLES = 1  # Cycles samples per pixel of a hard reference (one ray to a point light)
+SOFT_REFERENCE_SAMPLES = 256  # ... of a soft one (the light's area sampled at the pixel centre)
 
 
 def safe_name(text: str) -> str:
     return re.sub(r"[^\w.-]+", "_", text).strip("_") or "light"
 
 
+def soft_shadowmap_filter(variants) -> str | None:
+    """What the shadow-map variants of a soft comparison filter with: ``"pcss"`` (with ``hard``
+    False a light with a size gets percentage-closer soft shadows, ``Settings.pcss_samples``
+    taps) where :class:`Settings` has that field, None without one (hard shadow maps) or without
+    shadow-map variants."""
+    if not any(v.settings.mode == "shadowmap" for v in variants):
+        return None
+    return "pcss" if "pcss_samples" in {f.name for f in fields(Settings)} else None
+
+
+def soft_variants(variants, shadow_samples: int | None = None) -> list:
+    """The variants for a soft comparison: lights with their sizes (``hard=False``: ray tracing
+    samples them, shadow maps take their soft filter), ``shadow_samples`` rays per pixel (None:
+    as the variant has them, i.e. Settings' default)."""
+    out = []
+    for v in as_variants(variants):
+        changes = {"hard": False}
+        if shadow_samples is not None:
+            changes["samples"] = int(shadow_samples)
+        try:
+            out.append(Variant(v.name, v.label, v.settings.replace(**changes)))
+        except ValueError as e:
+            raise HybridShadowError(f"--shadow-samples: {e}") from None
+    return out
+
+
 def compare_steps(scene, output_dir, *, reference, resolution=None, variants=None, repeats: int = 5,
-                  warmup: int = 2, samples: int = 1, cache_dir=None, use_cache: bool = True, pipeline=None,
-                  gl_scope=None, scene_label: str | None = None, result: dict | None = None):
+                  warmup: int = 2, samples: int | None = None, cache_dir=None, use_cache: bool = True,
+                  pipeline=None, gl_scope=None, scene_label: str | None = None, result: dict | None = None,
+                  soft: bool | None = None, shadow_samples: int | None = None):
     """Generator doing the comparison of the core ``scene`` with ``reference`` (a
     :class:`~.reference.ReferenceProvider`) step by step; yields ``(done, total, label)`` after
     each step. ``resolution`` overrides the scene's; ``gl_scope()``: a context manager around
     every use of ``pipeline``. The final metrics dict is stored in ``result["metrics"]`` (pass a
-    dict)."""
+    dict).
+
+    ``soft`` (None: as the provider's ``hard`` says, hard without one): the soft comparison
+    (see the module's docstring); ``samples``: the reference's samples per pixel (None:
+    :data:`HARD_REFERENCE_SAMPLES` or :data:`SOFT_REFERENCE_SAMPLES`); ``shadow_samples``: the
+    variants' rays per pixel in soft mode."""
     if repeats < 1 or warmup < 0:
         raise HybridShadowError("--repeats must be at least 1 and --warmup at least 0")
+    provider_hard = getattr(reference, "hard", None)
+    if soft is None:
+        soft = provider_hard is False
+    elif provider_hard is not None and bool(provider_hard) == bool(soft):
+        raise HybridShadowError(f"a {'soft' if soft else 'hard'} comparison needs a reference with "
+                                f"hard={not soft}, not hard={provider_hard}")
+    if samples is None:
+        samples = SOFT_REFERENCE_SAMPLES if soft else HARD_REFERENCE_SAMPLES
+    if samples < 1:
+        raise HybridShadowError("--samples must be at least 1")
+    if shadow_samples is not None and not soft:
+        raise HybridShadowError("--shadow-samples is for soft comparisons (--soft): hard lights take one ray")
     result = {} if result is None else result
     out = Path(output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "images").mkdir(exist_ok=True)
     gl = gl_scope or contextlib.nullcontext
-    variants = as_variants(variants)
+    variants = soft_variants(variants, shadow_samples) if soft else as_variants(variants)
+    error_key = "mae" if soft else "mismatch_pct"  # what the Pareto front weighs
 
     if resolution is not None:
         scene = replace(scene, resolution=(int(resolution[0]), int(resolution[1])))
@@ -68,20 +127,20 @@ def compare_steps(scene, output_dir, *, reference, resolution=None, variants=Non
     done = 0
 
     # -- 1. the reference, per light, cached --------------------------------------------------------
-    key = reference_key(scene, (width, height), samples, names, reference)
+    key = reference_key(scene, (width, height), samples, names, reference, soft=soft)
     cache_path = Path(cache_dir or default_cache_dir(reference)) / f"{key}.npz"
     cached = load_cached(cache_path) if use_cache else None
     if cached is not None and set(cached[0]) == set(names):
         visibility, ref_ms = cached
         done += len(names)
-        yield done, total, f"{reference.name} reference (cached)"
+        yield done, total, f"{reference.name} {'soft ' if soft else ''}reference (cached)"
         from_cache = True
     else:
         visibility, ref_ms = {}, {}
         for name in names:
             visibility[name], ref_ms[name] = reference.visibility(scene, name, (width, height), samples)
             done += 1
-            yield done, total, f"{reference.name} reference: {name}"
+            yield done, total, f"{reference.name} {'soft ' if soft else ''}reference: {name}"
         if use_cache:
             save_cached(cache_path, visibility, ref_ms)
         from_cache = False
@@ -132,7 +191,7 @@ def compare_steps(scene, output_dir, *, reference, resolution=None, variants=Non
         p = f"images/reference_{safe_name(n)}.png"
         _png(out / p, metrics.visibility_image(visibility[n]))
         ref_images[n] = p
-    front = metrics.pareto_front([(r["total_ms"], r["overall"]["mismatch_pct"]) for r in rows])
+    front = metrics.pareto_front([(r["total_ms"], r["overall"][error_key]) for r in rows])
     for i, r in enumerate(rows):
         r["pareto"] = i in front
     m = {
@@ -141,14 +200,19 @@ def compare_steps(scene, output_dir, *, reference, resolution=None, variants=Non
         "resolution": [int(width), int(height)],
         "bpy_version": reference.version,
         "lights": names,
+        "soft": bool(soft),
+        "error_metric": error_key,
         "threshold": metrics.MISMATCH_THRESHOLD,
+        "off_threshold": metrics.OFF_THRESHOLD,
+        # soft mode: the shadow maps' soft filter ("pcss"; None: hard shadow maps, or none run)
+        "soft_shadowmap_filter": soft_shadowmap_filter(variants) if soft else None,
         "repeats": int(repeats),
         "warmup": int(warmup),
         "bake_ms": float(bake_ms),
         "triangles": int(scene.triangle_count),
         "instances": len(scene.instances),
         "reference": {
-            "samples": int(samples), "cached": from_cache, "cache_file": str(cache_path) if use_cache else None,
+            "samples": int(samples), "hard": not soft, "cached": from_cache, "cache_file": str(cache_path) if use_cache else None,
             "render_ms": {n: float(t) for n, t in ref_ms.items()},
             "total_ms": float(sum(ref_ms.values())),
             "images": ref_images,

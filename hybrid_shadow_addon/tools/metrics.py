@@ -9,6 +9,8 @@ Masks are float (H, W) visibility: 1 lit, 0 shadowed, fractions in penumbrae, Na
   other shadowed). ``delta > threshold`` is a *missed shadow* (we are lit, the reference is
   shadowed), ``delta < -threshold`` a *false shadow*.
 - The mean absolute error is ``mean(|delta|)`` over the valid pixels.
+- *Off* pixels (soft shadows, ``compare --soft``): ``|delta| > off_threshold`` (0.1: a
+  penumbra's value clearly wrong, not just noisy); ``off_pct`` is their share of the valid pixels.
 
 Frame-rate statistics follow the thesis: each mode is rendered along the same camera path in
 several repetitions; ``frame_ms`` is a ``(repetitions, frames)`` array.
@@ -20,6 +22,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 MISMATCH_THRESHOLD = 0.5
+#: ``|ours - reference|`` beyond this is an *off* pixel (the soft comparison's second metric)
+OFF_THRESHOLD = 0.1
 
 
 # ------------------------------------------------------------------------------------------------
@@ -32,6 +36,11 @@ class MaskError:
     missed_pixels: int = 0  # ours lit, reference shadowed
     false_pixels: int = 0  # ours shadowed, reference lit
     abs_error_sum: float = 0.0
+    off_pixels: int = 0  # |ours - reference| > OFF_THRESHOLD
+
+    @property
+    def off_pct(self) -> float:
+        return 100.0 * self.off_pixels / self.valid_pixels if self.valid_pixels else 0.0
 
     @property
     def mismatch_pct(self) -> float:
@@ -52,12 +61,12 @@ class MaskError:
     def __add__(self, other: "MaskError") -> "MaskError":
         return MaskError(self.valid_pixels + other.valid_pixels, self.mismatch_pixels + other.mismatch_pixels,
                          self.missed_pixels + other.missed_pixels, self.false_pixels + other.false_pixels,
-                         self.abs_error_sum + other.abs_error_sum)
+                         self.abs_error_sum + other.abs_error_sum, self.off_pixels + other.off_pixels)
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d.update(mismatch_pct=self.mismatch_pct, missed_pct=self.missed_pct, false_pct=self.false_pct,
-                 mae=self.mae)
+                 mae=self.mae, off_pct=self.off_pct)
         return d
 
 
@@ -75,14 +84,15 @@ def valid_pixels(reference, ours) -> np.ndarray:
     return np.isfinite(ref) & np.isfinite(our)
 
 
-def mask_error(reference, ours, threshold: float = MISMATCH_THRESHOLD) -> MaskError:
+def mask_error(reference, ours, threshold: float = MISMATCH_THRESHOLD,
+               off_threshold: float = OFF_THRESHOLD) -> MaskError:
     """Compare one light's masks (see the module doc for the definitions)."""
     ref, our = _pair(reference, ours)
     valid = np.isfinite(ref) & np.isfinite(our)
     d = our[valid] - ref[valid]
     return MaskError(valid_pixels=int(valid.sum()), mismatch_pixels=int((np.abs(d) > threshold).sum()),
                      missed_pixels=int((d > threshold).sum()), false_pixels=int((d < -threshold).sum()),
-                     abs_error_sum=float(np.abs(d).sum()))
+                     abs_error_sum=float(np.abs(d).sum()), off_pixels=int((np.abs(d) > off_threshold).sum()))
 
 
 def combine(errors) -> MaskError:

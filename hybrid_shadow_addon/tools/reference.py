@@ -27,8 +27,11 @@ class ReferenceProvider(Protocol):
     - ``version``: the renderer's version string (``metrics.json``'s ``bpy_version``).
     - ``recipe_version``: bumped when the way the reference is rendered changes.
 
-    ``version`` and ``recipe_version`` are part of the cache key: a change of either renders the
-    reference again.
+    - ``hard`` (optional, default True): the lights are made hard for the reference (point-like,
+      as ``compare``'s hard variants); False keeps their sizes (soft shadows, ``compare --soft``).
+
+    ``version``, ``recipe_version`` and ``hard`` are part of the cache key: a change of any renders
+    the reference again.
     """
 
     name: str
@@ -81,12 +84,17 @@ def scene_hash(scene) -> str:
 # ------------------------------------------------------------------------------------------------
 # Cache
 # ------------------------------------------------------------------------------------------------
-def reference_key(scene, resolution, samples: int, light_names, provider: ReferenceProvider) -> str:
-    """The cache key of a reference: the scene, the resolution, the samples, the lights and the
-    provider's recipe and version."""
+def reference_key(scene, resolution, samples: int, light_names, provider: ReferenceProvider,
+                  soft: bool = False) -> str:
+    """The cache key of a reference: the scene, the resolution, the samples, the lights, the
+    provider's recipe and version, and whether the lights kept their sizes (``soft``: a soft
+    reference never answers for a hard one; hard keys are those of before soft references)."""
     h = hashlib.sha256()
-    _feed(h, [scene_hash(scene), list(resolution), int(samples), list(light_names), provider.recipe_version,
-              provider.version])
+    parts = [scene_hash(scene), list(resolution), int(samples), list(light_names), provider.recipe_version,
+             provider.version]
+    if soft:
+        parts.append("soft")
+    _feed(h, parts)
     return h.hexdigest()[:24]
 
 

@@ -58,13 +58,11 @@ vec4 hs_img_texel(uvec4 lvl, ivec2 size, int i, int j, uint ext)
     return texelFetch(hs_atlas_tex, ivec3(int(lvl.x) + x, int(lvl.y) + y, int(lvl.z)), 0);
 }
 
-// Image record rec (texel index) at mip level (clamped to its levels), stored values.
-vec4 hs_sample_image(int rec, vec2 uv, int level)
+// Sample level lvl (its record texel) of the image whose header texel is head, stored values.
+vec4 hs_sample_rec(uvec4 head, uvec4 lvl, vec2 uv)
 {
-    uvec4 head = hs_mat(rec);
     uint ext = head.y;
     if (ext == 2u && (uv.x < 0.0 || uv.x >= 1.0 || uv.y < 0.0 || uv.y >= 1.0)) return vec4(0.0);
-    uvec4 lvl = hs_mat(rec + 1 + clamp(level, 0, int(head.x) - 1));
     ivec2 size = ivec2(int(lvl.w & 0xFFFFu), int(lvl.w >> 16u));
     vec2 st = uv * vec2(size);
     if (head.z == 1u) {
@@ -80,6 +78,13 @@ vec4 hs_sample_image(int rec, vec2 uv, int level)
     vec4 c01 = hs_img_texel(lvl, size, i0.x, i0.y + 1, ext);
     vec4 c11 = hs_img_texel(lvl, size, i0.x + 1, i0.y + 1, ext);
     return mix(mix(c00, c10, w.x), mix(c01, c11, w.x), w.y);
+}
+
+// Image record rec (texel index) at mip level (clamped to its levels), stored values.
+vec4 hs_sample_image(int rec, vec2 uv, int level)
+{
+    uvec4 head = hs_mat(rec);
+    return hs_sample_rec(head, hs_mat(rec + 1 + clamp(level, 0, int(head.x) - 1)), uv);
 }
 
 bool hs_image_srgb(int rec) { return hs_mat(rec).w != 0u; }
@@ -126,6 +131,42 @@ float hs_transmittance(int mat, vec2 uv)
     if ((t2.z & HS_MAT_TRANSPARENT) == 0u) return 0.0;
     float a = hs_material_alpha(mat, uv);
     if ((t2.z & HS_MAT_CLIP) != 0u) return a < uintBitsToFloat(t1.w) ? 1.0 : 0.0;
+    return clamp(1.0 - a, 0.0, 1.0);
+}
+
+// A material's shadow cut read once (per instance the traversal enters), so each triangle hit
+// costs its UVs and the image's texels only.
+struct HsCut { vec3 r0; vec3 r1; float alpha; float thr; uint flags; uvec4 head; uvec4 lvl; };
+
+HsCut hs_cut_setup(int mat)
+{
+    uvec4 t0 = hs_mat(HS_MAT_TEXELS * mat);
+    uvec4 t1 = hs_mat(HS_MAT_TEXELS * mat + 1);
+    uvec4 t2 = hs_mat(HS_MAT_TEXELS * mat + 2);
+    HsCut c;
+    c.r0 = uintBitsToFloat(t0.xyz);
+    c.r1 = uintBitsToFloat(t1.xyz);
+    c.alpha = uintBitsToFloat(t0.w);
+    c.thr = uintBitsToFloat(t1.w);
+    c.flags = t2.z | (t2.y != 0u ? 8u : 0u);   // 8: an alpha image
+    int rec = max(int(t2.y) - 1, 0);
+    c.head = hs_mat(rec);
+    c.lvl = hs_mat(rec + 1);
+    return c;
+}
+
+// hs_transmittance of the material c was set up for.
+float hs_cut_transmit(HsCut c, vec2 uv)
+{
+    if ((c.flags & HS_MAT_TRANSPARENT) == 0u) return 0.0;
+    float a = c.alpha;
+    if ((c.flags & 8u) != 0u) {
+        vec3 p = vec3(uv, 1.0);
+        vec4 s = hs_sample_rec(c.head, c.lvl, vec2(dot(c.r0, p), dot(c.r1, p)));
+        vec3 rgb = c.head.w != 0u ? hs_srgb_decode(s.rgb) : s.rgb;
+        a *= (c.flags & HS_MAT_LUMA) != 0u ? dot(rgb, vec3(0.2126, 0.7152, 0.0722)) : s.a;
+    }
+    if ((c.flags & HS_MAT_CLIP) != 0u) return a < c.thr ? 1.0 : 0.0;
     return clamp(1.0 - a, 0.0, 1.0);
 }
 

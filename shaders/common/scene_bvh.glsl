@@ -118,32 +118,37 @@ bool hs_leaf_hit(vec3 o, HsShear s, int cnt, vec4 a, vec4 b, vec4 c, vec4 d, vec
 uniform sampler2DArray hs_uv_tex;
 #define HS_VIS_MIN 1.0e-3   // less light than this left: the ray is blocked
 
-// Triangle k of the leaf at [leaf] texel at, of material mat: the light the ray keeps through it
-// (1 when it misses).
-float hs_alpha_tri(vec3 o, HsShear s, vec3 v0, vec3 v1, vec3 v2, float tmax, int mat, int at, int k)
+// The light a ray keeps through triangle k (barycentrics b) of the leaf at [leaf] texel at,
+// cut by c.
+float hs_cut_tri(HsCut c, int at, int k, vec3 b)
 {
-    vec3 b;
-    if (!hs_tri_hit_b(o, s, v0, v1, v2, tmax, b)) return 1.0;
     int t = at + (3 * k) / 2;
     vec4 p = texelFetch(hs_uv_tex, hs_texel(t), 0);
     vec4 q = texelFetch(hs_uv_tex, hs_texel(t + 1), 0);
     bool odd = (k & 1) != 0;
     vec2 a0 = odd ? p.zw : p.xy, a1 = odd ? q.xy : p.zw, a2 = odd ? q.zw : q.xy;
-    return hs_transmittance(mat, b.x * a0 + b.y * a1 + b.z * a2);
+    return hs_cut_transmit(c, b.x * a0 + b.y * a1 + b.z * a2);
 }
 
-float hs_leaf_transmit(vec3 o, HsShear s, int cnt, vec4 a, vec4 b, vec4 c, vec4 d, vec4 e, vec4 g,
-                       vec4 h, vec4 k, vec4 l, float tmax, int mat, int at)
+// One leaf's light: 0 at a hit of an uncut instance (cut false), else the product of the cut
+// triangles' transmittances. Each triangle is tested once, for both kinds.
+float hs_leaf_vis(vec3 o, HsShear s, int cnt, vec4 a, vec4 b, vec4 c, vec4 d, vec4 e, vec4 g,
+                  vec4 h, vec4 k, vec4 l, float tmax, HsCut cut, bool cuts, int at)
 {
-    float t = hs_alpha_tri(o, s, a.xyz, vec3(a.w, b.xy), vec3(b.zw, c.x), tmax, mat, at, 0);
+    float t = 1.0;
+    vec3 w;
+    if (hs_tri_hit_b(o, s, a.xyz, vec3(a.w, b.xy), vec3(b.zw, c.x), tmax, w)) t = cuts ? hs_cut_tri(cut, at, 0, w) : 0.0;
 #if HS_BVH_LEAF_SIZE > 1
-    if (cnt > 1 && t > 0.0) t *= hs_alpha_tri(o, s, c.yzw, d.xyz, vec3(d.w, e.xy), tmax, mat, at, 1);
+    if (cnt > 1 && t > 0.0 && hs_tri_hit_b(o, s, c.yzw, d.xyz, vec3(d.w, e.xy), tmax, w))
+        t *= cuts ? hs_cut_tri(cut, at, 1, w) : 0.0;
 #endif
 #if HS_BVH_LEAF_SIZE > 2
-    if (cnt > 2 && t > 0.0) t *= hs_alpha_tri(o, s, vec3(e.zw, g.x), g.yzw, h.xyz, tmax, mat, at, 2);
+    if (cnt > 2 && t > 0.0 && hs_tri_hit_b(o, s, vec3(e.zw, g.x), g.yzw, h.xyz, tmax, w))
+        t *= cuts ? hs_cut_tri(cut, at, 2, w) : 0.0;
 #endif
 #if HS_BVH_LEAF_SIZE > 3
-    if (cnt > 3 && t > 0.0) t *= hs_alpha_tri(o, s, vec3(h.w, k.xy), vec3(k.zw, l.x), l.yzw, tmax, mat, at, 3);
+    if (cnt > 3 && t > 0.0 && hs_tri_hit_b(o, s, vec3(h.w, k.xy), vec3(k.zw, l.x), l.yzw, tmax, w))
+        t *= cuts ? hs_cut_tri(cut, at, 3, w) : 0.0;
 #endif
     return t;
 }
@@ -172,6 +177,7 @@ HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax)
 #ifdef HS_HAS_ALPHA
     float vis = 1.0;   // light kept through the alpha-cut surfaces crossed so far
     int amat = 0;      // 1 + material of the current instance when it cuts its shadow
+    HsCut cut = hs_cut_setup(0);
 #endif
     tmax = min(tmax, HS_FLT_BIG);
     if (!(tmax > 0.0) || (d.x == 0.0 && d.y == 0.0 && d.z == 0.0)) return HS_UNBLOCKED;
@@ -262,6 +268,7 @@ HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax)
                 bend = int(u3.y);
 #ifdef HS_HAS_ALPHA
                 amat = int(u3.w);
+                if (amat != 0) cut = hs_cut_setup(amat - 1);
 #endif
             }
 #endif
@@ -269,13 +276,11 @@ HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax)
 #ifdef HS_HAS_MESHES
         else {
 #ifdef HS_HAS_ALPHA
-            if (amat != 0) {
-                vis *= hs_leaf_transmit(om, sh, int(pay & 7u), x0, x1, x2, x3, x4, x5, x6, x7, x8, tmax,
-                                        amat - 1, at);
-                if (vis < HS_VIS_MIN) return HS_BLOCKED;
-            } else
-#endif
+            vis *= hs_leaf_vis(om, sh, int(pay & 7u), x0, x1, x2, x3, x4, x5, x6, x7, x8, tmax, cut, amat != 0, at);
+            if (vis < HS_VIS_MIN) return HS_BLOCKED;
+#else
             if (hs_leaf_hit(om, sh, int(pay & 7u), x0, x1, x2, x3, x4, x5, x6, x7, x8, tmax)) return HS_BLOCKED;
+#endif
         }
 #endif
         i = next;

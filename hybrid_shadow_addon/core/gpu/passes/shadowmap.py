@@ -8,21 +8,28 @@
 
 Maps store linear light depth (MIN blending, no depth-buffer precision issues). The mask uses
 slope-scaled bias and normal offset, both in texels at the receiver, and (2r+1)^2 PCF taps.
+A light with a size (``lights.soft_shape``; not with ``Settings.hard``) gets percentage-closer
+soft shadows instead, the mask program's ``HS_PCSS`` variant (``shaders/shadowmap_mask.glsl``):
+a blocker search, the penumbra from the mean blocker depth and ``Settings.pcss_samples`` PCF
+taps shaped like the light, the kernel at most ``PCSS_MAX_KERNEL`` of the map's side in radius.
 Output: ``dict[light_index, R32F texture]`` at G-buffer resolution (1 lit, 0 shadowed).
 """
 from __future__ import annotations
 
 import math
+import zlib
 
 import moderngl
 import numpy as np
 
 from ..geometry import CasterDraws, alpha_caster_rows
+from ..lights import soft_shape
 from ..projection import CUBE_AXES, look_basis, ortho, perspective, view_from_rel
 from ..targets import Target, TargetCache, create_texture, set_uniforms
 from .base import ShadowPass
 
 WIDE_SPOT = math.radians(120.0)
+PCSS_MAX_KERNEL = 1.0 / 8.0  # largest PCSS search / filter radius, a share of a map's side
 
 
 def _box_corners(bmin, bmax) -> np.ndarray:
@@ -45,7 +52,8 @@ def frustum_corners_rel(cam, far: float) -> np.ndarray:
 class LightViews:
     """The views of one light's shadow map (float64, camera-relative)."""
 
-    def __init__(self, kind, matrices, forwards, tiles, atlas_size, texel_world, light_pos_rel, light_dir):
+    def __init__(self, kind, matrices, forwards, tiles, atlas_size, texel_world, light_pos_rel, light_dir,
+                 depth_min=0.0):
         self.kind = kind  # 'sun' | 'spot' | 'cube'
         self.matrices = matrices  # list of (4, 4) clip_from_rel
         self.forwards = forwards  # list of (3,)
@@ -54,6 +62,9 @@ class LightViews:
         self.texel_world = texel_world
         self.light_pos_rel = light_pos_rel
         self.light_dir = light_dir
+        # nearest a caster can be: sun, the least depth of the scene bounds along the light;
+        # others, the light's distance to the bounds (0 inside)
+        self.depth_min = depth_min
 
 
 def light_views(scene, light, cam, settings, max_texture: int = 16384) -> LightViews | None:
@@ -84,8 +95,9 @@ def light_views(scene, light, cam, settings, max_texture: int = 16384) -> LightV
         pad = 1e-3 * (zmax - zmin) + 1e-4
         proj = ortho(c[0] - ext / 2, c[0] + ext / 2, c[1] - ext / 2, c[1] + ext / 2, zmin - pad, zmax + pad)
         m = proj @ view_from_rel(basis, np.zeros(3))
-        return LightViews("sun", [m], [f], [(0, 0, size)], (size, size), ext / size, np.zeros(3), f)
+        return LightViews("sun", [m], [f], [(0, 0, size)], (size, size), ext / size, np.zeros(3), f, zmin)
     pos_rel = light.position - cam.cam_pos
+    depth_min = float(np.linalg.norm(np.clip(light.position, *bounds) - light.position))
     far = float(np.linalg.norm(corners - pos_rel, axis=1).max()) * 1.01 + 1e-3
     near = max(far * 1e-5, 1e-6)
     if light.type == "SPOT" and light.spot_size <= WIDE_SPOT:
@@ -93,7 +105,8 @@ def light_views(scene, light, cam, settings, max_texture: int = 16384) -> LightV
         tan_half = math.tan(light.spot_size / 2) * (1 + 2 * margin / size)
         basis = look_basis(f, light.matrix[:3, 1])
         m = perspective(tan_half, near, far) @ view_from_rel(basis, pos_rel)
-        return LightViews("spot", [m], [f], [(0, 0, size)], (size, size), 2 * tan_half / size, pos_rel, f)
+        return LightViews("spot", [m], [f], [(0, 0, size)], (size, size), 2 * tan_half / size, pos_rel, f,
+                          depth_min)
     size = int(min(size, max_texture // 3))
     tan_half = 1.0 + 2 * margin / size
     mats, fwds, tiles = [], [], []
@@ -103,7 +116,8 @@ def light_views(scene, light, cam, settings, max_texture: int = 16384) -> LightV
         mats.append(perspective(tan_half, near, far) @ view_from_rel(basis, pos_rel))
         fwds.append(f)
         tiles.append(((k % 3) * size, (k // 3) * size, size))
-    return LightViews("cube", mats, fwds, tiles, (3 * size, 2 * size), 2 * tan_half / size, pos_rel, light.direction)
+    return LightViews("cube", mats, fwds, tiles, (3 * size, 2 * size), 2 * tan_half / size, pos_rel, light.direction,
+                      depth_min)
 
 
 class ShadowMapPass(ShadowPass):
@@ -117,6 +131,7 @@ class ShadowMapPass(ShadowPass):
         self._atlas: Target | None = None
         self._masks = TargetCache(self.ctx, what="mask")
         self.views: dict = {}  # light index -> LightViews of the last render (for debugging/tests)
+        self.last_defines: set = set()  # "NAME=value" of the mask programs of the last render
 
     def _atlas_target(self, w, h) -> Target:
         """The depth atlas, grown (never shrunk) to hold ``w`` x ``h``."""
@@ -144,9 +159,9 @@ class ShadowMapPass(ShadowPass):
             self.gpu.bind_materials(alpha_prog, scene)
             progs.append(alpha_prog)
             draws += [(alpha_prog, *d) for d in self.casters.build_alpha(scene, casters[cut], cam.cam_pos, alpha_prog)]
-        mask_prog, vao = self.programs.fullscreen("shadowmap_mask")
         out = {}
         self.views = {}
+        self.last_defines = set()
         for li in job.lights:
             job.light_started(li)
             light = scene.lights[li]
@@ -177,6 +192,10 @@ class ShadowMapPass(ShadowPass):
             ctx.disable(moderngl.BLEND)
             ctx.blend_equation = moderngl.FUNC_ADD
             # 2. mask
+            soft = soft_shape(light, settings.hard)
+            defines = {} if soft is None else {"HS_PCSS": 1, "HS_SOFT_SHAPE": int(soft["shape"])}
+            self.last_defines.update(f"{k}={v}" for k, v in defines.items())
+            mask_prog, vao = self.programs.fullscreen("shadowmap_mask", defines)
             mask.use(ctx)
             unit = gbuffer.bind(mask_prog)
             atlas.texture.use(unit)
@@ -195,8 +214,19 @@ class ShadowMapPass(ShadowPass):
                 "u_texel_world": float(views.texel_world), "u_bias": float(settings.shadow_bias),
                 "u_slope_bias": float(settings.slope_bias), "u_normal_offset": float(settings.normal_offset),
                 "u_pcf": int(settings.pcf), "u_max_distance": float(settings.max_distance)})
+            if soft is not None:
+                set_uniforms(mask_prog, {
+                    **{k: v for k, v in soft.items() if k != "shape"},
+                    "u_filter_taps": int(settings.pcss_samples),
+                    "u_search_taps": max(4, int(settings.pcss_samples) // 2),
+                    "u_max_kernel": float(PCSS_MAX_KERNEL * views.tiles[0][2]),
+                    "u_depth_min": float(views.depth_min),
+                    "u_seed": zlib.crc32(light.name.encode("utf-8")) & 0x7FFFFFFF})
             vao.render(moderngl.TRIANGLES, vertices=3)
         return out
+
+    def stats(self, job) -> dict:
+        return {**super().stats(job), "defines": sorted(self.last_defines)}
 
     def release(self) -> None:
         self.casters.release()
