@@ -177,6 +177,8 @@ def cmd_compare(args) -> int:
     from .tools.variants import resolve_variants
 
     variants = resolve_variants(args.modes)
+    if args.shadow_samples is not None and not args.soft:
+        raise HybridShadowError("--shadow-samples is for soft comparisons (--soft): hard lights take one ray")
     with blender_output_to_stderr():
         from .blender.cycles_reference import CyclesReferenceProvider
         from .blender.frames import current_scene

@@ -6,15 +6,19 @@
 // ellipse (half-extent axes u_light_u, u_light_v). Each tap is a point c of the light's unit
 // shape (an R2 sequence, Cranley-Patterson rotated per pixel) and reads the map where the ray from
 // the receiver to that point of the light crosses a depth z: the taps at depth z cover the light
-// as seen from the receiver through that plane, the similar-triangles footprint. (1) Blocker
-// search at depth z_s, where the footprint is u_max_kernel texels (or the nearest caster
-// depth), taps concentrated towards the centre; a caster found counts when the line from the
-// receiver through it meets the light. (2) Their mean depth d_b gives the penumbra: the filter
-// taps cross depth d_b, i.e. a kernel of radius (sun) tan(angle/2) (d_r - d_b) or (local)
-// size (d_r - d_b) / d_b at the receiver, clamped to u_pcf .. u_max_kernel texels. (3) PCF
-// over them, each tap weighted as core/oracle/soft.py weights that point of the light; depths
-// are compared against the receiver's plane at each tap (receiver-plane depth bias) less the
-// usual constant + slope bias. Without HS_PCSS the shader is the hard PCF below, unchanged.
+// as seen from the receiver through that plane, the similar-triangles footprint. Depth z here
+// is the light's own: along a sun's direction, along the line from a sphere light's centre to
+// the receiver (the light's disk lies across it), along an area light's axis from its plane.
+// (1) Blocker search at depth z_s, where the footprint spans u_max_kernel texels at the
+// receiver (no nearer than the nearest caster can be), taps concentrated towards the centre.
+// (2) The blockers' mean depth d_b gives the penumbra: the filter taps cross depth d_b, i.e. a
+// kernel of radius (sun) tan(angle/2) (d_r - d_b) or (local) size (d_r - d_b) / d_b at the
+// receiver, within u_pcf .. u_max_kernel texels. (3) PCF over them, each tap weighted as
+// core/oracle/soft.py weights that point of the light. A tap is shadowed where the map holds a
+// caster nearer than the receiver less the usual constant + slope bias, or nearer than the
+// receiver's plane where that plane comes closer to the light at the tap (one-sided receiver-
+// plane depth bias: wide kernels on sloped receivers do not shadow themselves).
+// Without HS_PCSS the shader is the hard PCF below, unchanged.
 #include "common/camera.glsl"
 #include "common/gbuffer.glsl"
 
@@ -46,7 +50,7 @@ uniform float u_light_radius;           // sphere light radius
 uniform int u_search_taps;              // blocker-search taps
 uniform int u_filter_taps;              // PCF taps
 uniform float u_max_kernel;             // largest search / filter radius, texels at the receiver
-uniform float u_depth_min;              // sun: least caster depth; others: distance to the casters' box
+uniform float u_depth_min;              // least light depth of a caster (see LightViews.depth_min)
 uniform uint u_seed;                    // per light
 
 uint hs_pcss_hash(uvec3 v)
@@ -114,37 +118,6 @@ void hs_pcss_light(vec2 c, vec3 q, vec3 n, out vec3 d, out float w)
 #endif
 }
 
-// whether the line from q along e (towards the light) meets the light
-bool hs_pcss_hits(vec3 q, vec3 e)
-{
-#if HS_SOFT_SHAPE == 0
-    float a = -dot(e, u_light_dir);
-    if (a <= 0.0) return false;
-    vec3 r = e / a + u_light_dir;
-    vec2 cc = vec2(dot(r, u_light_u) / dot(u_light_u, u_light_u), dot(r, u_light_v) / dot(u_light_v, u_light_v));
-    return dot(cc, cc) <= 1.0;
-#elif HS_SOFT_SHAPE == 1
-    vec3 w0 = u_light_pos_rel - q;
-    float d2 = dot(w0, w0);
-    float r2 = u_light_radius * u_light_radius;
-    if (d2 <= r2) return true;
-    float ce = dot(normalize(e), w0) / sqrt(d2);
-    return ce > 0.0 && ce * ce >= 1.0 - r2 / d2;
-#else
-    float den = dot(e, u_light_dir);
-    if (den >= 0.0) return false;
-    float t = dot(u_light_pos_rel - q, u_light_dir) / den;
-    if (t <= 0.0) return false;
-    vec3 y = q + t * e - u_light_pos_rel;
-    vec2 cc = vec2(dot(y, u_light_u) / dot(u_light_u, u_light_u), dot(y, u_light_v) / dot(u_light_v, u_light_v));
-#if HS_SOFT_SHAPE == 2
-    return max(abs(cc.x), abs(cc.y)) <= 1.0;
-#else
-    return dot(cc, cc) <= 1.0;
-#endif
-#endif
-}
-
 // depth (along fwd) of the first caster on the map's line through x; 1e30 where none
 float hs_pcss_map(vec3 x, vec3 origin, vec3 fwd)
 {
@@ -187,43 +160,51 @@ float hs_pcss_plane(vec3 x, vec3 q, vec3 n, vec3 origin, vec3 fwd, float dq)
     return clamp(s * wf - dq, -lim, lim);
 }
 
-// the point where the ray q + t d (t in [0, tmax]) crosses depth z
-vec3 hs_pcss_at(vec3 q, vec3 d, float dq, float z, vec3 fwd)
+// the point where the ray q + t d (t in [0, tmax]) crosses light depth z (hq at q; the light
+// depth is linear along the ray: dot with hax)
+vec3 hs_pcss_at(vec3 q, vec3 d, float hq, float z, vec3 hax)
 {
-    float df = dot(d, fwd);
+    float dh = dot(d, hax);
 #if HS_SOFT_SHAPE == 0
     float tmax = 1e30;
 #else
     float tmax = 1.0;
 #endif
-    float t = df < 0.0 ? min((z - dq) / df, tmax) : tmax;
+    float t = dh < 0.0 ? min((z - hq) / dh, tmax) : tmax;
     return q + d * max(t, 0.0);
 }
 
-// the depth at which the light's footprint through it spans rho texels
-float hs_pcss_depth_for(float rho, float dq, float size)
+// the light depth at which the light's footprint at the receiver (light depth hq) spans rho
+// texels of tex metres
+float hs_pcss_depth_for(float rho, float hq, float size, float tex)
 {
-    if (u_ortho_light == 1) return dq - rho * u_texel_world / max(size, 1e-9);
-    return size / (rho * u_texel_world + size / dq);
+    if (u_ortho_light == 1) return hq - rho * tex / max(size, 1e-9);
+    return size * hq / (rho * tex + size);
 }
 
-float hs_pcss(ivec2 pix, vec3 q, vec3 n, vec3 origin, vec3 fwd, float bias)
+float hs_pcss(ivec2 pix, vec3 q, vec3 n, vec3 origin, vec3 fwd, float bias, float tex)
 {
     float dq = dot(q - origin, fwd);
-    // the light's radius for the footprint estimates (sun: tan of its angular radius)
+    // "light depth" for the similar triangles, along hax from hor: sun, along its direction;
+    // sphere, along the light -> receiver line (its disk lies across it); area, along its axis
+    // (its plane at 0). size: the light's radius (sun: tan of its angular radius).
 #if HS_SOFT_SHAPE == 0
+    vec3 hax = u_light_dir, hor = vec3(0.0);
     float size = length(u_light_u);
 #elif HS_SOFT_SHAPE == 1
+    vec3 hax = normalize(q - u_light_pos_rel), hor = u_light_pos_rel;
     float size; vec3 t1, t2;
     hs_pcss_sphere(q, size, t1, t2);
 #else
+    vec3 hax = u_light_dir, hor = u_light_pos_rel;
     float size = max(length(u_light_u), length(u_light_v));
 #endif
+    float hq = dot(q - hor, hax);
+#if HS_SOFT_SHAPE >= 2
+    if (!(hq > 0.0)) return 0.0;   // behind an area light: no sample has weight
+#endif
     // 1. blocker search
-    float zs = hs_pcss_depth_for(u_max_kernel, dq, size);
-    if (u_ortho_light == 1) zs = max(zs, u_depth_min);
-    else zs = max(zs, u_depth_min * dot(normalize(q - origin), fwd));
-    zs = min(zs, dq);
+    float zs = min(max(hs_pcss_depth_for(u_max_kernel, hq, size, tex), u_depth_min), hq);
     float zsum = 0.0, nb = 0.0, sw = 0.0;
     for (int k = 0; k < u_search_taps; ++k) {
         vec2 c = hs_pcss_shape(hs_pcss_xi(pix, k, 0x5bd1e995u));
@@ -235,19 +216,18 @@ float hs_pcss(ivec2 pix, vec3 q, vec3 n, vec3 origin, vec3 fwd, float bias)
         vec3 d; float w;
         hs_pcss_light(c, q, n, d, w);
         sw += w;
-        vec3 x = hs_pcss_at(q, d, dq, zs, fwd);
+        vec3 x = hs_pcss_at(q, d, hq, zs, hax);
         float s = hs_pcss_map(x, origin, fwd);
-        if (s >= dq + hs_pcss_plane(x, q, n, origin, fwd, dq) - bias) continue;
+        if (s >= dq + min(hs_pcss_plane(x, q, n, origin, fwd, dq), 0.0) - bias) continue;
         vec3 b = (u_ortho_light == 1) ? x + fwd * (s - dot(x, fwd))
                                       : origin + (x - origin) * (s / max(dot(x - origin, fwd), 1e-30));
-        if (!hs_pcss_hits(q, b - q)) continue;   // cannot shadow this receiver
-        zsum += s;
+        zsum += dot(b - hor, hax);
         nb += 1.0;
     }
     if (nb == 0.0) return sw > 0.0 ? 1.0 : 0.0;
     // 2. penumbra: the filter's taps cross the mean blocker depth, its footprint within limits
-    float zf = clamp(zsum / nb, hs_pcss_depth_for(u_max_kernel, dq, size),
-                     hs_pcss_depth_for(float(u_pcf), dq, size));
+    float zf = clamp(zsum / nb, hs_pcss_depth_for(u_max_kernel, hq, size, tex),
+                     hs_pcss_depth_for(float(u_pcf), hq, size, tex));
     // 3. PCF over the light's footprint
     float lit = 0.0;
     sw = 0.0;
@@ -256,9 +236,9 @@ float hs_pcss(ivec2 pix, vec3 q, vec3 n, vec3 origin, vec3 fwd, float bias)
         vec3 d; float w;
         hs_pcss_light(c, q, n, d, w);
         if (w <= 0.0) continue;
-        vec3 x = hs_pcss_at(q, d, dq, zf, fwd);
+        vec3 x = hs_pcss_at(q, d, hq, zf, hax);
         float s = hs_pcss_map(x, origin, fwd);
-        lit += s >= dq + hs_pcss_plane(x, q, n, origin, fwd, dq) - bias ? w : 0.0;
+        lit += s >= dq + min(hs_pcss_plane(x, q, n, origin, fwd, dq), 0.0) - bias ? w : 0.0;
         sw += w;
     }
     return sw > 0.0 ? lit / sw : 0.0;
@@ -295,7 +275,7 @@ void main() {
         return;
     }
 #ifdef HS_PCSS
-    o_mask = hs_pcss(pix, q, n, origin, fwd, texel * (u_bias + u_slope_bias * tan_t));
+    o_mask = hs_pcss(pix, q, n, origin, fwd, texel * (u_bias + u_slope_bias * tan_t), texel);
     return;
 #endif
     float receiver = dot(q - origin, fwd) - texel * (u_bias + u_slope_bias * tan_t);

@@ -7,7 +7,8 @@
 // DENOISE: pixels whose neighbourhood (HS_PROBE_RADIUS) holds one value only, 0 or 1, lie in
 // an umbra or in the light and keep it: hard edges stay hard. The others (penumbrae) average
 // the neighbours within u_radius pixels that lie on the same surface (tangent-plane distance
-// against the view depth, normal agreement); u_radius shrinks as the
+// against the view depth, normal agreement) and whose value is within the noise of its own;
+// u_radius shrinks as the
 // samples add up (the filter's blur fades while the noise it hides does).
 #include "common/camera.glsl"
 #include "common/gbuffer.glsl"
@@ -36,6 +37,9 @@ void main() {
 uniform sampler2D u_mask;
 uniform int u_radius;
 uniform float u_plane_sigma;    // tangent-plane distance, relative to the view depth
+uniform float u_samples;        // samples per pixel of u_mask: the range kernel's width is twice
+                                // the estimate's noise, sqrt(v (1 - v) / samples), so real
+                                // detail (a textured cut's shadow) stays and noise averages out
 
 bool in_penumbra(ivec2 px, ivec2 lim)
 {
@@ -59,6 +63,7 @@ void main() {
     vec3 n = texelFetch(u_gb_normal, px, 0).xyz;
     float depth = max(texelFetch(u_gb_depth, px, 0).r, 1e-6);
     float sum = 0.0, wsum = 0.0;
+    float sigma2 = 4.0 * max(c * (1.0 - c), 0.05) / max(u_samples, 1.0);
     for (int dy = -u_radius; dy <= u_radius; ++dy)
         for (int dx = -u_radius; dx <= u_radius; ++dx) {
             ivec2 q = px + ivec2(dx, dy);
@@ -68,9 +73,9 @@ void main() {
             float plane = abs(dot(qp.xyz - p, n)) / (u_plane_sigma * depth);
             float nd = max(dot(texelFetch(u_gb_normal, q, 0).xyz, n), 0.0);
             float r2 = float(dx * dx + dy * dy) / float((u_radius + 1) * (u_radius + 1));
-            float w = exp(-plane * plane - 2.0 * r2) * pow(nd, 8.0);
-            if (w <= 1e-4) continue;
             float v = texelFetch(u_mask, q, 0).r;
+            float w = exp(-plane * plane - 2.0 * r2 - 0.5 * (v - c) * (v - c) / sigma2) * pow(nd, 8.0);
+            if (w <= 1e-4) continue;
             sum += w * v;
             wsum += w;
         }

@@ -121,3 +121,25 @@ def test_compare_soft_end_to_end(tmp_path):
     html = (out / "report.html").read_text()
     assert "Cycles soft reference" in html and "MAE" in html and (out / "error_vs_time.png").is_file()
     assert len(list(cache.glob("*.npz"))) == 1
+
+
+def test_soft_variants():
+    from hybrid_shadow_addon.core.errors import HybridShadowError
+    from hybrid_shadow_addon.tools.compare import compare_steps, soft_variants
+    from hybrid_shadow_addon.tools.variants import VARIANTS
+
+    assert all(v.settings.hard for v in VARIANTS.values())  # hard compare: as before
+    vs = soft_variants(["raytrace-high", "shadowmap-1024", "none"], shadow_samples=16)
+    assert [v.name for v in vs] == ["raytrace-high", "shadowmap-1024", "none"]
+    assert all(v.settings.hard is False and v.settings.samples == 16 for v in vs)
+    assert soft_variants(["raytrace-low"])[0].settings.samples == Settings().samples
+    with pytest.raises(HybridShadowError):
+        soft_variants(["raytrace-high"], shadow_samples=0)
+
+    class HardProvider:
+        name, version, recipe_version, hard = "Cycles", "4.5", 2, True
+
+    with pytest.raises(HybridShadowError, match="hard=False"):  # a soft compare against a hard reference
+        next(compare_steps(None, "unused", reference=HardProvider(), soft=True))
+    with pytest.raises(HybridShadowError, match="--soft"):
+        next(compare_steps(None, "unused", reference=HardProvider(), shadow_samples=8))

@@ -66,7 +66,7 @@ def test_soft_masks_match_the_oracle(pipeline, oracle):
         name = sc.lights[li].name
         # the oracle's own noise (400 samples) is ~0.005 in a penumbra
         assert e.mean() < 0.006, f"{name}: mean error {e.mean():.4f}"
-        assert (e > 0.1).mean() < 0.002, f"{name}: {(e > 0.1).sum()} pixels off by more than 0.1"
+        assert (e > 0.1).mean() <= 0.005, f"{name}: {(e > 0.1).sum()} pixels off by more than 0.1"
         penumbra = (ref[li][2] > 0.05) & (ref[li][2] < 0.95)
         assert penumbra.sum() > 100, f"{name}: the test scene should have a penumbra"
 

@@ -5,7 +5,9 @@ at the pixel centre), no world light, film transparent; the Diffuse Direct pass 
 ``use_shadow`` on and off; visibility = shadowed / unshadowed. By default lights are made hard
 for the reference (sun angle, point/spot radius and area size 0), as our shadows are: the
 reference then measures where shadows fall, not how soft Cycles makes them (``hard=False``
-keeps the scene's light sizes). Pixels without full geometry
+keeps the scene's light sizes: the soft reference of ``compare --soft``, whose ``samples``, all
+at the pixel centre, sample the light's area; both renders of a light share the seed, so the
+noise of the ratio is that of the visibility, not of the irradiance). Pixels without full geometry
 coverage, or that the light does not reach even unshadowed (facing away, outside a spot cone),
 are invalid (NaN).
 

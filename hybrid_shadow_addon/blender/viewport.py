@@ -253,7 +253,14 @@ class ViewportSync:
         if not len(tris):
             return False
         old = self.scene.models[mid]
-        self.scene.models[mid] = Model(name=old.name, vertices=verts, triangles=tris)
+        uvs = None
+        if old.uvs is not None:  # a textured material shows it: keep reading its UVs
+            layer = export.mesh_uv_layer(ob.data)
+            if layer is None:
+                return False  # the UV map is gone: the full export decides about the material
+            uvs = export.mesh_uvs(ob.data, layer)
+        self.scene.models[mid] = Model(name=old.name, vertices=verts, triangles=tris,
+                                       normals=export.smooth_normals(ob.data), uvs=uvs)
         self.scene.instances.set_matrices(rows, export._matrix(ob.matrix_world)[None])
         if self.pipeline is not None and self.baked:
             self.pipeline.update_model(self.scene, mid)

@@ -72,7 +72,7 @@ class Settings:
     specular: bool = True
     conservative: str = "off"
     structure: str = "bvh"
-    samples: int = 64
+    samples: int = 32
     hard: bool = False
     accumulate: bool = False
     frame_samples: int = 4

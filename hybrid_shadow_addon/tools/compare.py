@@ -212,7 +212,8 @@ def compare_steps(scene, output_dir, *, reference, resolution=None, variants=Non
         "triangles": int(scene.triangle_count),
         "instances": len(scene.instances),
         "reference": {
-            "samples": int(samples), "hard": not soft, "cached": from_cache, "cache_file": str(cache_path) if use_cache else None,
+            "samples": int(samples), "hard": not soft, "cached": from_cache,
+            "cache_file": str(cache_path) if use_cache else None,
             "render_ms": {n: float(t) for n, t in ref_ms.items()},
             "total_ms": float(sum(ref_ms.values())),
             "images": ref_images,

@@ -231,6 +231,8 @@ class RaytracePass(ShadowPass):
             else:
                 _, vao, _ = self._program(defines, light, light_vec, gbuffer, settings, scale, cmap)
             draw_fullscreen(ctx, vao, out)
+            if plan == "full" and "HS_SOFT" in defines and settings.samples > SOFT_PROBES:
+                return self._denoise(li, out, gbuffer, denoise_radius(int(settings.samples)), int(settings.samples))
             return out.texture
         plain = {k: v for k, v in defines.items() if k != "HS_INTERLACE"}
         uniforms = self._light_uniforms(light, light_vec, gbuffer, settings)
@@ -294,16 +296,19 @@ class RaytracePass(ShadowPass):
         mean = self._target((li, "acc", cur), *full)
         got = min(n * fs, int(settings.samples))
         self.accumulated = got if self.accumulated is None else min(self.accumulated, got)
-        radius = denoise_radius(got)
-        if radius == 0:
-            return mean.texture
-        dn_prog, dn_vao = self.programs.fullscreen("soft_accumulate", {"DENOISE": 1})
-        unit = gbuffer.bind(dn_prog, 1)
-        mean.texture.use(0)
-        set_uniforms(dn_prog, {"u_mask": 0, "u_radius": radius, "u_plane_sigma": 0.02})
-        out = self._target((li, "denoised"), *full)
-        draw_fullscreen(ctx, dn_vao, out)
-        del unit
+        return self._denoise(li, mean, gbuffer, denoise_radius(got), got)
+
+    def _denoise(self, li, mask, gbuffer, radius: int, samples: int):
+        """``mask`` filtered within its penumbrae over ``radius`` pixels (itself when 0)."""
+        if radius <= 0:
+            return mask.texture
+        prog, vao = self.programs.fullscreen("soft_accumulate", {"DENOISE": 1})
+        gbuffer.bind(prog, 1)
+        mask.texture.use(0)
+        set_uniforms(prog, {"u_mask": 0, "u_radius": int(radius), "u_plane_sigma": 0.02,
+                            "u_samples": float(samples)})
+        out = self._target((li, "denoised"), *gbuffer.size)
+        draw_fullscreen(self.ctx, vao, out)
         return out.texture
 
     @staticmethod

@@ -62,8 +62,9 @@ class LightViews:
         self.texel_world = texel_world
         self.light_pos_rel = light_pos_rel
         self.light_dir = light_dir
-        # nearest a caster can be: sun, the least depth of the scene bounds along the light;
-        # others, the light's distance to the bounds (0 inside)
+        # the least "light depth" of a caster (PCSS's blocker search goes no nearer): sun, the
+        # scene bounds' least depth along the light; area, their least distance in front of its
+        # plane; point/spot, the light's distance to them (0 inside)
         self.depth_min = depth_min
 
 
@@ -97,7 +98,10 @@ def light_views(scene, light, cam, settings, max_texture: int = 16384) -> LightV
         m = proj @ view_from_rel(basis, np.zeros(3))
         return LightViews("sun", [m], [f], [(0, 0, size)], (size, size), ext / size, np.zeros(3), f, zmin)
     pos_rel = light.position - cam.cam_pos
-    depth_min = float(np.linalg.norm(np.clip(light.position, *bounds) - light.position))
+    if light.type == "AREA":
+        depth_min = max(0.0, float(((corners - pos_rel) @ light.direction).min()))
+    else:
+        depth_min = float(np.linalg.norm(np.clip(light.position, *bounds) - light.position))
     far = float(np.linalg.norm(corners - pos_rel, axis=1).max()) * 1.01 + 1e-3
     near = max(far * 1e-5, 1e-6)
     if light.type == "SPOT" and light.spot_size <= WIDE_SPOT:
