@@ -1,6 +1,6 @@
 """Soft shadows: error and cost per sample count, same run.
 
-For each scene with soft lights: the ray-traced masks at ``samples`` = 1, 4, 16, 64 (the final
+For each scene with soft lights: the ray-traced masks at ``samples`` = 1, 4, 16, 32, 64 (the final
 render's probe pass + penumbra refinement), the viewport's accumulation (first frame after a
 change: 4 samples, filtered; after 8 still frames: 32), and the same scene rendered ``hard``.
 Error: per light, against a reference share of each light, on a fixed random subset of the
@@ -112,7 +112,8 @@ def main(argv=None) -> int:
         refs = references(pipe, scene, args.pixels, args.cycles, args.cycles_samples)
         base = Settings(mode="raytrace", quality="high")
         rows = [("hard", base.replace(hard=True), 1)]
-        rows += [(f"{n} samples", base.replace(samples=n), 1) for n in (1, 4, 16, 64)]
+        rows += [(f"{n} samples" + (" (default)" if n == Settings.samples else ""), base.replace(samples=n), 1)
+                 for n in (1, 4, 16, 32, 64)]
         acc = base.replace(accumulate=True, frame_samples=4, samples=64)
         rows += [("viewport, first frame", acc, 1), ("viewport, 8 still frames", acc, 8)]
         for label, s, frames in rows:  # (a warm-up render compiles each program first)

@@ -131,11 +131,11 @@ def test_pcss_samples_setting():
 
 def test_spots_and_ellipses_soften_too(pipeline):
     # a spot (one perspective map), a wide spot (a cube) with a radius, an ellipse area light
-    lights = [Light("spot", "SPOT", power=800.0, matrix=trs((1.0, -1.5, 4.0), rot_x=0.3), spot_size=1.2, radius=0.3),
-              Light("wide", "SPOT", power=800.0, matrix=trs((-1.0, -1.0, 3.5)), spot_size=2.5, radius=0.3),
+    lights = [Light("spot", "SPOT", power=800.0, matrix=trs((-1.0, -1.0, 3.5)), spot_size=1.6, radius=0.3),
+              Light("wide", "SPOT", power=800.0, matrix=trs((1.5, -1.0, 3.5)), spot_size=2.5, radius=0.3),
               Light("ell", "AREA", power=500.0, matrix=trs((0.5, 1.0, 3.2), rot_z=0.7), size=1.2, size_y=0.4,
                     area_shape="ELLIPSE")]
-    sc = soft_scene(lights)
+    sc = basic_scene(lights=lights)  # (soft_scene does not copy spot sizes)
     soft, f = shadowmap(pipeline, sc)
     hard, _ = shadowmap(pipeline, sc, hard=True)
     assert {"HS_SOFT_SHAPE=1", "HS_SOFT_SHAPE=3"} <= set(f.stats["defines"])

@@ -21,7 +21,26 @@ render; they are dropped here (``hide_render`` of the object or of all its colle
 on top-level objects and instancers), but objects hidden in the viewport are simply absent from
 it, and modifiers use their viewport settings.
 
-Materials (:func:`read_material`): per instance its first slot's material. A Principled BSDF
+Material slots: a mesh whose loop triangles use one slot (``material_index``, clamped to the
+slots as Blender renders) is one model, its instances that slot's material (no slots: none).
+A mesh whose triangles use several slots becomes one model per used slot (that slot's
+triangles, their own vertices, normals and, for a textured material, UVs), and each instance
+showing it one instance per used slot with that slot's material (the evaluated object's
+``material_slots[k].material``, so object- and data-linked slots both work; a realised
+geometry-nodes mesh: ``mesh.materials[k]``), the same matrix and shadow flag. Names (stable
+from frame to frame, as the scene sync and the viewport match instances by name):
+
+- instances: the lowest used slot keeps the instance's name (``"Tree"``,
+  ``"Forest/Tree[12]"``), every other used slot ``k`` is ``"<name> [slot k]"``
+  (``"Tree [slot 1]"``, ``"Forest/Tree[12] [slot 1]"``); :func:`slot_owner` strips it;
+- models: a mesh split by slot is ``"<mesh> [slot k]"`` for every used slot ``k``, 0
+  included; an unsplit mesh keeps the mesh's name, unless the one slot its triangles use is
+  not slot 0 (``"<mesh> [slot k]"`` again). A model named without the suffix thus always shows
+  slot 0, which the viewport's single-model rebuild relies on.
+
+A single-slot mesh therefore exports exactly as before the split.
+
+Materials (:func:`read_material`): per instance its slot's material. A Principled BSDF
 whose Base Color and/or Alpha come from an Image Texture node (directly, or through Mapping nodes
 fed by a UV Map node or a Texture Coordinate's UV output; a Math "Greater Than" on the alpha, as
 Blender 4.2 writes for old Alpha Clip materials, is the CLIP mode), or whose unlinked Alpha is
@@ -106,6 +125,48 @@ def smooth_normals(mesh) -> np.ndarray | None:
     loops = np.empty(len(mesh.loop_triangles) * 3, np.int32)
     mesh.loop_triangles.foreach_get("loops", loops)
     return corner.reshape(-1, 3)[loops].reshape(-1, 3, 3)
+
+
+_SLOT_SUFFIX = " [slot "
+
+
+def slot_name(name: str, slot: int) -> str:
+    """The name of the instance or model holding slot ``slot`` of ``name``'s mesh."""
+    return f"{name}{_SLOT_SUFFIX}{slot}]"
+
+
+def slot_owner(name: str) -> str:
+    """The instance name without a ``" [slot k]"`` suffix (:func:`slot_name`'s inverse)."""
+    i = name.rfind(_SLOT_SUFFIX)
+    if i >= 0 and name.endswith("]") and name[i + len(_SLOT_SUFFIX):-1].isdigit():
+        return name[:i]
+    return name
+
+
+def slot_triangles(mesh, n_slots: int) -> list | None:
+    """``[(slot, loop triangle indices)]`` of a mesh with ``n_slots`` material slots: its
+    triangles grouped by ``material_index`` (clamped to ``[0, n_slots - 1]``, as Blender renders
+    an out-of-range index), one entry per used slot, ascending. None when there are fewer than
+    two slots (every triangle shows slot 0) or no triangles."""
+    n = len(mesh.loop_triangles)
+    if n_slots < 2 or not n:
+        return None
+    index = np.empty(n, np.int32)
+    mesh.loop_triangles.foreach_get("material_index", index)
+    np.clip(index, 0, n_slots - 1, out=index)
+    counts = np.bincount(index, minlength=n_slots)
+    used = np.flatnonzero(counts)
+    if len(used) == 1:
+        return [(int(used[0]), None)]
+    order = np.argsort(index, kind="stable")
+    bounds = np.concatenate([[0], np.cumsum(counts)])
+    return [(int(k), order[bounds[k]:bounds[k + 1]]) for k in used]
+
+
+def used_slots(mesh, n_slots: int) -> list:
+    """The material slots a mesh's triangles use (``[0]`` with fewer than two slots)."""
+    groups = slot_triangles(mesh, n_slots)
+    return [0] if groups is None else [k for k, _ in groups]
 
 
 def mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -527,7 +588,9 @@ class _Exporter:
         self.check_render_visibility = (depsgraph.mode != "RENDER" if render_visibility is None
                                         else bool(render_visibility) and depsgraph.mode != "RENDER")
         self.models: list[Model] = []
-        self.model_of: dict = {}  # geometry key -> model id, -1 for geometry without triangles
+        # geometry key -> [(material slot, model id)]: one model per used slot ([] without triangles)
+        self.models_of: dict = {}
+        self.model_tris: dict = {}  # model id of a slot model -> the mesh's loop triangles it holds
         # (casts_shadow, sphere, rgba, specular, roughness, material id, fallback rgba)
         self.attrs: list[tuple] = []
         self.attr_of: dict = {}
@@ -614,16 +677,35 @@ class _Exporter:
         return ok
 
     # -- models and per-instance attributes ---------------------------------------------------
-    def _model(self, key, mesh, name: str) -> int:
-        mid = self.model_of.get(key)
-        if mid is None:
-            verts, tris = mesh_arrays(mesh)
-            mid = -1
-            if len(tris):
-                mid = len(self.models)
-                self.models.append(Model(name=name, vertices=verts, triangles=tris, normals=smooth_normals(mesh)))
-            self.model_of[key] = mid
-        return mid
+    def _models(self, key, mesh, name: str, n_slots: int) -> list:
+        """``[(slot, model id)]`` of the geometry ``key`` (read from ``mesh`` the first time): one
+        model named ``name`` when its triangles use one of its ``n_slots`` slots, else one per
+        used slot (:func:`slot_triangles`) with the vertices its triangles use; [] without
+        triangles. Model names: see the module docstring."""
+        got = self.models_of.get(key)
+        if got is not None:
+            return got
+        verts, tris = mesh_arrays(mesh)
+        got = []
+        if len(tris):
+            normals = smooth_normals(mesh)
+            groups = slot_triangles(mesh, n_slots) or [(0, None)]
+            for k, idx in groups:
+                label = name if k == 0 and idx is None else slot_name(name, k)
+                if idx is None:
+                    model = Model(name=label, vertices=verts, triangles=tris, normals=normals)
+                else:
+                    sub = tris[idx]
+                    keep = np.zeros(len(verts), bool)
+                    keep[sub] = True
+                    remap = np.cumsum(keep, dtype=np.int64) - 1
+                    model = Model(name=label, vertices=verts[keep], triangles=remap[sub].astype(np.uint32),
+                                  normals=None if normals is None else normals[idx])
+                    self.model_tris[len(self.models)] = idx
+                got.append((k, len(self.models)))
+                self.models.append(model)
+        self.models_of[key] = got
+        return got
 
     def _attributes(self, ob, material) -> int:
         """Row in ``self.attrs`` for an (evaluated) object showing ``material``."""
@@ -720,7 +802,9 @@ class _Exporter:
                       f"'{model.name}' has no UV map" + (f" named '{uv_map}'" if uv_map else "")
                       + ": exported without the material")
             elif model.uvs is None:
-                model.uvs = mesh_uvs(mesh, layer)
+                uvs = mesh_uvs(mesh, layer)
+                idx = self.model_tris.get(mid)
+                model.uvs = uvs if idx is None else uvs[idx]
                 self.uv_of[(mid, layer.name)] = ok = True
             else:
                 ok = True
@@ -739,9 +823,19 @@ class _Exporter:
         return dropped
 
     @staticmethod
-    def _first_material(ob):
-        slots = ob.material_slots
-        return slots[0].material if len(slots) else None
+    def _slot_material(slots, k: int):
+        """The material of slot ``k`` (a ``material_slots`` or ``materials`` collection), None
+        without slots."""
+        if not len(slots):
+            return None
+        m = slots[k]
+        return m.material if isinstance(m, bpy.types.MaterialSlot) else m
+
+    def _needs_uvs(self, aid: int, mid: int) -> bool:
+        """Whether the material of attributes ``aid`` is textured and model ``mid``'s UVs for it
+        are not read (nor found missing) yet."""
+        k = self.attrs[aid][5]
+        return k >= 0 and self.materials[k].textured and (mid, self.material_uv[k]) not in self.uv_of
 
     @staticmethod
     def _model_name(ob, mesh) -> str:
@@ -749,37 +843,37 @@ class _Exporter:
         return mesh.name if mesh.name == getattr(ob.original.data, "name", None) else ob.original.name
 
     def _add_mesh_instance(self, ob, mesh, key, matrix, name) -> None:
-        mid = self._model(key, mesh, self._model_name(ob, mesh))
-        if mid < 0:
-            return
-        self.names.append(name)
-        self.model_ids.append(mid)
-        self.matrices.append(matrix.copy())
-        self.attr_ids.append(self._checked(self._attributes(ob, self._first_material(ob)), mid, mesh, name))
+        slots = ob.material_slots
+        models = self._models(key, mesh, self._model_name(ob, mesh), len(slots))
+        if models:
+            self._add_rows(ob, slots, models, matrix.copy(), name, mesh)
+
+    def _add_rows(self, ob, slots, models, matrix, name, mesh) -> None:
+        """One iterated instance per ``(slot, model id)`` of ``models`` (named as the module
+        docstring says), each with its slot's material; ``mesh``: where UVs are read (None: they
+        are read already)."""
+        for j, (k, mid) in enumerate(models):
+            self.names.append(name if j == 0 else slot_name(name, k))
+            self.model_ids.append(mid)
+            self.matrices.append(matrix)
+            aid = self._attributes(ob, self._slot_material(slots, k))
+            self.attr_ids.append(self._checked(aid, mid, mesh, name))
 
     def _add_converted_instance(self, ob, matrix, name) -> None:
         """A non-mesh object without a mesh component: its ``to_mesh()`` triangles, if any."""
         key = ("to_mesh", ob.original.as_pointer())
-        aid = self._attributes(ob, self._first_material(ob))
-        k = self.attrs[aid][5]
-        needs_uvs = k >= 0 and self.materials[k].textured
-        mid = self.model_of.get(key)
-        if mid is None or (needs_uvs and mid >= 0 and (mid, self.material_uv[k]) not in self.uv_of):
+        slots = ob.material_slots
+        models = self.models_of.get(key)
+        if models is None or any(self._needs_uvs(self._attributes(ob, self._slot_material(slots, k)), mid)
+                                 for k, mid in models):
             mesh = ob.to_mesh()
             try:
-                mid = self._model(key, mesh, ob.original.name)
-                if mid >= 0:
-                    aid = self._checked(aid, mid, mesh, name)
+                models = self._models(key, mesh, ob.original.name, len(slots))
+                self._add_rows(ob, slots, models, matrix.copy(), name, mesh)
             finally:
                 ob.to_mesh_clear()
-        elif mid >= 0:
-            aid = self._checked(aid, mid, None, name)  # UVs already read (or found missing)
-        if mid < 0:
-            return
-        self.names.append(name)
-        self.model_ids.append(mid)
-        self.matrices.append(matrix.copy())
-        self.attr_ids.append(aid)
+        else:  # UVs already read (or found missing)
+            self._add_rows(ob, slots, models, matrix.copy(), name, None)
 
     def _iterated_instances(self) -> Instances:
         if not self.names:
@@ -809,31 +903,34 @@ class _Exporter:
         world = _matrix(ob.matrix_world)
         for source, mesh, label, local, index in groups:
             matrices = np.matmul(world, local)
-            if source is None:  # realised geometry made by ob's node tree
-                key = mesh.as_pointer()
-                mid = self._model(key, mesh, f"{ob.name}/{label}")
-                aid = self._attributes(ob, mesh.materials[0] if len(mesh.materials) else None)
-            else:  # an object instanced as a whole
-                mid = self._model(mesh.as_pointer(), mesh, self._model_name(source, mesh))
-                aid = self._attributes(source, self._first_material(source))
-            if mid < 0:
-                continue
-            aid = self._checked(aid, mid, mesh, source.name if source is not None else f"{ob.name}/{label}")
-            n = len(index)
-            shadow, sphere, rgba, spec, rough, material_id, _ = self.attrs[aid]
+            inverse = None
             prefix = f"{ob.name}/{label}"
-            self.parts.append(Instances(
-                names=[f"{prefix}[{i}]" for i in index.tolist()],
-                model_ids=np.full(n, mid, np.int32),
-                matrices=matrices,
-                inverse=affine_inverse(matrices),
-                casts_shadow=np.full(n, shadow),
-                sphere=np.full(n, sphere),
-                base_color=np.tile(np.float32(rgba), (n, 1)),
-                specular=np.full(n, spec, np.float32),
-                roughness=np.full(n, rough, np.float32),
-                material_ids=np.full(n, material_id, np.int32),
-            ))
+            if source is None:  # realised geometry made by ob's node tree
+                owner, slots = ob, mesh.materials
+                models = self._models(mesh.as_pointer(), mesh, prefix, len(slots))
+            else:  # an object instanced as a whole
+                owner, slots = source, source.material_slots
+                models = self._models(mesh.as_pointer(), mesh, self._model_name(source, mesh), len(slots))
+            n = len(index)
+            for j, (k, mid) in enumerate(models):
+                aid = self._attributes(owner, self._slot_material(slots, k))
+                aid = self._checked(aid, mid, mesh, source.name if source is not None else prefix)
+                shadow, sphere, rgba, spec, rough, material_id, _ = self.attrs[aid]
+                if inverse is None:
+                    inverse = affine_inverse(matrices)
+                suffix = "" if j == 0 else f"{_SLOT_SUFFIX}{k}]"
+                self.parts.append(Instances(
+                    names=[f"{prefix}[{i}]{suffix}" for i in index.tolist()],
+                    model_ids=np.full(n, mid, np.int32),
+                    matrices=matrices,
+                    inverse=inverse,
+                    casts_shadow=np.full(n, shadow),
+                    sphere=np.full(n, sphere),
+                    base_color=np.tile(np.float32(rgba), (n, 1)),
+                    specular=np.full(n, spec, np.float32),
+                    roughness=np.full(n, rough, np.float32),
+                    material_ids=np.full(n, material_id, np.int32),
+                ))
         return True
 
 

@@ -130,6 +130,9 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
                             description="Ray traced: acceleration structure the shadow rays walk (the masks "
                                         "are the same; changing it re-bakes the scene)",
                             update=_tag_viewport)
+    pcss_samples: IntProperty(name="Soft Filter Taps", default=32, min=1, max=1024, soft_max=128,
+                              description="Shadow maps of lights with a size: percentage-closer soft shadow "
+                                          "filter taps (the blocker search takes half as many)")
     use_soft_shadows: BoolProperty(name="Soft Shadows", default=True,
                                    description="Honour the lights' sizes (sun angle, point and spot radius, area "
                                                "light size) with several shadow rays per pixel; off: every light "
@@ -173,7 +176,7 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
             slope_bias=float(self.slope_bias), normal_offset=float(self.normal_offset),
             upsample=self.upsample.lower(), specular=bool(self.use_specular),
             conservative=self.conservative_maps.lower(), structure=self.structure.lower(),
-            samples=samples, hard=not self.use_soft_shadows, accumulate=viewport, frame_samples=frame_samples,
+            samples=samples, hard=not self.use_soft_shadows, pcss_samples=int(self.pcss_samples), accumulate=viewport, frame_samples=frame_samples,
         )
 
 

@@ -105,6 +105,9 @@ class RENDER_PT_hybrid_shadows_shadowmap(RenderSubPanel, bpy.types.Panel):
         layout.active = props.mode == "SHADOWMAP"
         layout.prop(props, "shadowmap_size", text="Resolution")
         layout.prop(props, "pcf")
+        sub = layout.column()
+        sub.active = props.use_soft_shadows
+        sub.prop(props, "pcss_samples")
         col = layout.column(align=True)
         col.prop(props, "shadow_bias")
         col.prop(props, "slope_bias")

@@ -240,19 +240,26 @@ class ViewportSync:
 
     def _update_geometry(self, depsgraph, name, done: set) -> bool:
         """Re-read the evaluated mesh of object ``name`` into its model; False when only a full
-        export can do it (non-mesh object, several models, no triangles left)."""
+        export can do it (non-mesh object, several models, no triangles left, a mesh shown
+        through a material slot other than 0 or split by slot, now or at the last export: the
+        export names those models ``"<mesh> [slot k]"``)."""
         ob = depsgraph.objects.get(name)
         rows = self.rows[name]
         if ob is None or ob.type != "MESH" or len(rows) != 1 or ob.is_instancer:
             return False
         mid = int(self.scene.instances.model_ids[rows[0]])
+        old = self.scene.models[mid]
+        if export.slot_owner(old.name) != old.name:
+            return False  # split by slot (its other slots are other rows), or not slot 0's
+        n_slots = len(ob.material_slots)
+        if n_slots > 1 and export.used_slots(ob.data, n_slots) != [0]:
+            return False  # now split by slot, or showing another slot's material
         if mid in done:
             return True
         done.add(mid)
         verts, tris = export.mesh_arrays(ob.data)
         if not len(tris):
             return False
-        old = self.scene.models[mid]
         uvs = None
         if old.uvs is not None:  # a textured material shows it: keep reading its UVs
             layer = export.mesh_uv_layer(ob.data)
