@@ -167,3 +167,14 @@ def test_oracle_light_distributions():
     q = p + d - sc.lights[4].position
     assert np.abs(q[:, 2]).max() < 1e-9 and np.hypot(q[:, 0], q[:, 1]).max() <= 0.5 + 1e-9
     assert denoise_radius(4) == 4 and denoise_radius(64) == 0
+
+
+def test_sample_pattern_changes_per_frame_not_per_run(pipeline):
+    sc = soft_scene()
+    a = frame_of(pipeline, sc, samples=8).mask_array(1)
+    b = frame_of(pipeline, sc, samples=8).mask_array(1)
+    np.testing.assert_array_equal(np.nan_to_num(a), np.nan_to_num(b))  # deterministic
+    sc.frame = 2
+    c = frame_of(pipeline, sc, samples=8).mask_array(1)
+    pen = np.isfinite(a) & (a > 0.05) & (a < 0.95)
+    assert (np.abs(c - a)[pen] > 1e-6).mean() > 0.3  # another pattern in another frame

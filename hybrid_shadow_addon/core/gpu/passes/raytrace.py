@@ -72,6 +72,7 @@ class RaytracePass(ShadowPass):
         self.sample_base = 0  # first sample index of this frame (accumulation advances it)
         self._accum: dict = {}  # light -> (frames accumulated, current target index, settings key)
         self.accumulated = None  # fewest samples per pixel of the soft lights' accumulated masks
+        self._scene_frame = 1  # the animation frame being rendered (seeds the sample patterns)
 
     def reset_history(self) -> None:
         """Forget interlacing and accumulation history (any camera, object, light or setting
@@ -156,6 +157,7 @@ class RaytracePass(ShadowPass):
         origin = self.scene_textures.baked.origin
         self.last_samples = 1
         self.accumulated = None
+        self._scene_frame = int(getattr(scene, "frame", 1))
         for li in lights:
             job.light_started(li)
             local, vec = light_ray_uniforms(scene.lights[li], origin)
@@ -200,13 +202,14 @@ class RaytracePass(ShadowPass):
         if soft is not None:
             u.update({k: v for k, v in soft.items() if k != "shape"})
             u.update({"u_samples": int(settings.samples), "u_sample_base": int(self.sample_base),
-                      "u_seed": self._seed(light)})
+                      "u_seed": self._seed(light, self._scene_frame)})
         return u
 
     @staticmethod
-    def _seed(light) -> int:
-        """A per-light seed of the sample pattern (stable across frames and sessions)."""
-        return zlib.crc32(light.name.encode("utf-8")) & 0x7FFFFFFF
+    def _seed(light, frame: int = 1) -> int:
+        """The seed of a light's sample pattern in a frame of the animation: the same in every
+        session, another one in each frame (each pixel's rotation of the sequence changes)."""
+        return (zlib.crc32(light.name.encode("utf-8")) ^ ((int(frame) * 0x9E3779B1) & 0xFFFFFFFF)) & 0x7FFFFFFF
 
     def _light(self, li, light, light_vec, defines, gbuffer, settings, plan, cmap=None):
         full = gbuffer.size
