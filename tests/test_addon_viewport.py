@@ -145,6 +145,7 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
         class RV3D:
             view_matrix, window_matrix = view, win
 
+        scene.hybrid_shadows.use_soft_shadows = False  # (hard lights: the fast-then-full state machine)
         eng = Stand()
         seq = []
         for _ in range(3):
@@ -161,6 +162,16 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
             eng.stats.clear()
         r["refine_interlace"] = {"stats": seq, "redraws": eng.redraws}
         scene.hybrid_shadows.use_interlace = False
+        # soft lights: after the fast pass, redraws add 4 samples each until 8 are reached
+        scene.hybrid_shadows.use_soft_shadows = True
+        scene.hybrid_shadows.viewport_samples, scene.hybrid_shadows.viewport_frame_samples = 8, 4
+        eng = Stand()
+        seq = []
+        for _ in range(5):
+            eng._view_render(scene, RV3D, w, h)
+            seq.append(eng.stats[-1] if eng.stats else None)
+            eng.stats.clear()
+        r["refine_soft"] = {"stats": seq, "redraws": eng.redraws}
 
         # the GPU path: Blender's GPU context from a tiny Workbench render, then an offscreen
         scene.render.engine = "BLENDER_WORKBENCH"
@@ -256,6 +267,11 @@ def test_refine_after_fast_pass(report):
     inter = report["refine_interlace"]
     rendered = [s for s in inter["stats"] if s]
     assert len(rendered) == 5 and inter["redraws"] == 4 and inter["stats"][5] is None
+    soft = report["refine_soft"]
+    assert "Ray traced low" in soft["stats"][0]
+    assert "4/8 soft samples" in soft["stats"][1] and "refining" in soft["stats"][1]
+    assert "8/8 soft samples" in soft["stats"][2] and "refining" not in soft["stats"][2]
+    assert soft["stats"][3] is None and soft["redraws"] == 2
 
 
 def test_draw_into_offscreen(report):

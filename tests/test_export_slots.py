@@ -289,14 +289,14 @@ def test_modifiers_and_curves_split_too(scene):
     ob.modifiers.new("Sub", "SUBSURF").levels = 1
     curve = bpy.data.curves.new("Crv", "CURVE")
     curve.dimensions, curve.bevel_depth = "3D", 0.1
+    curve.materials.append(_plain("C0", (1, 1, 0, 1)))  # first: the index is clamped to the slots
+    curve.materials.append(_plain("C1", (0, 1, 1, 1)))
     for k in range(2):
         spline = curve.splines.new("POLY")
         spline.points.add(1)
         spline.points[0].co = (0, k, 0, 1)
         spline.points[1].co = (2, k, 0, 1)
         spline.material_index = k
-    curve.materials.append(_plain("C0", (1, 1, 0, 1)))
-    curve.materials.append(_plain("C1", (0, 1, 1, 1)))
     _add("Crv", curve, location=(0, 5, 0))
     s = _export()
     names = s.instances.names
@@ -309,6 +309,28 @@ def test_modifiers_and_curves_split_too(scene):
     assert colors["Crv"] == (1, 1, 0, 1) and colors["Crv [slot 1]"] == (0, 1, 1, 1)
     crv = [s.models[int(s.instances.model_ids[_row(s, n)])].triangle_count for n in ("Crv", "Crv [slot 1]")]
     assert crv[0] == crv[1] > 0
+
+
+def test_converted_objects_split_by_slot(scene):
+    """The ``to_mesh()`` path (a non-mesh object without a mesh component), read once."""
+    curve = bpy.data.curves.new("Crv", "CURVE")
+    curve.dimensions, curve.bevel_depth = "3D", 0.1
+    curve.materials.append(_plain("C0", (1, 1, 0, 1)))
+    curve.materials.append(_leaf_material("C1"))
+    for k in range(2):
+        spline = curve.splines.new("POLY")
+        spline.points.add(1)
+        spline.points[1].co = (2, k, 0, 1)
+        spline.material_index = k
+    ob = _add("Crv", curve).evaluated_get(bpy.context.evaluated_depsgraph_get())
+    ex = export._Exporter(bpy.context.evaluated_depsgraph_get())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", export.ExportWarning)  # the bevel has UVs only when asked
+        for name in ("A", "B"):
+            ex._add_converted_instance(ob, ob.matrix_world, name)
+    assert ex.names == ["A", "A [slot 1]", "B", "B [slot 1]"]
+    assert [m.name for m in ex.models] == ["Crv [slot 0]", "Crv [slot 1]"] and ex.model_ids == [0, 1, 0, 1]
+    assert ex.models[0].triangle_count == ex.models[1].triangle_count > 0
 
 
 # --------------------------------------------------------------------------------------------
@@ -335,8 +357,9 @@ def _gn_instancer(name, points, target, as_instance):
 
 
 def _summary(s):
-    """Instances as sorted (model name, triangles, material, colour, position) rows."""
-    return sorted((s.models[m].name, s.models[m].triangle_count, -1 if k < 0 else s.materials[k].name,
+    """Instances as sorted (model's slot, triangles, material, colour, position) rows (the two
+    paths name the model of realised geometry differently)."""
+    return sorted((s.models[m].name.rsplit(" [slot ", 1)[-1], s.models[m].triangle_count, -1 if k < 0 else s.materials[k].name,
                    tuple(np.round(c, 5)), tuple(np.round(mat[:3, 3], 4)))
                   for m, k, c, mat in zip(s.instances.model_ids, s.instances.material_ids, s.instances.base_color,
                                           s.instances.matrices))

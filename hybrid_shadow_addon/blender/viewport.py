@@ -48,10 +48,8 @@ class UpdatePlan:
 
 def _object_attributes(ob) -> tuple:
     """What the exporter reads from an object besides its transform and geometry."""
-    slots = ob.material_slots
-    mat = slots[0].material if len(slots) else None
-    return (bool(ob.visible_shadow), export.is_sphere_primitive(ob),
-            None if mat is None else mat.as_pointer(), tuple(ob.color))
+    mats = tuple(None if s.material is None else s.material.as_pointer() for s in ob.material_slots)
+    return (bool(ob.visible_shadow), export.is_sphere_primitive(ob), mats, tuple(ob.color))
 
 
 class ViewportSync:
@@ -78,7 +76,7 @@ class ViewportSync:
             scene.lights = self._local_lights(scene.lights)
         rows: dict = {}
         for i, name in enumerate(scene.instances.names):
-            rows.setdefault(name, []).append(i)
+            rows.setdefault(export.slot_owner(name), []).append(i)  # (a split mesh's slots: one object)
         self.rows = {k: np.array(v, np.int64) for k, v in rows.items()}
         self.known = set()
         self.attributes = {}
@@ -95,7 +93,7 @@ class ViewportSync:
     def _local(self, name: str) -> bool:
         """Whether the instance or light ``name`` (``object`` or ``instancer/object``) is in the
         local view (always, outside one)."""
-        return self.only is None or name.split("/", 1)[0] in self.only
+        return self.only is None or export.slot_owner(name).split("/", 1)[0] in self.only
 
     def _local_lights(self, lights: list) -> list:
         return [light for light in lights if self._local(light.name)]
