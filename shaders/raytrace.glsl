@@ -109,7 +109,11 @@ void main()
             sw += w;
         }
     }
+#ifdef HS_SOFT_PROBE
+    o_mask = sw > 0.0 ? sv / sw : -1.0;   // no probe had any weight (a spread's edge): not known
+#else
     o_mask = sw > 0.0 ? sv / sw : 0.0;
+#endif
     return;
 #endif
 #ifdef HS_LIGHT_LOCAL

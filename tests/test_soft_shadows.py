@@ -25,7 +25,8 @@ LIGHTS = [
 
 def soft_scene(lights=LIGHTS):
     return basic_scene(lights=[Light(l.name, l.type, power=l.power, matrix=l.matrix.copy(), radius=l.radius,
-                                     angle=l.angle, size=l.size, size_y=l.size_y, area_shape=l.area_shape)
+                                     angle=l.angle, size=l.size, size_y=l.size_y, area_shape=l.area_shape,
+                                     spread=l.spread, spot_size=l.spot_size, spot_blend=l.spot_blend)
                                for l in lights])
 
 
@@ -178,3 +179,36 @@ def test_sample_pattern_changes_per_frame_not_per_run(pipeline):
     c = frame_of(pipeline, sc, samples=8).mask_array(1)
     pen = np.isfinite(a) & (a > 0.05) & (a < 0.95)
     assert (np.abs(c - a)[pen] > 1e-6).mean() > 0.3  # another pattern in another frame
+
+
+def test_area_light_spread_lighting_and_shadow(pipeline):
+    from hybrid_shadow_addon.core.oracle import lighting as lighting_reference
+    spread = Light("spread", "AREA", power=800.0, matrix=trs((0.5, -0.8, 3.0), rot_x=0.35), size=1.4,
+                   area_shape="SQUARE", spread=np.radians(70))
+    sc = soft_scene([spread])
+    f = frame_of(pipeline, sc, specular=False)
+    gb = f.gbuffer
+    arrays = {k: gb.read(k) for k in ("position", "shading_normal", "albedo", "material")}
+    masks = {0: f.mask_array(0)}  # (read now: the next render reuses the mask's texture)
+    ref = lighting_reference.shade(sc, arrays, {0: np.nan_to_num(masks[0], nan=1.0)}, use_specular=False)
+    img = f.image[..., :3].astype(np.float64)
+    lit = ref[..., :3].mean(axis=-1) > 0.05 * ref[..., :3].max()
+    rel = np.abs(img[lit] - ref[..., :3][lit]) / np.maximum(ref[..., :3][lit], 1e-6)
+    assert lit.sum() > 500 and np.median(rel) < 0.01, np.median(rel)
+    ok, o, d, tmax, facing = _shadow_rays(f, sc, 0)
+    n = f.gbuffer.read("normal")[..., :3][ok]
+    # the spread narrows the lit patch against the same light at 180 degrees
+    wide = soft_scene([spread])
+    wide.lights[0].spread = np.pi
+    fw = frame_of(pipeline, wide, specular=False)
+    wi = fw.image[..., :3].mean(axis=-1) - sc.world_color.mean() * 0.9  # (less the ambient)
+    si = img.mean(axis=-1) - sc.world_color.mean() * 0.9
+    assert (wi > 0.05 * wi.max()).sum() > (si > 0.05 * si.max()).sum() + 200
+    assert si.max() > 1.5 * wi.max()  # the same power into a narrower cone: brighter on its axis
+    # the soft shadow weighs the light's points by the spread as well (where it gives light: at
+    # the rim of its cone few samples have any weight)
+    cand = np.nonzero(lit[ok])[0]
+    pick = np.sort(np.random.default_rng(9).choice(cand, min(PIXELS, len(cand)), replace=False))
+    want = soft_visibility(sc, 0, o[pick], n[pick], samples=196)
+    e = np.abs(masks[0][ok][pick] - want)
+    assert e.mean() < 0.008 and (e > 0.1).mean() < 0.005

@@ -560,7 +560,8 @@ def export_light(ob, matrix: np.ndarray, name: str) -> Light:
         kw.update(spot_size=float(d.spot_size), spot_blend=float(d.spot_blend))
     elif d.type == "AREA":
         size_y = d.size_y if d.shape in ("RECTANGLE", "ELLIPSE") else d.size
-        kw.update(size=float(d.size), size_y=float(size_y), area_shape=d.shape)
+        kw.update(size=float(d.size), size_y=float(size_y), area_shape=d.shape,
+                  spread=float(getattr(d, "spread", np.pi)))
     return Light(**kw)
 
 

@@ -211,6 +211,8 @@ class DATA_PT_hybrid_shadows_light_settings(LightPanel, bpy.types.Panel):
             else:
                 sub.prop(light, "size", text="Size X")
                 sub.prop(light, "size_y", text="Y")
+            if hasattr(light, "spread"):
+                col.prop(light, "spread")
         if light.type == "SPOT":
             col.separator()
             col.prop(light, "spot_size", text="Spot Size")

@@ -371,6 +371,7 @@ class Light:
     size: float = 0.0
     size_y: float = 0.0
     area_shape: str = "SQUARE"
+    spread: float = float(np.pi)  # area light: full angle of its emission cone (Blender's spread)
 
     def __post_init__(self):
         self.type = str(self.type).upper()
@@ -393,7 +394,7 @@ class Light:
             raise SceneError(f"light '{self.name}' has unsupported type {self.type!r}")
         for label, v in (("colour", self.color), ("transform", self.matrix), ("power", self.power),
                          ("radius", self.radius), ("spot size", self.spot_size),
-                         ("spot blend", self.spot_blend), ("angle", self.angle)):
+                         ("spot blend", self.spot_blend), ("angle", self.angle), ("spread", self.spread)):
             if not np.isfinite(np.asarray(v, np.float64)).all():
                 raise SceneError(f"light '{self.name}' has a NaN or infinite {label}")
         if (np.abs(self.matrix) >= MAX_COORD).any():

@@ -6,7 +6,8 @@
 //   t2: radiometric colour: sun irradiance S*colour (W/m^2); point/spot intensity
 //       P/(4 pi)*colour (W/sr); area radiance P/(pi A)*colour (W/m^2/sr), or for a zero-size
 //       area light its on-axis intensity P/pi*colour
-//   t3: spot_blend, area half height, area shape (0 rectangle, 1 ellipse), 0
+//   t3: spot_blend, area half height, area shape (0 rectangle, 1 ellipse), tan of the area
+//       light's half spread (< 0: no spread); t2.w its normalisation (Cycles' soft-box grid)
 //   t4: area light's unit x axis, half width (0: a zero-size area light, a Lambertian point)
 #define LIGHT_SUN 0
 #define LIGHT_POINT 1
@@ -118,6 +119,43 @@ float polygon_irradiance(vec3 verts[HS_ELLIPSE_SIDES], int count, vec3 p, vec3 n
     return 0.5 * abs(sum);
 }
 
+// Irradiance from an area light with a spread below 180°: the emitted radiance falls off with
+// the angle from the axis (max((tan h - tan a) N, 0), Cycles' soft-box grid), which no polygon
+// formula integrates: 8 x 8 Gauss-Legendre nodes over the rectangle (an ellipse in polar
+// coordinates), the receiver's cosine clamped at its horizon.
+const float HS_GL8_X[4] = float[4](0.1834346424956498, 0.5255324099163290, 0.7966664774136267, 0.9602898564975363);
+const float HS_GL8_W[4] = float[4](0.3626837833783620, 0.3137066458778873, 0.2223810344533745, 0.1012285362903763);
+
+float hs_gl8_node(int i) { return i < 4 ? -HS_GL8_X[3 - i] : HS_GL8_X[i - 4]; }
+float hs_gl8_weight(int i) { return i < 4 ? HS_GL8_W[3 - i] : HS_GL8_W[i - 4]; }
+
+float spread_irradiance(vec3 c, vec3 axis, vec3 ex, vec3 ey, bool ellipse, vec2 spread, vec3 p, vec3 n) {
+    float sum = 0.0;
+    for (int i = 0; i < 8; ++i) {
+        for (int j = 0; j < 8; ++j) {
+            float a = hs_gl8_node(i), b = hs_gl8_node(j);
+            float w = hs_gl8_weight(i) * hs_gl8_weight(j);
+            vec3 q;
+            if (ellipse) {   // radius (a + 1) / 2 in (0, 1), angle pi (b + 1)
+                float r = 0.5 * (a + 1.0), phi = HS_PI * (b + 1.0);
+                q = c + r * (cos(phi) * ex + sin(phi) * ey);
+                w *= 0.5 * r * HS_PI;   // dr = da / 2, dphi = pi db, the Jacobian r
+            } else {
+                q = c + a * ex + b * ey;
+            }
+            vec3 d = q - p;
+            float r2 = max(dot(d, d), 1e-12);
+            float inv = inversesqrt(r2);
+            float cr = max(dot(d, n), 0.0) * inv;
+            float cl = max(-dot(d, axis), 0.0) * inv;
+            float ta = sqrt(max(1.0 - cl * cl, 0.0)) / max(cl, 1e-12);
+            float f = cl > 0.0 ? max((spread.x - ta) * spread.y, 0.0) : 0.0;
+            sum += w * cr * cl * f / r2;
+        }
+    }
+    return sum * length(ex) * length(ey);
+}
+
 // Irradiance at p (normal n) from area light `row` (rectangle or equal-area 24-gon ellipse), 0
 // behind its emitting side.
 vec3 area_irradiance(int row, vec3 p, vec3 n) {
@@ -130,6 +168,9 @@ vec3 area_irradiance(int row, vec3 p, vec3 n) {
     if (dot(p - c, axis) <= 0.0) return vec3(0.0);
     vec3 ex = t4.xyz * t4.w;
     vec3 ey = normalize(cross(axis, t4.xyz)) * t3.y;
+    if (t3.w >= 0.0)
+        return light_texel(row, 2).rgb * spread_irradiance(c, axis, ex, ey, t3.z >= 0.5,
+                                                           vec2(t3.w, light_texel(row, 2).w), p, n);
     vec3 verts[HS_ELLIPSE_SIDES];
     int count;
     if (t3.z < 0.5) {

@@ -4,7 +4,8 @@
  * HS_SOFT_SHAPE: 0 a sun of angular diameter a (directions through a disk of radius tan(a/2)
  * in the plane across the sun's direction, as Cycles samples a distant light), 1 a sphere light
  * of radius r (point and spot lights with a radius: directions uniform in the cone it subtends),
- * 2 a rectangle, 3 an ellipse (area lights: points uniform on the surface).
+ * 2 a rectangle, 3 an ellipse (area lights: points uniform on the surface; a spread below 180°
+ * weighs each point by Cycles' soft-box attenuation of the direction towards the receiver).
  *
  * Each sample k of a pixel is a 2D point of the R2 sequence (Roberts 2018) shifted by a per-pixel,
  * per-light hash (Cranley-Patterson rotation): well spread within a pixel, decorrelated between
@@ -22,6 +23,7 @@ uniform uint u_seed;          // per light
 uniform vec3 u_light_u;       // sun: tangent axis x tan(angle / 2); area: half-extent axes
 uniform vec3 u_light_v;
 uniform float u_light_radius; // sphere light radius
+uniform vec2 u_light_spread;  // area light: (tan of the half spread, its normalisation); x < 0: none
 
 #define HS_PROBES 4           // rays per pixel of the probe pass (HS_SOFT_PROBE)
 #define HS_PROBE_RADIUS 2     // a pixel takes its probe answer when every probe within this
@@ -92,7 +94,13 @@ void hs_light_sample(vec3 o, vec3 n, vec2 xi, out vec3 d, out float tmax, out fl
     d = (u_light_vec + c.x * u_light_u + c.y * u_light_v) - o;
     tmax = 1.0;
     float l2 = dot(d, d);
-    w = max(dot(n, d), 0.0) * max(-dot(d, u_light_axis), 0.0) / max(l2 * l2, 1e-30);
+    float ce = -dot(d, u_light_axis);   // emission cosine x |d|
+    w = max(dot(n, d), 0.0) * max(ce, 0.0) / max(l2 * l2, 1e-30);
+    if (u_light_spread.x >= 0.0 && ce > 0.0) {   // Cycles' soft-box spread
+        float ca = ce * inversesqrt(max(l2, 1e-30));
+        float ta = sqrt(max(1.0 - ca * ca, 0.0)) / ca;
+        w *= max((u_light_spread.x - ta) * u_light_spread.y, 0.0);
+    }
 #endif
 }
 

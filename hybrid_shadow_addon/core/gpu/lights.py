@@ -36,6 +36,31 @@ def area_of(light) -> float:
     return 4.0 * hx * hy * (math.pi / 4 if AREA_SHAPES.get(light.area_shape, 0) == 1 else 1.0)
 
 
+MIN_HALF_SPREAD = 1e-3  # narrower spreads are clamped (Cycles' collimated limit is a delta)
+
+
+def spread_params(light) -> tuple:
+    """``(tan(h), N)`` of an area light's spread (half angle h): Cycles' soft-box attenuation of
+    the radiance leaving at angle a from the axis is ``max((tan h - tan a) N, 0)``, with
+    ``N = 1 / (tan h - h)`` (``3 / h^3`` for h <= 0.05) keeping its power; ``(-1, 0)`` for no
+    attenuation (spread pi, or not an area light)."""
+    if light.type != "AREA" or not float(light.spread) < math.pi - 1e-6:
+        return -1.0, 0.0
+    h = max(0.5 * float(light.spread), MIN_HALF_SPREAD)
+    t = math.tan(h)
+    return t, (1.0 / (t - h) if h > 0.05 else 3.0 / h ** 3)
+
+
+def spread_attenuation(cos_a, tan_h: float, norm: float):
+    """Cycles' spread factor for emission cosines ``cos_a`` (numpy); 1 without a spread."""
+    cos_a = np.asarray(cos_a, np.float64)
+    if tan_h < 0:
+        return np.ones_like(cos_a)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tan_a = np.sqrt(np.maximum(1.0 - cos_a * cos_a, 0.0)) / cos_a
+    return np.where(cos_a > 0, np.maximum((tan_h - tan_a) * norm, 0.0), 0.0)
+
+
 def light_table(lights) -> np.ndarray:
     """(N, LIGHT_TEXELS, 4) float64 rows as ``shaders/common/lights.glsl`` reads them."""
     out = np.zeros((len(lights), LIGHT_TEXELS, 4))
@@ -53,6 +78,7 @@ def light_table(lights) -> np.ndarray:
             out[i, 3, 2] = AREA_SHAPES.get(light.area_shape, 0)
             out[i, 4, :3] = ux
             out[i, 4, 3] = hx if area > 0 else 0.0
+            out[i, 3, 3], out[i, 2, 3] = spread_params(light)
         else:
             rad = light.power / (4 * math.pi) * color
         out[i, 0, :3] = light.position
@@ -127,7 +153,7 @@ def soft_shape(light, hard: bool = False) -> dict | None:
     uy = y / ny if ny > 0 else np.cross(np.asarray(light.direction, np.float64), ux)
     shape = "ELLIPSE" if AREA_SHAPES.get(light.area_shape, 0) == 1 else "RECTANGLE"
     return {"shape": SOFT_SHAPES[shape], "u_light_u": tuple(ux * hx), "u_light_v": tuple(uy * hy),
-            "u_light_radius": 0.0}
+            "u_light_radius": 0.0, "u_light_spread": spread_params(light)}
 
 
 def light_cone(light) -> tuple[tuple, float]:

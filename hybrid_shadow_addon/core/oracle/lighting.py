@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from ..gpu.lights import area_of, light_table
+from ..gpu.lights import area_of, light_table, spread_attenuation
 
 
 def _smoothstep01(x):
@@ -45,7 +45,8 @@ def light_incident(row: np.ndarray, p: np.ndarray):
 def area_irradiance(row: np.ndarray, p: np.ndarray, n: np.ndarray, order: int = 16) -> np.ndarray:
     """Irradiance (..., 3) at points ``p`` (normals ``n``) from the area light of table ``row``,
     by Gauss-Legendre quadrature over its surface (``order`` nodes per axis; an ellipse in polar
-    coordinates): the integral of L cos(receiver)+ cos(emitter)+ / d^2 over the light."""
+    coordinates): the integral of L cos(receiver)+ cos(emitter)+ spread(emitter) / d^2 over the
+    light (``spread``: Cycles' soft-box factor when the light's spread is below 180 degrees)."""
     t0, t1, t2, t3, t4 = row
     c, axis, ux, hx, hy = t0[:3], t1[:3], t4[:3], t4[3], t3[1]
     uy = np.cross(axis, ux)
@@ -70,7 +71,8 @@ def area_irradiance(row: np.ndarray, p: np.ndarray, n: np.ndarray, order: int = 
         r2 = np.maximum((d * d).sum(-1), 1e-12)
         cos_r = np.maximum((d * nn[:, None]).sum(-1), 0.0) / np.sqrt(r2)
         cos_l = np.maximum(-(d @ axis), 0.0) / np.sqrt(r2)
-        out[s0:s0 + 8192] = (cos_r * cos_l / r2) @ wt
+        f = spread_attenuation(cos_l, float(t3[3]), float(t2[3])) if t3[3] >= 0 else 1.0
+        out[s0:s0 + 8192] = (cos_r * cos_l * f / r2) @ wt
     return t2[:3] * out.reshape(p.shape[:-1])[..., None]
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..gpu.lights import soft_shape
+from ..gpu.lights import soft_shape, spread_attenuation
 from .tracer import visibility_brute
 
 
@@ -71,6 +71,8 @@ def light_samples(light, o: np.ndarray, n: np.ndarray, xi: np.ndarray):
     l2 = (d * d).sum(1)
     axis = np.asarray(light.direction, np.float64)
     w = np.maximum((n * d).sum(1), 0.0) * np.maximum(-(d @ axis), 0.0) / np.maximum(l2 * l2, 1e-30)
+    tan_h, norm = soft["u_light_spread"]
+    w = w * spread_attenuation(-(d @ axis) / np.sqrt(np.maximum(l2, 1e-30)), tan_h, norm)
     return d, np.ones(len(o)), w
 
 
