@@ -38,9 +38,11 @@ from hybrid_shadow_addon.tools.metrics import mask_error
 W, H = 160, 120
 CYCLES_SAMPLES = 128
 LIGHTS = ("Sun", "Sphere", "Square", "Rect", "Disk")
-#: per light: (max mean absolute error, max % of valid pixels off by more than 0.1), ~2x measured
-BOUNDS = {"Sun": (0.004, 0.25), "Sphere": (0.01, 0.25), "Square": (0.018, 0.3), "Rect": (0.004, 0.15),
-          "Disk": (0.008, 0.2)}
+#: per light: (max mean absolute error, max % of valid pixels off by more than 0.1) at the default
+#: samples: ~1.5x the error measured (part of it Cycles' own noise at 128 samples), and the goal's
+#: 0.5 % (measured 0.20-0.37 %)
+BOUNDS = {"Sun": (0.0045, 0.5), "Sphere": (0.0095, 0.5), "Square": (0.014, 0.5), "Rect": (0.004, 0.4),
+          "Disk": (0.008, 0.5)}
 REPO = Path(__file__).resolve().parents[1]
 
 
