@@ -161,9 +161,11 @@ HsWoop hs_woop_setup(vec3 d)
 }
 
 // Double-sided; hit iff t in (0, tmax). Edges exactly 0 count as inside (consistently, so a
-// ray through a shared edge hits at least one of its triangles).
-bool hs_triangle_hit(vec3 o, HsWoop w, vec3 v0, vec3 v1, vec3 v2, float tmax)
+// ray through a shared edge hits at least one of its triangles). bary: the hit's barycentric
+// weights of v0, v1, v2 (the alpha test's UVs; compiled away where unused).
+bool hs_triangle_hit_b(vec3 o, HsWoop w, vec3 v0, vec3 v1, vec3 v2, float tmax, out vec3 bary)
 {
+    bary = vec3(0.0);
     precise vec3 A = v0 - o;
     precise vec3 B = v1 - o;
     precise vec3 C = v2 - o;
@@ -181,9 +183,15 @@ bool hs_triangle_hit(vec3 o, HsWoop w, vec3 v0, vec3 v1, vec3 v2, float tmax)
     precise float det = U + V + W;
     precise float T = (U * (w.s.z * Akz) + V * (w.s.z * Bkz)) + W * (w.s.z * Ckz);
     precise float td = tmax * det;
-    if (det > 0.0) return T > 0.0 && T < td;
-    if (det < 0.0) return T < 0.0 && T > td;
-    return false;
+    bool hit = (det > 0.0) ? (T > 0.0 && T < td) : (det < 0.0 && T < 0.0 && T > td);
+    if (hit) bary = vec3(U, V, W) / det;
+    return hit;
+}
+
+bool hs_triangle_hit(vec3 o, HsWoop w, vec3 v0, vec3 v1, vec3 v2, float tmax)
+{
+    vec3 bary;
+    return hs_triangle_hit_b(o, w, v0, v1, v2, tmax, bary);
 }
 
 // Ray/sphere surface hit with t in (0, tmax) (Ray Tracing Gems ch. 7; d need not be unit).
@@ -309,33 +317,6 @@ bool hs_bvh_occluded(vec3 o, vec3 d, int root, int count, float tmax)
 }
 
 #ifdef HS_HAS_ALPHA
-// hs_triangle_hit (the very same operations and hits) that also gives the hit's barycentric
-// weights of v0, v1, v2.
-bool hs_triangle_hit_b(vec3 o, HsWoop w, vec3 v0, vec3 v1, vec3 v2, float tmax, out vec3 bary)
-{
-    bary = vec3(0.0);
-    precise vec3 A = v0 - o;
-    precise vec3 B = v1 - o;
-    precise vec3 C = v2 - o;
-    float Akz = A[w.k.z], Bkz = B[w.k.z], Ckz = C[w.k.z];
-    precise float Ax = A[w.k.x] - w.s.x * Akz;
-    precise float Ay = A[w.k.y] - w.s.y * Akz;
-    precise float Bx = B[w.k.x] - w.s.x * Bkz;
-    precise float By = B[w.k.y] - w.s.y * Bkz;
-    precise float Cx = C[w.k.x] - w.s.x * Ckz;
-    precise float Cy = C[w.k.y] - w.s.y * Ckz;
-    precise float U = Cx * By - Cy * Bx;
-    precise float V = Ax * Cy - Ay * Cx;
-    precise float W = Bx * Ay - By * Ax;
-    if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return false;
-    precise float det = U + V + W;
-    precise float T = (U * (w.s.z * Akz) + V * (w.s.z * Bkz)) + W * (w.s.z * Ckz);
-    precise float td = tmax * det;
-    bool hit = (det > 0.0) ? (T > 0.0 && T < td) : (det < 0.0 && T < 0.0 && T > td);
-    if (hit) bary = vec3(U, V, W) / det;
-    return hit;
-}
-
 // hs_bvh_occluded for an alpha-cut object of material mat: every triangle the ray crosses
 // multiplies hs_vis by its transmittance at the hit's UV ([uv]); true once hs_vis < HS_VIS_MIN.
 bool hs_bvh_transmit(vec3 o, vec3 d, int root, int count, float tmax, int mat)

@@ -77,11 +77,8 @@ def woop_setup(d: np.ndarray):
 TFLOOR = F(2.0 ** -19)  # the BVH walk's nearest hit, x the vertices' reach along the ray axis
 
 
-def woop_hit(o, setup, v0, v1, v2, tmax, floor: bool = False) -> np.ndarray:
-    """Watertight ray/triangle (Woop, Benthin, Wald 2013), double-sided, hit iff t in (0, tmax);
-    with ``floor`` (the BVH walk, ``scene_bvh.glsl``) only beyond ``TFLOOR * max|v_kz - o_kz| *
-    |Sz|``, the float32 error of t, so that a huge triangle never shadows its own surface.
-    All arguments broadcast per pair: o (P,3), setup arrays (P,), v* (P,3), tmax (P,)."""
+def _woop(o, setup, v0, v1, v2, tmax, floor: bool):
+    """The watertight test's float32 values: ``(hit, U, V, W, T, det)``."""
     kx, ky, kz, sx, sy, sz = setup
     n = np.arange(len(o))
     A = (v0 - o).astype(F)
@@ -108,7 +105,15 @@ def woop_hit(o, setup, v0, v1, v2, tmax, floor: bool = False) -> np.ndarray:
             lo = (lo * det).astype(F)
         pos = (det > 0) & (T > lo) & (T < td)
         neg = (det < 0) & (T < lo) & (T > td)
-    return inside & (pos | neg)
+    return inside & (pos | neg), U, V, W, T, det
+
+
+def woop_hit(o, setup, v0, v1, v2, tmax, floor: bool = False) -> np.ndarray:
+    """Watertight ray/triangle (Woop, Benthin, Wald 2013), double-sided, hit iff t in (0, tmax);
+    with ``floor`` (the BVH walk, ``scene_bvh.glsl``) only beyond ``TFLOOR * max|v_kz - o_kz| *
+    |Sz|``, the float32 error of t, so that a huge triangle never shadows its own surface.
+    All arguments broadcast per pair: o (P,3), setup arrays (P,), v* (P,3), tmax (P,)."""
+    return _woop(o, setup, v0, v1, v2, tmax, floor)[0]
 
 
 def sphere_hit(o, d, c, r, tmax) -> np.ndarray:
@@ -582,33 +587,7 @@ def woop_hit_bary(o, setup, v0, v1, v2, tmax, floor: bool = False):
     the weights of v0, v1, v2 (U = Cx By - Cy Bx, ...), non-negative and summing to 1; ``t`` =
     T / det in units of |d| (U, V, W, T are the test's float32 values; det = U + V + W is summed
     in float64 so the weights sum to 1). Both are 0 where there is no hit."""
-    kx, ky, kz, sx, sy, sz = setup
-    n = np.arange(len(o))
-    A = (v0 - o).astype(F)
-    B = (v1 - o).astype(F)
-    C = (v2 - o).astype(F)
-    Akz, Bkz, Ckz = A[n, kz], B[n, kz], C[n, kz]
-    Ax = A[n, kx] - sx * Akz
-    Ay = A[n, ky] - sy * Akz
-    Bx = B[n, kx] - sx * Bkz
-    By = B[n, ky] - sy * Bkz
-    Cx = C[n, kx] - sx * Ckz
-    Cy = C[n, ky] - sy * Ckz
-    U = Cx * By - Cy * Bx
-    V = Ax * Cy - Ay * Cx
-    W = Bx * Ay - By * Ax
-    inside = ~(((U < 0) | (V < 0) | (W < 0)) & ((U > 0) | (V > 0) | (W > 0)))
-    det = U + V + W
-    T = (U * (sz * Akz) + V * (sz * Bkz)) + W * (sz * Ckz)
-    with np.errstate(over="ignore", invalid="ignore"):
-        td = tmax * det
-        lo = np.zeros_like(det)
-        if floor:
-            lo = (TFLOOR * np.maximum(np.maximum(np.abs(Akz), np.abs(Bkz)), np.abs(Ckz)) * np.abs(sz)).astype(F)
-            lo = (lo * det).astype(F)
-        pos = (det > 0) & (T > lo) & (T < td)
-        neg = (det < 0) & (T < lo) & (T > td)
-    hit = inside & (pos | neg)
+    hit, U, V, W, T, _ = _woop(o, setup, v0, v1, v2, tmax, floor)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         uvw = np.stack([U, V, W], axis=1).astype(np.float64)
         dd = np.where(hit, uvw.sum(axis=1), 1.0)  # det in float64: the weights sum to 1
