@@ -19,6 +19,12 @@ light first gets a conservative occupancy map (:mod:`.conservative`, ``HS_CONSER
 receivers nearer the light than every caster in their map column are lit without a ray, the
 others trace only up to the first possible caster depth (exact: the masks do not change).
 
+Lights with a size (``lights.soft_shape``, unless ``Settings.hard``) compile ``HS_SOFT``: at
+``high`` a probe pass traces 4 rays per pixel, the trace then gives ``samples`` rays only to
+pixels near a probe that saw part of the light, and below 64 samples a penumbra-only filter
+(``shaders/soft_accumulate.glsl``) follows; with ``Settings.accumulate`` (the viewport) each
+frame adds ``frame_samples`` rays to a running mean instead, until ``reset_history``.
+
 ``stats``: ``rays_traced`` counts the pixels the trace shaded (occlusion queries; facing-away
 and map-decided pixels among them cost no traversal), ``pixels`` the pixels with geometry times
 the shadowed lights. The numpy mirror of the rays traced here is ``core/oracle/rays.py``.
@@ -220,7 +226,8 @@ class RaytracePass(ShadowPass):
             scale = 1 if plan == "full" else settings.mask_scale
             size = full if plan == "full" else settings.mask_size(*full)
             out = self._target((li, "out" if plan == "full" else "coarse"), *size)
-            if plan == "full" and "HS_SOFT" in defines and settings.samples > SOFT_PROBES:
+            probed = plan == "full" and "HS_SOFT" in defines and settings.samples > SOFT_PROBES
+            if probed:
                 # soft light: a few probe rays per pixel, then all the samples only near the
                 # pixels whose probes disagree (penumbrae); elsewhere the probes are exact
                 _, pvao, _ = self._program({**defines, "HS_SOFT_PROBE": 1}, light, light_vec, gbuffer, settings,
@@ -234,7 +241,7 @@ class RaytracePass(ShadowPass):
             else:
                 _, vao, _ = self._program(defines, light, light_vec, gbuffer, settings, scale, cmap)
             draw_fullscreen(ctx, vao, out)
-            if plan == "full" and "HS_SOFT" in defines and settings.samples > SOFT_PROBES:
+            if probed:
                 return self._denoise(li, out, gbuffer, denoise_radius(int(settings.samples)), int(settings.samples))
             return out.texture
         plain = {k: v for k, v in defines.items() if k != "HS_INTERLACE"}
