@@ -290,36 +290,10 @@ float hs_vis = 1.0;
 // ---------------------------------------------------------------- BVH ---------------------
 #ifdef HS_HAS_MESHES
 // Stackless walk in depth-first order: box hit -> next node (inner) or test the leaf then
-// escape; box miss -> escape. Any hit ends the walk.
-bool hs_bvh_occluded(vec3 o, vec3 d, int root, int count, float tmax)
-{
-    HsWoop w = hs_woop_setup(d);
-    vec3 inv = hs_slab_inv(d);
-    int i = root;
-    int end = root + count;
-    while (i < end) {
-        uvec4 n0 = hs_fetch_bvh(i, 0);
-        uvec4 n1 = hs_fetch_bvh(i, 1);
-        bool hit = hs_slab_hit(o, inv, uintBitsToFloat(n0.xyz), uintBitsToFloat(n1.xyz), tmax);
-        if (hit && n1.w != 0u) {
-            int first = int(n1.w >> 3u);
-            int cnt = int(n1.w & 7u);
-            for (int k = 0; k < cnt; ++k) {
-                int t = first + k;
-                if (hs_triangle_hit(o, w, hs_fetch_vertex(t, 0), hs_fetch_vertex(t, 1),
-                                    hs_fetch_vertex(t, 2), tmax))
-                    return true;
-            }
-        }
-        i = (hit && n1.w == 0u) ? i + 1 : int(n0.w);
-    }
-    return false;
-}
-
-#ifdef HS_HAS_ALPHA
-// hs_bvh_occluded for an alpha-cut object of material mat: every triangle the ray crosses
-// multiplies hs_vis by its transmittance at the hit's UV ([uv]); true once hs_vis < HS_VIS_MIN.
-bool hs_bvh_transmit(vec3 o, vec3 d, int root, int count, float tmax, int mat)
+// escape; box miss -> escape. Any hit ends the walk; with HS_HAS_ALPHA, an object whose
+// material mat (>= 0) cuts its shadow instead multiplies hs_vis by each crossed triangle's
+// transmittance at the hit's UV ([uv]) and ends the walk once hs_vis < HS_VIS_MIN.
+bool hs_bvh_occluded(vec3 o, vec3 d, int root, int count, float tmax, int mat)
 {
     HsWoop w = hs_woop_setup(d);
     vec3 inv = hs_slab_inv(d);
@@ -337,10 +311,15 @@ bool hs_bvh_transmit(vec3 o, vec3 d, int root, int count, float tmax, int mat)
                 vec3 b;
                 if (hs_triangle_hit_b(o, w, hs_fetch_vertex(t, 0), hs_fetch_vertex(t, 1),
                                       hs_fetch_vertex(t, 2), tmax, b)) {
+#ifdef HS_HAS_ALPHA
+                    if (mat < 0) return true;
                     vec4 p = texelFetch(hs_uv_tex, hs_texel(2 * t), 0);
                     vec4 q = texelFetch(hs_uv_tex, hs_texel(2 * t + 1), 0);
                     hs_vis *= hs_transmittance(mat, b.x * p.xy + b.y * p.zw + b.z * q.xy);
                     if (hs_vis < HS_VIS_MIN) return true;
+#else
+                    return true;
+#endif
                 }
             }
         }
@@ -348,7 +327,6 @@ bool hs_bvh_transmit(vec3 o, vec3 d, int root, int count, float tmax, int mat)
     }
     return false;
 }
-#endif
 #endif
 
 // ---------------------------------------------------------------- objects -----------------
@@ -376,11 +354,11 @@ bool hs_object_occludes(vec3 o, vec3 d, float tmax, uvec2 entry)
 #ifdef HS_HAS_MESHES
     uvec4 info = hs_fetch_model(model, 1);
     if (info.y == 0u) return false;
+    int mat = -1;
 #ifdef HS_HAS_ALPHA
-    uint amat = texelFetch(hs_object_mat_tex, hs_texel(obj), 0).x;
-    if (amat != 0u) return hs_bvh_transmit(om, dm, int(info.x), int(info.y), tmax, int(amat) - 1);
+    mat = int(texelFetch(hs_object_mat_tex, hs_texel(obj), 0).x) - 1;
 #endif
-    return hs_bvh_occluded(om, dm, int(info.x), int(info.y), tmax);
+    return hs_bvh_occluded(om, dm, int(info.x), int(info.y), tmax, mat);
 #else
     return false;
 #endif
