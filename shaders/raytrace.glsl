@@ -112,6 +112,15 @@ void main()
 #ifdef HS_SOFT_PROBE
     o_mask = sw > 0.0 ? sv / sw : -1.0;   // no probe had any weight (a spread's edge): not known
 #else
+    if (sw == 0.0) {   // no sample reached above the horizon: the light's highest point decides
+        vec3 sd;
+        float stm, w;
+        hs_light_top(o, n, sd, stm, w);
+#ifdef HS_MAX_DISTANCE
+        stm = min(stm, u_max_distance / length(sd));
+#endif
+        if (w > 0.0) { sv = hs_visibility(o, sd, stm); sw = 1.0; }
+    }
     o_mask = sw > 0.0 ? sv / sw : 0.0;
 #endif
     return;

@@ -1,8 +1,8 @@
 """Soft shadows of extended lights: a slatted pergola and four boxes on a 14 m ground, lit by a
-wide sun (4°), a sphere light (point, radius 0.3 m) and square (1 m), rectangle (1.2 x 0.5 m)
-and disk (1 m) area lights, each over a box whose shadow it softens; 200x150. The light sizes
-are Blender's own settings (sun ``angle``, ``shadow_soft_size``, area ``shape``, ``size``,
-``size_y``), so Cycles renders the same penumbrae (``compare --soft``, tests/test_soft_cycles.py).
+wide sun (4°), a sphere light (point, radius 0.3 m), a spot light (radius 0.2 m, 70° cone,
+blend 0.3) and square (1 m), rectangle (1.2 x 0.5 m) and disk (1 m) area lights, each over a box
+whose shadow it softens; 200x150. The light sizes are Blender's own settings (sun ``angle``,
+``shadow_soft_size``, ``spot_size``, ``spot_blend``, area ``shape``, ``size``, ``size_y``), so Cycles renders the same penumbrae (``compare --soft``, tests/test_soft_cycles.py).
 
 PARAMS: ``width``, ``height``.
 """
@@ -35,10 +35,13 @@ add("BoxSphere", box("BoxSphere", (0.8, 0.8, 0.8), base_at_origin=True, material
 add("BoxSquare", box("BoxSquare", (0.5, 0.5, 1.4), base_at_origin=True, materials=[paint]), location=(-3.2, 2.4, 0))
 add("BoxRect", box("BoxRect", (0.9, 0.5, 0.7), base_at_origin=True, materials=[paint]), location=(3.2, -2.6, 0),
     rotation=(0, 0, math.radians(20)))
+add("BoxSpot", box("BoxSpot", (0.3, 0.3, 1.1), base_at_origin=True, materials=[paint]), location=(-0.6, -4.2, 0))
 add("BoxDisk", box("BoxDisk", (0.6, 0.6, 1.0), base_at_origin=True, materials=[paint]), location=(-3.2, -2.6, 0))
 
 lib["add_sun"]("Sun", elevation=50, azimuth=30, energy=3.0, angle=math.radians(4.0))
 lib["add_light"]("Sphere", "POINT", location=(2.5, 1.7, 2.6), energy=300.0, shadow_soft_size=0.3)
+lib["add_light"]("Spot", "SPOT", location=(-1.7, -4.6, 2.3), target=(0.6, -3.7, 0), energy=400.0,
+                 shadow_soft_size=0.2, spot_size=math.radians(70.0), spot_blend=0.3)
 lib["add_light"]("Square", "AREA", location=(-2.6, 1.8, 3.0), target=(-3.4, 2.6, 0), energy=300.0,
                  shape="SQUARE", size=1.0)
 lib["add_light"]("Rect", "AREA", location=(2.6, -1.9, 2.8), target=(3.4, -2.9, 0), energy=300.0,

@@ -1,25 +1,29 @@
 """Soft shadows against Cycles (real bpy renders) on ``soft_lights`` at 160x120: a 4° sun, a
-sphere light (radius 0.3 m), square, rectangle and disk area lights (~1 m).
+sphere light (radius 0.3 m), a spot light (radius 0.2 m, blend 0.3), square, rectangle and disk
+area lights (~1 m).
 
 1. Ray-traced ``high`` soft masks (the default samples) against Cycles' soft per-light
    visibility (``render_reference(hard=False)``: the light sizes as Blender has them,
    :data:`CYCLES_SAMPLES` samples at each pixel centre, Diffuse Direct shadowed / unshadowed):
    per light the mean absolute error and the share of valid pixels off by more than 0.1
-   (``tools/metrics.py``'s ``mae`` and ``off_pct``). Measured (bpy 4.5, llvmpipe; 64 rays per
-   pixel against 128 Cycles samples):
+   (``tools/metrics.py``'s ``mae`` and ``off_pct``). Measured (bpy 4.5, llvmpipe; the default
+   32 rays per pixel):
 
-   ======  ======  =======  ==============
-   light   MAE     > 0.1 %  penumbra pixels
-   ======  ======  =======  ==============
-   Sun     0.0017  0.10     390
-   Sphere  0.0046  0.10     1954
-   Square  0.0089  0.14     2764
-   Rect    0.0015  0.04     669
-   Disk    0.0038  0.09     1122
-   ======  ======  =======  ==============
+   ======  =====================  =====================  ==============
+   light   MAE / > 0.1 % vs 128   MAE / > 0.1 % vs 2048  penumbra pixels
+   ======  =====================  =====================  ==============
+   Sun     0.0024 / 0.33          0.0023 / 0.26          400
+   Sphere  0.0063 / 0.22          0.0058 / 0.20          2000
+   Spot    0.0024 / 0.35          0.0023 / 0.22          220
+   Square  0.0095 / 0.49          0.0084 / 0.39          2690
+   Rect    0.0027 / 0.21          0.0026 / 0.18          750
+   Disk    0.0056 / 0.30          0.0053 / 0.28          1250
+   ======  =====================  =====================  ==============
 
-   No bias (mean signed difference below 0.001 for every light): what is left is the noise of
-   both estimates in the penumbrae. The bounds are about twice that.
+   (2048 Cycles samples: BENCHMARKS.md, "Soft shadows".) No bias (mean signed difference below
+   0.001 for every light): what is left is the noise of both estimates in the penumbrae. The
+   bounds are about 1.5x that. The spot's cone is soft as Cycles makes it (each point of the
+   light has its own cone): before that, its mask was off by 0.045 on average.
 2. ``compare --soft`` end to end (one ray-traced mode, a cheap reference): the soft metrics in
    ``metrics.json``, the table and the report; the soft reference cached apart from the hard one.
 """
@@ -37,12 +41,11 @@ from hybrid_shadow_addon.tools.metrics import mask_error
 
 W, H = 160, 120
 CYCLES_SAMPLES = 128
-LIGHTS = ("Sun", "Sphere", "Square", "Rect", "Disk")
+LIGHTS = ("Sun", "Sphere", "Spot", "Square", "Rect", "Disk")
 #: per light: (max mean absolute error, max % of valid pixels off by more than 0.1) at the default
-#: samples: ~1.5x the error measured (part of it Cycles' own noise at 128 samples), and the goal's
-#: 0.5 % (measured 0.20-0.37 %)
-BOUNDS = {"Sun": (0.0045, 0.5), "Sphere": (0.0095, 0.5), "Square": (0.014, 0.5), "Rect": (0.004, 0.4),
-          "Disk": (0.008, 0.5)}
+#: samples: ~1.5x the error measured (part of it Cycles' own noise at 128 samples)
+BOUNDS = {"Sun": (0.0036, 0.5), "Sphere": (0.0095, 0.4), "Spot": (0.0036, 0.5), "Square": (0.014, 0.7),
+          "Disk": (0.0085, 0.45), "Rect": (0.004, 0.35)}
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -67,6 +70,8 @@ def test_scene_lights_have_sizes(soft_ref):
     assert set(ref.visibility) == set(LIGHTS) == set(by)
     assert by["Sun"].angle == pytest.approx(np.radians(4.0), rel=1e-4)
     assert by["Sphere"].type == "POINT" and by["Sphere"].radius == pytest.approx(0.3)
+    assert by["Spot"].type == "SPOT" and by["Spot"].radius == pytest.approx(0.2)
+    assert by["Spot"].spot_blend == pytest.approx(0.3)
     assert [by[n].area_shape for n in ("Square", "Rect", "Disk")] == ["SQUARE", "RECTANGLE", "DISK"]
     assert by["Rect"].size == pytest.approx(1.2) and by["Rect"].size_y == pytest.approx(0.5)
 
@@ -81,7 +86,7 @@ def test_soft_raytrace_matches_cycles(pipeline, soft_ref):
         ours = f.mask_array(index[name])
         e = mask_error(vis, ours)
         penumbra = np.isfinite(vis) & (vis > 0.05) & (vis < 0.95)
-        assert e.valid_pixels > 5000 and penumbra.sum() > 300, f"{name}: the scene should have a penumbra"
+        assert e.valid_pixels > 4000 and penumbra.sum() > 150, f"{name}: the scene should have a penumbra"
         max_mae, max_off = BOUNDS[name]
         assert e.mae <= max_mae, f"{name}: MAE {e.mae:.4f} (bound {max_mae})"
         assert e.off_pct <= max_off, f"{name}: {e.off_pct:.3f} % of valid pixels off by > 0.1 (bound {max_off} %)"
@@ -93,7 +98,7 @@ def test_soft_and_hard_references_have_different_keys(soft_ref):
     from hybrid_shadow_addon.tools.reference import reference_key
 
     class Provider:
-        recipe_version, version = 2, "4.5"
+        recipe_version, version = 3, "4.5"
 
     scene = soft_ref[0]
     hard = reference_key(scene, (W, H), 64, list(LIGHTS), Provider())
@@ -139,7 +144,7 @@ def test_soft_variants():
         soft_variants(["raytrace-high"], shadow_samples=0)
 
     class HardProvider:
-        name, version, recipe_version, hard = "Cycles", "4.5", 2, True
+        name, version, recipe_version, hard = "Cycles", "4.5", 3, True
 
     with pytest.raises(HybridShadowError, match="hard=False"):  # a soft compare against a hard reference
         next(compare_steps(None, "unused", reference=HardProvider(), soft=True))

@@ -9,7 +9,10 @@ keeps the scene's light sizes: the soft reference of ``compare --soft``, whose `
 at the pixel centre, sample the light's area; both renders of a light share the seed, so the
 noise of the ratio is that of the visibility, not of the irradiance). Pixels without full geometry
 coverage, or that the light does not reach even unshadowed (facing away, outside a spot cone),
-are invalid (NaN).
+are invalid (NaN), as are pixels at a silhouette whose unshadowed light is below
+:data:`UNSHADOWED_EDGE` of the brightest of their 8 neighbours: their pixel centre lies on a
+surface the light does not reach, and the few samples that land on the neighbouring face (the
+pixel filter is narrow, not zero) make the ratio measure that face instead.
 
 Transparent bounces are raised to :data:`TRANSPARENT_BOUNCES` so that shadow rays cross stacks
 of alpha cards (Cycles' shadows of an alpha < 1 surface are always transparent).
@@ -34,9 +37,12 @@ import numpy as np
 from ..core.errors import HybridShadowError
 
 UNSHADOWED_MIN = 1e-4
+#: a pixel with less than this share of the unshadowed light of its brightest neighbour is a
+#: silhouette's mixed pixel (see the module's docstring): invalid
+UNSHADOWED_EDGE = 0.01
 #: transparent bounces of the reference renders: enough for stacks of alpha cards and fences
 TRANSPARENT_BOUNCES = 64
-RECIPE_VERSION = 2  # bump when the reference recipe changes: invalidates the cached references
+RECIPE_VERSION = 3  # bump when the reference recipe changes: invalidates the cached references
 
 
 @dataclass
@@ -44,6 +50,14 @@ class CyclesReference:
     visibility: dict = field(default_factory=dict)  # light name -> (H, W) float32, NaN invalid
     position: np.ndarray = None  # (H, W, 3) float32 world position, NaN where no geometry
     render_ms: dict = field(default_factory=dict)  # light name -> ms for both renders
+    unshadowed: dict = field(default_factory=dict)  # light name -> (H, W) Diffuse Direct without shadows
+
+
+def _neighbour_max(a: np.ndarray) -> np.ndarray:
+    """The largest value of each pixel's 3x3 neighbourhood (the edges repeated)."""
+    p = np.pad(a, 1, mode="edge")
+    h, w = a.shape
+    return np.max([p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3)], axis=0)
 
 
 def _read_exr(path: str) -> dict:
@@ -180,10 +194,11 @@ def render_reference(bscene, light_names=None, *, resolution=None, samples: int 
                 lit = _find(passes[True], "DiffDir", "Diffuse Direct")[..., :3].mean(axis=-1)
                 full = _find(passes[False], "DiffDir", "Diffuse Direct")[..., :3].mean(axis=-1)
                 alpha = _find(passes[False], ".Combined", "Combined")[..., 3]
-                valid = (full > UNSHADOWED_MIN) & (alpha >= 1.0 - 1e-6)
+                valid = (full > UNSHADOWED_MIN) & (full >= UNSHADOWED_EDGE * _neighbour_max(full)) & (alpha >= 1.0 - 1e-6)
                 vis = np.full(full.shape, np.nan, np.float32)
                 vis[valid] = np.clip(lit[valid] / full[valid], 0.0, 1.0)
                 ref.visibility[target.name] = vis
+                ref.unshadowed[target.name] = full
                 keep_position(passes[False])
             if ref.position is None:  # no shadowed light: the positions all the same
                 keep_position(render(path))

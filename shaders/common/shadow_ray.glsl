@@ -15,6 +15,9 @@ uniform float u_light_cone;     // no light where dot(light -> p, axis) <= this:
 #ifdef HS_MAX_DISTANCE
 uniform float u_max_distance;
 #endif
+#ifdef HS_SOFT
+uniform float u_light_radius;   // a sphere light's radius (common/soft_light.glsl)
+#endif
 
 // Ray origin pushed off the surface along the normal (Waechter & Binder, Ray Tracing Gems ch. 6):
 // a fixed number of float ULPs of each coordinate (scale-invariant, works far from the origin),
@@ -68,7 +71,16 @@ float shadow_ray_prelude(ivec2 px, out vec3 p, out vec3 n, out float depth, out 
     if (facing <= 0.0) return 0.0;    // faces away: unlit, no ray
 #endif                                // (an extended light can be partly above the horizon)
 #ifdef HS_LIGHT_LOCAL
-    if (dot(-normalize(to_light), u_light_axis) <= u_light_cone) return 0.0;  // out of reach
+    float reach = u_light_cone;
+#if defined(HS_SOFT) && HS_SOFT_SHAPE == 1
+    // a spot of radius r: its points reach a cone wider by the angle b the sphere subtends,
+    // cos(half + b) (each point's own cone weighs its sample: common/soft_light.glsl)
+    if (reach >= -1.0) {
+        float sb = min(u_light_radius * inversesqrt(max(dot(to_light, to_light), 1e-30)), 1.0);
+        reach = reach * sqrt(1.0 - sb * sb) - sqrt(max(1.0 - reach * reach, 0.0)) * sb;
+    }
+#endif
+    if (dot(-normalize(to_light), u_light_axis) <= reach) return 0.0;  // out of reach
 #endif
     return -1.0;
 }

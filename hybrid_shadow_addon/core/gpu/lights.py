@@ -125,7 +125,8 @@ SOFT_SHAPES = {"SUN": 0, "SPHERE": 1, "RECTANGLE": 2, "ELLIPSE": 3}
 def soft_shape(light, hard: bool = False) -> dict | None:
     """The extended light ``shaders/common/soft_light.glsl`` samples, or None for a hard one
     (``hard``, or size 0): ``{"shape": HS_SOFT_SHAPE, "u_light_u", "u_light_v",
-    "u_light_radius"}`` (world axes, float tuples)."""
+    "u_light_radius"}`` (world axes, float tuples; a sphere light adds ``u_light_blend``, a spot's
+    blend, and an area light ``u_light_spread``)."""
     if hard:
         return None
     zero = (0.0, 0.0, 0.0)
@@ -144,7 +145,8 @@ def soft_shape(light, hard: bool = False) -> dict | None:
         if not light.radius > 0:
             return None
         return {"shape": SOFT_SHAPES["SPHERE"], "u_light_u": zero, "u_light_v": zero,
-                "u_light_radius": float(light.radius)}
+                "u_light_radius": float(light.radius),
+                "u_light_blend": max(float(light.spot_blend), 0.0) if light.type == "SPOT" else 0.0}
     ux, hx, hy = area_extent(light)
     if not (hx > 0 and hy > 0):
         return None

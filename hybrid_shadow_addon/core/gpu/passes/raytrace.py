@@ -247,7 +247,7 @@ class RaytracePass(ShadowPass):
         plain = {k: v for k, v in defines.items() if k != "HS_INTERLACE"}
         uniforms = self._light_uniforms(light, light_vec, gbuffer, settings)
         class_defs = {k: v for k, v in defines.items() if k in ("HS_LIGHT_LOCAL", "HS_LIGHT_SUN", "HS_MAX_DISTANCE",
-                                                                  "HS_INTERLACE", "HS_SOFT")}
+                                                                  "HS_INTERLACE", "HS_SOFT", "HS_SOFT_SHAPE")}
         class_defs.update(self.refiner.defines())
         if plan == "refine":
             scale = settings.mask_scale
