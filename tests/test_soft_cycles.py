@@ -7,17 +7,17 @@ area lights (~1 m).
    :data:`CYCLES_SAMPLES` samples at each pixel centre, Diffuse Direct shadowed / unshadowed):
    per light the mean absolute error and the share of valid pixels off by more than 0.1
    (``tools/metrics.py``'s ``mae`` and ``off_pct``). Measured (bpy 4.5, llvmpipe; the default
-   32 rays per pixel):
+   32 rays per pixel, Owen-scrambled Sobol points):
 
    ======  =====================  =====================  ==============
    light   MAE / > 0.1 % vs 128   MAE / > 0.1 % vs 2048  penumbra pixels
    ======  =====================  =====================  ==============
-   Sun     0.0024 / 0.33          0.0023 / 0.26          400
-   Sphere  0.0063 / 0.22          0.0058 / 0.20          2000
-   Spot    0.0024 / 0.35          0.0023 / 0.22          220
-   Square  0.0095 / 0.49          0.0084 / 0.39          2690
-   Rect    0.0027 / 0.21          0.0026 / 0.18          750
-   Disk    0.0056 / 0.30          0.0053 / 0.28          1250
+   Sun     0.0021 / 0.15          0.0020 / 0.12          400
+   Sphere  0.0055 / 0.16          0.0050 / 0.13          2000
+   Spot    0.0018 / 0.10          0.0017 / 0.06          220
+   Square  0.0087 / 0.32          0.0075 / 0.36          2690
+   Rect    0.0023 / 0.18          0.0022 / 0.15          750
+   Disk    0.0050 / 0.21          0.0046 / 0.17          1250
    ======  =====================  =====================  ==============
 
    (2048 Cycles samples: BENCHMARKS.md, "Soft shadows".) No bias (mean signed difference below
