@@ -5,7 +5,10 @@ tests/test_addon_viewport.py OUT``):
   ``depsgraph.updates`` ``view_update`` receives) picks the least work, and incremental updates
   give the same masks as a fresh bake;
 - ``viewport_camera`` reproduces a camera from its view and window matrices;
-- the refine logic of ``view_draw`` (fast pass, then full quality; four frames with interlacing);
+- the refine logic of ``view_draw`` (fast pass, then full quality; four frames with interlacing),
+  rendered inline (the synchronous debugging mode) and by the worker thread; two engines of one
+  scene share one worker and bake and apply the same depsgraph updates once; worker errors
+  reach the engine once; freeing the last engine and unregistering stop the thread;
 - the draw-data path into a ``gpu.types.GPUOffScreen`` once a tiny Workbench render made
   Blender's GPU context, with our own OpenGL context used in between.
 """
@@ -125,16 +128,19 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
         r["camera_projection_error"] = float(np.abs(vc.projection_matrix(w, h) - np.array(win)).max())
         r["camera_matrix_error"] = float(np.abs(vc.world_matrix_normalized() - core.camera.world_matrix_normalized()).max())
 
-        # view_draw's refine logic, on a stand-in for the engine instance
+        # view_draw's refine logic, on a stand-in for the engine instance (inline worker first:
+        # one frame per redraw, as the draw callback used to render)
+        from hybrid_shadow_addon.blender import viewport_engine as vpe
+        from hybrid_shadow_addon.core.gpu import worker as worker_mod
+
         class Stand:
             _view_render = HybridShadowsEngine._view_render
-            _viewport_pipeline = lambda self: pipe  # noqa: E731
 
             def __init__(self):
-                self._sync, self._display = sync, ViewportDisplay()
-                self._display.upload = lambda image: setattr(self, "shown", image.shape)
-                self._vp_state, self._refine, self._vp_error = None, 0, None
-                self.redraws, self.stats = 0, []
+                vpe.init(self)
+                self._display = ViewportDisplay()
+                self._display.upload = lambda image: setattr(self, "shown", image.copy())
+                self.redraws, self.stats, self.reports = 0, [], []
 
             def tag_redraw(self):
                 self.redraws += 1
@@ -142,36 +148,130 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
             def update_stats(self, a, b):
                 self.stats.append(b)
 
+            def report(self, kind, msg):
+                self.reports.append(msg)
+
         class RV3D:
             view_matrix, window_matrix = view, win
 
+        class NoView:  # a context without a 3D view (the handler's)
+            space_data = None
+
+        def stand(dg=None):
+            eng = Stand()
+            vpe._acquire(eng, dg or bpy.context.evaluated_depsgraph_get(), None, export=True)
+            return eng
+
+        import time
+
+        calls = []  # seconds per view_render call
+
+        def run(eng, n, size=(w, h), wait=False):
+            seq = []
+            for _ in range(n):
+                t0 = time.perf_counter()
+                eng._view_render(scene, RV3D, *size)
+                calls.append(time.perf_counter() - t0)
+                seq.append(eng.stats[-1] if eng.stats else None)
+                eng.stats.clear()
+                if wait:
+                    vpe.shared(eng).worker.wait_idle(120)
+            return seq
+
+        worker_mod.SYNCHRONOUS = True
         scene.hybrid_shadows.use_soft_shadows = False  # (hard lights: the fast-then-full state machine)
-        eng = Stand()
-        seq = []
-        for _ in range(3):
-            eng._view_render(scene, RV3D, w, h)
-            seq.append(eng.stats[-1] if eng.stats else None)
-            eng.stats.clear()
-        r["refine_plain"] = {"stats": seq, "redraws": eng.redraws, "shape": list(eng.shown)}
+        eng = stand()
+        r["inline_worker_thread"] = vpe.shared(eng).worker._thread is not None
+        seq = run(eng, 3)
+        r["refine_plain"] = {"stats": seq, "redraws": eng.redraws, "shape": list(eng.shown.shape)}
+        inline_image = eng.shown
+        vpe.free(eng)
         scene.hybrid_shadows.use_interlace = True
-        eng = Stand()
-        seq = []
-        for _ in range(7):
-            eng._view_render(scene, RV3D, w, h)
-            seq.append(eng.stats[-1] if eng.stats else None)
-            eng.stats.clear()
-        r["refine_interlace"] = {"stats": seq, "redraws": eng.redraws}
+        eng = stand()
+        r["refine_interlace"] = {"stats": run(eng, 7), "redraws": eng.redraws}
+        vpe.free(eng)
         scene.hybrid_shadows.use_interlace = False
         # soft lights: after the fast pass, redraws add 4 samples each until 8 are reached
         scene.hybrid_shadows.use_soft_shadows = True
         scene.hybrid_shadows.viewport_samples, scene.hybrid_shadows.viewport_frame_samples = 8, 4
-        eng = Stand()
-        seq = []
-        for _ in range(5):
-            eng._view_render(scene, RV3D, w, h)
-            seq.append(eng.stats[-1] if eng.stats else None)
-            eng.stats.clear()
-        r["refine_soft"] = {"stats": seq, "redraws": eng.redraws}
+        eng = stand()
+        r["refine_soft"] = {"stats": run(eng, 5), "redraws": eng.redraws}
+        vpe.free(eng)
+        r["registry_after_inline"] = len(vpe._registry)
+
+        # the worker thread: the same frames off the draw callback
+        worker_mod.SYNCHRONOUS = False
+        scene.hybrid_shadows.use_soft_shadows = False
+        a = stand()
+        wk = vpe.shared(a).worker
+        r["threaded"] = wk._thread is not None and wk.thread_alive
+        calls.clear()
+        t0 = time.perf_counter()
+        seq = run(a, 2, wait=True)
+        r["thread_first_call_ms"] = calls[0] * 1e3
+        r["thread_until_idle_ms"] = (time.perf_counter() - t0 - calls[1]) * 1e3
+        steps = [(s_, q, left) for v, _, s_, q, left in wk.log if v == a._vp_user]
+        r["thread_plain"] = {"stats": seq, "steps": [list(x) for x in steps],
+                             "same_image": bool(np.array_equal(a.shown, inline_image))}
+        # a second viewport of the same scene shares the worker (one context, one bake)
+        b = stand()
+        r["shared_worker"] = vpe.shared(b) is vpe.shared(a)
+        shared_state = vpe.shared(a)
+        n_log, bakes_before = len(shared_state.sync.log), [x for x, _ in shared_state.sync.log].count("bake")
+
+        # both engines receive the same depsgraph updates: applied once, and a genuine second
+        # edit of the same object again
+        def both(_scene, depsgraph):
+            for e in (a, b):
+                vpe.view_update(e, NoView, depsgraph)
+
+        bpy.app.handlers.depsgraph_update_post.append(both)
+        palm = bpy.data.objects["Palm.0003"]
+        palm.location.x += 1.0
+        bpy.context.view_layer.update()
+        palm.location.x += 1.0
+        bpy.context.view_layer.update()
+        bpy.app.handlers.depsgraph_update_post.remove(both)
+        r["dedup_log"] = [x for x, _ in shared_state.sync.log[n_log:]]
+        r["stale_after_update"] = shared_state.generation != a._vp_generation
+        run(a, 2, wait=True)
+        run(b, 2, size=(w // 2, h // 2), wait=True)
+        r["b_shape"] = list(b.shown.shape)
+        # a's image of the moved scene == a fresh export's, rendered directly
+        dg = bpy.context.evaluated_depsgraph_get()
+        fresh = export_depsgraph(dg, resolution=(w, h))
+        fresh.camera = viewport_camera(view, win, w, h)
+        props = scene.hybrid_shadows
+        with gl_scope(ref):
+            ref.set_scene(fresh)
+            ref.render(fresh, props.to_settings(viewport=True, navigating=True), w, h)
+            want = ref.render(fresh, props.to_settings(viewport=True), w, h).image
+        r["moved_image_error"] = float(np.abs(a.shown - want).max())
+        r["bakes_while_shared"] = [x for x, _ in shared_state.sync.log].count("bake") - bakes_before
+        # the redraw timer (no event loop runs timers here: called directly) tags the engines
+        # with a new frame, and only those
+        a._view_render(scene, RV3D, w - 2, h - 2)
+        shared_state.worker.wait_idle(120)
+        ra, rb = a.redraws, b.redraws
+        ret = vpe._poll()
+        r["timer"] = {"a": a.redraws - ra, "b": b.redraws - rb, "ret": ret, "background": bpy.app.background}
+        run(a, 1)
+        # an error raised in the worker: reported once, the worker goes on
+        run(a, 3, size=(10 ** 6, 8), wait=True)  # beyond the GPU's limits
+        r["error_reports"] = list(a.reports)
+        r["error_hidden"] = a._vp_error is not None
+        seq = run(a, 2, wait=True)
+        r["after_error"] = {"stats": seq, "error": a._vp_error}
+        # the last engine releases the worker: its thread stops, its context is released
+        vpe.free(a)
+        r["after_first_free"] = {"alive": wk.thread_alive, "registry": len(vpe._registry)}
+        vpe.free(b)
+        wk._thread.join(5)
+        r["after_last_free"] = {"alive": wk.thread_alive, "registry": len(vpe._registry), "pipe": wk._pipe is None}
+        # unregister stops what is still running
+        c = stand()
+        wc = vpe.shared(c).worker
+        run(c, 1)
 
         # the GPU path: Blender's GPU context from a tiny Workbench render, then an offscreen
         scene.render.engine = "BLENDER_WORKBENCH"
@@ -208,6 +308,11 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
         release_pipeline(pipe)
         release_pipeline(ref)
         hybrid_shadow_addon.unregister()
+    import threading
+
+    wc._thread.join(5)
+    r["after_unregister"] = {"alive": wc.thread_alive, "registry": len(vpe._registry),
+                             "threads": [t.name for t in threading.enumerate() if t.name.startswith("hybrid-shadows")]}
     Path(out_dir, "viewport.json").write_text(json.dumps(r, indent=1))
 
 
@@ -272,6 +377,47 @@ def test_refine_after_fast_pass(report):
     assert "4/8 soft samples" in soft["stats"][1] and "refining" in soft["stats"][1]
     assert "8/8 soft samples" in soft["stats"][2] and "refining" not in soft["stats"][2]
     assert soft["stats"][3] is None and soft["redraws"] == 2
+
+
+def test_refine_runs_inline_in_the_synchronous_mode(report):
+    assert report["inline_worker_thread"] is False and report["registry_after_inline"] == 0
+
+
+def test_the_worker_thread_renders_the_same_frames(report):
+    assert report["threaded"]
+    t = report["thread_plain"]
+    assert t["steps"] == [[0, "low", 1], [1, "high", 0]]  # fast pass, then full quality
+    assert "Ray traced high" in t["stats"][-1] and "refining" not in t["stats"][-1]
+    assert t["same_image"]  # as rendered inline
+    assert t["stats"][0] is None  # the call returned before the worker had a frame: no wait
+    assert report["thread_first_call_ms"] < report["thread_until_idle_ms"] / 4
+
+
+def test_viewports_of_a_scene_share_one_worker_and_apply_updates_once(report):
+    assert report["shared_worker"]
+    assert report["dedup_log"] == ["move", "move"]  # two edits, two engines: each edit once
+    assert report["stale_after_update"]
+    assert report["bakes_while_shared"] == 0  # the second viewport used the bake already made
+    assert report["b_shape"] == [60, 80, 4]
+    assert report["moved_image_error"] <= 1e-6  # the moved scene, as a fresh export renders it
+
+
+def test_the_timer_tags_the_engines_with_news(report):
+    t = report["timer"]
+    assert t["a"] == 1 and t["b"] == 0 and t["ret"] > 0
+
+
+def test_worker_errors_reach_the_engine_once(report):
+    assert len(report["error_reports"]) == 1 and "outside this GPU's limits" in report["error_reports"][0]
+    assert report["error_hidden"]
+    after = report["after_error"]
+    assert after["error"] is None and "Ray traced high" in after["stats"][-1]
+
+
+def test_the_last_engine_and_unregister_stop_the_worker(report):
+    assert report["after_first_free"] == {"alive": True, "registry": 1}
+    assert report["after_last_free"] == {"alive": False, "registry": 0, "pipe": True}
+    assert report["after_unregister"] == {"alive": False, "registry": 0, "threads": []}
 
 
 def test_draw_into_offscreen(report):

@@ -1,6 +1,7 @@
 """The ``HYBRID_SHADOWS`` render engine: the ``RenderEngine`` class, forwarding to
 :mod:`.final_render` (final renders and their passes) and :mod:`.viewport_engine` (the rendered
-viewport). OpenGL contexts: :mod:`.gl`.
+viewport, rendered by a worker thread shared by the viewports of a scene). OpenGL contexts:
+:mod:`.gl`.
 """
 from __future__ import annotations
 
@@ -40,9 +41,6 @@ class HybridShadowsEngine(bpy.types.RenderEngine):
     def view_draw(self, context, depsgraph):
         viewport_engine.view_draw(self, context, depsgraph)
 
-    def _viewport_pipeline(self):
-        return viewport_engine.viewport_pipeline(self)
-
     def _view_render(self, scene, rv3d, width, height) -> None:
         viewport_engine.view_render(self, scene, rv3d, width, height)
 
@@ -53,9 +51,11 @@ CLASSES = (HybridShadowsEngine,)
 def register() -> None:
     for cls in CLASSES:
         bpy.utils.register_class(cls)
+    viewport_engine.register()
 
 
 def unregister() -> None:
+    viewport_engine.unregister()  # stops the viewport workers and their contexts
     release_shared()
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

@@ -2,7 +2,9 @@
 
 A pipeline owns a standalone context. It is never left current on Blender's threads: every use
 goes through :func:`gl_scope`, which makes it current and restores whatever context the thread
-had before (Blender's own in the viewport).
+had before (Blender's own in the viewport). The viewport's render workers
+(:mod:`..core.gpu.worker`) create, use and release theirs with the same three functions, on
+their own thread (or inline, in the synchronous debugging mode).
 """
 from __future__ import annotations
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
+from ..core.gpu.worker import writable_matrices
 from ..core.scene import Camera, Model
 from . import export
 
@@ -55,8 +56,10 @@ def _object_attributes(ob) -> tuple:
 class ViewportSync:
     """The core scene of a viewport depsgraph and the incremental updates of a pipeline.
 
-    ``pipeline`` may be None (change detection only, as in the tests). The pipeline's bake is
-    made lazily: only ray tracing needs it (:meth:`ensure_baked`)."""
+    ``pipeline``: a :class:`~..core.gpu.pipeline.Pipeline`, or the viewport's
+    :class:`~..core.gpu.worker.RenderWorker` (the same calls, queued with a copy of the scene),
+    or None (change detection only, as in the tests). The bake is made lazily: only ray tracing
+    needs it (:meth:`ensure_baked`)."""
 
     def __init__(self, pipeline=None):
         self.pipeline = pipeline
@@ -231,6 +234,7 @@ class ViewportSync:
         if not index:
             return
         idx = np.concatenate(index)
+        writable_matrices(self.scene.instances)  # (the worker's snapshots share them)
         self.scene.instances.set_matrices(idx, np.concatenate(mats))
         if self.pipeline is not None and self.baked:
             self.pipeline.move_instances(self.scene, idx)
@@ -266,6 +270,7 @@ class ViewportSync:
             uvs = export.mesh_uvs(ob.data, layer)
         self.scene.models[mid] = Model(name=old.name, vertices=verts, triangles=tris,
                                        normals=export.smooth_normals(ob.data), uvs=uvs)
+        writable_matrices(self.scene.instances)
         self.scene.instances.set_matrices(rows, export._matrix(ob.matrix_world)[None])
         if self.pipeline is not None and self.baked:
             self.pipeline.update_model(self.scene, mid)

@@ -6,6 +6,10 @@ baked scene textures stay on the GPU. ``set_scene`` bakes (or re-bakes), ``move_
 ``update_model`` apply incremental updates, ``render`` runs the passes for one
 :class:`~..settings.Settings` and returns a :class:`Frame` with the image, the masks and the
 timings (each pass is timed up to ``ctx.finish()``).
+
+:meth:`Pipeline.view` makes another pipeline over the same context, programs, model buffers and
+bake (one per viewport): its passes, render targets and history (interlacing, soft-shadow
+accumulation) are its own; a bake change made through any of them resets every one's history.
 """
 from __future__ import annotations
 
@@ -63,18 +67,50 @@ class _Steps:
         self.done += 1
 
 
+class _SharedBake:
+    """The bake of the pipelines of one context (:meth:`Pipeline.view`); ``generation`` counts
+    its changes, so each pipeline knows when its history became stale."""
+
+    def __init__(self):
+        self.baked = None
+        self.bake_ms = 0.0
+        self.generation = 0
+
+
 class Pipeline:
-    def __init__(self, ctx=None):
-        self.ctx = create_context(ctx)
-        self.gpu = GpuResources(self.ctx)
+    def __init__(self, ctx=None, *, share: "Pipeline | None" = None):
+        if share is None:
+            self.ctx = create_context(ctx)
+            self.gpu = GpuResources(self.ctx)
+            self._bake = _SharedBake()
+        else:  # a view: the context, resources and bake of ``share``; own passes and history
+            self.ctx, self.gpu, self._bake = share.ctx, share.gpu, share._bake
+        self._owns_gpu = share is None
+        self._generation = self._bake.generation
         self.programs = self.gpu.programs
         self.scene_textures = self.gpu.scene_textures
         self.gbuffer_pass = GBufferPass(self.gpu)
         self.upsample = UpsamplePass(self.gpu)
         self.lighting = LightingPass(self.gpu)
         self._shadow: dict = {}  # mode -> shadow pass, created on first use
-        self.baked = None
-        self.bake_ms = 0.0
+
+    def view(self) -> "Pipeline":
+        """Another pipeline sharing this one's context, programs, model buffers and bake, with
+        its own passes (targets, history). Release it before this one."""
+        return Pipeline(share=self)
+
+    @property
+    def baked(self):
+        """The baked scene (shared with this pipeline's views), None before the first bake."""
+        return self._bake.baked
+
+    @baked.setter
+    def baked(self, value) -> None:
+        self._bake.baked = value
+
+    @property
+    def bake_ms(self) -> float:
+        return self._bake.bake_ms
 
     def shadow_pass(self, mode: str):
         """The shadow pass of ``mode`` (one of :data:`SHADOW_PASSES`)."""
@@ -96,8 +132,8 @@ class Pipeline:
             structure = Settings.structure
         self.baked = bake_scene(scene, BakeConfig(structure=structure))
         self.scene_textures.upload(self.baked)
-        self.reset_history()
-        self.bake_ms = (time.perf_counter() - t0) * 1e3
+        self._bake_changed()
+        self._bake.bake_ms = (time.perf_counter() - t0) * 1e3
         return self.bake_ms
 
     def move_instances(self, scene, indices) -> None:
@@ -110,12 +146,18 @@ class Pipeline:
 
     def _apply(self, report) -> None:
         self.scene_textures.apply(self.baked, report)
+        self._bake_changed()
+
+    def _bake_changed(self) -> None:
+        """The shared bake changed: this pipeline's history now, its views' at their next render."""
+        self._bake.generation += 1
         self.reset_history()
 
     def reset_history(self) -> None:
         """Camera, light or setting change: no pass may reuse what earlier frames left."""
         for p in self._passes():
             p.reset_history()
+        self._generation = self._bake.generation
 
     # -- frame ------------------------------------------------------------------------------------
     def render(self, scene, settings: Settings | None = None, width: int | None = None,
@@ -129,6 +171,8 @@ class Pipeline:
         width = int(width or scene.resolution[0])
         height = int(height or scene.resolution[1])
         check_render_size(self.ctx, width, height)
+        if self._generation != self._bake.generation:
+            self.reset_history()  # another view of this bake changed it
         shadow = self.shadow_pass(settings.mode)
         if shadow.needs_bake and (self.baked is None or self.baked.structure != settings.structure):
             self.set_scene(scene, settings.structure)
@@ -183,6 +227,8 @@ class Pipeline:
         return out
 
     def release(self) -> None:
+        """Release the passes' GPU objects, and the shared resources unless this is a view."""
         for p in self._passes():
             p.release()
-        self.gpu.release()
+        if self._owns_gpu:
+            self.gpu.release()

@@ -1,0 +1,546 @@
+"""The rendered viewport's render worker and what the viewports of one scene share (bpy-free).
+
+- :class:`RenderWorker`: a daemon thread owning one standalone OpenGL context and one
+  :class:`~.pipeline.Pipeline` (made in the thread, so its context is only ever current there).
+  The main thread hands it commands through a queue: bake, move instances, update a model,
+  reset history (the :class:`~.pipeline.Pipeline` methods the viewport sync calls, so the worker
+  stands in for a pipeline there) and render a view. Each takes a :func:`snapshot` of the scene
+  (copy-on-write, no array copied), so the main thread may go on editing its own. Commands run in order; render requests for the
+  same view coalesce (only the newest pending one runs). A render request carries the fast and
+  the full settings: the worker renders the fast pass, then the full-quality frames (four with
+  interlacing, more while soft shadows accumulate) as long as nothing newer arrives, exactly as
+  the draw callback used to, one frame per step. Each view renders through its own
+  :meth:`Pipeline.view` (own targets and history, the worker's bake). Errors are kept for the
+  caller's :meth:`RenderWorker.poll`. ``synchronous=True`` (or :data:`SYNCHRONOUS`) runs the
+  same steps inline, one render step per :meth:`RenderWorker.pump`, for debugging.
+- :class:`UpdateRounds` and :class:`SharedRegistry`: every engine instance gets the same
+  depsgraph updates; the state of a scene is shared, reference-counted, and each update is
+  applied once.
+"""
+from __future__ import annotations
+
+import atexit
+import collections
+import contextlib
+import dataclasses
+import itertools
+import os
+import threading
+import weakref
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: run the workers' steps inline on the caller's thread (debugging only): the environment
+#: variable ``HYBRID_SHADOWS_VIEWPORT_SYNC=1``, or set this before workers are made
+SYNCHRONOUS = os.environ.get("HYBRID_SHADOWS_VIEWPORT_SYNC", "").strip() not in ("", "0")
+
+#: commands that change the bake or the scene's lighting: refinement in progress is stale
+_SCENE_COMMANDS = ("bake", "move", "model", "reset")
+
+
+def snapshot(scene):
+    """A copy of a core Scene that later edits of ``scene`` do not reach, without copying its
+    arrays: its own lists (the sync replaces models and lights in them, never edits one: GPU
+    buffers cached per model stay), and the instance matrices shared copy-on-write: they
+    become read-only in ``scene`` too, so whoever moves instances afterwards first takes its
+    own copy (:func:`writable_matrices`; an edit in place raises instead of reaching the
+    worker)."""
+    inst = scene.instances
+    for a in (inst.matrices, inst.inverse):
+        a.flags.writeable = False
+    own = dataclasses.replace(inst, names=list(inst.names))
+    return dataclasses.replace(scene, instances=own, models=list(scene.models), lights=list(scene.lights),
+                               materials=list(scene.materials), images=list(scene.images),
+                               world_color=np.array(scene.world_color, np.float32))
+
+
+def writable_matrices(instances) -> None:
+    """Copy ``instances``' matrices (and inverses) if a :func:`snapshot` shares them, before
+    ``Instances.set_matrices`` edits them in place."""
+    if not instances.matrices.flags.writeable:
+        instances.matrices = instances.matrices.copy()
+    if not instances.inverse.flags.writeable:
+        instances.inverse = instances.inverse.copy()
+
+
+def refine_frames(fast, full) -> int:
+    """Full-quality frames after the fast pass of a change: four with interlacing (one per ray
+    phase), one when the fast pass differs from full quality, else none."""
+    return (4 if full.interlace else 1) if (fast != full or full.interlace) else 0
+
+
+@dataclass
+class RenderRequest:
+    """One view to render. ``scene``: a snapshot with the view's camera; ``post(frame, scene,
+    pipeline) -> image`` (optional) runs in the worker after each frame (debug views)."""
+
+    view: object
+    scene: object
+    fast: object  # Settings of the first frame
+    full: object  # Settings of the refinement frames
+    width: int
+    height: int
+    film_transparent: bool = False
+    post: object = None
+    seq: int = 0
+
+
+@dataclass
+class ViewResult:
+    """A finished frame of a view. ``step`` 0 is the fast pass; ``refine_left``: frames still to
+    come for the same request (none if a newer request or a scene change supersedes it)."""
+
+    view: object
+    seq: int
+    step: int
+    image: np.ndarray
+    settings: object
+    refine_left: int
+    stats: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+
+class _Job:
+    """A render request and its refinement. ``epoch``: the worker's when it was queued (a scene
+    command queued after it makes its refinement stale: its snapshot predates the command)."""
+
+    def __init__(self, request, epoch: int):
+        self.request = request
+        self.epoch = epoch
+        self.step = 0
+        self.refine = 0
+
+
+def _default_create():
+    from .pipeline import Pipeline
+
+    return Pipeline()
+
+
+@contextlib.contextmanager
+def _default_scope(pipeline):
+    with pipeline.ctx:
+        yield pipeline
+
+
+def _default_release(pipeline) -> None:
+    with pipeline.ctx:
+        pipeline.release()
+    pipeline.ctx.release()
+
+
+_live: "weakref.WeakSet[RenderWorker]" = weakref.WeakSet()
+
+
+class RenderWorker:
+    """See the module docstring. ``create()`` makes the pipeline (with its context),
+    ``scope(pipeline)`` makes its context current meanwhile, ``release(pipeline)`` frees it."""
+
+    def __init__(self, create=None, scope=None, release=None, synchronous: bool | None = None,
+                 name: str = "hybrid-shadows-viewport"):
+        self._create = create or _default_create
+        self._scope = scope or _default_scope
+        self._release = release or _default_release
+        self.synchronous = SYNCHRONOUS if synchronous is None else bool(synchronous)
+        self._cond = threading.Condition()
+        self._queue: collections.deque = collections.deque()
+        self._active = None  # the item being executed
+        self._epoch = 0  # bumped by every scene command: refinement started before is stale
+        self._seq = itertools.count(1)
+        self._results: dict = {}  # view -> newest ViewResult not taken yet
+        self._errors: list = []  # (n, view or None for every view, exception)
+        self._error_n = 0
+        self._seen: dict = {}  # view -> n of the last error it took
+        self._closing = False
+        self._pipe = None
+        self._views: dict = {}  # view -> Pipeline.view() (worker side only)
+        self.log: list = []  # (view, seq, step, quality, refine_left) per rendered frame
+        self.coalesced = 0  # render requests replaced by a newer one before they ran
+        self._thread = None
+        if not self.synchronous:
+            self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+            self._thread.start()
+        _live.add(self)
+
+    # -- commands (caller's thread) ---------------------------------------------------------------
+    def set_scene(self, scene, structure: str | None = None) -> None:
+        """Bake ``scene`` (as :meth:`Pipeline.set_scene`)."""
+        self._command(("bake", snapshot(scene), structure))
+
+    def move_instances(self, scene, indices) -> None:
+        self._command(("move", snapshot(scene), np.array(indices, np.int64)))
+
+    def update_model(self, scene, model_id: int) -> None:
+        self._command(("model", snapshot(scene), int(model_id)))
+
+    def reset_history(self) -> None:
+        """Lights, world or materials changed: every view starts its history again."""
+        self._command(("reset",))
+
+    def drop_view(self, view) -> None:
+        """Forget ``view``: its pending renders, results and pipeline."""
+        with self._cond:
+            self._remove(lambda it: it[0] in ("render", "continue") and it[1] == view)
+            self._results.pop(view, None)
+            self._seen.pop(view, None)
+        self._command(("drop", view))
+
+    def render(self, request: RenderRequest) -> int:
+        """Queue ``request`` in place of any pending one of its view; returns its sequence number."""
+        with self._cond:
+            if self._closing:
+                return 0
+            request.seq = next(self._seq)
+            self._seen.setdefault(request.view, self._error_n)  # (errors from before it came: not its own)
+            if self._remove(lambda it: it[0] == "render" and it[1] == request.view):
+                self.coalesced += 1
+            self._remove(lambda it: it[0] == "continue" and it[1] == request.view)
+            self._queue.append(("render", request.view, _Job(request, self._epoch)))
+            self._cond.notify_all()
+        return request.seq
+
+    def _command(self, item) -> None:
+        with self._cond:
+            if self._closing:
+                return
+            if item[0] in _SCENE_COMMANDS:
+                self._epoch += 1
+                self._remove(lambda it: it[0] == "continue")
+            self._queue.append(item)
+            self._cond.notify_all()
+
+    def _remove(self, pred) -> int:
+        keep = [it for it in self._queue if not pred(it)]
+        n = len(self._queue) - len(keep)
+        if n:
+            self._queue.clear()
+            self._queue.extend(keep)
+        return n
+
+    # -- results (caller's thread) ----------------------------------------------------------------
+    def poll(self, view):
+        """``(result, errors)``: the newest finished frame of ``view`` not taken yet (or None) and
+        the errors raised for it (or for every view) since the last poll, each given once."""
+        with self._cond:
+            result = self._results.pop(view, None)
+            seen = self._seen.get(view, 0)
+            errors = [e for n, v, e in self._errors if n > seen and (v is None or v == view)]
+            self._seen[view] = self._error_n
+            return result, errors
+
+    def has_news(self, view) -> bool:
+        """Whether :meth:`poll` would give ``view`` a frame or an error."""
+        with self._cond:
+            seen = self._seen.get(view, 0)
+            return view in self._results or any(n > seen and (v is None or v == view) for n, v, _ in self._errors)
+
+    def busy(self, view=None) -> bool:
+        """Whether work that concerns ``view`` (any, when None) is queued or running: its renders
+        and refinement, and every scene command."""
+        with self._cond:
+            items = list(self._queue) + ([self._active] if self._active is not None else [])
+        return any(view is None or it[0] in _SCENE_COMMANDS or (it[0] in ("render", "continue") and it[1] == view)
+                   for it in items)
+
+    def wait_idle(self, timeout: float = 60.0) -> bool:
+        """Block until nothing is queued or running (inline: run it all); False on timeout."""
+        if self.synchronous:
+            while self.busy():
+                self.pump()
+            return True
+        with self._cond:
+            return self._cond.wait_for(lambda: (not self._queue and self._active is None) or self._closing, timeout)
+
+    def pump(self) -> None:
+        """Inline mode: run the queued commands and at most one render step (the draw callback
+        calls it; one frame per redraw, as before the worker). Does nothing with a thread."""
+        if not self.synchronous:
+            return
+        while True:
+            with self._cond:
+                if not self._queue or self._closing:
+                    return
+                item = self._queue.popleft()
+                self._active = item
+            try:
+                rendered = self._execute(item)
+            finally:
+                with self._cond:
+                    self._active = None
+            if rendered:
+                return
+
+    @property
+    def alive(self) -> bool:
+        return not self._closing
+
+    def close(self, timeout: float = 5.0) -> None:
+        """Drop the queued work, stop the thread (joined for at most ``timeout`` s: a frame
+        under way finishes first) and release the context. Safe to call twice."""
+        with self._cond:
+            first = not self._closing
+            self._closing = True
+            self._queue.clear()
+            self._cond.notify_all()
+        if self._thread is not None:
+            if self._thread is not threading.current_thread():
+                self._thread.join(timeout)
+        elif first:
+            self._release_gl()
+        _live.discard(self)
+
+    @property
+    def thread_alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    # -- worker side ------------------------------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            while True:
+                with self._cond:
+                    while not self._queue and not self._closing:
+                        self._cond.wait()
+                    if self._closing:
+                        return
+                    item = self._queue.popleft()
+                    self._active = item
+                try:
+                    self._execute(item)
+                finally:
+                    with self._cond:
+                        self._active = None
+                        self._cond.notify_all()
+        finally:
+            self._release_gl()
+
+    def _pipeline(self):
+        if self._pipe is None:
+            self._pipe = self._create()
+        return self._pipe
+
+    def _execute(self, item) -> bool:
+        """Run one item; True when it rendered a frame. Exceptions become errors for poll."""
+        kind = item[0]
+        view = item[1] if kind in ("render", "continue", "drop") else None
+        try:
+            if kind == "drop":
+                vp = self._views.pop(view, None)
+                if vp is not None and self._pipe is not None:
+                    with self._scope(self._pipe):
+                        vp.release()
+                return False
+            pipe = self._pipeline()
+            with self._scope(pipe):
+                if kind in ("render", "continue"):
+                    self._render_step(pipe, item[2])
+                    return True
+                self._scene_command(pipe, item)
+            return False
+        except BaseException as exc:  # noqa: BLE001 - every failure reaches the caller
+            if kind in _SCENE_COMMANDS and self._pipe is not None:
+                self._pipe.baked = None  # half-updated: the next ray-traced frame bakes afresh
+            with self._cond:
+                self._error_n += 1
+                self._errors.append((self._error_n, view, exc))
+                del self._errors[:-64]
+            if not isinstance(exc, Exception):
+                raise
+            return kind in ("render", "continue")
+
+    def _scene_command(self, pipe, item) -> None:
+        kind = item[0]
+        if kind == "bake":
+            pipe.set_scene(item[1], item[2])
+        elif kind in ("move", "model"):
+            if pipe.baked is None:
+                return  # no bake (or a failed one): the next ray-traced frame bakes this scene
+            if kind == "move":
+                pipe.move_instances(item[1], item[2])
+            else:
+                pipe.update_model(item[1], item[2])
+        for vp in self._views.values():  # (bake changes reach the views anyway: Pipeline.view)
+            vp.reset_history()
+
+    def _render_step(self, pipe, job: _Job) -> None:
+        req = job.request
+        vp = self._views.get(req.view)
+        if vp is None:
+            vp = self._views[req.view] = pipe.view()
+        if job.step == 0:
+            vp.reset_history()
+            settings = req.fast
+            job.refine = refine_frames(req.fast, req.full)
+        else:
+            settings = req.full
+            job.refine -= 1
+        frame = vp.render(req.scene, settings, req.width, req.height, film_transparent=req.film_transparent)
+        image = frame.image if req.post is None else req.post(frame, req.scene, vp)
+        acc = frame.stats.get("accumulated_samples")
+        if acc is not None and settings.accumulate and acc < settings.samples:
+            job.refine = max(job.refine, 1)  # soft lights still converging: one more frame
+        result = ViewResult(view=req.view, seq=req.seq, step=job.step, image=image, settings=settings,
+                            refine_left=job.refine, stats=dict(frame.stats), timings=dict(frame.timings))
+        job.step += 1
+        with self._cond:
+            self.log.append((req.view, req.seq, result.step, settings.quality, job.refine))
+            del self.log[:-1000]
+            self._results[req.view] = result
+            newer = any(it[0] == "render" and it[1] == req.view for it in self._queue)
+            if job.refine > 0 and not newer and job.epoch == self._epoch and not self._closing:
+                self._queue.append(("continue", req.view, job))
+
+    def _release_gl(self) -> None:
+        pipe, self._pipe = self._pipe, None
+        views, self._views = list(self._views.values()), {}
+        if pipe is None:
+            return
+        try:
+            with self._scope(pipe):
+                for vp in views:
+                    vp.release()
+        except Exception:  # at exit the context may already be gone
+            pass
+        try:
+            self._release(pipe)
+        except Exception:
+            pass
+
+
+@atexit.register
+def close_all() -> None:
+    """Stop every worker still running (interpreter exit; also the add-on's unregister)."""
+    for w in list(_live):
+        w.close(timeout=2.0)
+
+
+# ------------------------------------------------------------------------------------------------
+# Sharing between the viewports of a scene
+# ------------------------------------------------------------------------------------------------
+class UpdateRounds:
+    """Which users (engine instances) consumed the current update: every viewport's engine
+    receives the same ``depsgraph.updates``; only the first applies them. ``key`` identifies
+    an update (the depsgraph evaluation and what changed). A user calling again starts a new
+    round even with an equal key (a genuine second edit of the same thing)."""
+
+    def __init__(self):
+        self.key = None
+        self.consumed: set = set()
+
+    def should_apply(self, user, key) -> bool:
+        if user not in self.consumed and key == self.key:
+            self.consumed.add(user)
+            return False
+        self.key = key
+        self.consumed = {user}
+        return True
+
+    def forget(self, user) -> None:
+        self.consumed.discard(user)
+
+
+class SharedViewport:
+    """What the viewports of one scene share: one :class:`RenderWorker` (one context, one bake)
+    and one scene sync (``sync.scene``, ``sync.update(depsgraph)`` returning a plan with
+    ``nothing``). ``generation`` counts the applied changes, so each viewport knows when to
+    render again."""
+
+    def __init__(self, worker: RenderWorker, sync):
+        self.worker = worker
+        self.sync = sync
+        self.generation = 0
+        self.rounds = UpdateRounds()
+        self._snap = None
+        self._snap_generation = -1
+
+    def update(self, user, key, depsgraph):
+        """Apply ``depsgraph``'s updates unless another user already did for this ``key``;
+        returns the plan applied, or None when skipped."""
+        if not self.rounds.should_apply(user, key):
+            return None
+        plan = self.sync.update(depsgraph)
+        if not plan.nothing:
+            self.changed()
+        return plan
+
+    def changed(self) -> None:
+        """The sync's scene changed (outside :meth:`update` too, e.g. its first export)."""
+        self.generation += 1
+
+    def scene_snapshot(self):
+        """A :func:`snapshot` of the sync's scene, taken again only after a change."""
+        if self._snap_generation != self.generation or self._snap is None:
+            self._snap = snapshot(self.sync.scene)
+            self._snap_generation = self.generation
+        return self._snap
+
+    def leave(self, user) -> None:
+        self.rounds.forget(user)
+        self.worker.drop_view(user)
+
+    def close(self) -> None:
+        """Stop the worker, waiting 1 s at most (a frame or bake under way ends on its own, then
+        the thread releases the context): an engine freed meanwhile must not freeze the UI."""
+        self.worker.close(timeout=1.0)
+
+
+class SharedRegistry:
+    """Shared states by key (a scene, its view layer and local view), reference-counted by
+    their users; :meth:`release` by the last user closes one."""
+
+    def __init__(self):
+        self._entries: dict = {}  # key -> [state, set of users]
+        self._keys: dict = {}  # user -> key
+
+    def acquire(self, user, key, make):
+        """The state of ``key`` for ``user`` (made by ``make()`` for its first user); a user
+        moving to another key leaves its old one first."""
+        old = self._keys.get(user)
+        if old == key and key in self._entries:
+            return self._entries[key][0]
+        if old is not None:
+            self.release(user)
+        entry = self._entries.get(key)
+        if entry is None:
+            entry = self._entries[key] = [make(), set()]
+        entry[1].add(user)
+        self._keys[user] = key
+        return entry[0]
+
+    def get(self, user):
+        key = self._keys.get(user)
+        return None if key is None else self._entries[key][0]
+
+    def release(self, user) -> bool:
+        """``user`` is done; True when that closed the state (it was the last user)."""
+        key = self._keys.pop(user, None)
+        if key is None:
+            return False
+        state, users = self._entries[key]
+        users.discard(user)
+        if hasattr(state, "leave"):
+            state.leave(user)
+        if users:
+            return False
+        del self._entries[key]
+        state.close()
+        return True
+
+    def release_all(self) -> None:
+        for state, _ in list(self._entries.values()):
+            state.close()
+        self._entries.clear()
+        self._keys.clear()
+
+    def users(self, user=None):
+        """The users sharing ``user``'s state (every user when None)."""
+        if user is None:
+            return set(self._keys)
+        key = self._keys.get(user)
+        return set() if key is None else set(self._entries[key][1])
+
+    def states(self) -> list:
+        return [state for state, _ in self._entries.values()]
+
+    def __len__(self) -> int:
+        return len(self._entries)
