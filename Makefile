@@ -22,7 +22,7 @@ demo: setup
 # the tests that run a second time on bpy 5.x (CPython 3.13, numpy 2): export, pipeline, add-on
 BPY5 := .venv-bpy5/bin/python
 BPY5_TESTS := tests/test_export.py tests/test_export_materials.py tests/test_scenes.py tests/test_pipeline.py tests/test_addon_engine.py \
-	tests/test_addon_panels.py tests/test_addon_viewport.py tests/test_bad_input.py
+	tests/test_addon_panels.py tests/test_addon_viewport.py tests/test_addon_border.py tests/test_bad_input.py
 
 test: setup
 	$(PY) -m pytest -q tests

@@ -1,6 +1,7 @@
 """Final renders through the engine (bpy in a subprocess): a render border, cropped or not,
 fills exactly the border's pixels with what a full render has there; shadow passes follow the
-view layer's own lights and keep Blender's 63-byte pass names without splitting a character."""
+view layer's own lights and keep Blender's 63-byte pass names without splitting a character; two
+view layers render each from its own objects into its own layer."""
 import json
 import subprocess
 import sys
@@ -71,6 +72,39 @@ def driver(out_dir: str) -> None:
         layout = final_render.pass_layout(sc, vl)
         report["shadow_passes"] = [n for n, *_ in layout if n.startswith("Shadow ")]
         bpy.ops.render.render()
+        # two view layers: a pillar in a collection the second layer excludes; one F12 renders
+        # both, each from its own objects, into its own layer of the multilayer EXR
+        hidden_pillar = bpy.data.collections.new("pillar")
+        sc.collection.children.link(hidden_pillar)
+        cube = next(o for o in sc.objects if o.type == "MESH" and "Cube" in o.name)
+        pillar = cube.copy()
+        pillar.name = "Pillar"
+        pillar.location = (cube.location[0] - 1.2, cube.location[1] + 0.8, cube.location[2])
+        hidden_pillar.objects.link(pillar)
+        second = sc.view_layers.new("Without Pillar")
+        second.layer_collection.children["pillar"].exclude = True
+        second.layer_collection.children["excluded"].exclude = True
+        for layer in sc.view_layers:
+            layer.use = True
+        layers = {}
+
+        def spy_layers(engine, core, frame, scene, view_layer, width, height):
+            layers[view_layer.name] = {"instances": sorted(core.instances.names)}
+            np.save(out / f"layer_{len(layers)}.npy", frame.image)
+            layers[view_layer.name]["image"] = f"layer_{len(layers)}.npy"
+            orig(engine, core, frame, scene, view_layer, width, height)
+
+        final_render.write_result = spy_layers
+        im = sc.render.image_settings
+        if hasattr(im, "media_type"):  # Blender 5.x
+            im.media_type = "MULTI_LAYER_IMAGE"
+        else:
+            im.file_format = "OPEN_EXR_MULTILAYER"
+        sc.render.filepath = str(out / "layers.exr")
+        bpy.ops.render.render(write_still=True)
+        final_render.write_result = orig
+        report["layers"] = layers
+        report["layers_exr"] = str(out / "layers.exr")
     finally:
         hybrid_shadow_addon.unregister()
     (out / "report.json").write_text(json.dumps(report))
@@ -125,6 +159,34 @@ def test_shadow_pass_names(run):
         assert len(n.encode("utf-8")) <= 63
         n.encode("utf-8").decode("utf-8")  # whole characters only
     assert any(n.endswith(".001") for n in names)
+
+
+def test_view_layers_render_their_own_objects(run):
+    """An F12 with two view layers renders each from its own objects into its own EXR layer."""
+    import OpenEXR
+
+    tmp, report = run
+    layers = report["layers"]
+    assert sorted(layers) == ["ViewLayer", "Without Pillar"], sorted(layers)
+    assert "Pillar" in layers["ViewLayer"]["instances"]
+    assert "Pillar" not in layers["Without Pillar"]["instances"]
+    got = {}
+    with OpenEXR.File(report["layers_exr"], separate_channels=True) as f:
+        for part in f.parts:
+            for key, ch in part.channels.items():
+                bits = key.split(".")
+                if len(bits) >= 3 and bits[-2] == "Combined":
+                    got.setdefault(".".join(bits[:-2]), {})[bits[-1]] = np.asarray(ch.pixels, np.float32)
+    assert set(layers) <= set(got), sorted(got)
+    images = {}
+    for name, info in layers.items():
+        want = np.load(tmp / info["image"])
+        rgba = np.stack([got[name][c] for c in "RGBA"], axis=-1)
+        assert rgba.shape == want.shape
+        assert np.allclose(rgba, want, atol=1e-5), name
+        images[name] = want
+    differ = np.abs(images["ViewLayer"] - images["Without Pillar"]).max(axis=-1) > 1e-3
+    assert differ.mean() > 0.01  # the pillar and its shadow are only in the first layer
 
 
 if __name__ == "__main__":
