@@ -38,36 +38,34 @@ def _ragged(starts, counts):
     return own, first, np.asarray(starts, np.int64)[own] + np.arange(int(counts.sum())) - first[own]
 
 
-def _area(lo, hi):
-    e = np.maximum(hi - lo, 0.0)
-    return e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 2] * e[..., 0]
-
-
-def _run_split(cmn, cmx, ss, cc, B) -> np.ndarray:
-    """SAH split of each node [ss, ss + cc) between ``B`` equal runs of its current order."""
+def _run_split(mnT, mxT, ss, cc, B) -> np.ndarray:
+    """SAH split of each node [ss, ss + cc) between ``B`` equal runs of its current order.
+    ``mnT`` / ``mxT``: (3, N + 1) item boxes by component (a pad column: the last bound may be N)."""
     order = np.argsort(ss)
     ss, cc = ss[order], cc[order]
     R = ss.size
     j = np.arange(B + 1)
     bnd = ss[:, None] + (j[None, :] * cc[:, None]) // B  # (R, B + 1), strictly increasing
     idx = bnd.reshape(-1)
-    pad_mn = np.concatenate([cmn, cmn[:1]])
-    pad_mx = np.concatenate([cmx, cmx[:1]])
-    lo = np.minimum.reduceat(pad_mn, idx, axis=0).reshape(R, B + 1, 3)[:, :B]
-    hi = np.maximum.reduceat(pad_mx, idx, axis=0).reshape(R, B + 1, 3)[:, :B]
-    lo = lo.transpose(1, 0, 2)  # (B, R, 3)
-    hi = hi.transpose(1, 0, 2)
-    llo = np.minimum.accumulate(lo, axis=0)[:-1]
-    lhi = np.maximum.accumulate(hi, axis=0)[:-1]
-    rlo = np.minimum.accumulate(lo[::-1], axis=0)[::-1][1:]
-    rhi = np.maximum.accumulate(hi[::-1], axis=0)[::-1][1:]
+    lo = np.minimum.reduceat(mnT, idx, axis=1).reshape(3, R, B + 1)[:, :, :B].transpose(0, 2, 1)  # (3, B, R)
+    hi = np.maximum.reduceat(mxT, idx, axis=1).reshape(3, R, B + 1)[:, :, :B].transpose(0, 2, 1)
+    llo = np.minimum.accumulate(lo, axis=1)[:, :-1]
+    lhi = np.maximum.accumulate(hi, axis=1)[:, :-1]
+    rlo = np.minimum.accumulate(lo[:, ::-1], axis=1)[:, ::-1][:, 1:]
+    rhi = np.maximum.accumulate(hi[:, ::-1], axis=1)[:, ::-1][:, 1:]
     nl = (bnd[:, 1:B] - ss[:, None]).T  # (B - 1, R)
     nr = cc[None, :] - nl
-    cost = _area(llo, lhi) * nl + _area(rlo, rhi) * nr
+    cost = _area3(llo, lhi) * nl + _area3(rlo, rhi) * nr
     best = np.argmin(cost, axis=0)
     out = np.empty(R, np.int64)
     out[order] = nl[best, np.arange(R)]
     return out
+
+
+def _area3(lo, hi):
+    """Half the surface area of boxes stored by component first: (3, ...) arrays."""
+    e = np.maximum(hi - lo, 0.0)
+    return e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
 
 
 def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, bins: int = 16,
@@ -77,15 +75,22 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
     spatially binned SAH (``bins`` bins along the longest centroid axis, stable partition);
     nodes with more than ``sah_min`` items by SAH over ``bins`` equal runs of their item order
     (the split lies between runs; no reordering); smaller ones at the middle of their order."""
-    # item arrays kept in current order; float32 boxes (exact for float32 input) halve the traffic
+    # item arrays kept in current order, by component (3, N + 1: a pad column for _run_split's
+    # last bound); float32 boxes (exact for float32 input) halve the traffic
     dt = np.float32 if np.asarray(item_min).dtype == np.float32 else np.float64
-    cmn = np.array(item_min, dt).reshape(-1, 3)
-    cmx = np.array(item_max, dt).reshape(-1, 3)
+    imin = np.asarray(item_min, dt).reshape(-1, 3)
+    imax = np.asarray(item_max, dt).reshape(-1, 3)
     gs = np.asarray(group_start, np.int64)
     gc = np.asarray(group_count, np.int64)
     G = len(gc)
-    N = len(cmn)
-    cen = (cmn + cmx) * 0.5
+    N = len(imin)
+    mnT = np.empty((3, N + 1), dt)
+    mxT = np.empty((3, N + 1), dt)
+    mnT[:, :N] = imin.T
+    mxT[:, :N] = imax.T
+    mnT[:, N:] = 0
+    mxT[:, N:] = 0
+    cmn, cmx = mnT[:, :N], mxT[:, :N]  # views
     perm = np.arange(N, dtype=np.int64)
     B = int(bins)
     L = max(1, int(leaf_size))
@@ -109,15 +114,15 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
             ss, ci = s[sn], c[sn]
             Rb = sn.size
             o, st_i, pos = _ragged(ss, ci)
-            ce = cen[pos]
-            imn, imx = cmn[pos], cmx[pos]
-            cmin = np.minimum.reduceat(ce, st_i, axis=0)
-            cmax = np.maximum.reduceat(ce, st_i, axis=0)
+            imn, imx = cmn[:, pos], cmx[:, pos]
+            ce = (imn + imx) * 0.5  # centroids
+            cmin = np.minimum.reduceat(ce, st_i, axis=1).T
+            cmax = np.maximum.reduceat(ce, st_i, axis=1).T
             ext = cmax - cmin
             axis = np.argmax(ext, axis=1)
             eax = np.max(ext, axis=1)
             ax_o = axis[o]
-            ca = np.where(ax_o == 0, ce[:, 0], np.where(ax_o == 1, ce[:, 1], ce[:, 2]))
+            ca = np.where(ax_o == 0, ce[0], np.where(ax_o == 1, ce[1], ce[2]))
             c0 = np.where(axis == 0, cmin[:, 0], np.where(axis == 1, cmin[:, 1], cmin[:, 2]))
             with np.errstate(divide="ignore", invalid="ignore"):
                 scale = np.where(eax > 0, B / np.where(eax > 0, eax, 1.0), 0.0)
@@ -127,8 +132,8 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
             lo = np.full((3, B * Rb), np.inf, dt)
             hi = np.full((3, B * Rb), -np.inf, dt)
             for k in range(3):
-                np.minimum.at(lo[k], key, imn[:, k])
-                np.maximum.at(hi[k], key, imx[:, k])
+                np.minimum.at(lo[k], key, imn[k])
+                np.maximum.at(hi[k], key, imx[k])
             lo = lo.reshape(3, B, Rb)
             hi = hi.reshape(3, B, Rb)
             llo = np.minimum.accumulate(lo, axis=1)[:, :-1]
@@ -152,50 +157,27 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
             rl = csum - csum[st_i][o]
             newpos = ss[o] + np.where(left != 0, rl, nlb[o] + (rank - rl))
             perm[newpos] = perm[pos]
-            cmn[newpos] = imn
-            cmx[newpos] = imx
-            cen[newpos] = ce
+            cmn[:, newpos] = imn
+            cmx[:, newpos] = imx
             nleft[big] = nlb
         run = (ci_all > max(sah_min, B)) & ~big
         if run.any():
-            nleft[run] = _run_split(cmn, cmx, s[inner][run], ci_all[run], B)
+            nleft[run] = _run_split(mnT, mxT, s[inner][run], ci_all[run], B)
+        # the next depth in pre-order too: the children of inner node k at 2 k (left), 2 k + 1
         si = s[inner]
-        s = np.concatenate([si, si + nleft])
-        c = np.concatenate([ci_all, ci_all])
-        c[: inner.size] = nleft
-        c[inner.size:] -= nleft
-        grp = np.concatenate([grp[inner], grp[inner]])
-        lv["kids"] = inner  # node k of ``inner`` -> children k (left), k + len(inner) (right)
-    # leaf boxes: the leaves of all trees tile the item positions
-    for lv in levels:
-        lv["min"] = np.zeros((lv["s"].size, 3), dt)
-        lv["max"] = np.zeros((lv["s"].size, 3), dt)
-    if levels:
-        ls = np.concatenate([lv["s"][lv["leaf"]] for lv in levels])
-        ref = [(d, np.nonzero(lv["leaf"])[0]) for d, lv in enumerate(levels)]
-        order = np.argsort(ls, kind="stable")
-        if ls.size:
-            lmn = np.minimum.reduceat(cmn, ls[order], axis=0)
-            lmx = np.maximum.reduceat(cmx, ls[order], axis=0)
-            inv = np.empty_like(order)
-            inv[order] = np.arange(order.size)
-            k0 = 0
-            for d, idx in ref:
-                sl = inv[k0:k0 + idx.size]
-                levels[d]["min"][idx] = lmn[sl]
-                levels[d]["max"][idx] = lmx[sl]
-                k0 += idx.size
-    # inner boxes and subtree sizes, bottom up
+        s = np.empty(2 * inner.size, np.int64)
+        s[0::2], s[1::2] = si, si + nleft
+        c = np.empty(2 * inner.size, np.int64)
+        c[0::2], c[1::2] = nleft, ci_all - nleft
+        grp = np.repeat(grp[inner], 2)
+        lv["kids"] = inner
+    # subtree sizes, bottom up
     sizes = [None] * len(levels)
     for d in range(len(levels) - 1, -1, -1):
         lv = levels[d]
         sz = np.ones(lv["s"].size, np.int64)
         if "kids" in lv:
-            nxt = levels[d + 1]
-            m = lv["kids"].size
-            sz[lv["kids"]] = 1 + sizes[d + 1][:m] + sizes[d + 1][m:]
-            lv["min"][lv["kids"]] = np.minimum(nxt["min"][:m], nxt["min"][m:])
-            lv["max"][lv["kids"]] = np.maximum(nxt["max"][:m], nxt["max"][m:])
+            sz[lv["kids"]] = 1 + sizes[d + 1][0::2] + sizes[d + 1][1::2]
         sizes[d] = sz
     node_count = np.zeros(G, np.int64)
     depth = np.zeros(G, np.int64)
@@ -205,24 +187,49 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
             depth[lv["grp"]] = np.maximum(depth[lv["grp"]], d)
     node_start = np.concatenate([[0], np.cumsum(node_count)[:-1]]).astype(np.int64) if G else np.zeros(0, np.int64)
     n_nodes = int(node_count.sum())
-    node_min = np.zeros((n_nodes, 3), dt)
-    node_max = np.zeros((n_nodes, 3), dt)
     escape = np.zeros(n_nodes, np.int64)
     leaf_start = np.full(n_nodes, -1, np.int64)
     leaf_count = np.zeros(n_nodes, np.int64)
+    # depth-first (pre-order) index of every node, top down
+    dfs = []
     if levels:
         df = node_start[levels[0]["grp"]]
         for d, lv in enumerate(levels):
-            node_min[df] = lv["min"]
-            node_max[df] = lv["max"]
+            dfs.append(df)
             escape[df] = df + sizes[d]
             lf = lv["leaf"]
             leaf_start[df[lf]] = lv["s"][lf]
             leaf_count[df[lf]] = lv["c"][lf]
             if "kids" in lv:
-                k = lv["kids"]
-                m = k.size
-                ldf = df[k] + 1
-                rdf = ldf + sizes[d + 1][:m]
-                df = np.concatenate([ldf, rdf])
+                ldf = df[lv["kids"]] + 1
+                df = np.empty(2 * ldf.size, np.int64)
+                df[0::2], df[1::2] = ldf, ldf + sizes[d + 1][0::2]
+    # boxes by component: the leaves (in pre-order they tile the item positions) by one reduceat,
+    # then the inner nodes bottom up, one depth at a time from the next (every depth is in
+    # pre-order: the reads and writes run forward)
+    bmn = np.zeros((3, n_nodes), dt)
+    bmx = np.zeros((3, n_nodes), dt)
+    leaf_nodes = np.nonzero(leaf_count > 0)[0]
+    if leaf_nodes.size:
+        ls = leaf_start[leaf_nodes]
+        inc = ls.size < 2 or bool((ls[1:] > ls[:-1]).all())
+        if not inc:  # groups out of item order
+            o = np.argsort(ls, kind="stable")
+            leaf_nodes, ls = leaf_nodes[o], ls[o]
+        if inc and ls.size == N:  # one item per leaf (ls == arange(N)): the item boxes themselves
+            bmn[:, leaf_nodes] = cmn
+            bmx[:, leaf_nodes] = cmx
+        else:
+            bmn[:, leaf_nodes] = np.minimum.reduceat(cmn, ls, axis=1)
+            bmx[:, leaf_nodes] = np.maximum.reduceat(cmx, ls, axis=1)
+    for d in range(len(levels) - 2, -1, -1):
+        lv = levels[d]
+        if "kids" in lv:
+            k = dfs[d][lv["kids"]]
+            ch = dfs[d + 1]
+            cmn_ = np.take(bmn, ch, axis=1)
+            cmx_ = np.take(bmx, ch, axis=1)
+            bmn[:, k] = np.minimum(cmn_[:, 0::2], cmn_[:, 1::2])
+            bmx[:, k] = np.maximum(cmx_[:, 0::2], cmx_[:, 1::2])
+    node_min, node_max = bmn.T, bmx.T  # (Nn, 3) views of the by-component arrays
     return SAHBuild(node_min, node_max, escape, leaf_start, leaf_count, perm, node_start, node_count, depth)

@@ -9,12 +9,15 @@ splits nodes of more than ``SPATIAL_MIN`` instances by spatially binned SAH firs
 quantised on a per-model grid (origin ``base``, power-of-two step ``1 / inv_s``), floor / ceil
 of the exact float64 union, so the decoded box always holds its triangles. The top level holds
 one caster per leaf, boxes = the world box of the model box (or sphere box) corners, padded by
-``TLAS_PAD`` relative, quantised on one grid over the scene. Moves refit the top level (rebuild
-when the boxes leave the grid, membership changes or the SAH area doubles); a model edit rebuilds
-that model's tree (in place when it fits) and refits.
+``TLAS_PAD`` relative, quantised on one grid over the scene. Moves refit the top level: the
+moved leaves and their ancestors only, re-packing just those texels (rebuild when the boxes leave
+the grid, membership changes or the SAH area doubles); a model edit rebuilds that model's tree (in
+place when it fits) and refits. The bake builds the top-level tree on a second thread while the
+model trees build (it needs only the model boxes).
 """
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -65,9 +68,17 @@ def quant_frame(lo, hi):
 
 def quantise(nmin, nmax, base, inv_s):
     """(N, 3) uint32 pairs (qlo, qhi): floor / ceil of the box on the frame, clipped."""
-    qlo = np.clip(np.floor((nmin - base) * inv_s[:, None]), 0, QMAX).astype(np.uint32)
-    qhi = np.clip(np.ceil((nmax - base) * inv_s[:, None]), 0, QMAX).astype(np.uint32)
-    return qlo, qhi
+    # by component (3, N) C order: the per-node scale then runs along the contiguous axis
+    inv = np.asarray(inv_s, np.float64)
+    out = []
+    for v, up in ((nmin, False), (nmax, True)):
+        t = np.subtract(np.asarray(v).T, np.asarray(base).T, dtype=np.float64, order="C")
+        t *= inv
+        if up:
+            np.ceil(t, out=t)
+        np.clip(t, 0, QMAX, out=t)
+        out.append(t.astype(np.uint32).T)  # truncation: the floor of the clipped lower bound
+    return out[0], out[1]
 
 
 def pack_nodes(qlo, qhi, w) -> np.ndarray:
@@ -97,9 +108,11 @@ class BlasBuild:
     uv4: np.ndarray = None  # (texels, 4) float32 UVs at the triangles' texels (6 per triangle), or None
 
 
-def build_blas(models, leaf_size: int = 4, uv_models=None) -> BlasBuild:
+def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None) -> BlasBuild:
     """Model trees of ``models``; ``uv_models`` (bool per model): pack those models' UVs into
-    ``uv4`` at the same texels as their triangles (the any-hit alpha test reads them)."""
+    ``uv4`` at the same texels as their triangles (the any-hit alpha test reads them).
+    ``alloc(texels, want_uv)``: where to write ``tri4`` / ``uv4`` (zeroed (texels, 4) float32
+    views, e.g. into the textures; the second None unless ``want_uv``); default new arrays."""
     M = len(models)
     L = int(min(max(leaf_size, 1), 4))
     tc = np.array([m.triangle_count for m in models], np.int64)
@@ -109,17 +122,25 @@ def build_blas(models, leaf_size: int = 4, uv_models=None) -> BlasBuild:
     uvs = np.zeros((total, 3, 2), np.float32) if want_uv else None
     t0 = np.concatenate([[0], np.cumsum(tc)[:-1]]).astype(np.int64) if M else np.zeros(0, np.int64)
     third = np.float32(1.0 / 3.0)
+    t9 = tris.reshape(total, 9)
+    tmin = np.empty((3, total), np.float32)  # triangle boxes by component (while the model's
+    tmax = np.empty((3, total), np.float32)  # triangles are in cache)
     for mi, (m, s0) in enumerate(zip(models, t0.tolist())):
         T = m.triangle_count
         if not T:
             continue
         tr = m.vertices.take(m.triangles.ravel(), axis=0).reshape(T, 3, 3)
         cen = (tr[:, 0] + tr[:, 1] + tr[:, 2]) * third
-        cmin, cmax = cen.min(axis=0), cen.max(axis=0)
+        cmin = np.array([cen[:, k].min() for k in range(3)], np.float32)  # (a column is faster
+        cmax = np.array([cen[:, k].max() for k in range(3)], np.float32)  # than min(axis=0))
         span = np.maximum(cmax - cmin, np.float32(1e-30))
         q = np.clip((cen - cmin) * (np.float32(1023.0) / span), 0, 1023).astype(np.uint32)
         order = np.argsort(_morton3(q), kind="stable")
-        tris[s0:s0 + T] = tr[order]
+        np.take(tr, order, axis=0, out=tris[s0:s0 + T])
+        tm = t9[s0:s0 + T]
+        for k in range(3):
+            np.minimum(np.minimum(tm[:, k], tm[:, 3 + k]), tm[:, 6 + k], out=tmin[k, s0:s0 + T])
+            np.maximum(np.maximum(tm[:, k], tm[:, 3 + k]), tm[:, 6 + k], out=tmax[k, s0:s0 + T])
         if want_uv and uv_models[mi] and m.uvs is not None:
             uvs[s0:s0 + T] = m.uvs[order]
     # clusters of L consecutive triangles per model
@@ -129,11 +150,16 @@ def build_blas(models, leaf_size: int = 4, uv_models=None) -> BlasBuild:
     j = np.arange(int(ncl.sum())) - c0[mod]
     cl_tri0 = t0[mod] + j * L
     cl_cnt = np.minimum(L, tc[mod] - j * L)
-    tmin = np.minimum(np.minimum(tris[:, 0], tris[:, 1]), tris[:, 2])
-    tmax = np.maximum(np.maximum(tris[:, 0], tris[:, 1]), tris[:, 2])
+    # cluster boxes: min(min(t0, t1), ..) like a reduceat over the cluster (its last triangle
+    # repeats in a short cluster: min is idempotent)
     if len(cl_tri0):
-        cmn = np.minimum.reduceat(tmin, cl_tri0, axis=0)
-        cmx = np.maximum.reduceat(tmax, cl_tri0, axis=0)
+        cmn = np.take(tmin, cl_tri0, axis=1)
+        cmx = np.take(tmax, cl_tri0, axis=1)
+        for jj in range(1, L):
+            nxt = cl_tri0 + np.minimum(jj, cl_cnt - 1)
+            np.minimum(cmn, np.take(tmin, nxt, axis=1), out=cmn)
+            np.maximum(cmx, np.take(tmax, nxt, axis=1), out=cmx)
+        cmn, cmx = np.ascontiguousarray(cmn.T), np.ascontiguousarray(cmx.T)
     else:
         cmn = cmx = np.zeros((0, 3))
     b = build_sah(cmn, cmx, c0, ncl, leaf_size=1, bins=8, sah_min=RUN_SAH_MIN)
@@ -155,25 +181,52 @@ def build_blas(models, leaf_size: int = 4, uv_models=None) -> BlasBuild:
     tri_texels_m = np.bincount(lmod, weights=ltex, minlength=M).astype(np.int64)
     tri_start = np.concatenate([[0], np.cumsum(tri_texels_m)[:-1]]).astype(np.int64) if M else np.zeros(0, np.int64)
     lfirst = (np.cumsum(ltex) - ltex).astype(np.int64)  # global texel
-    flat = np.zeros(int(ltex.sum()) * 4, np.float32)
-    own = np.repeat(np.arange(len(lcl)), lcnt)
-    k = np.arange(int(lcnt.sum())) - np.repeat((np.cumsum(lcnt) - lcnt).astype(np.int64), lcnt)
-    src = cl_tri0[lcl][own] + k
-    dst = (lfirst[own] * 4)[:, None] + k[:, None] * 9 + np.arange(9)
-    flat[dst.ravel()] = tris[src].reshape(-1)
-    uv4 = None
-    if want_uv:
-        uflat = np.zeros_like(flat)
-        udst = (lfirst[own] * 4)[:, None] + k[:, None] * 6 + np.arange(6)
-        uflat[udst.ravel()] = uvs[src].reshape(-1)
-        uv4 = uflat.reshape(-1, 4)
+    n_tex = int(ltex.sum())
+    if alloc is None:
+        tri4 = np.zeros((n_tex, 4), np.float32)
+        uv4 = np.zeros((n_tex, 4), np.float32) if want_uv else None
+    else:
+        tri4, uv4 = alloc(n_tex, want_uv)
+    ltri0 = cl_tri0[lcl]
+    for cnt in np.unique(lcnt).tolist():  # leaves of ``cnt`` triangles: blocks of ceil(9 cnt / 4) texels
+        sel = np.nonzero(lcnt == cnt)[0]
+        tt = -(-cnt * TRI4_FLOATS // 4)
+        t_first = ltri0[sel]
+        _put_blocks(tri4, lfirst[sel], t9, t_first, cnt, TRI4_FLOATS, tt)
+        if want_uv:
+            _put_blocks(uv4, lfirst[sel], uvs.reshape(total, 6), t_first, cnt, 6, tt)
     # packed nodes
-    qlo, qhi = quantise(b.node_min, b.node_max, base[nmod], inv_s[nmod])
+    qlo, qhi = quantise(b.node_min, b.node_max, np.repeat(base.T, b.node_count, axis=1).T,
+                        np.repeat(inv_s, b.node_count))
     w = np.where(leaf, 0, b.escape).astype(np.uint32)
     lpay = ((lfirst - tri_start[lmod]) << 3) | lcnt
     w[leaf] = LEAF_FLAG | lpay.astype(np.uint32)
     return BlasBuild(b, b.node_start, b.node_count, tri_start, tri_texels_m, tc, b.depth, base, inv_s,
-                     pack_nodes(qlo, qhi, w), flat.reshape(-1, 4), uv4)
+                     pack_nodes(qlo, qhi, w), tri4, uv4)
+
+
+def _run(a, step) -> bool:
+    """``a`` (1-D int) is ``a[0] + step * arange(len(a))``."""
+    n = len(a)
+    return n == 1 or (int(a[-1] - a[0]) == (n - 1) * step and bool((np.diff(a) == step).all()))
+
+
+def _put_blocks(tex4, first, rows, row0, cnt, per, tt) -> None:
+    """Leaf blocks: rows ``row0[i] .. row0[i] + cnt`` of ``rows`` (R, per) float32, back to back,
+    at texels ``first[i] ..`` of ``tex4`` (texels, 4), a block spanning ``tt`` texels (the tail
+    stays zero). Slices when both sides run back to back, else a scatter of whole texels (as
+    uint64 pairs: bit-exact)."""
+    n = len(first)
+    if not n:
+        return
+    if _run(first, tt) and _run(row0, cnt):
+        dst = tex4[first[0]:first[0] + n * tt].reshape(n, tt * 4)
+        dst[:, :cnt * per] = rows[row0[0]:row0[0] + n * cnt].reshape(n, cnt * per)
+        return
+    blk = np.zeros((n, tt * 4), np.float32)
+    blk[:, :cnt * per] = np.take(rows, row0[:, None] + np.arange(cnt), axis=0).reshape(n, cnt * per)
+    dst = ((first[:, None] + np.arange(tt)) * 2)[:, :, None] + np.arange(2)
+    tex4.view(np.uint64).reshape(-1)[dst.reshape(-1)] = blk.view(np.uint64).reshape(-1)
 
 
 @dataclass
@@ -207,7 +260,11 @@ class TwoLevelState:
     tlas_left: np.ndarray = None  # local child indices (-1 for leaves)
     tlas_right: np.ndarray = None
     tlas_depth: np.ndarray = None
-    tlas_levels: list = None  # refit order (derived from tlas_depth)
+    tlas_parent: np.ndarray = None  # local parent index (-1 for the root)
+    tlas_node_of: np.ndarray = None  # (N,) tlas leaf of each member instance, -1 none
+    tlas_lo: np.ndarray = None  # (count, 3) float64 node boxes as last refit (exact unions)
+    tlas_hi: np.ndarray = None
+    tlas_areas: np.ndarray = None  # (count,) their SAH areas
     tlas_escape: np.ndarray = None  # local
     tlas_base: np.ndarray = None
     tlas_inv_s: float = 1.0
@@ -243,63 +300,92 @@ def bake_twolevel(b, scene) -> TwoLevelState:
     models = list(scene.models)
     M = len(models)
     n = len(scene.instances)
-    t0 = time.perf_counter()
     uv_models = scene.alpha_models() if b.materials is not None and b.materials.cuts_shadows else None
-    bl = build_blas(models, leaf_size(cfg), uv_models)
-    st.blas_ms = (time.perf_counter() - t0) * 1e3
     inst_end = n * INST_TEXELS
+    st.tri_count = np.array([m.triangle_count for m in models], np.int64)
+    st.mbox = np.zeros((M, 2, 3))
+    for m in range(M):
+        st.mbox[m] = _model_box(models[m], False)
+    st.member = np.zeros(n, bool)
+    st.sphere_of = np.zeros(n, bool)
+    st.box_lo = np.zeros((n, 3))
+    st.box_hi = np.zeros((n, 3))
+
+    # the instance boxes and the top-level tree need only the model boxes: a second thread
+    # builds them while this one builds the model trees (numpy releases the GIL in its loops;
+    # the two touch disjoint state)
+    top = {}
+
+    def plan_top():
+        try:
+            t1 = time.perf_counter()
+            if n:
+                write_instance_boxes(b, st, scene, np.arange(n))
+            top["count"] = _plan_tlas(st)
+            top["ms"] = (time.perf_counter() - t1) * 1e3
+        except BaseException as e:  # re-raised by the bake
+            top["error"] = e
+
+    def alloc(n_tex, want_uv):  # the triangles go straight into [leaf] (and the UVs into "uv")
+        tail = inst_end + n_tex
+        st.tex["leaf"] = _new("leaf", tail + LEAF_READ, W)
+        uv4 = None
+        if want_uv:
+            st.tex["uv"] = _new("uv", st.tex["leaf"].capacity, W)
+            uv4 = st.tex["uv"].linear()[inst_end:tail]
+        return st.tex["leaf"].linear()[inst_end:tail].view(np.float32), uv4
+
+    worker = threading.Thread(target=plan_top, name="hybrid-shadows-tlas", daemon=True)
+    t0 = time.perf_counter()
+    worker.start()
+    try:
+        bl = build_blas(models, leaf_size(cfg), uv_models, alloc)
+        st.blas_ms = (time.perf_counter() - t0) * 1e3
+    finally:
+        worker.join()
+    if "error" in top:
+        raise top["error"]
+    t0 = time.perf_counter()
     st.node_start = bl.node_start.copy()
     st.node_count = bl.node_count.copy()
     st.node_cap = bl.node_count.copy()
     st.tri_start = bl.tri_start + inst_end
     st.tri_cap = bl.tri_texels.copy()
-    st.tri_count = bl.tri_count.copy()
     st.depth = bl.depth.copy()
     st.base, st.inv_s = bl.base.copy(), bl.inv_s.copy()
     st.node_tail = int(bl.node_count.sum())
     st.leaf_tail = inst_end + int(bl.tri_texels.sum())
-    st.tex["leaf"] = _new("leaf", st.leaf_tail + LEAF_READ, W)
     st.tex["leaf"].used = st.leaf_tail
-    st.tex["leaf"].linear()[inst_end:st.leaf_tail] = bl.tri4.view(np.uint32)
     if bl.uv4 is not None:
         st.uv_models = np.asarray(uv_models, bool).copy()
-        st.tex["uv"] = _new("uv", st.tex["leaf"].capacity, W)
         st.tex["uv"].used = st.leaf_tail
-        st.tex["uv"].linear()[inst_end:st.leaf_tail] = bl.uv4
-    st.mbox = np.zeros((M, 2, 3))
-    for m in range(M):
-        st.mbox[m] = _model_box(models[m], False)
     # [node]: model trees, then the top level (with spare room)
-    st.member = np.zeros(n, bool)
-    st.sphere_of = np.zeros(n, bool)
-    st.box_lo = np.zeros((n, 3))
-    st.box_hi = np.zeros((n, 3))
     ncast = int(scene.instances.casts_shadow.sum()) if n else 0
     spare = max(1024, int(0.25 * (st.node_tail + 2 * ncast)))
     st.tex["node"] = _new("node", st.node_tail + 2 * ncast + spare, W)
     st.tex["node"].used = st.node_tail
     if st.node_tail:
-        nodes = bl.nodes.copy()
+        nodes = st.tex["node"].linear()[: st.node_tail]
+        nodes[:] = bl.nodes
         _relocate(nodes, st.node_start, bl.node_start, bl.node_count, st.tri_start, bl.tri_start)
-        st.tex["node"].linear()[: st.node_tail] = nodes
-    t0 = time.perf_counter()
     if n:
-        write_instances(b, st, scene, np.arange(n))
-    build_tlas(b, st)
-    st.tlas_ms = (time.perf_counter() - t0) * 1e3
+        write_instance_records(b, st, scene, np.arange(n))
+    _place_tlas(st, top["count"])
+    st.tlas_ms = top["ms"] + (time.perf_counter() - t0) * 1e3  # (its tree overlaps the model trees)
     return st
 
 
 def _relocate(nodes, node_base, local_start, local_count, tri_base, local_tri):
     """Local escapes / leaf payloads of each model's nodes -> absolute indices (in place)."""
-    own = np.repeat(np.arange(len(local_count)), local_count)
+    # (uint32 arithmetic wraps like the int64 sums cast to uint32; payload + (tri_base << 3)
+    # keeps the count bits)
+    def per_node(v):
+        return np.repeat((np.asarray(v, np.int64) % 2 ** 32).astype(np.uint32), local_count)
     w = nodes[:, 3]
     leaf = (w & LEAF_FLAG) != 0
-    shift_n = (np.asarray(node_base, np.int64) - local_start)[own]
-    w_inner = w.astype(np.int64) + shift_n
-    pay = (w & np.uint32(0x7FFFFFFF)).astype(np.int64)
-    pay = (((pay >> 3) + np.asarray(tri_base, np.int64)[own]) << 3) | (pay & 7)
-    nodes[:, 3] = np.where(leaf, LEAF_FLAG | pay.astype(np.uint32), w_inner.astype(np.uint32))
+    w_inner = w + per_node(np.asarray(node_base, np.int64) - local_start)
+    pay = (w & np.uint32(0x7FFFFFFF)) + per_node(np.asarray(tri_base, np.int64) << 3)
+    nodes[:, 3] = np.where(leaf, LEAF_FLAG | pay, w_inner)
 
 
 def _model_box(model, sphere: bool) -> np.ndarray:
@@ -312,6 +398,21 @@ def _model_box(model, sphere: bool) -> np.ndarray:
 
 def write_instances(b, st, scene, idx) -> None:
     """[leaf] instance records and world boxes of instances ``idx``."""
+    write_instance_records(b, st, scene, idx)
+    write_instance_boxes(b, st, scene, idx)
+
+
+def _sphere_frames(scene, mid, sph) -> np.ndarray:
+    """(count of ``sph``, 4) float32 model spheres (centre, radius rounded up) of the analytic
+    sphere instances among model ids ``mid``."""
+    ms = np.unique(mid[sph])
+    sp = np.array([np.concatenate([scene.models[m].sphere_center, f32_up([scene.models[m].sphere_radius])])
+                   for m in ms.tolist()], np.float32).reshape(-1, 4)
+    return sp[np.searchsorted(ms, mid[sph])]
+
+
+def write_instance_records(b, st, scene, idx) -> None:
+    """[leaf] instance records of instances ``idx`` (needs the model trees' places)."""
     inst = scene.instances
     idx = np.asarray(idx, np.int64)
     mid = inst.model_ids[idx].astype(np.int64)
@@ -331,24 +432,38 @@ def write_instances(b, st, scene, idx) -> None:
     frame = np.zeros((len(idx), 4), np.float32)
     frame[:, 0:3] = st.base[mid]
     frame[:, 3] = st.inv_s[mid]
+    if sph.any():
+        frame[sph] = _sphere_frames(scene, mid, sph)
+    block[:, 16:20] = f32_bits(frame)
+    rec[idx] = block
+
+
+def write_instance_boxes(b, st, scene, idx) -> None:
+    """World boxes (bake space, padded) and top-level membership of instances ``idx`` (needs
+    only the model boxes ``st.mbox`` and triangle counts ``st.tri_count``)."""
+    inst = scene.instances
+    idx = np.asarray(idx, np.int64)
+    mid = inst.model_ids[idx].astype(np.int64)
+    sph = inst.sphere[idx]
     box = np.empty((len(idx), 2, 3))
     box[:] = st.mbox[mid] if len(st.mbox) else 0.0
     if sph.any():
-        ms = np.unique(mid[sph])
-        sp = np.array([np.concatenate([scene.models[m].sphere_center, f32_up([scene.models[m].sphere_radius])])
-                       for m in ms.tolist()], np.float32).reshape(-1, 4)
-        k = np.searchsorted(ms, mid[sph])
-        frame[sph] = sp[k]
-        c, r = sp[k, 0:3].astype(np.float64), sp[k, 3:4].astype(np.float64)
+        sp = _sphere_frames(scene, mid, sph)
+        c, r = sp[:, 0:3].astype(np.float64), sp[:, 3:4].astype(np.float64)
         box[sph, 0], box[sph, 1] = c - r, c + r
-    block[:, 16:20] = f32_bits(frame)
-    rec[idx] = block
-    # world boxes of the model box corners (bake space), padded
-    corners = np.stack(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij"), -1).reshape(8, 3)
-    pts = np.where(corners[None, :, :] == 0, box[:, None, 0, :], box[:, None, 1, :])  # (n, 8, 3)
+    # world boxes of the model box corners (bake space), padded: corner k maps to
+    # ((R[i,0] p0 + R[i,2] p2) + R[i,1] p1 + t_i) - origin_i (the order np.einsum sums in); every
+    # rounding step is monotone in each term, so the min / max over the 8 corners is that sum of
+    # the per-term min / max (bit for bit, without the (n, 8, 3) corner array)
     Mx = inst.matrices[idx]
-    wp = np.einsum("nij,nkj->nki", Mx[:, :3, :3], pts) + Mx[:, None, :3, 3] - b.origin
-    lo, hi = wp.min(axis=1), wp.max(axis=1)
+    R = Mx[:, :3, :3]
+    ta = R * box[:, None, 0, :]
+    tb = R * box[:, None, 1, :]
+    mn = np.minimum(ta, tb)
+    mx = np.maximum(ta, tb)
+    t = Mx[:, :3, 3]
+    lo = ((((0.0 + mn[:, :, 0]) + mn[:, :, 2]) + mn[:, :, 1]) + t) - b.origin
+    hi = ((((0.0 + mx[:, :, 0]) + mx[:, :, 2]) + mx[:, :, 1]) + t) - b.origin
     pad = TLAS_PAD * (np.maximum(np.abs(lo), np.abs(hi)).max(axis=1) + (hi - lo).max(axis=1)) + 1e-30
     st.box_lo[idx] = lo - pad[:, None]
     st.box_hi[idx] = hi + pad[:, None]
@@ -375,6 +490,21 @@ def _alloc_nodes(st, n) -> tuple[int, bool]:
 
 def build_tlas(b, st) -> bool:
     """(Re)build the top level over the member instances. True when [node] was resized."""
+    return _place_tlas(st, _plan_tlas(st))
+
+
+def _place_tlas(st, cnt) -> bool:
+    """[node] records for the planned top level of ``cnt`` nodes, and its texels. True when
+    [node] was resized."""
+    start, grown = _alloc_nodes(st, cnt)
+    st.tlas_start, st.tlas_count = start, cnt
+    _write_tlas(st)
+    return grown
+
+
+def _plan_tlas(st) -> int:
+    """The top-level tree over the member instances: shape, frame, boxes and areas (no [node]
+    texels yet). Returns its node count."""
     mem = np.nonzero(st.member)[0]
     n = mem.size
     if n:
@@ -386,7 +516,7 @@ def build_tlas(b, st) -> bool:
         sb = build_sah(st.box_lo[mem], st.box_hi[mem], [0], [n], leaf_size=1, bins=16, sah_min=RUN_SAH_MIN,
                        spatial_min=SPATIAL_MIN)
         cnt = int(sb.node_count[0])
-        lo, hi = st.box_lo[mem].min(axis=0), st.box_hi[mem].max(axis=0)
+        lo, hi = sb.node_min[0], sb.node_max[0]  # the root: the exact union of the member boxes
         margin = FRAME_MARGIN * (hi - lo).max()  # room for moves before the frame must change
         base, inv_s = quant_frame(lo - margin, hi + margin)
         st.tlas_base, st.tlas_inv_s = base[0], float(inv_s[0])
@@ -397,19 +527,24 @@ def build_tlas(b, st) -> bool:
         right = np.where(leaf, -1, sb.escape[np.minimum(np.arange(cnt) + 1, cnt - 1)])
         st.tlas_left, st.tlas_right = left, right
         st.tlas_depth = _depths(left, right)
-        st.tlas_levels = None
+        inner = np.nonzero(~leaf)[0]
+        st.tlas_parent = np.full(cnt, -1, np.int64)
+        st.tlas_parent[left[inner]] = inner
+        st.tlas_parent[right[inner]] = inner
+        st.tlas_lo, st.tlas_hi = sb.node_min, sb.node_max  # the exact unions a refit gives
     else:
         cnt = 0
         st.tlas_base, st.tlas_inv_s = np.zeros(3), 1.0
         st.tlas_leaf_inst = np.zeros(0, np.int64)
         st.tlas_escape = st.tlas_left = st.tlas_right = st.tlas_depth = np.zeros(0, np.int64)
-        st.tlas_levels = None
-    start, grown = _alloc_nodes(st, cnt)
-    st.tlas_start, st.tlas_count = start, cnt
-    nmin, nmax = _tlas_boxes(st)
-    st.tlas_area = float(_areas(nmin, nmax).sum())
-    _write_tlas(st, nmin, nmax)
-    return grown
+        st.tlas_parent = np.zeros(0, np.int64)
+        st.tlas_lo, st.tlas_hi = np.zeros((0, 3)), np.zeros((0, 3))
+    st.tlas_node_of = np.full(len(st.member), -1, np.int64)
+    lf = np.nonzero(st.tlas_leaf_inst >= 0)[0]
+    st.tlas_node_of[st.tlas_leaf_inst[lf]] = lf
+    st.tlas_areas = _areas(st.tlas_lo, st.tlas_hi)
+    st.tlas_area = float(st.tlas_areas.sum())
+    return cnt
 
 
 def _depths(left, right) -> np.ndarray:
@@ -430,43 +565,63 @@ def _areas(lo, hi):
     return e[:, 0] * e[:, 1] + e[:, 1] * e[:, 2] + e[:, 2] * e[:, 0]
 
 
-def _tlas_boxes(st):
-    """Node boxes of the top level from the current instance boxes (refit, bottom up; boxes as
-    (min, -max) rows so one np.minimum does both)."""
-    cnt = st.tlas_count
-    if not cnt:
-        return np.zeros((0, 3)), np.zeros((0, 3))
-    box6 = np.empty((cnt, 6))
-    leaf = st.tlas_leaf_inst >= 0
-    li = st.tlas_leaf_inst[leaf]
-    box6[leaf, :3] = st.box_lo[li]
-    box6[leaf, 3:] = -st.box_hi[li]
-    if st.tlas_levels is None:  # inner nodes grouped by depth, deepest first
-        inner = np.nonzero(~leaf)[0]
-        order = inner[np.argsort(-st.tlas_depth[inner], kind="stable")]
-        cuts = np.nonzero(np.diff(st.tlas_depth[order]))[0] + 1
-        st.tlas_levels = [(k, st.tlas_left[k], st.tlas_right[k]) for k in np.split(order, cuts)]
-    for k, l, r in st.tlas_levels:
-        box6[k] = np.minimum(box6[l], box6[r])
-    return box6[:, :3], -box6[:, 3:]
+def _refit(st, idx) -> np.ndarray:
+    """Refit the top level after instances ``idx`` got new boxes: their leaves and every
+    ancestor, deepest first (the other nodes keep their boxes). Returns the refitted nodes
+    (local, ascending)."""
+    nodes = st.tlas_node_of[idx]
+    nodes = np.unique(nodes[nodes >= 0])
+    if not nodes.size:
+        return nodes
+    li = st.tlas_leaf_inst[nodes]
+    st.tlas_lo[nodes] = st.box_lo[li]
+    st.tlas_hi[nodes] = st.box_hi[li]
+    anc = []
+    f = st.tlas_parent[nodes]
+    f = f[f >= 0]
+    while f.size:
+        f = np.unique(f)
+        anc.append(f)
+        f = st.tlas_parent[f]
+        f = f[f >= 0]
+    if anc:
+        a = np.unique(np.concatenate(anc))
+        dep = st.tlas_depth[a]
+        o = np.argsort(-dep, kind="stable")
+        a, dep = a[o], dep[o]
+        for k in np.split(a, np.nonzero(np.diff(dep))[0] + 1):
+            lc, rc = st.tlas_left[k], st.tlas_right[k]
+            st.tlas_lo[k] = np.minimum(st.tlas_lo[lc], st.tlas_lo[rc])
+            st.tlas_hi[k] = np.maximum(st.tlas_hi[lc], st.tlas_hi[rc])
+        nodes = np.union1d(nodes, a)
+    st.tlas_areas[nodes] = _areas(st.tlas_lo[nodes], st.tlas_hi[nodes])
+    return nodes
 
 
-def _tlas_texels(st, nmin, nmax) -> np.ndarray:
-    cnt = st.tlas_count
-    inv = np.full(cnt, st.tlas_inv_s)
-    qlo, qhi = quantise(nmin, nmax, st.tlas_base[None, :], inv)
-    leaf = st.tlas_leaf_inst >= 0
-    w = np.where(leaf, LEAF_FLAG | np.maximum(st.tlas_leaf_inst, 0).astype(np.uint32),
-                 (st.tlas_escape + st.tlas_start).astype(np.uint32))
+def _tlas_texels(st, nodes) -> np.ndarray:
+    """Packed [node] texels of top-level nodes ``nodes`` (local indices, or a slice)."""
+    lo, hi = st.tlas_lo[nodes], st.tlas_hi[nodes]
+    inv = np.full(len(lo), st.tlas_inv_s)
+    qlo, qhi = quantise(lo, hi, st.tlas_base[None, :], inv)
+    li = st.tlas_leaf_inst[nodes]
+    w = np.where(li >= 0, LEAF_FLAG | np.maximum(li, 0).astype(np.uint32),
+                 (st.tlas_escape[nodes] + st.tlas_start).astype(np.uint32))
     return pack_nodes(qlo, qhi, w.astype(np.uint32))
 
 
-def _write_tlas(st, nmin, nmax) -> np.ndarray:
+def _write_tlas(st, nodes=None) -> np.ndarray:
+    """Write the texels of top-level nodes ``nodes`` (local, ascending; None: all); returns the
+    [node] indices whose texels changed."""
     tex = st.tex["node"].linear()
-    new = _tlas_texels(st, nmin, nmax)
-    old = tex[st.tlas_start:st.tlas_start + st.tlas_count].copy()
-    tex[st.tlas_start:st.tlas_start + st.tlas_count] = new
-    return np.nonzero((old != new).any(axis=1))[0] + st.tlas_start
+    if nodes is None:
+        nodes = slice(0, st.tlas_count)
+        pos = np.arange(st.tlas_start, st.tlas_start + st.tlas_count)
+    else:
+        pos = st.tlas_start + nodes
+    new = _tlas_texels(st, nodes)
+    old = tex[pos]
+    tex[pos] = new
+    return pos[(old != new).any(axis=1)]
 
 
 def tlas_uniforms(st) -> dict:
@@ -535,11 +690,11 @@ def update_instances(b, scene, indices, rep: UpdateReport | None = None) -> Upda
     mem = st.member[idx]
     rebuild = bool((mem != old_member).any()) or not _inside_frame(st, idx[mem])
     if not rebuild:
-        nmin, nmax = _tlas_boxes(st)
-        if float(_areas(nmin, nmax).sum()) > 2.0 * st.tlas_area:
+        refit = _refit(st, idx)
+        if float(st.tlas_areas.sum()) > 2.0 * st.tlas_area:
             rebuild = True
         else:
-            changed = _write_tlas(st, nmin, nmax)
+            changed = _write_tlas(st, refit)
             rep.ranges += rows_of_texels("node", changed, W)
             rep.nodes_changed += int(changed.size)
     if rebuild:
