@@ -34,6 +34,7 @@
 #include "common/soft_light.glsl"
 #ifdef HS_SOFT_REFINE
 uniform sampler2D u_probe;      // the probe pass's mask (full resolution)
+uniform sampler2D u_probe_range; // its (min, max) over the covered texels within HS_PROBE_RADIUS (soft_range.glsl)
 #endif
 #endif
 
@@ -74,6 +75,12 @@ void main()
 
     vec3 o = offset_origin(p, n, depth * 3.0e-6);
 #ifdef HS_SOFT
+    {   // the whole light below the horizon (even its highest point): unlit, no ray, known
+        vec3 td;
+        float ttm, tw;
+        hs_light_top(o, n, td, ttm, tw);
+        if (tw == 0.0 && !(dot(n, td) > 0.0)) { o_mask = 0.0; return; }
+    }
     // an extended light: the weighted share of u_samples points on it that o sees
 #ifdef HS_SOFT_PROBE
     int n_samples = min(u_samples, HS_PROBES);
@@ -82,17 +89,10 @@ void main()
 #ifdef HS_SOFT_REFINE
     // the probe pass traced HS_PROBES rays per pixel: where every probe nearby saw all or none
     // of the light alike, this pixel lies outside any penumbra and keeps its probe answer
+    float pv = texelFetch(u_probe, px, 0).r;
     {
-        float pv = texelFetch(u_probe, px, 0).r;
-        bool uniform_area = pv == 0.0 || pv == 1.0;
-        ivec2 lim = textureSize(u_probe, 0) - 1;
-        for (int dy = -HS_PROBE_RADIUS; dy <= HS_PROBE_RADIUS; ++dy)
-            for (int dx = -HS_PROBE_RADIUS; dx <= HS_PROBE_RADIUS; ++dx) {
-                float q = texelFetch(u_probe, clamp(px + ivec2(dx, dy), ivec2(0), lim), 0).r;
-                if (q != pv && texelFetch(u_gb_position, clamp(px + ivec2(dx, dy), ivec2(0), lim), 0).w != 0.0)
-                    uniform_area = false;
-            }
-        if (uniform_area) { o_mask = pv; return; }
+        vec2 near = texelFetch(u_probe_range, px, 0).rg;   // (soft_range.glsl: px is covered)
+        if ((pv == 0.0 || pv == 1.0) && near.x == pv && near.y == pv) { o_mask = pv; return; }
     }
 #endif
 #endif
@@ -108,6 +108,12 @@ void main()
             sv += w * hs_visibility(o, sd, stm);
             sw += w;
         }
+#ifdef HS_SOFT_REFINE
+        // a pixel refined only for a neighbour's sake (a penumbra's fringe): when its first
+        // HS_SOFT_EARLY samples, spread over the light, all agree with its own probes, it
+        // keeps that answer (its share is then within a few % of it)
+        if (k == HS_SOFT_EARLY - 1 && sw > 0.0 && ((pv == 0.0 && sv == 0.0) || (pv == 1.0 && sv == sw))) break;
+#endif
     }
 #ifdef HS_SOFT_PROBE
     o_mask = sw > 0.0 ? sv / sw : -1.0;   // no probe had any weight (a spread's edge): not known

@@ -4,8 +4,8 @@
 // sequence (u_sample_base), so the mean converges to the exact share of the light; anything
 // that changes resets it (RaytracePass.reset_history), so no old frame survives a change.
 //
-// DENOISE: pixels whose neighbourhood (HS_PROBE_RADIUS) holds one value only, 0 or 1, lie in
-// an umbra or in the light and keep it: hard edges stay hard. The others (penumbrae) average
+// DENOISE: pixels whose neighbourhood (2 pixels: u_mask_range, soft_range.glsl) holds one value
+// only, 0 or 1, lie in an umbra or in the light and keep it: hard edges stay hard. The others (penumbrae) average
 // the neighbours within u_radius pixels that lie on the same surface (tangent-plane distance
 // against the view depth, normal agreement) and whose value is within the noise of its own;
 // u_radius shrinks as the
@@ -33,32 +33,22 @@ void main() {
 #endif
 
 #ifdef DENOISE
-#define HS_PROBE_RADIUS 2
 uniform sampler2D u_mask;
+uniform sampler2D u_mask_range; // u_mask's (min, max) over the covered texels within 2 (soft_range.glsl)
 uniform int u_radius;
 uniform float u_plane_sigma;    // tangent-plane distance, relative to the view depth
 uniform float u_samples;        // samples per pixel of u_mask: the range kernel's width is twice
                                 // the estimate's noise, sqrt(v (1 - v) / samples), so real
                                 // detail (a textured cut's shadow) stays and noise averages out
 
-bool in_penumbra(ivec2 px, ivec2 lim)
-{
-    float c = texelFetch(u_mask, px, 0).r;
-    if (c > 0.0 && c < 1.0) return true;
-    for (int dy = -HS_PROBE_RADIUS; dy <= HS_PROBE_RADIUS; ++dy)
-        for (int dx = -HS_PROBE_RADIUS; dx <= HS_PROBE_RADIUS; ++dx) {
-            ivec2 q = clamp(px + ivec2(dx, dy), ivec2(0), lim);
-            if (texelFetch(u_gb_position, q, 0).w != 0.0 && texelFetch(u_mask, q, 0).r != c) return true;
-        }
-    return false;
-}
-
 void main() {
     ivec2 px = ivec2(gl_FragCoord.xy);
     ivec2 lim = textureSize(u_mask, 0) - 1;
     float c = texelFetch(u_mask, px, 0).r;
     vec4 pos = texelFetch(u_gb_position, px, 0);
-    if (pos.w == 0.0 || u_radius <= 0 || !in_penumbra(px, lim)) { o_mask = c; return; }
+    vec2 near = texelFetch(u_mask_range, px, 0).rg;
+    bool umbra_or_lit = (c == 0.0 || c == 1.0) && near.x == c && near.y == c;
+    if (pos.w == 0.0 || u_radius <= 0 || umbra_or_lit) { o_mask = c; return; }
     vec3 p = pos.xyz;
     vec3 n = texelFetch(u_gb_normal, px, 0).xyz;
     float depth = max(texelFetch(u_gb_depth, px, 0).r, 1e-6);

@@ -234,10 +234,13 @@ class RaytracePass(ShadowPass):
                                            1, cmap)
                 probe = self._target((li, "probe"), *full)
                 draw_fullscreen(ctx, pvao, probe)
+                near = self._range((li, "probe"), probe.texture, gbuffer)
                 prog, vao, unit = self._program({**defines, "HS_SOFT_REFINE": 1}, light, light_vec, gbuffer,
                                                 settings, 1, cmap)
                 probe.texture.use(unit)
                 prog["u_probe"].value = unit
+                near.use(unit + 1)
+                prog["u_probe_range"].value = unit + 1
             else:
                 _, vao, _ = self._program(defines, light, light_vec, gbuffer, settings, scale, cmap)
             draw_fullscreen(ctx, vao, out)
@@ -308,14 +311,32 @@ class RaytracePass(ShadowPass):
         self.accumulated = got if self.accumulated is None else min(self.accumulated, got)
         return self._denoise(li, mean, gbuffer, denoise_radius(got), got)
 
+    def _range(self, key, tex, gbuffer):
+        """(min, max) of mask ``tex`` over the covered texels within 2 pixels of each
+        (``shaders/soft_range.glsl``: two 1D passes): an RG32F texture."""
+        w, h = tex.size
+        src = tex
+        for first, step in ((True, (1, 0)), (False, (0, 1))):
+            prog, vao = self.programs.fullscreen("soft_range", {"FIRST": 1} if first else {})
+            if first:
+                gbuffer.bind(prog, 1)
+            src.use(0)
+            set_uniforms(prog, {"u_src": 0, "u_step": step})
+            out = self._targets.get((key, "range", first), w, h, components=2)
+            draw_fullscreen(self.ctx, vao, out)
+            src = out.texture
+        return src
+
     def _denoise(self, li, mask, gbuffer, radius: int, samples: int):
         """``mask`` filtered within its penumbrae over ``radius`` pixels (itself when 0)."""
         if radius <= 0:
             return mask.texture
+        near = self._range((li, "mask"), mask.texture, gbuffer)
         prog, vao = self.programs.fullscreen("soft_accumulate", {"DENOISE": 1})
-        gbuffer.bind(prog, 1)
+        gbuffer.bind(prog, 2)
         mask.texture.use(0)
-        set_uniforms(prog, {"u_mask": 0, "u_radius": int(radius), "u_plane_sigma": 0.02,
+        near.use(1)
+        set_uniforms(prog, {"u_mask": 0, "u_mask_range": 1, "u_radius": int(radius), "u_plane_sigma": 0.02,
                             "u_samples": float(samples)})
         out = self._target((li, "denoised"), *gbuffer.size)
         draw_fullscreen(self.ctx, vao, out)

@@ -1,0 +1,45 @@
+// The smallest and largest value of a soft mask over the 5x5 texels around each one (the
+// G-buffer's covered texels only; borders clamped), in two 1D passes of 5 texels: FIRST along x
+// from the mask (R), then along y from FIRST's ranges (RG). Output (min, max); (big, -big)
+// where no covered texel is in reach.
+//
+// raytrace.glsl (HS_SOFT_REFINE) reads the probe mask's ranges: a pixel whose probes and every
+// covered probe within 2 pixels saw all or none of the light alike (min = max = its own value,
+// 0 or 1) keeps its probe answer; soft_accumulate.glsl (DENOISE) reads the refined mask's
+// ranges the same way to leave umbrae and lit areas alone. Both once looped over the 25 texels
+// themselves (50 fetches per pixel on a software rasteriser, where fetches dominate); these
+// two passes take 15.
+#ifdef VERTEX_SHADER
+#include "common/fullscreen.glsl"
+#endif
+
+#ifdef FRAGMENT_SHADER
+#include "common/gbuffer.glsl"
+
+#define HS_RANGE_RADIUS 2     // HS_PROBE_RADIUS of common/soft_light.glsl and soft_accumulate.glsl
+#define HS_RANGE_BIG 3.0e38
+
+uniform sampler2D u_src;
+uniform ivec2 u_step;         // (1, 0) or (0, 1)
+out vec2 o_range;
+
+void main()
+{
+    ivec2 px = ivec2(gl_FragCoord.xy);
+    ivec2 lim = textureSize(u_src, 0) - 1;
+    vec2 r = vec2(HS_RANGE_BIG, -HS_RANGE_BIG);
+    for (int k = -HS_RANGE_RADIUS; k <= HS_RANGE_RADIUS; ++k) {
+        ivec2 q = clamp(px + k * u_step, ivec2(0), lim);
+#ifdef FIRST
+        if (texelFetch(u_gb_position, q, 0).w != 0.0) {
+            float v = texelFetch(u_src, q, 0).r;
+            r = vec2(min(r.x, v), max(r.y, v));
+        }
+#else
+        vec2 v = texelFetch(u_src, q, 0).rg;
+        r = vec2(min(r.x, v.x), max(r.y, v.y));
+#endif
+    }
+    o_range = r;
+}
+#endif
