@@ -109,10 +109,10 @@ void main()
             sw += w;
         }
 #ifdef HS_SOFT_REFINE
-        // a pixel refined only for a neighbour's sake (a penumbra's fringe): when its first
-        // HS_SOFT_EARLY samples, spread over the light, all agree with its own probes, it
-        // keeps that answer (its share is then within a few % of it)
-        if (k == HS_SOFT_EARLY - 1 && sw > 0.0 && ((pv == 0.0 && sv == 0.0) || (pv == 1.0 && sv == sw))) break;
+        // a pixel refined only for a neighbour's sake (a penumbra's fringe): when the first
+        // half of its samples, spread over the light, all agree with its own probes, it keeps
+        // that answer (its share is then within a few % of it)
+        if (k == (n_samples >> 1) - 1 && sw > 0.0 && ((pv == 0.0 && sv == 0.0) || (pv == 1.0 && sv == sw))) break;
 #endif
     }
 #ifdef HS_SOFT_PROBE

@@ -34,10 +34,6 @@ uniform vec2 u_light_spread;  // area light: (tan of the half spread, its normal
 #define HS_PROBES 4           // rays per pixel of the probe pass (HS_SOFT_PROBE)
 #define HS_PROBE_RADIUS 2     // a pixel takes its probe answer when every probe within this
                               // many pixels saw all or none of the light alike
-#ifndef HS_SOFT_EARLY
-#define HS_SOFT_EARLY 16      // refinement: a pixel whose first this many samples agree with its
-                              // probes stops there (raytrace.glsl)
-#endif
 
 uint hs_hash(uvec3 v)
 {
