@@ -78,7 +78,7 @@ def main():
     from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 
     frames = parse_frames(args.frames)
-    settings = Settings(mode=args.mode, quality=args.quality, interlace=False)
+    settings = Settings(mode=args.mode, quality=args.quality, interlace=False, hard=True)
     t0 = time.perf_counter()
     source = BlenderFrames(open_scene(args.scene), name=args.scene, resolution=args.resolution)
     load_s = time.perf_counter() - t0

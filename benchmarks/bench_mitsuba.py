@@ -93,7 +93,7 @@ def main(argv=None):
         pipe.set_scene(scene)
         timings = {}
         for cons in (False, True):  # (the mask compared below is the last: with maps)
-            settings = Settings(mode="raytrace", conservative="sun" if cons else "off")
+            settings = Settings(mode="raytrace", conservative="sun" if cons else "off", hard=True)  # (Mitsuba's rays)
             pipe.render(scene, settings, w, h, read_image=False)
             ts = []
             for _ in range(a.reps):

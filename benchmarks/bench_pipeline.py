@@ -66,14 +66,14 @@ def main(argv=None):
     for name in a.scenes.split(","):
         scene = load_scene(SCENES.get(name, name))
         pipe.set_scene(scene)
-        high = Settings(mode="raytrace", quality="high")
+        high = Settings(mode="raytrace", quality="high", hard=True)  # (hard shadows, as the thesis)
         configs = [("raytrace high", high)]
         if a.maps:
             configs += [("raytrace high, maps for suns", high.replace(conservative="sun")),
                         ("raytrace high, maps for all lights", high.replace(conservative="all"))]
-        configs += [("raytrace medium", Settings(mode="raytrace", quality="medium")),
-                    ("raytrace low", Settings(mode="raytrace", quality="low")),
-                    ("shadowmap", Settings(mode="shadowmap")),
+        configs += [("raytrace medium", Settings(mode="raytrace", quality="medium", hard=True)),
+                    ("raytrace low", Settings(mode="raytrace", quality="low", hard=True)),
+                    ("shadowmap", Settings(mode="shadowmap", hard=True)),
                     ("none", Settings(mode="none"))]
         res = measure_all(pipe, scene, configs, w, h, a.reps)
         for label, *_ in configs:
@@ -97,8 +97,8 @@ def main(argv=None):
         inst = max(1, min(1000, n // 1000))
         scene = load_scene(f"scaling:triangles={n},instances={inst}")
         pipe.set_scene(scene)
-        rt_s = Settings(mode="raytrace")
-        configs = [("rt", rt_s), ("shadowmap", Settings(mode="shadowmap"))]
+        rt_s = Settings(mode="raytrace", hard=True)
+        configs = [("rt", rt_s), ("shadowmap", Settings(mode="shadowmap", hard=True))]
         res = measure_all(pipe, scene, configs, w, h, a.reps)
         rt, sm = res["rt"]["shadow_ms"], res["shadowmap"]["shadow_ms"]
         step = "" if prev is None else f"{rt / prev:.2f}x"

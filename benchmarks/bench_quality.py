@@ -34,7 +34,7 @@ def stiff_cases() -> list:
 
 def parse_variant(text: str) -> dict:
     parts = text.split("+")
-    out = {"mode": "raytrace", "quality": parts[0]}
+    out = {"mode": "raytrace", "quality": parts[0], "hard": True}  # (the Cycles references are hard)
     for kv in parts[1:]:
         k, v = kv.split("=", 1)
         out[k] = {"true": True, "false": False}.get(v.lower(), int(v) if v.isdigit() else v)

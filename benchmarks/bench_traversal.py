@@ -32,10 +32,19 @@ def run(cwd: Path, scene: str, out: Path, structure: str | None, resolution: str
            "--stats", str(out / "stats.json"), "--masks-dir", str(out / "masks")]
     if structure is not None:
         cmd += ["--structure", structure]
+    if _has_hard(cwd):  # hard lights: the same rays as a peer from before soft shadows
+        cmd += ["--hard"]
     p = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
     if p.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} (cwd {cwd}) failed:\n{p.stderr[-2000:]}")
     return json.loads((out / "stats.json").read_text())
+
+
+def _has_hard(cwd: Path) -> bool:
+    """Whether the tree's ``render`` knows ``--hard`` (a tree from before soft shadows is hard)."""
+    p = subprocess.run([sys.executable, "-m", "hybrid_shadow_addon", "render", "--help"], cwd=cwd,
+                       capture_output=True, text=True)
+    return "--hard" in p.stdout
 
 
 def masks(folder: Path) -> dict:

@@ -48,7 +48,7 @@ def main(argv=None):
     scene = scene_with_blocks()
     pipe = Pipeline()
     pipe.set_scene(scene)
-    st = Settings(mode="raytrace")
+    st = Settings(mode="raytrace", hard=True)
     rows = []
     own = median_ms(pipe, scene, st, w, h, "shadow_ms", a.repeats)
     rt = pipe.shadow_pass("raytrace")
@@ -60,7 +60,7 @@ def main(argv=None):
         d.update(HS_HAS_SPHERES=1, HS_MAX_DISTANCE=1)
         return d
     rt.defines = all_on
-    big = Settings(mode="raytrace", max_distance=1e9)
+    big = Settings(mode="raytrace", max_distance=1e9, hard=True)
     forced = median_ms(pipe, scene, big, w, h, "shadow_ms", a.repeats)
     rt.defines = orig
     rows.append(("ray trace, sun (own defines: " + ", ".join(defines_own) + ")", own))

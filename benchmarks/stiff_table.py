@@ -24,9 +24,9 @@ if str(REPO) not in sys.path:
 CASES = ("grazing", "axis_aligned", "far_away", "stadium", "cards", "degenerate", "crowd", "instance_scales",
          "point_in_box", "spot_touching", "ortho", "clip_range")
 MODES = {  # name -> Settings kwargs
-    "raytrace-high": dict(mode="raytrace", quality="high"),
-    "raytrace-medium": dict(mode="raytrace", quality="medium"),
-    "shadowmap": dict(mode="shadowmap"),
+    "raytrace-high": dict(mode="raytrace", quality="high", hard=True),  # (hard Cycles references)
+    "raytrace-medium": dict(mode="raytrace", quality="medium", hard=True),
+    "shadowmap": dict(mode="shadowmap", hard=True),
 }
 
 

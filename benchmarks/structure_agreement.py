@@ -21,7 +21,7 @@ def main() -> int:
         w, h = (200, 150) if name.startswith("stiff/") else (320, 180)
         masks = {}
         for structure in ("grid", "bvh"):
-            frame = pipe.render(scene, Settings(structure=structure), w, h)
+            frame = pipe.render(scene, Settings(structure=structure, hard=True), w, h)
             masks[structure] = [frame.mask_array(li) for li in frame.lights]
         worst = 0.0
         for a, b in zip(masks["grid"], masks["bvh"]):
