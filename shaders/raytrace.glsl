@@ -75,12 +75,12 @@ void main()
 
     vec3 o = offset_origin(p, n, depth * 3.0e-6);
 #ifdef HS_SOFT
-    {   // the whole light below the horizon (even its highest point): unlit, no ray, known
-        vec3 td;
-        float ttm, tw;
-        hs_light_top(o, n, td, ttm, tw);
-        if (tw == 0.0 && !(dot(n, td) > 0.0)) { o_mask = 0.0; return; }
-    }
+    // the light's highest point above o's horizon: when even it is below, the whole light is
+    // (unlit, no ray, known); it also decides a pixel none of whose samples has a weight
+    vec3 top_d;
+    float top_tmax, top_w;
+    hs_light_top(o, n, top_d, top_tmax, top_w);
+    if (top_w == 0.0 && !(dot(n, top_d) > 0.0)) { o_mask = 0.0; return; }
     // an extended light: the weighted share of u_samples points on it that o sees
 #ifdef HS_SOFT_PROBE
     int n_samples = min(u_samples, HS_PROBES);
@@ -118,14 +118,12 @@ void main()
 #ifdef HS_SOFT_PROBE
     o_mask = sw > 0.0 ? sv / sw : -1.0;   // no probe had any weight (a spread's edge): not known
 #else
-    if (sw == 0.0) {   // no sample reached above the horizon: the light's highest point decides
-        vec3 sd;
-        float stm, w;
-        hs_light_top(o, n, sd, stm, w);
+    if (sw == 0.0 && top_w > 0.0) {   // no sample reached above the horizon: the highest point decides
 #ifdef HS_MAX_DISTANCE
-        stm = min(stm, u_max_distance / length(sd));
+        top_tmax = min(top_tmax, u_max_distance / length(top_d));
 #endif
-        if (w > 0.0) { sv = hs_visibility(o, sd, stm); sw = 1.0; }
+        sv = hs_visibility(o, top_d, top_tmax);
+        sw = 1.0;
     }
     o_mask = sw > 0.0 ? sv / sw : 0.0;
 #endif
