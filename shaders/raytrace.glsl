@@ -13,7 +13,9 @@
 // see common/compact.glsl; texels past the list's end are discarded), HS_SOFT with HS_SOFT_SHAPE
 // (an extended light: u_samples rays towards points on it, common/soft_light.glsl; the mask is
 // the weighted share of the light the pixel sees; HS_SOFT_PROBE traces HS_PROBES of them,
-// HS_SOFT_REFINE then traces all of them only near pixels whose probes disagree).
+// HS_SOFT_REFINE then traces all of them only near pixels whose probes disagree). The probe
+// pass writes RG32F sums (weighted visibility, weight) instead of the mask, (value, 1) where the
+// answer is known without a ray: the refinement continues each pixel's sequence after them.
 
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
@@ -33,7 +35,7 @@
 #ifdef HS_SOFT
 #include "common/soft_light.glsl"
 #ifdef HS_SOFT_REFINE
-uniform sampler2D u_probe;      // the probe pass's mask (full resolution)
+uniform sampler2D u_probe;      // the probe pass's sums (full resolution; see hs_probe_value)
 uniform sampler2D u_probe_range; // its (min, max) over the covered texels within HS_PROBE_RADIUS (soft_range.glsl)
 #endif
 #endif
@@ -47,9 +49,15 @@ uniform int u_valid_phases;     // bit p set: history texels of phase p are up t
 #endif
 
 in vec2 v_uv;
+#ifdef HS_SOFT_PROBE
+out vec2 o_probe;               // (weighted visibility, weight) of the probe rays
+float o_mask;                   // the answers known without a ray: written as (o_mask, 1)
+vec2 hs_probe_sums = vec2(-1.0);
+#else
 out float o_mask;
+#endif
 
-void main()
+void trace_main()
 {
     ivec2 mt = ivec2(gl_FragCoord.xy);
 #ifdef HS_INTERLACE
@@ -89,7 +97,8 @@ void main()
 #ifdef HS_SOFT_REFINE
     // the probe pass traced HS_PROBES rays per pixel: where every probe nearby saw all or none
     // of the light alike, this pixel lies outside any penumbra and keeps its probe answer
-    float pv = texelFetch(u_probe, px, 0).r;
+    vec2 ps = texelFetch(u_probe, px, 0).rg;
+    float pv = hs_probe_value(ps);
     {
         vec2 near = texelFetch(u_probe_range, px, 0).rg;   // (soft_range.glsl: px is covered)
         if ((pv == 0.0 || pv == 1.0) && near.x == pv && near.y == pv) { o_mask = pv; return; }
@@ -97,7 +106,14 @@ void main()
 #endif
 #endif
     float sw = 0.0, sv = 0.0;
-    for (int k = 0; k < n_samples; ++k) {
+    int k0 = 0;
+#ifdef HS_SOFT_REFINE
+    // the probes were this pixel's first HS_PROBES samples (the same sequence, in the same
+    // order): continue after them with their sums, exactly as if traced again (below 10
+    // samples the early stop's check falls among the probes: those are traced again)
+    if ((n_samples >> 1) > HS_PROBES) { sv = ps.x; sw = ps.y; k0 = HS_PROBES; }
+#endif
+    for (int k = k0; k < n_samples; ++k) {
         vec3 sd;
         float stm, w;
         hs_light_sample(o, n, hs_sample2(px, u_sample_base + k), sd, stm, w);
@@ -116,7 +132,7 @@ void main()
 #endif
     }
 #ifdef HS_SOFT_PROBE
-    o_mask = sw > 0.0 ? sv / sw : -1.0;   // no probe had any weight (a spread's edge): not known
+    hs_probe_sums = vec2(sv, sw);   // (sw 0: no probe had any weight, a spread's edge: not known)
 #else
     if (sw == 0.0 && top_w > 0.0) {   // no sample reached above the horizon: the highest point decides
 #ifdef HS_MAX_DISTANCE
@@ -155,5 +171,13 @@ void main()
     }
 #endif
     o_mask = hs_visibility(o, d, tmax);
+}
+
+void main()
+{
+    trace_main();
+#ifdef HS_SOFT_PROBE
+    o_probe = hs_probe_sums.y >= 0.0 ? hs_probe_sums : vec2(o_mask, 1.0);
+#endif
 }
 #endif

@@ -1,6 +1,6 @@
 // The smallest and largest value of a soft mask over the 5x5 texels around each one (the
 // G-buffer's covered texels only; borders clamped), in two 1D passes of 5 texels: FIRST along x
-// from the mask (R), then along y from FIRST's ranges (RG). Output (min, max); (big, -big)
+// from the mask (R; with SUMS the probe pass's sums, RG), then along y from FIRST's ranges (RG). Output (min, max); (big, -big)
 // where no covered texel is in reach.
 //
 // raytrace.glsl (HS_SOFT_REFINE) reads the probe mask's ranges: a pixel whose probes and every
@@ -32,7 +32,12 @@ void main()
         ivec2 q = clamp(px + k * u_step, ivec2(0), lim);
 #ifdef FIRST
         if (texelFetch(u_gb_position, q, 0).w != 0.0) {
+#ifdef SUMS
+            vec2 sums = texelFetch(u_src, q, 0).rg;   // the probe pass's (as hs_probe_value)
+            float v = sums.y > 0.0 ? sums.x / sums.y : -1.0;
+#else
             float v = texelFetch(u_src, q, 0).r;
+#endif
             r = vec2(min(r.x, v), max(r.y, v));
         }
 #else

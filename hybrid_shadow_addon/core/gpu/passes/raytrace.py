@@ -98,8 +98,8 @@ class RaytracePass(ShadowPass):
             d["HS_INTERLACE"] = 1
         return d
 
-    def _target(self, key, w, h):
-        t = self._targets.get(key, w, h)
+    def _target(self, key, w, h, components: int | None = None):
+        t = self._targets.get(key, w, h, components)
         if self._targets.created:
             self._valid_phases = 0
         return t
@@ -232,9 +232,9 @@ class RaytracePass(ShadowPass):
                 # pixels whose probes disagree (penumbrae); elsewhere the probes are exact
                 _, pvao, _ = self._program({**defines, "HS_SOFT_PROBE": 1}, light, light_vec, gbuffer, settings,
                                            1, cmap)
-                probe = self._target((li, "probe"), *full)
+                probe = self._target((li, "probe"), *full, components=2)  # (sums: raytrace.glsl)
                 draw_fullscreen(ctx, pvao, probe)
-                near = self._range((li, "probe"), probe.texture, gbuffer)
+                near = self._range((li, "probe"), probe.texture, gbuffer, sums=True)
                 prog, vao, unit = self._program({**defines, "HS_SOFT_REFINE": 1}, light, light_vec, gbuffer,
                                                 settings, 1, cmap)
                 probe.texture.use(unit)
@@ -311,13 +311,15 @@ class RaytracePass(ShadowPass):
         self.accumulated = got if self.accumulated is None else min(self.accumulated, got)
         return self._denoise(li, mean, gbuffer, denoise_radius(got), got)
 
-    def _range(self, key, tex, gbuffer):
-        """(min, max) of mask ``tex`` over the covered texels within 2 pixels of each
-        (``shaders/soft_range.glsl``: two 1D passes): an RG32F texture."""
+    def _range(self, key, tex, gbuffer, sums: bool = False):
+        """(min, max) of mask ``tex`` (``sums``: of the probe pass's sums) over the covered
+        texels within 2 pixels of each (``shaders/soft_range.glsl``: two 1D passes): an RG32F
+        texture."""
         w, h = tex.size
         src = tex
         for first, step in ((True, (1, 0)), (False, (0, 1))):
-            prog, vao = self.programs.fullscreen("soft_range", {"FIRST": 1} if first else {})
+            defs = ({"FIRST": 1, **({"SUMS": 1} if sums else {})}) if first else {}
+            prog, vao = self.programs.fullscreen("soft_range", defs)
             if first:
                 gbuffer.bind(prog, 1)
             src.use(0)
