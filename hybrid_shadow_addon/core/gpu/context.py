@@ -97,6 +97,16 @@ def create_context(share: moderngl.Context | None = None) -> moderngl.Context:
     return ctx
 
 
+def make_current(ctx: moderngl.Context) -> None:
+    """Make ``ctx`` the calling thread's current context. GL sends every call to the context the
+    thread made current last, whichever moderngl object it is made through, and creating a
+    standalone context makes it current: a pipeline used after another one was created on the
+    same thread would draw into the newer context's objects. Every entry point that touches GL
+    (:class:`Pipeline`'s, :func:`read_texture`) calls this first; switching to the context that
+    is already current costs next to nothing."""
+    ctx.__enter__()
+
+
 def gpu_limits(ctx: moderngl.Context) -> dict:
     """The limits the passes check against, plus the renderer's name."""
     info = ctx.info

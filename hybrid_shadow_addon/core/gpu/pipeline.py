@@ -23,7 +23,7 @@ from ..bake import BakeConfig, bake_scene
 from ..errors import SceneError
 from ..progress import Progress
 from ..settings import Settings
-from .context import check_render_size, create_context
+from .context import check_render_size, create_context, make_current
 from .frame import FrameJob, read_mask
 from .lights import select_shadowed_lights
 from .passes import GBufferPass, LightingPass, NoShadowPass, RaytracePass, ShadowMapPass, UpsamplePass
@@ -81,6 +81,7 @@ class Pipeline:
     def __init__(self, ctx=None, *, share: "Pipeline | None" = None):
         if share is None:
             self.ctx = create_context(ctx)
+            make_current(self.ctx)  # (a handed-in context may not be the thread's current one)
             self.gpu = GpuResources(self.ctx)
             self._bake = _SharedBake()
         else:  # a view: the context, resources and bake of ``share``; own passes and history
@@ -127,6 +128,7 @@ class Pipeline:
         """Bake ``scene`` with acceleration ``structure`` (``Settings.structure``; None: the
         default) and upload its textures; returns the bake time in ms. A render whose settings ask
         for another structure bakes again."""
+        make_current(self.ctx)
         t0 = time.perf_counter()
         if structure is None:
             structure = Settings.structure
@@ -138,10 +140,12 @@ class Pipeline:
 
     def move_instances(self, scene, indices) -> None:
         """Instances ``indices`` moved (their matrices in ``scene`` already changed)."""
+        make_current(self.ctx)
         self._apply(self.baked.update_instances(scene, indices))
 
     def update_model(self, scene, model_id: int) -> None:
         """Model ``model_id`` was edited or added."""
+        make_current(self.ctx)
         self._apply(self.baked.update_model(scene, model_id))
 
     def _apply(self, report) -> None:
@@ -165,6 +169,7 @@ class Pipeline:
                progress: Progress | None = None) -> Frame:
         """Run the passes. ``progress(done, total, label)`` is called before each pass and each
         shadowed light (whatever it raises aborts the frame: a place to cancel)."""
+        make_current(self.ctx)
         settings = settings or Settings()
         if scene.camera is None:
             raise SceneError(f"scene '{scene.name}' has no camera")
@@ -228,6 +233,7 @@ class Pipeline:
 
     def release(self) -> None:
         """Release the passes' GPU objects, and the shared resources unless this is a view."""
+        make_current(self.ctx)
         for p in self._passes():
             p.release()
         if self._owns_gpu:

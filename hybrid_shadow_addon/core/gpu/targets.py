@@ -5,7 +5,7 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
-from .context import check_render_size
+from .context import check_render_size, make_current
 
 _NUMPY = {"f4": np.float32, "f2": np.float16, "f1": np.uint8, "u1": np.uint8, "i4": np.int32, "u4": np.uint32}
 
@@ -29,6 +29,7 @@ def create_mask_texture(ctx: moderngl.Context, width: int, height: int, fill: fl
 def read_texture(tex: moderngl.Texture) -> np.ndarray:
     """A 2D texture as float32 numpy, row 0 = TOP row (GL stores bottom-up); (H, W) for one
     component, (H, W, C) otherwise."""
+    make_current(tex.ctx)
     a = np.frombuffer(tex.read(), dtype=_NUMPY[tex.dtype]).reshape(tex.height, tex.width, tex.components)
     a = a[::-1]
     a = a.astype(np.float32) / 255.0 if tex.dtype == "f1" else a.astype(np.float32)
