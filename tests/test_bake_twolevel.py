@@ -138,6 +138,34 @@ def test_bvh_cost_is_logarithmic():
     assert stats["iterations"] / R < 120 and stats["triangles"] / R < 40
 
 
+def test_per_ray_stats_add_up_to_the_totals():
+    """``stats["per_ray"]``: each ray's node steps and the per-tree counts sum to the totals,
+    and the answers are those of a walk without them."""
+    rng = np.random.default_rng(3)
+    tri = np.array([[0, 1, 2], [0, 2, 3]])
+    quad = Model("quad", np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32), tri)
+    v = rng.uniform(-0.5, 0.5, (60, 3)).astype(np.float32)
+    blob = Model("blob", v, rng.integers(0, 60, (40, 3)))
+    n = 30
+    mats = np.tile(np.eye(4), (n, 1, 1))
+    mats[:, :3, 3] = rng.uniform(-4, 4, (n, 3))
+    scene = Scene(models=[quad, blob], instances=Instances(names=[f"i{k}" for k in range(n)],
+                                                           model_ids=np.arange(n) % 2, matrices=mats))
+    baked = bake_scene(scene, BVH)
+    R = 500
+    o = rng.uniform(-5, 5, (R, 3))
+    d = rng.normal(size=(R, 3))
+    plain, stats = {}, {"per_ray": True}
+    occ = trace_structured(baked, o, d, 20.0, stats=plain)
+    assert (trace_structured(baked, o, d, 20.0, stats=stats) == occ).all()
+    assert 0 < occ.sum() < R
+    assert stats["ray_iterations"].shape == (R,)
+    assert int(stats["ray_iterations"].sum()) == stats["iterations"] == plain["iterations"]
+    assert sum(stats["tree_nodes"].values()) == stats["bvh_nodes"] > 0
+    assert sum(stats["tree_triangles"].values()) == stats["triangles"] > 0
+    assert len(stats["tree_nodes"]) == 2
+
+
 def test_move_instances_refits_and_reports_rows():
     rng = np.random.default_rng(0)
     scene = random_scene(rng, n_inst=250, tri_counts=(1, 12, 40))

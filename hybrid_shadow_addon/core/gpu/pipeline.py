@@ -168,7 +168,10 @@ class Pipeline:
                height: int | None = None, film_transparent: bool = False, read_image: bool = True,
                progress: Progress | None = None) -> Frame:
         """Run the passes. ``progress(done, total, label)`` is called before each pass and each
-        shadowed light (whatever it raises aborts the frame: a place to cancel)."""
+        shadowed light (whatever it raises aborts the frame: a place to cancel). The shadows are
+        traced through the baked scene: the first render bakes ``scene``, and so does one that
+        asks for another structure; for another scene call :meth:`set_scene` first (for moved
+        instances and edited models, :meth:`move_instances` and :meth:`update_model`)."""
         make_current(self.ctx)
         settings = settings or Settings()
         if scene.camera is None:

@@ -445,12 +445,28 @@ def _l1(v):
     return (a[:, 0] + a[:, 1]) + a[:, 2]
 
 
+def _count_by(counts: dict, keys) -> None:
+    k, c = np.unique(keys, return_counts=True)
+    for a, b in zip(k.tolist(), c.tolist()):
+        counts[a] = counts.get(a, 0) + b
+
+
 def _trace_bvh(baked, origins, dirs, tmax, stats) -> np.ndarray:
+    """The two-level walk of ``shaders/common/scene_bvh.glsl``, all rays at once. ``stats``
+    (when given) gets totals of node steps (``iterations``: top level ``tlas_nodes`` + model
+    trees ``bvh_nodes``), instances entered and triangle tests; with ``stats["per_ray"]`` True
+    also each ray's node steps (``ray_iterations``) and the model-tree node steps and triangle
+    tests per model tree (``tree_nodes``, ``tree_triangles``: keyed by the tree's end node)."""
     o, d, tm, valid = prepare_rays(bake_space(baked, origins), dirs, tmax)
     N = len(o)
     occ = np.zeros(N, bool)
+    per_ray = stats is not None and bool(stats.get("per_ray"))
     if stats is not None:
         stats.update({"iterations": 0, "tlas_nodes": 0, "bvh_nodes": 0, "objects": 0, "triangles": 0})
+    if per_ray:  # (N,) node steps of each ray; model-tree node steps and triangle tests per tree
+        ray_steps = stats["ray_iterations"] = np.zeros(N, np.int64)
+        tree_nodes = stats["tree_nodes"] = {}
+        tree_tris = stats["tree_triangles"] = {}
     t = baked.textures
     node = t["node"].linear()
     leafd = t["leaf"].linear()
@@ -489,6 +505,9 @@ def _trace_bvh(baked, origins, dirs, tmax, stats) -> np.ndarray:
             stats["iterations"] += act.size
             stats["tlas_nodes"] += int(in_tlas.sum())
             stats["bvh_nodes"] += int((~in_tlas).sum())
+        if per_ray:
+            ray_steps[act] += 1
+            _count_by(tree_nodes, bend[act][~in_tlas])
         nxt = np.where(hit | leaf, i[act] + 1, w.astype(np.int64))
         pay = (w & np.uint32(0x7FFFFFFF)).astype(np.int64)
         # instances: transform, sphere test or enter the model tree
@@ -531,6 +550,8 @@ def _trace_bvh(baked, origins, dirs, tmax, stats) -> np.ndarray:
             h = woop_hit(om[p], setup, v[:, 0], v[:, 1], v[:, 2], tm[p], floor=True)
             if stats is not None:
                 stats["triangles"] += owner.size
+            if per_ray:
+                _count_by(tree_tris, bend[p])
             occ[p[h]] = True
         i[act] = nxt
         act = act[~occ[act]]

@@ -1,0 +1,178 @@
+"""Where the two-level BVH walk spends its steps: a profile of the shadow rays of a frame.
+
+For each scene (hard lights, ``high``, ``--structure bvh``) the rays the GPU traces are rebuilt
+from the frame's G-buffer (``core/oracle/rays.py``) and walked by the numpy mirror of the shader
+(``core/oracle/tracer.py``, which visits the same nodes in the same order), counting per light:
+node steps per ray (top level and model trees; occluded and unoccluded rays apart), triangle
+tests, the model trees that take most of the steps, and the lock-step cost of llvmpipe's SIMD
+groups (each fragment-shader invocation runs 8 pixels, a 4x2 block, until its slowest ray is done:
+8 x the block's largest step count over the sum). With ``--orders`` it also re-lays every tree out
+with another child order (the stackless walk visits the first child first) and counts again:
+the current order, front-to-back along the sun's direction (suns only), low boxes first, high
+boxes first, larger boxes first. Deterministic (no timing): step counts are what the GPU walk
+executes, whatever the machine.
+
+    .venv/bin/python benchmarks/profile_traversal.py [forest clusters] [--size 320x180] [--orders]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
+from hybrid_shadow_addon.core.gpu.lights import light_ray_uniforms  # noqa: E402
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
+from hybrid_shadow_addon.core.oracle import tracer  # noqa: E402
+from hybrid_shadow_addon.core.oracle.rays import shadow_rays  # noqa: E402
+from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+
+LEAF = np.uint32(0x80000000)
+
+
+def lane_waste(steps_img: np.ndarray, bw: int = 4, bh: int = 2) -> float:
+    """8 x the largest step count of each 4x2 block over the sum (1.0: no lane waits)."""
+    h, w = steps_img.shape
+    b = steps_img[: h // bh * bh, : w // bw * bw].reshape(h // bh, bh, w // bw, bw)
+    tot = b.sum()
+    return float(b.max(axis=(1, 3)).sum() * bw * bh / tot) if tot else 1.0
+
+
+def boxes(nodes: np.ndarray):
+    lo = np.stack([nodes[:, 0] & 0xFFFF, nodes[:, 0] >> 16, nodes[:, 1] & 0xFFFF], 1).astype(np.float64)
+    hi = np.stack([nodes[:, 1] >> 16, nodes[:, 2] & 0xFFFF, nodes[:, 2] >> 16], 1).astype(np.float64)
+    return lo, hi
+
+
+def relayout(nodes: np.ndarray, start: int, end: int, key) -> np.ndarray:
+    """Tree [start, end) in depth-first pre-order with each inner node's children ordered by
+    ``key(node index)`` (smaller first); escapes recomputed, leaves unchanged."""
+    out = []
+
+    def sub_end(i):
+        return i + 1 if nodes[i, 3] & LEAF else int(nodes[i, 3])
+
+    stack = [("node", start)]
+    while stack:
+        kind, i = stack.pop()
+        if kind == "close":
+            out[i][3] = start + len(out)
+            continue
+        if nodes[i, 3] & LEAF:
+            out.append(nodes[i].copy())
+            continue
+        pos = len(out)
+        out.append(nodes[i].copy())
+        a = i + 1
+        b = sub_end(a)
+        first, second = (a, b) if key(a) <= key(b) else (b, a)
+        stack += [("close", pos), ("node", second), ("node", first)]
+    res = np.array(out, np.uint32)
+    assert len(res) == end - start
+    return res
+
+
+def tree_ranges(baked) -> dict:
+    """{(root, end): model id} of the model trees, plus the top level as (root, end): -1."""
+    st = baked.bvh
+    u = baked.uniforms
+    out = {(int(u["hs_tlas_root"]), int(u["hs_tlas_end"])): -1}
+    for m, (s, c) in enumerate(zip(st.node_start, st.node_count)):
+        if c > 0:
+            out[(int(s), int(s + c))] = m
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("scenes", nargs="*", default=["forest", "clusters"])
+    ap.add_argument("--size", default="320x180")
+    ap.add_argument("--orders", action="store_true", help="also count the steps under other child orders")
+    args = ap.parse_args(argv)
+    w, h = (int(v) for v in args.size.lower().split("x"))
+    pipe = Pipeline()
+    for spec in args.scenes:
+        scene = load_scene(spec)
+        pipe.set_scene(scene, "bvh")
+        frame = pipe.render(scene, Settings(mode="raytrace", quality="high", structure="bvh", hard=True), w, h)
+        baked = pipe.baked
+        trees = tree_ranges(baked)
+        end_to_model = {e: m for (s, e), m in trees.items() if m >= 0}
+        n_tris = sum(mm.triangle_count for mm in scene.models)
+        print(f"\n## {spec} {w}x{h}: {len(scene.instances)} instances, {len(scene.models)} models, "
+              f"{n_tris} triangles\n")
+        print("| light | rays | occluded | steps/ray | occluded / unoccluded rays | top level / model trees "
+              "| triangle tests/ray | model trees by steps (share) | 4x2 lane waste |")
+        print("|---|---:|---:|---:|---:|---:|---:|---|---:|")
+        rays = []
+        for k, li in enumerate(frame.lights):
+            light = scene.lights[li]
+            m = frame.mask_array(k)
+            cov = ~np.isnan(m)
+            rows, cols = np.nonzero(cov)
+            o, d, tmax, facing = shadow_rays(frame.gbuffer, (rows, cols), light, baked.origin)
+            if not facing.any():
+                continue
+            stats = {"per_ray": True}
+            occ = tracer.trace_structured(baked, o[facing], d[facing], tmax[facing], stats)
+            n = int(facing.sum())
+            steps = stats["ray_iterations"]
+            img = np.zeros(m.shape, np.int64)
+            img[rows[facing], cols[facing]] = steps
+            by = sorted(stats["tree_nodes"].items(), key=lambda kv: -kv[1])
+            tot_b = max(stats["bvh_nodes"], 1)
+            top = ", ".join(f"{scene.models[end_to_model[e]].name} {100 * c / tot_b:.0f}%" for e, c in by[:3]
+                            if e in end_to_model)
+            occ_s = f"{steps[occ].mean():.0f}" if occ.any() else "-"
+            un_s = f"{steps[~occ].mean():.0f}" if (~occ).any() else "-"
+            print(f"| {light.name} | {n} | {100 * occ.mean():.0f}% | {steps.mean():.0f} | {occ_s} / {un_s} | "
+                  f"{stats['tlas_nodes'] / n:.0f} / {stats['bvh_nodes'] / n:.0f} | {stats['triangles'] / n:.1f} | "
+                  f"{top} | {lane_waste(img):.2f} |", flush=True)
+            rays.append((light, o[facing], d[facing], tmax[facing], occ, float(steps.mean())))
+        if args.orders and rays:
+            node = baked.textures["node"].linear()
+            saved = node.copy()
+            lo, hi = boxes(saved)
+            cen = lo + hi
+            ext = hi - lo
+            area = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
+            orders = {"low boxes first": lambda i: cen[i, 2], "high boxes first": lambda i: -cen[i, 2],
+                      "larger boxes first": lambda i: -area[i]}
+            print(f"\n{spec}: node steps per ray under other child orders (occlusion unchanged)\n")
+            print("| light | current | " + " | ".join(orders) + " | front-to-back along the sun |")
+            print("|---|---:|" + "---:|" * (len(orders) + 1))
+            results = {light.name: [f"{mean:.0f}"] for light, *_, mean in rays}
+            def count(key, which):
+                node[:] = saved
+                for (s_, e_) in trees:
+                    node[s_:e_] = relayout(saved, s_, e_, key)
+                for light, o, d, tm, occ, _ in which:
+                    stats = {"per_ray": True}
+                    occ2 = tracer.trace_structured(baked, o, d, tm, stats)
+                    assert (occ2 == occ).all(), "a child order changed an answer"
+                    results[light.name].append(f"{stats['ray_iterations'].mean():.0f}")
+
+            try:
+                for key in orders.values():
+                    count(key, rays)
+                for r in rays:
+                    local, vec = light_ray_uniforms(r[0], baked.origin)
+                    if local:
+                        results[r[0].name].append("-")
+                    else:
+                        dn = np.asarray(vec, np.float64) / np.linalg.norm(vec)
+                        count(lambda i, dn=dn: float(cen[i] @ dn), [r])
+            finally:
+                node[:] = saved
+            for name, row in results.items():
+                print(f"| {name} | " + " | ".join(row) + " |")
+    pipe.release()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

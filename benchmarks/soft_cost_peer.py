@@ -1,0 +1,89 @@
+"""Soft-shadow cost against a peer tree, same run: shadow ms of the default soft render and of
+``--hard``, alternating the two trees.
+
+Each measurement is a subprocess in one tree (its own ``Pipeline``) rendering the scene hard and
+soft in turn, 4 times each (the first of each is dropped: program compilation), and reporting the
+medians. Trees alternate (peer, this, peer, this, ...) ``--alternations`` times, so both see the
+same machine load.
+
+    rm -rf /tmp/softpeer && mkdir /tmp/softpeer && git archive <commit> | tar -x -C /tmp/softpeer
+    .venv/bin/python benchmarks/soft_cost_peer.py --peer /tmp/softpeer [--scenes soft soft_lights:width=320,height=240]
+        [--size 320x240] [--samples 32] [--alternations 3]
+
+Scene ``soft`` is the test suite's hand-made scene (``tests/test_soft_shadows.py``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+CHILD = r"""
+import json, os, statistics, sys
+root = sys.argv[1]; sys.path.insert(0, root); os.chdir(root)
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.settings import Settings
+spec, size, samples = sys.argv[2], sys.argv[3], int(sys.argv[4])
+W, H = (int(v) for v in size.split("x"))
+if spec == "soft":
+    sys.path.insert(0, os.path.join(root, "tests"))
+    from test_soft_shadows import soft_scene
+    scene = soft_scene(); scene.resolution = (W, H)
+else:
+    from hybrid_shadow_addon.blender.load import load_scene
+    scene = load_scene(spec)
+pipe = Pipeline(); ms = {True: [], False: []}
+for hard in (True, False) * 4:
+    pipe.reset_history()
+    f = pipe.render(scene, Settings(mode="raytrace", quality="high", hard=hard, samples=samples), W, H)
+    ms[hard].append(f.timings["shadow_ms"])
+print(json.dumps({"hard": statistics.median(ms[True][1:]), "soft": statistics.median(ms[False][1:])}))
+"""
+
+
+def measure(root: Path, spec: str, size: str, samples: int) -> dict:
+    p = subprocess.run([sys.executable, "-c", CHILD, str(root), spec, size, str(samples)],
+                       capture_output=True, text=True)
+    if p.returncode != 0:
+        raise RuntimeError(f"{root}: {p.stderr[-2000:]}")
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--peer", required=True, help="the tree to compare against")
+    ap.add_argument("--scenes", nargs="+", default=["soft", "soft_lights:width=320,height=240"])
+    ap.add_argument("--size", default="320x240")
+    ap.add_argument("--samples", type=int, default=32)
+    ap.add_argument("--alternations", type=int, default=3)
+    args = ap.parse_args(argv)
+    trees = [("peer", Path(args.peer)), ("this", REPO)]
+    print(f"| scene | tree | hard ms (runs) | soft ms at {args.samples} samples (runs) | soft / hard | "
+          "soft ms this / peer |")
+    print("|---|---|---|---|---:|---:|")
+    for spec in args.scenes:
+        got = {name: [] for name, _ in trees}
+        for _ in range(args.alternations):
+            for name, root in trees:
+                got[name].append(measure(root, spec, args.size, args.samples))
+        med = {}
+        for name, _ in trees:
+            hard = [r["hard"] for r in got[name]]
+            soft = [r["soft"] for r in got[name]]
+            med[name] = (statistics.median(hard), statistics.median(soft))
+        for name, _ in trees:
+            h, s = med[name]
+            runs_h = ", ".join(f"{r['hard']:.0f}" for r in got[name])
+            runs_s = ", ".join(f"{r['soft']:.0f}" for r in got[name])
+            rel = f"{s / med['peer'][1]:.2f}" if name == "this" else "1.00"
+            print(f"| {spec} | {name} | {h:.0f} ({runs_h}) | {s:.0f} ({runs_s}) | {s / h:.1f} | {rel} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
