@@ -6,7 +6,7 @@ import pytest
 
 from hybrid_shadow_addon.core.errors import GPUError
 from hybrid_shadow_addon.core.gpu import context as context_mod
-from hybrid_shadow_addon.core.gpu.context import create_context, gpu_limits
+from hybrid_shadow_addon.core.gpu.context import create_context, gpu_limits, make_current
 from hybrid_shadow_addon.core.gpu.programs import ProgramCache, ShaderError
 
 
@@ -117,7 +117,7 @@ def test_compile_error_maps_lines(gl_ctx, shader_dir):
     assert "broken_inc.glsl" not in str(ei.value).split("failed to build")[1], str(ei.value)
 
 
-def test_two_pipelines_with_their_own_contexts_on_one_thread(loaded):
+def test_two_pipelines_with_their_own_contexts_on_one_thread(loaded, gl_ctx):
     """Each standalone Pipeline works in its own context even when another was created (and so
     made current) after it on the same thread: renders interleaved give each one's images and
     masks exactly as rendered alone. (Before, the first pipeline's calls went to the newer
@@ -155,3 +155,4 @@ def test_two_pipelines_with_their_own_contexts_on_one_thread(loaded):
     finally:
         pb.release()
         pa.release()
+        make_current(gl_ctx)  # (the session's context, which the other tests' objects live in)
