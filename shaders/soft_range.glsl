@@ -15,6 +15,9 @@
 
 #ifdef FRAGMENT_SHADER
 #include "common/gbuffer.glsl"
+#ifdef SUMS
+#include "common/soft_probe.glsl"
+#endif
 
 #define HS_RANGE_RADIUS 2     // HS_PROBE_RADIUS of common/soft_light.glsl and soft_accumulate.glsl
 #define HS_RANGE_BIG 3.0e38
@@ -33,8 +36,7 @@ void main()
 #ifdef FIRST
         if (texelFetch(u_gb_position, q, 0).w != 0.0) {
 #ifdef SUMS
-            vec2 sums = texelFetch(u_src, q, 0).rg;   // the probe pass's (as hs_probe_value)
-            float v = sums.y > 0.0 ? sums.x / sums.y : -1.0;
+            float v = hs_probe_value(texelFetch(u_src, q, 0).rg);   // the probe pass's sums
 #else
             float v = texelFetch(u_src, q, 0).r;
 #endif

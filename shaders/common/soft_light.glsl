@@ -23,6 +23,8 @@
 #ifndef HS_SOFT_LIGHT_GLSL
 #define HS_SOFT_LIGHT_GLSL
 
+#include "common/soft_probe.glsl"
+
 uniform int u_samples;        // rays per pixel (>= 1)
 uniform int u_sample_base;    // index of this frame's first sample in each pixel's sequence
 uniform uint u_seed;          // per light
@@ -32,10 +34,6 @@ uniform float u_light_blend;  // spot blend (a sphere light that is a spot; u_li
 uniform vec2 u_light_spread;  // area light: (tan of the half spread, its normalisation); x < 0: none
 
 #define HS_PROBES 4           // rays per pixel of the probe pass (HS_SOFT_PROBE)
-
-// The probe pass's answer from its sums (weighted visibility, weight): -1 where no probe had
-// any weight (not known). soft_range.glsl (SUMS) reads them the same way.
-float hs_probe_value(vec2 sums) { return sums.y > 0.0 ? sums.x / sums.y : -1.0; }
 #define HS_PROBE_RADIUS 2     // a pixel takes its probe answer when every probe within this
                               // many pixels saw all or none of the light alike
 

@@ -318,7 +318,9 @@ class RaytracePass(ShadowPass):
         w, h = tex.size
         src = tex
         for first, step in ((True, (1, 0)), (False, (0, 1))):
-            defs = ({"FIRST": 1, **({"SUMS": 1} if sums else {})}) if first else {}
+            defs = {}
+            if first:
+                defs = {"FIRST": 1, "SUMS": 1} if sums else {"FIRST": 1}
             prog, vao = self.programs.fullscreen("soft_range", defs)
             if first:
                 gbuffer.bind(prog, 1)

@@ -1,0 +1,12 @@
+/* soft_probe.glsl -- the probe pass's output (raytrace.glsl with HS_SOFT_PROBE): RG32F sums
+ * (weighted visibility, weight) of each pixel's first HS_PROBES samples, (value, 1) where the
+ * answer is known without a ray. Read by raytrace.glsl (HS_SOFT_REFINE, through soft_light.glsl)
+ * and soft_range.glsl (SUMS).
+ */
+#ifndef HS_SOFT_PROBE_GLSL
+#define HS_SOFT_PROBE_GLSL
+
+// The probe answer from its sums: -1 where no probe had any weight (not known).
+float hs_probe_value(vec2 sums) { return sums.y > 0.0 ? sums.x / sums.y : -1.0; }
+
+#endif // HS_SOFT_PROBE_GLSL
