@@ -13,6 +13,7 @@ it), the ratio peer / ours, and how many mask pixels equal the peer's (NaN = NaN
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import subprocess
 import sys
@@ -40,6 +41,7 @@ def run(cwd: Path, scene: str, out: Path, structure: str | None, resolution: str
     return json.loads((out / "stats.json").read_text())
 
 
+@functools.lru_cache(maxsize=None)
 def _has_hard(cwd: Path) -> bool:
     """Whether the tree's ``render`` knows ``--hard`` (a tree from before soft shadows is hard)."""
     p = subprocess.run([sys.executable, "-m", "hybrid_shadow_addon", "render", "--help"], cwd=cwd,
