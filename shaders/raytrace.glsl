@@ -16,6 +16,10 @@
 // HS_SOFT_REFINE then traces all of them only near pixels whose probes disagree). The probe
 // pass writes RG32F sums (weighted visibility, weight) instead of the mask, (value, 1) where the
 // answer is known without a ray: the refinement continues each pixel's sequence after them.
+// HS_SOFT_ACCUM (the viewport's running sums, soft_accumulate.glsl) writes the same sums of its
+// u_samples rays; a pixel none of whose rays had a weight writes its highest point's answer with
+// a weight of HS_ACCUM_TOP_WEIGHT, which decides only where no frame saw any weight, as a final
+// render's highest point does.
 
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
@@ -49,7 +53,9 @@ uniform int u_valid_phases;     // bit p set: history texels of phase p are up t
 #endif
 
 in vec2 v_uv;
-#ifdef HS_SOFT_PROBE
+#if defined(HS_SOFT_PROBE) || defined(HS_SOFT_ACCUM)
+#define HS_SOFT_SUMS
+#define HS_ACCUM_TOP_WEIGHT 1.0e-30
 out vec2 o_probe;               // (weighted visibility, weight) of the probe rays
 float o_mask;                   // the answers known without a ray: written as (o_mask, 1)
 vec2 hs_probe_sums = vec2(-1.0);
@@ -131,16 +137,22 @@ void trace_main()
         if (k == (n_samples >> 1) - 1 && sw > 0.0 && ((pv == 0.0 && sv == 0.0) || (pv == 1.0 && sv == sw))) break;
 #endif
     }
-#ifdef HS_SOFT_PROBE
-    hs_probe_sums = vec2(sv, sw);   // (sw 0: no probe had any weight, a spread's edge: not known)
-#else
+#ifndef HS_SOFT_PROBE
     if (sw == 0.0 && top_w > 0.0) {   // no sample reached above the horizon: the highest point decides
 #ifdef HS_MAX_DISTANCE
         top_tmax = min(top_tmax, u_max_distance / length(top_d));
 #endif
-        sv = hs_visibility(o, top_d, top_tmax);
+#ifdef HS_SOFT_ACCUM
+        sw = HS_ACCUM_TOP_WEIGHT;
+#else
         sw = 1.0;
+#endif
+        sv = sw * hs_visibility(o, top_d, top_tmax);
     }
+#endif
+#ifdef HS_SOFT_SUMS
+    hs_probe_sums = vec2(sv, sw);   // (probes, sw 0: no probe had any weight, a spread's edge: not known)
+#else
     o_mask = sw > 0.0 ? sv / sw : 0.0;
 #endif
     return;
@@ -176,7 +188,7 @@ void trace_main()
 void main()
 {
     trace_main();
-#ifdef HS_SOFT_PROBE
+#ifdef HS_SOFT_SUMS
     o_probe = hs_probe_sums.y >= 0.0 ? hs_probe_sums : vec2(o_mask, 1.0);
 #endif
 }

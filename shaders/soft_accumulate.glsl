@@ -1,14 +1,23 @@
-// Soft shadows in the viewport: the running mean of a light's masks over still frames
-// (ACCUMULATE), and a penumbra-only, edge-aware filter of that mean while it has few samples
-// (DENOISE). Each frame's mask traces a few samples per pixel, continuing every pixel's sample
-// sequence (u_sample_base), so the mean converges to the exact share of the light; anything
-// that changes resets it (RaytracePass.reset_history), so no old frame survives a change.
+// Soft shadows in the viewport: the running sums of a light's rays over still frames
+// (ACCUMULATE: each frame's (weighted visibility, weight) sums, raytrace.glsl HS_SOFT_ACCUM,
+// added up), the mask they make (RESOLVE: their ratio, as a final render's pixel divides its
+// sums), and a penumbra-only, edge-aware filter of a mask (DENOISE, also for final renders).
+// Each frame traces a few samples per pixel, continuing every pixel's sample sequence
+// (u_sample_base), so the sums converge to those of the exact share of the light (summing,
+// not averaging each frame's share: a frame whose few rays carry little weight, as at a soft
+// spot cone's edge, counts for as little); anything that changes resets them
+// (RaytracePass.reset_history), so no old frame survives a change.
 //
 // DENOISE: pixels whose neighbourhood (2 pixels: u_mask_range, soft_range.glsl) holds one value
-// only, 0 or 1, lie in an umbra or in the light and keep it: hard edges stay hard. The others (penumbrae) average
-// the neighbours within u_radius pixels that lie on the same surface (tangent-plane distance
-// against the view depth, normal agreement) and whose value is within the noise of its own;
-// u_radius shrinks as the
+// only, 0 or 1, lie in an umbra or in the light and keep it: hard edges stay hard. The others
+// (penumbrae) average the neighbours within u_radius pixels that lie on the same surface
+// (tangent-plane distance against the view depth, normal agreement) and whose value is within
+// the noise of its own. The noise of a pixel's share of the light falls as samples^-0.75 (its
+// samples are stratified over the light, where independent ones would give samples^-0.5), so
+// the range kernel's variance is K v (1 - v) / samples^1.5. Near a penumbra's border (a 0 or 1
+// within 2 pixels, where the share bends fastest) K is small, so a narrow penumbra keeps its
+// shape; inside a wide penumbra (every share within 2 pixels partial, the share changes slowly)
+// K is large and the filter averages its neighbours almost freely. u_radius shrinks as the
 // samples add up (the filter's blur fades while the noise it hides does).
 #include "common/camera.glsl"
 #include "common/gbuffer.glsl"
@@ -18,17 +27,27 @@
 #endif
 
 #ifdef FRAGMENT_SHADER
-layout(location = 0) out float o_mask;
-
 #ifdef ACCUMULATE
-uniform sampler2D u_new;        // this frame's mask
-uniform sampler2D u_acc;        // the mean of the u_count frames before
+layout(location = 0) out vec2 o_sums;
+uniform sampler2D u_new;        // this frame's sums
+uniform sampler2D u_acc;        // the sums of the u_count frames before
 uniform float u_count;
 
 void main() {
     ivec2 px = ivec2(gl_FragCoord.xy);
-    float v = texelFetch(u_new, px, 0).r;
-    o_mask = u_count > 0.0 ? (texelFetch(u_acc, px, 0).r * u_count + v) / (u_count + 1.0) : v;
+    vec2 v = texelFetch(u_new, px, 0).rg;
+    o_sums = u_count > 0.0 ? texelFetch(u_acc, px, 0).rg + v : v;
+}
+#else
+layout(location = 0) out float o_mask;
+#endif
+
+#ifdef RESOLVE
+uniform sampler2D u_sums;
+
+void main() {
+    vec2 s = texelFetch(u_sums, ivec2(gl_FragCoord.xy), 0).rg;
+    o_mask = s.y > 0.0 ? s.x / s.y : 0.0;
 }
 #endif
 
@@ -37,9 +56,12 @@ uniform sampler2D u_mask;
 uniform sampler2D u_mask_range; // u_mask's (min, max) over the covered texels within 2 (soft_range.glsl)
 uniform int u_radius;
 uniform float u_plane_sigma;    // tangent-plane distance, relative to the view depth
-uniform float u_samples;        // samples per pixel of u_mask: the range kernel's width is twice
-                                // the estimate's noise, sqrt(v (1 - v) / samples), so real
-                                // detail (a textured cut's shadow) stays and noise averages out
+uniform float u_samples;        // samples per pixel of u_mask (the range kernel's width follows
+                                // the estimate's noise, so real detail such as a textured cut's
+                                // shadow stays and noise averages out)
+
+#define HS_RANGE_K_BORDER 8.0   // K near a penumbra's border and inside one (see above; measured
+#define HS_RANGE_K_INSIDE 30.0  // against Cycles, BENCHMARKS.md "Soft shadows")
 
 void main() {
     ivec2 px = ivec2(gl_FragCoord.xy);
@@ -53,7 +75,9 @@ void main() {
     vec3 n = texelFetch(u_gb_normal, px, 0).xyz;
     float depth = max(texelFetch(u_gb_depth, px, 0).r, 1e-6);
     float sum = 0.0, wsum = 0.0;
-    float sigma2 = 4.0 * max(c * (1.0 - c), 0.05) / max(u_samples, 1.0);
+    bool inside = near.x > 0.0 && near.y < 1.0;
+    float sigma2 = (inside ? HS_RANGE_K_INSIDE : HS_RANGE_K_BORDER) * max(c * (1.0 - c), 0.05)
+                 / pow(max(u_samples, 1.0), 1.5);
     for (int dy = -u_radius; dy <= u_radius; ++dy)
         for (int dx = -u_radius; dx <= u_radius; ++dx) {
             ivec2 q = px + ivec2(dx, dy);

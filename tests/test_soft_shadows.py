@@ -167,7 +167,7 @@ def test_oracle_light_distributions():
     d, tmax, w = light_samples(sc.lights[4], p, nz, xi)
     q = p + d - sc.lights[4].position
     assert np.abs(q[:, 2]).max() < 1e-9 and np.hypot(q[:, 0], q[:, 1]).max() <= 0.5 + 1e-9
-    assert denoise_radius(4) == 4 and denoise_radius(64) == 0
+    assert denoise_radius(4) == 4 and denoise_radius(64) == 1 and denoise_radius(4096) == 1
 
 
 def test_sample_pattern_changes_per_frame_not_per_run(pipeline):
@@ -210,6 +210,33 @@ def test_soft_spot_cone_edge_matches_the_oracle(pipeline):
     in_ring = ring[pick]
     assert in_ring.sum() > 300 and (ours[in_ring] > 0.5).mean() > 0.5, "the soft cone edge lights pixels beyond the centre's cone"
     assert ((ref > 0.05) & (ref < 0.95)).sum() > 100, "the test should see a penumbra"
+
+
+def test_viewport_sums_do_not_depend_on_how_frames_split_the_samples(pipeline):
+    """The viewport adds up each frame's (weighted visibility, weight) sums: 32 samples in 8
+    frames of 4 give the mask of 2 frames of 16, at a soft spot cone's edge too, where a frame
+    whose few points barely reach the pixel carries little weight. (Averaging each frame's share
+    instead, as the viewport once did, counted such a frame as much as the others: after 8 still
+    frames ``soft_lights``' spot was 0.0082 off Cycles on average, the final render 0.0015.)"""
+    spot = Light("spot", "SPOT", power=800.0, matrix=trs((0.8, -0.8, 3.0), rot_x=0.15), radius=0.35,
+                 spot_size=np.radians(50.0), spot_blend=0.2)
+    sc = soft_scene([spot, LIGHTS[3]])
+    pipeline.set_scene(sc, "bvh")
+    masks = {}
+    for fs in (4, 16):
+        pipeline.reset_history()
+        s = Settings(mode="raytrace", quality="high", accumulate=True, frame_samples=fs, samples=32)
+        for _ in range(32 // fs):
+            f = pipeline.render(sc, s)
+        assert f.stats["accumulated_samples"] == 32
+        masks[fs] = [f.mask_array(li) for li in range(2)]
+    for li in range(2):
+        a, b = masks[4][li], masks[16][li]
+        np.testing.assert_array_equal(np.isfinite(a), np.isfinite(b))
+        ok = np.isfinite(a)
+        assert ((a[ok] > 0.02) & (a[ok] < 0.98)).sum() > 300, "the test should see a penumbra"
+        np.testing.assert_allclose(a[ok], b[ok], atol=2e-5)
+    pipeline.reset_history()
 
 
 def test_area_light_spread_lighting_and_shadow(pipeline):

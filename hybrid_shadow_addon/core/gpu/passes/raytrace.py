@@ -21,9 +21,10 @@ others trace only up to the first possible caster depth (exact: the masks do not
 
 Lights with a size (``lights.soft_shape``, unless ``Settings.hard``) compile ``HS_SOFT``: at
 ``high`` a probe pass traces 4 rays per pixel, the trace then gives ``samples`` rays only to
-pixels near a probe that saw part of the light, and below 64 samples a penumbra-only filter
-(``shaders/soft_accumulate.glsl``) follows; with ``Settings.accumulate`` (the viewport) each
-frame adds ``frame_samples`` rays to a running mean instead, until ``reset_history``.
+pixels near a probe that saw part of the light, and a penumbra-only filter
+(``shaders/soft_accumulate.glsl``, narrowing as the samples add up) follows; with ``Settings.accumulate`` (the viewport) each
+frame adds the sums of ``frame_samples`` rays per pixel to those of the frames before instead,
+until ``reset_history``.
 
 ``stats``: ``rays_traced`` counts the pixels the trace shaded (occlusion queries; facing-away
 and map-decided pixels among them cost no traversal), ``pixels`` the pixels with geometry times
@@ -45,14 +46,10 @@ from .refine import Refiner
 
 
 SOFT_PROBES = 4  # HS_PROBES of shaders/common/soft_light.glsl
-DENOISE_SAMPLES = 64  # accumulated masks with fewer samples per pixel are filtered
-
-
 def denoise_radius(samples: int) -> int:
     """Filter radius (pixels) of a soft mask with ``samples`` per pixel: 4 at 4 samples,
-    shrinking as 1/sqrt(samples) (the noise does), none from DENOISE_SAMPLES on."""
-    if samples >= DENOISE_SAMPLES:
-        return 0
+    shrinking as 1/sqrt(samples), 1 from 29 samples on (its range kernel narrows with the noise,
+    so many samples are left almost as they are)."""
     return max(1, int(round(8.0 / np.sqrt(max(samples, 1)))))
 
 
@@ -278,10 +275,11 @@ class RaytracePass(ShadowPass):
         return dst.texture
 
     def _accumulate(self, li, light, light_vec, defines, gbuffer, settings, cmap):
-        """One more frame of a soft light's running mean (``Settings.accumulate``): trace
-        ``frame_samples`` rays per pixel continuing each pixel's sequence, add them to the mean,
-        filter the mean's penumbrae while it has few samples. Converged (``samples`` reached):
-        the mean as it is, no rays."""
+        """One more frame of a soft light's running sums (``Settings.accumulate``): trace
+        ``frame_samples`` rays per pixel continuing each pixel's sequence, add their (weighted
+        visibility, weight) sums to those of the frames before, and filter the mask they make
+        within its penumbrae (the fewer its samples, the wider). Converged (``samples``
+        reached): no rays, the mask filtered as a final render's is."""
         ctx = self.ctx
         full = gbuffer.size
         fs = int(settings.frame_samples)
@@ -293,20 +291,25 @@ class RaytracePass(ShadowPass):
             base = self.sample_base
             self.sample_base = n * fs
             frame_settings = settings.replace(samples=fs)
-            prog, vao, _ = self._program(defines, light, light_vec, gbuffer, frame_settings, 1, cmap)
+            prog, vao, _ = self._program({**defines, "HS_SOFT_ACCUM": 1}, light, light_vec, gbuffer,
+                                         frame_settings, 1, cmap)
             self.sample_base = base
-            new = self._target((li, "new"), *full)
+            new = self._target((li, "new"), *full, components=2)
             draw_fullscreen(ctx, vao, new)
             acc_prog, acc_vao = self.programs.fullscreen("soft_accumulate", {"ACCUMULATE": 1})
-            src = self._target((li, "acc", cur), *full)
-            dst = self._target((li, "acc", 1 - cur), *full)
+            src = self._target((li, "acc", cur), *full, components=2)
+            dst = self._target((li, "acc", 1 - cur), *full, components=2)
             new.texture.use(0)
             src.texture.use(1)
             set_uniforms(acc_prog, {"u_new": 0, "u_acc": 1, "u_count": float(n)})
             draw_fullscreen(ctx, acc_vao, dst)
             n, cur = n + 1, 1 - cur
             self._accum[li] = (n, cur, key)
-        mean = self._target((li, "acc", cur), *full)
+        res_prog, res_vao = self.programs.fullscreen("soft_accumulate", {"RESOLVE": 1})
+        self._target((li, "acc", cur), *full, components=2).texture.use(0)
+        set_uniforms(res_prog, {"u_sums": 0})
+        mean = self._target((li, "mean"), *full)
+        draw_fullscreen(ctx, res_vao, mean)
         got = min(n * fs, int(settings.samples))
         self.accumulated = got if self.accumulated is None else min(self.accumulated, got)
         return self._denoise(li, mean, gbuffer, denoise_radius(got), got)
