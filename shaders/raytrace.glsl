@@ -56,9 +56,9 @@ in vec2 v_uv;
 #if defined(HS_SOFT_PROBE) || defined(HS_SOFT_ACCUM)
 #define HS_SOFT_SUMS
 #define HS_ACCUM_TOP_WEIGHT 1.0e-30
-out vec2 o_probe;               // (weighted visibility, weight) of the probe rays
+out vec2 o_sums;                // (weighted visibility, weight) of this pass's rays
 float o_mask;                   // the answers known without a ray: written as (o_mask, 1)
-vec2 hs_probe_sums = vec2(-1.0);
+vec2 hs_sums = vec2(-1.0);
 #else
 out float o_mask;
 #endif
@@ -151,7 +151,7 @@ void trace_main()
     }
 #endif
 #ifdef HS_SOFT_SUMS
-    hs_probe_sums = vec2(sv, sw);   // (probes, sw 0: no probe had any weight, a spread's edge: not known)
+    hs_sums = vec2(sv, sw);   // (probes, sw 0: no probe had any weight, a spread's edge: not known)
 #else
     o_mask = sw > 0.0 ? sv / sw : 0.0;
 #endif
@@ -189,7 +189,7 @@ void main()
 {
     trace_main();
 #ifdef HS_SOFT_SUMS
-    o_probe = hs_probe_sums.y >= 0.0 ? hs_probe_sums : vec2(o_mask, 1.0);
+    o_sums = hs_sums.y >= 0.0 ? hs_sums : vec2(o_mask, 1.0);
 #endif
 }
 #endif

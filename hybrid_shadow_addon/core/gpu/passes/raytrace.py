@@ -22,9 +22,9 @@ others trace only up to the first possible caster depth (exact: the masks do not
 Lights with a size (``lights.soft_shape``, unless ``Settings.hard``) compile ``HS_SOFT``: at
 ``high`` a probe pass traces 4 rays per pixel, the trace then gives ``samples`` rays only to
 pixels near a probe that saw part of the light, and a penumbra-only filter
-(``shaders/soft_accumulate.glsl``, narrowing as the samples add up) follows; with ``Settings.accumulate`` (the viewport) each
-frame adds the sums of ``frame_samples`` rays per pixel to those of the frames before instead,
-until ``reset_history``.
+(``shaders/soft_accumulate.glsl``, narrowing as the samples add up) follows; with
+``Settings.accumulate`` (the viewport) each frame adds the sums of ``frame_samples`` rays per
+pixel to those of the frames before instead, until ``reset_history``.
 
 ``stats``: ``rays_traced`` counts the pixels the trace shaded (occlusion queries; facing-away
 and map-decided pixels among them cost no traversal), ``pixels`` the pixels with geometry times
@@ -46,6 +46,8 @@ from .refine import Refiner
 
 
 SOFT_PROBES = 4  # HS_PROBES of shaders/common/soft_light.glsl
+
+
 def denoise_radius(samples: int) -> int:
     """Filter radius (pixels) of a soft mask with ``samples`` per pixel: 4 at 4 samples,
     shrinking as 1/sqrt(samples), 1 from 29 samples on (its range kernel narrows with the noise,
