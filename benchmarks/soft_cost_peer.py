@@ -8,9 +8,11 @@ same machine load.
 
     rm -rf /tmp/softpeer && mkdir /tmp/softpeer && git archive <commit> | tar -x -C /tmp/softpeer
     .venv/bin/python benchmarks/soft_cost_peer.py --peer /tmp/softpeer [--scenes soft soft_lights:width=320,height=240]
-        [--size 320x240] [--samples 32] [--alternations 3]
+        [--size 320x240] [--samples 32] [--alternations 3] [--viewport]
 
-Scene ``soft`` is the test suite's hand-made scene (``tests/test_soft_shadows.py``).
+Scene ``soft`` is the test suite's hand-made scene (``tests/test_soft_shadows.py``). With
+``--viewport`` the soft column is the viewport's first frame after a change (``Settings.accumulate``
+after ``reset_history``) instead of a final render.
 """
 from __future__ import annotations
 
@@ -37,17 +39,21 @@ if spec == "soft":
 else:
     from hybrid_shadow_addon.blender.load import load_scene
     scene = load_scene(spec)
+viewport = sys.argv[5] == "viewport"
 pipe = Pipeline(); ms = {True: [], False: []}
 for hard in (True, False) * 4:
     pipe.reset_history()
-    f = pipe.render(scene, Settings(mode="raytrace", quality="high", hard=hard, samples=samples), W, H)
+    s = Settings(mode="raytrace", quality="high", hard=hard, samples=samples)
+    if viewport and not hard:  # the viewport's first frame after a change
+        s = s.replace(accumulate=True)
+    f = pipe.render(scene, s, W, H)
     ms[hard].append(f.timings["shadow_ms"])
 print(json.dumps({"hard": statistics.median(ms[True][1:]), "soft": statistics.median(ms[False][1:])}))
 """
 
 
-def measure(root: Path, spec: str, size: str, samples: int) -> dict:
-    p = subprocess.run([sys.executable, "-c", CHILD, str(root), spec, size, str(samples)],
+def measure(root: Path, spec: str, size: str, samples: int, what: str = "final") -> dict:
+    p = subprocess.run([sys.executable, "-c", CHILD, str(root), spec, size, str(samples), what],
                        capture_output=True, text=True)
     if p.returncode != 0:
         raise RuntimeError(f"{root}: {p.stderr[-2000:]}")
@@ -61,16 +67,19 @@ def main(argv=None) -> int:
     ap.add_argument("--size", default="320x240")
     ap.add_argument("--samples", type=int, default=32)
     ap.add_argument("--alternations", type=int, default=3)
+    ap.add_argument("--viewport", action="store_true",
+                    help="the soft column is the viewport's first frame after a change, not a final render")
     args = ap.parse_args(argv)
+    what = "viewport" if args.viewport else "final"
     trees = [("peer", Path(args.peer)), ("this", REPO)]
-    print(f"| scene | tree | hard ms (runs) | soft ms at {args.samples} samples (runs) | soft / hard | "
-          "soft ms this / peer |")
+    soft = "viewport first frame ms" if args.viewport else f"soft ms at {args.samples} samples"
+    print(f"| scene | tree | hard ms (runs) | {soft} (runs) | soft / hard | soft ms this / peer |")
     print("|---|---|---|---|---:|---:|")
     for spec in args.scenes:
         got = {name: [] for name, _ in trees}
         for _ in range(args.alternations):
             for name, root in trees:
-                got[name].append(measure(root, spec, args.size, args.samples))
+                got[name].append(measure(root, spec, args.size, args.samples, what))
         med = {}
         for name, _ in trees:
             hard = [r["hard"] for r in got[name]]

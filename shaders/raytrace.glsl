@@ -107,7 +107,13 @@ void trace_main()
     float pv = hs_probe_value(ps);
     {
         vec2 near = texelFetch(u_probe_range, px, 0).rg;   // (soft_range.glsl: px is covered)
-        if ((pv == 0.0 || pv == 1.0) && near.x == pv && near.y == pv) { o_mask = pv; return; }
+        if ((pv == 0.0 || pv == 1.0) && near.x == pv && near.y == pv) {
+#ifdef HS_SOFT_ACCUM
+            hs_sums = ps;   // (a viewport frame: the probes' own sums, which later frames add to)
+#endif
+            o_mask = pv;
+            return;
+        }
     }
 #endif
 #endif
@@ -117,7 +123,11 @@ void trace_main()
     // the probes were this pixel's first HS_PROBES samples (the same sequence, in the same
     // order): continue after them with their sums, exactly as if traced again (below 10
     // samples the early stop's check falls among the probes: those are traced again)
+#ifdef HS_SOFT_ACCUM
+    { sv = ps.x; sw = ps.y; k0 = HS_PROBES; }   // (a viewport frame: all its samples, no early stop)
+#else
     if ((n_samples >> 1) > HS_PROBES) { sv = ps.x; sw = ps.y; k0 = HS_PROBES; }
+#endif
 #endif
     for (int k = k0; k < n_samples; ++k) {
         vec3 sd;
@@ -130,7 +140,7 @@ void trace_main()
             sv += w * hs_visibility(o, sd, stm);
             sw += w;
         }
-#ifdef HS_SOFT_REFINE
+#if defined(HS_SOFT_REFINE) && !defined(HS_SOFT_ACCUM)
         // a pixel refined only for a neighbour's sake (a penumbra's fringe): when the first
         // half of its samples, spread over the light, all agree with its own probes, it keeps
         // that answer (its share is then within a few % of it)

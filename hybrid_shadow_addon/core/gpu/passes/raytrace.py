@@ -48,6 +48,15 @@ from .refine import Refiner
 SOFT_PROBES = 4  # HS_PROBES of shaders/common/soft_light.glsl
 
 
+def first_frame_lead(frame_samples: int) -> int:
+    """Samples the viewport's first frame after a change traces beyond ``frame_samples`` in the
+    penumbrae: it probes every pixel as a final render does and gives the pixels near a probe
+    that saw part of the light twice the samples of a later frame (pixels elsewhere keep their
+    probes' answer, and add the later frames' samples to it). 0 where a frame traces no more
+    samples than the probes."""
+    return int(frame_samples) if 2 * int(frame_samples) > SOFT_PROBES else 0
+
+
 def denoise_radius(samples: int) -> int:
     """Filter radius (pixels) of a soft mask with ``samples`` per pixel: 4 at 4 samples,
     shrinking as 1/sqrt(samples), 1 from 29 samples on (its range kernel narrows with the noise,
@@ -227,24 +236,10 @@ class RaytracePass(ShadowPass):
             out = self._target((li, "out" if plan == "full" else "coarse"), *size)
             probed = plan == "full" and "HS_SOFT" in defines and settings.samples > SOFT_PROBES
             if probed:
-                # soft light: a few probe rays per pixel, then all the samples only near the
-                # pixels whose probes disagree (penumbrae); elsewhere the probes are exact
-                _, pvao, _ = self._program({**defines, "HS_SOFT_PROBE": 1}, light, light_vec, gbuffer, settings,
-                                           1, cmap)
-                probe = self._target((li, "probe"), *full, components=2)  # (sums: raytrace.glsl)
-                draw_fullscreen(ctx, pvao, probe)
-                near = self._range((li, "probe"), probe.texture, gbuffer, sums=True)
-                prog, vao, unit = self._program({**defines, "HS_SOFT_REFINE": 1}, light, light_vec, gbuffer,
-                                                settings, 1, cmap)
-                probe.texture.use(unit)
-                prog["u_probe"].value = unit
-                near.use(unit + 1)
-                prog["u_probe_range"].value = unit + 1
-            else:
-                _, vao, _ = self._program(defines, light, light_vec, gbuffer, settings, scale, cmap)
-            draw_fullscreen(ctx, vao, out)
-            if probed:
+                self._probe_and_refine(li, light, light_vec, defines, gbuffer, settings, cmap, out)
                 return self._denoise(li, out, gbuffer, denoise_radius(int(settings.samples)), int(settings.samples))
+            _, vao, _ = self._program(defines, light, light_vec, gbuffer, settings, scale, cmap)
+            draw_fullscreen(ctx, vao, out)
             return out.texture
         plain = {k: v for k, v in defines.items() if k != "HS_INTERLACE"}
         uniforms = self._light_uniforms(light, light_vec, gbuffer, settings)
@@ -276,6 +271,25 @@ class RaytracePass(ShadowPass):
             self.refiner.refine(key, dst, vao)
         return dst.texture
 
+    def _probe_and_refine(self, li, light, light_vec, defines, gbuffer, settings, cmap, out) -> None:
+        """A soft light's ``settings.samples`` rays per pixel into ``out``: a few probe rays per
+        pixel, then the rest only near the pixels whose probes disagree (penumbrae); elsewhere
+        the probes are exact. ``defines`` with ``HS_SOFT_ACCUM``: ``out`` gets the sums (RG)."""
+        ctx = self.ctx
+        full = gbuffer.size
+        probe_defs = {k: v for k, v in defines.items() if k != "HS_SOFT_ACCUM"}  # (the same probes either way)
+        _, pvao, _ = self._program({**probe_defs, "HS_SOFT_PROBE": 1}, light, light_vec, gbuffer, settings, 1, cmap)
+        probe = self._target((li, "probe"), *full, components=2)  # (sums: raytrace.glsl)
+        draw_fullscreen(ctx, pvao, probe)
+        near = self._range((li, "probe"), probe.texture, gbuffer, sums=True)
+        prog, vao, unit = self._program({**defines, "HS_SOFT_REFINE": 1}, light, light_vec, gbuffer, settings, 1,
+                                        cmap)
+        probe.texture.use(unit)
+        prog["u_probe"].value = unit
+        near.use(unit + 1)
+        prog["u_probe_range"].value = unit + 1
+        draw_fullscreen(ctx, vao, out)
+
     def _accumulate(self, li, light, light_vec, defines, gbuffer, settings, cmap):
         """One more frame of a soft light's running sums (``Settings.accumulate``): trace
         ``frame_samples`` rays per pixel continuing each pixel's sequence, add their (weighted
@@ -285,19 +299,24 @@ class RaytracePass(ShadowPass):
         ctx = self.ctx
         full = gbuffer.size
         fs = int(settings.frame_samples)
+        lead = first_frame_lead(fs)
         key = (fs, int(settings.samples))
         n, cur, k = self._accum.get(li, (0, 0, key))
         if k != key:
             n, cur = 0, 0
-        if n * fs < settings.samples:
+        done = lead + n * fs if n else 0
+        if done < settings.samples:
             base = self.sample_base
-            self.sample_base = n * fs
-            frame_settings = settings.replace(samples=fs)
-            prog, vao, _ = self._program({**defines, "HS_SOFT_ACCUM": 1}, light, light_vec, gbuffer,
-                                         frame_settings, 1, cmap)
-            self.sample_base = base
+            self.sample_base = done
+            accum = {**defines, "HS_SOFT_ACCUM": 1}
             new = self._target((li, "new"), *full, components=2)
-            draw_fullscreen(ctx, vao, new)
+            if n == 0 and lead:  # probes everywhere, fs + lead samples in the penumbrae
+                self._probe_and_refine(li, light, light_vec, accum, gbuffer, settings.replace(samples=fs + lead),
+                                       cmap, new)
+            else:
+                _, vao, _ = self._program(accum, light, light_vec, gbuffer, settings.replace(samples=fs), 1, cmap)
+                draw_fullscreen(ctx, vao, new)
+            self.sample_base = base
             acc_prog, acc_vao = self.programs.fullscreen("soft_accumulate", {"ACCUMULATE": 1})
             src = self._target((li, "acc", cur), *full, components=2)
             dst = self._target((li, "acc", 1 - cur), *full, components=2)
@@ -312,7 +331,7 @@ class RaytracePass(ShadowPass):
         set_uniforms(res_prog, {"u_sums": 0})
         mean = self._target((li, "mean"), *full)
         draw_fullscreen(ctx, res_vao, mean)
-        got = min(n * fs, int(settings.samples))
+        got = min(lead + n * fs if n else 0, int(settings.samples))
         self.accumulated = got if self.accumulated is None else min(self.accumulated, got)
         return self._denoise(li, mean, gbuffer, denoise_radius(got), got)
 
