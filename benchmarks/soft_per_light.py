@@ -5,8 +5,9 @@ The reference is Cycles' per-light soft visibility (``blender/cycles_reference.p
 they are, ``--cycles-samples`` at each pixel centre, its validity rule), rendered once per scene,
 size and sample count and kept in ``--cache`` (2048 samples: about 2.5 min at 160x120, 10 min at
 320x240, for ``soft_lights``' six lights). Ours: the final render's mask (``Settings.samples``
-rays per pixel and light) for each of ``--samples``, and the viewport's running sums after 1, 2
-and 8 still frames of 4 samples (``--viewport``). Every valid pixel counts (no subset).
+rays per pixel and light) for each of ``--samples``, and the viewport's mask on the first frame
+after a change, the second and the eighth (``--viewport``; 4 samples per frame). Every valid
+pixel counts (no subset).
 
     .venv/bin/python benchmarks/soft_per_light.py soft_lights --size 160x120 --samples 16 32 64 128 --viewport
 """

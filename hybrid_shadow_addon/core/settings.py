@@ -52,9 +52,11 @@ class Settings:
     - ``hard``: every light hard (one ray to its centre, sizes ignored), as the hard Cycles
       references of ``compare`` are rendered.
     - ``accumulate`` (the viewport, ``raytrace`` at ``high``): each frame traces
-      ``frame_samples`` rays per pixel towards each soft light and adds them to the mean of
-      the frames before, until ``samples`` are reached; the first frames are filtered within
-      their penumbrae. Any change (``Pipeline.reset_history``) starts afresh.
+      ``frame_samples`` rays per pixel towards each soft light and adds their sums to those of
+      the frames before, until ``samples`` are reached; the first frame after a change probes
+      every pixel as a final render does and gives the penumbrae twice ``frame_samples``. The
+      mask is filtered within its penumbrae, the more the fewer its samples. Any change
+      (``Pipeline.reset_history``) starts afresh.
     """
 
     mode: str = "raytrace"
