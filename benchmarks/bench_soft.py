@@ -2,7 +2,8 @@
 
 For each scene with soft lights: the ray-traced masks at ``samples`` = 1, 4, 16, 32, 64 (the final
 render's probe pass + penumbra refinement), the viewport's accumulation (first frame after a
-change: 4 samples, filtered; after 8 still frames: 32), and the same scene rendered ``hard``.
+change: probes, 8 samples in the penumbrae, filtered; the 8th still frame: 32), and the same
+scene rendered ``hard``.
 Error: per light, against a reference share of each light, on a fixed random subset of the
 covered pixels: the numpy soft oracle (``core/oracle/soft.py``, 256 stratified samples per
 pixel, brute force), or with ``--cycles`` Cycles' per-light soft reference (lights as they
