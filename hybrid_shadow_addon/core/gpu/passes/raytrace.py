@@ -294,8 +294,10 @@ class RaytracePass(ShadowPass):
         """One more frame of a soft light's running sums (``Settings.accumulate``): trace
         ``frame_samples`` rays per pixel continuing each pixel's sequence, add their (weighted
         visibility, weight) sums to those of the frames before, and filter the mask they make
-        within its penumbrae (the fewer its samples, the wider). Converged (``samples``
-        reached): no rays, the mask filtered as a final render's is."""
+        within its penumbrae (the fewer its samples, the wider). The first frame after a change
+        probes every pixel and gives the penumbrae ``frame_samples`` + :func:`first_frame_lead`
+        samples. Converged (``samples`` reached): no rays, the mask filtered as a final
+        render's is."""
         ctx = self.ctx
         full = gbuffer.size
         fs = int(settings.frame_samples)
