@@ -78,7 +78,7 @@ def main(argv=None) -> int:
         print(row(f"{n} samples", pipe.render(scene, Settings(samples=n)), scene, ref), flush=True)
     if args.viewport:
         pipe.reset_history()
-        s = Settings(accumulate=True, frame_samples=4, samples=max(32, Settings.samples))
+        s = Settings(accumulate=True, frame_samples=4)  # (to the default samples)
         for k in range(1, 9):
             f = pipe.render(scene, s)
             if k in (1, 2, 8):

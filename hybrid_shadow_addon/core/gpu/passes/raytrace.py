@@ -302,11 +302,15 @@ class RaytracePass(ShadowPass):
         full = gbuffer.size
         fs = int(settings.frame_samples)
         lead = first_frame_lead(fs)
+
+        def traced(frames: int) -> int:  # samples per penumbra pixel after that many frames
+            return lead + frames * fs if frames else 0
+
         key = (fs, int(settings.samples))
         n, cur, k = self._accum.get(li, (0, 0, key))
         if k != key:
             n, cur = 0, 0
-        done = lead + n * fs if n else 0
+        done = traced(n)
         if done < settings.samples:
             base = self.sample_base
             self.sample_base = done
@@ -333,7 +337,7 @@ class RaytracePass(ShadowPass):
         set_uniforms(res_prog, {"u_sums": 0})
         mean = self._target((li, "mean"), *full)
         draw_fullscreen(ctx, res_vao, mean)
-        got = min(lead + n * fs if n else 0, int(settings.samples))
+        got = min(traced(n), int(settings.samples))
         self.accumulated = got if self.accumulated is None else min(self.accumulated, got)
         return self._denoise(li, mean, gbuffer, denoise_radius(got), got)
 
