@@ -40,7 +40,9 @@
 #include "common/soft_light.glsl"
 #ifdef HS_SOFT_REFINE
 uniform sampler2D u_probe;      // the probe pass's sums (full resolution; see hs_probe_value)
+#ifndef HS_SOFT_MASKED
 uniform sampler2D u_probe_range; // its (min, max) over the covered texels within HS_PROBE_RADIUS (soft_range.glsl)
+#endif
 #endif
 #endif
 
@@ -105,6 +107,7 @@ void trace_main()
     // of the light alike, this pixel lies outside any penumbra and keeps its probe answer
     vec2 ps = texelFetch(u_probe, px, 0).rg;
     float pv = hs_probe_value(ps);
+#ifndef HS_SOFT_MASKED   // (else soft_range.glsl's CLASSIFY decided, and this pixel is refined)
     {
         vec2 near = texelFetch(u_probe_range, px, 0).rg;   // (soft_range.glsl: px is covered)
         if ((pv == 0.0 || pv == 1.0) && near.x == pv && near.y == pv) {
@@ -115,6 +118,7 @@ void trace_main()
             return;
         }
     }
+#endif
 #endif
 #endif
     float sw = 0.0, sv = 0.0;
@@ -129,6 +133,42 @@ void trace_main()
     if ((n_samples >> 1) > HS_PROBES) { sv = ps.x; sw = ps.y; k0 = HS_PROBES; }
 #endif
 #endif
+#ifdef HS_SOFT_PACKET
+    // the samples in packets of up to HS_PACKET rays, each packet one walk of the scene
+    // (common/scene_packet.glsl); a packet ends where the early stop below looks
+    float pw[HS_PACKET];
+    for (int k = k0; k < n_samples; ) {
+        int kend = min(n_samples, k + HS_PACKET);
+#if defined(HS_SOFT_REFINE) && !defined(HS_SOFT_ACCUM)
+        if (k < (n_samples >> 1)) kend = min(kend, n_samples >> 1);
+#endif
+        int cnt = kend - k;
+        uint live = 0u;
+        for (int j = 0; j < cnt; ++j) {
+            vec3 sd;
+            float stm, w;
+            hs_light_sample(o, n, hs_sample2(px, u_sample_base + k + j), sd, stm, w);
+#ifdef HS_MAX_DISTANCE
+            stm = min(stm, u_max_distance / length(sd));
+#endif
+            hs_pk_d[j] = sd;
+            hs_pk_t[j] = stm;
+            pw[j] = w;
+            if (w > 0.0) live |= 1u << uint(j);
+        }
+        uint occ = hs_trace_packet(o, cnt, live);
+        for (int j = 0; j < cnt; ++j) {
+            if (((live >> uint(j)) & 1u) != 0u) {
+                sw += pw[j];
+                if (((occ >> uint(j)) & 1u) == 0u) sv += pw[j];
+            }
+        }
+        k = kend;
+#if defined(HS_SOFT_REFINE) && !defined(HS_SOFT_ACCUM)
+        if (k == (n_samples >> 1) && sw > 0.0 && ((pv == 0.0 && sv == 0.0) || (pv == 1.0 && sv == sw))) break;
+#endif
+    }
+#else
     for (int k = k0; k < n_samples; ++k) {
         vec3 sd;
         float stm, w;
@@ -147,6 +187,7 @@ void trace_main()
         if (k == (n_samples >> 1) - 1 && sw > 0.0 && ((pv == 0.0 && sv == 0.0) || (pv == 1.0 && sv == sw))) break;
 #endif
     }
+#endif
 #ifndef HS_SOFT_PROBE
     if (sw == 0.0 && top_w > 0.0) {   // no sample reached above the horizon: the highest point decides
 #ifdef HS_MAX_DISTANCE

@@ -9,13 +9,19 @@
 // ranges the same way to leave umbrae and lit areas alone. Both once looped over the 25 texels
 // themselves (50 fetches per pixel on a software rasteriser, where fetches dominate); these
 // two passes take 15.
+//
+// CLASSIFY (the second pass over the probe ranges): instead of the range, decide there and then
+// which pixels keep their probe answer (u_probe: the probe pass's sums), as raytrace.glsl's
+// HS_SOFT_REFINE would: those get it (the value; ACCUM: the sums) and gl_FragDepth 1, the
+// others gl_FragDepth 0, so the refinement draw runs only on them under the depth test
+// (HS_SOFT_MASKED) and the pixels it leaves cost nothing.
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
 #endif
 
 #ifdef FRAGMENT_SHADER
 #include "common/gbuffer.glsl"
-#ifdef SUMS
+#if defined(SUMS) || defined(CLASSIFY)
 #include "common/soft_probe.glsl"
 #endif
 
@@ -24,7 +30,12 @@
 
 uniform sampler2D u_src;
 uniform ivec2 u_step;         // (1, 0) or (0, 1)
+#ifdef CLASSIFY
+uniform sampler2D u_probe;
+out vec2 o_answer;
+#else
 out vec2 o_range;
+#endif
 
 void main()
 {
@@ -47,6 +58,18 @@ void main()
         r = vec2(min(r.x, v.x), max(r.y, v.y));
 #endif
     }
+#ifdef CLASSIFY
+    vec2 ps = texelFetch(u_probe, px, 0).rg;
+    float pv = hs_probe_value(ps);
+    bool keep = (pv == 0.0 || pv == 1.0) && r.x == pv && r.y == pv;
+#ifdef ACCUM
+    o_answer = ps;
+#else
+    o_answer = vec2(pv, 0.0);
+#endif
+    gl_FragDepth = keep ? 1.0 : 0.0;
+#else
     o_range = r;
+#endif
 }
 #endif

@@ -298,5 +298,8 @@ bool hs_occluded(vec3 o, vec3 d, float tmax) { return hs_trace(o, d, tmax); }
 float hs_visibility(vec3 o, vec3 d, float tmax) { return hs_trace(o, d, tmax) ? 0.0 : 1.0; }
 #endif
 
+#ifdef HS_SOFT_PACKET
+#include "common/scene_packet.glsl"
+#endif
 
 #endif // HS_SCENE_BVH_GLSL

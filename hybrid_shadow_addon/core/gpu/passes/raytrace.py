@@ -46,6 +46,7 @@ from .refine import Refiner
 
 
 SOFT_PROBES = 4  # HS_PROBES of shaders/common/soft_light.glsl
+PACKET_MIN_RAYS = 8  # a soft pass traces its rays as packets from this many rays per pixel on
 
 
 def first_frame_lead(frame_samples: int) -> int:
@@ -87,6 +88,7 @@ class RaytracePass(ShadowPass):
         self._accum: dict = {}  # light -> (frames accumulated, current target index, settings key)
         self.accumulated = None  # fewest samples per pixel of the soft lights' accumulated masks
         self._scene_frame = 1  # the animation frame being rendered (seeds the sample patterns)
+        self.packets = True  # soft lights: a pixel's rays walk the scene together (else ray by ray)
 
     def reset_history(self) -> None:
         """Forget interlacing and accumulation history (any camera, object, light or setting
@@ -207,6 +209,15 @@ class RaytracePass(ShadowPass):
         set_uniforms(prog, self._light_uniforms(light, light_vec, gbuffer, settings))
         return prog, vao, unit
 
+    def _packet_defines(self, defines, rays: int) -> dict:
+        """``HS_SOFT_PACKET`` (a pixel's soft-shadow rays walk the scene together,
+        ``shaders/common/scene_packet.glsl``) for a pass that traces ``rays`` rays per pixel:
+        two-level BVH, opaque scenes, from PACKET_MIN_RAYS rays on (fewer are faster one by
+        one on llvmpipe), unless :attr:`packets` is off."""
+        ok = (self.packets and rays >= PACKET_MIN_RAYS and "HS_STRUCTURE_BVH" in defines
+              and "HS_HAS_ALPHA" not in defines)
+        return {"HS_SOFT_PACKET": 1} if ok else {}
+
     def _light_uniforms(self, light, light_vec, gbuffer, settings) -> dict:
         axis, cone = light_cone(light)
         u = {"u_light_vec": light_vec, "u_light_axis": axis, "u_light_cone": cone,
@@ -281,14 +292,17 @@ class RaytracePass(ShadowPass):
         _, pvao, _ = self._program({**probe_defs, "HS_SOFT_PROBE": 1}, light, light_vec, gbuffer, settings, 1, cmap)
         probe = self._target((li, "probe"), *full, components=2)  # (sums: raytrace.glsl)
         draw_fullscreen(ctx, pvao, probe)
-        near = self._range((li, "probe"), probe.texture, gbuffer, sums=True)
-        prog, vao, unit = self._program({**defines, "HS_SOFT_REFINE": 1}, light, light_vec, gbuffer, settings, 1,
-                                        cmap)
+        # the probe ranges' second pass writes the probe answers where they stand and marks the
+        # rest in the depth buffer: only those are shaded by the refinement
+        self._range((li, "probe"), probe.texture, gbuffer, sums=True,
+                    classify=(out, probe.texture, "HS_SOFT_ACCUM" in defines))
+        refine_defs = {**defines, "HS_SOFT_REFINE": 1, "HS_SOFT_MASKED": 1,
+                       **self._packet_defines(defines, int(settings.samples) - SOFT_PROBES)}
+        self.last_defines.update({k: v for k, v in refine_defs.items() if k == "HS_SOFT_PACKET"})
+        prog, vao, unit = self._program(refine_defs, light, light_vec, gbuffer, settings, 1, cmap)
         probe.texture.use(unit)
         prog["u_probe"].value = unit
-        near.use(unit + 1)
-        prog["u_probe_range"].value = unit + 1
-        draw_fullscreen(ctx, vao, out)
+        self.refiner.draw_marked((li, "soft"), out, vao)
 
     def _accumulate(self, li, light, light_vec, defines, gbuffer, settings, cmap):
         """One more frame of a soft light's running sums (``Settings.accumulate``): trace
@@ -320,7 +334,8 @@ class RaytracePass(ShadowPass):
                 self._probe_and_refine(li, light, light_vec, accum, gbuffer, settings.replace(samples=fs + lead),
                                        cmap, new)
             else:
-                _, vao, _ = self._program(accum, light, light_vec, gbuffer, settings.replace(samples=fs), 1, cmap)
+                _, vao, _ = self._program({**accum, **self._packet_defines(accum, fs)}, light, light_vec, gbuffer,
+                                          settings.replace(samples=fs), 1, cmap)
                 draw_fullscreen(ctx, vao, new)
             self.sample_base = base
             acc_prog, acc_vao = self.programs.fullscreen("soft_accumulate", {"ACCUMULATE": 1})
@@ -341,21 +356,30 @@ class RaytracePass(ShadowPass):
         self.accumulated = got if self.accumulated is None else min(self.accumulated, got)
         return self._denoise(li, mean, gbuffer, denoise_radius(got), got)
 
-    def _range(self, key, tex, gbuffer, sums: bool = False):
+    def _range(self, key, tex, gbuffer, sums: bool = False, classify=None):
         """(min, max) of mask ``tex`` (``sums``: of the probe pass's sums) over the covered
         texels within 2 pixels of each (``shaders/soft_range.glsl``: two 1D passes): an RG32F
-        texture."""
+        texture. ``classify`` = (target, probe sums, accumulating): the second pass writes the
+        probe answers that stand into the target instead and marks the other pixels for
+        :meth:`Refiner.draw_marked` (returns None)."""
         w, h = tex.size
         src = tex
         for first, step in ((True, (1, 0)), (False, (0, 1))):
             defs = {}
             if first:
                 defs = {"FIRST": 1, "SUMS": 1} if sums else {"FIRST": 1}
+            elif classify is not None:
+                defs = {"CLASSIFY": 1, "ACCUM": 1} if classify[2] else {"CLASSIFY": 1}
             prog, vao = self.programs.fullscreen("soft_range", defs)
             if first:
                 gbuffer.bind(prog, 1)
             src.use(0)
             set_uniforms(prog, {"u_src": 0, "u_step": step})
+            if not first and classify is not None:
+                classify[1].use(1)
+                set_uniforms(prog, {"u_probe": 1})
+                self.refiner.mark((key[0], "soft"), classify[0], vao)
+                return None
             out = self._targets.get((key, "range", first), w, h, components=2)
             draw_fullscreen(self.ctx, vao, out)
             src = out.texture

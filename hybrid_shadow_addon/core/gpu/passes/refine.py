@@ -179,6 +179,27 @@ class Refiner:
         with self._masked(fbo, target):
             svao.render(moderngl.TRIANGLES, vertices=3)
 
+    def mark(self, key, target, vao) -> None:
+        """Draw ``vao``, a full-screen program that writes its answers and marks (``gl_FragDepth``
+        0: the next :meth:`draw_marked` shades the pixel, 1: done), into ``target``."""
+        ctx = self.ctx
+        fbo = self._fbo(key, target)
+        ctx.disable(moderngl.BLEND)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.depth_func = "1"
+        fbo.depth_mask = True
+        fbo.use()
+        ctx.viewport = (0, 0, *target.texture.size)
+        vao.render(moderngl.TRIANGLES, vertices=3)
+        ctx.disable(moderngl.DEPTH_TEST)
+
+    def draw_marked(self, key, target, vao) -> None:
+        """Draw the full-screen ``vao`` into ``target`` only where :meth:`mark` marked pixels
+        (early depth test: the others are not shaded)."""
+        fbo = self._fbo(key, target)
+        with self._masked(fbo, target):
+            vao.render(moderngl.TRIANGLES, vertices=3)
+
     # -- depth-masked targets -----------------------------------------------------------------
     class _Masked:
         def __init__(self, ctx, fbo, target):

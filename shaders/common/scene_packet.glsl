@@ -1,0 +1,279 @@
+/* scene_packet.glsl -- one walk for a pixel's soft-shadow rays (HS_SOFT_PACKET), included by
+ * scene_bvh.glsl: the two-level BVH of that file walked once by the cone that bounds up to
+ * HS_PACKET rays from one origin, each leaf's triangles tested against every ray of the packet.
+ *
+ * A pixel's rays towards an extended light share their origin and differ little in direction;
+ * traced one by one, each walks nearly the same nodes and fetches nearly the same leaves. Walked
+ * together, a node is fetched once and its box is tested against the cone around the rays; a
+ * triangle is fetched once, its three edge planes through the origin (A x B, B x C, C x A) set
+ * up once, and each ray then costs three dot products: the sign test of Benthin et al.'s
+ * shared-origin packets, watertight as the single-ray test (an edge shared by two triangles
+ * gives the same plane with the opposite sign, computed without contraction: 'precise').
+ *
+ * Cone: apex o, unit axis a, every ray within the angle whose sine is sin_a of a, and no ray
+ * point further than len from the apex. A point p of a ray with |p - o| <= D projects onto the
+ * axis at t in [0, D], less than D sin_a from p: a box holds such a point only when the axis
+ * segment [0, D] meets the box widened by D sin_a, D the distance of the box's farthest corner
+ * (at most len). The test is conservative by construction: it may walk a node no ray reaches,
+ * never skip one a ray does. Packets whose rays spread wider than HS_PACKET_MIN_COS (a large
+ * light close to the surface) are traced ray by ray.
+ *
+ * Inputs: hs_pk_d[k], hs_pk_t[k] (the rays o + t d, t in (0, tmax), as hs_occluded takes them),
+ * k < cnt, live: bit k set for the rays to trace. Result: bit k set where ray k is blocked.
+ * Opaque scenes only (an alpha-cut caster's transmittance is a float per ray: those scenes trace
+ * ray by ray). Mirror of each ray's answer: hs_occluded (the same rays, equal but for rays that
+ * graze an edge or the receiver's own surface within float32 error).
+ */
+#ifndef HS_SCENE_PACKET_GLSL
+#define HS_SCENE_PACKET_GLSL
+
+#define HS_PACKET 32
+#define HS_PACKET_MIN_COS 0.5
+
+vec3 hs_pk_d[HS_PACKET];    // the rays (bake space), set by the caller
+float hs_pk_t[HS_PACKET];
+vec3 hs_pk_u[HS_PACKET];    // their unit directions (bake space)
+float hs_pk_l[HS_PACKET];   // and lengths
+vec3 hs_pk_od[HS_PACKET];   // the current instance's: unit model-space directions
+float hs_pk_ol[HS_PACKET];  // and lengths in model units
+int hs_pk_cnt;              // rays in the packet
+
+struct HsCone { vec3 apex; vec3 axis; vec3 inv; float sin_a; float len; float e; };
+
+// sine bound of the cone around the unit vectors hs_pk_u / hs_pk_od (model) of live rays
+// about unit axis ax (cross products: exact for narrow cones, where 1 - cos^2 is not)
+float hs_cone_sin(float s) { return s * 1.0001 + 1.0e-6; }
+
+// Does any ray of cone c reach the quantised node n (box widened by c.e, as the single ray's)?
+bool hs_cone_box_hit(HsCone c, uvec4 n)
+{
+    vec3 blo = vec3(float(n.x & 0xFFFFu), float(n.x >> 16u), float(n.y & 0xFFFFu));
+    vec3 bhi = vec3(float(n.y >> 16u), float(n.z & 0xFFFFu), float(n.z >> 16u));
+    vec3 far = max(abs(blo - c.apex), abs(bhi - c.apex));
+    float D = min(length(far) * 1.0001 + c.e, c.len);
+    float rho = c.e + D * c.sin_a;
+    vec3 t1 = (blo - vec3(rho) - c.apex) * c.inv;
+    vec3 t2 = (bhi + vec3(rho) - c.apex) * c.inv;
+    vec3 tn3 = min(t1, t2), tf3 = max(t1, t2);
+    float tn = max(max(tn3.x, tn3.y), tn3.z);
+    float tf = min(min(tf3.x, tf3.y), tf3.z) * HS_TFAR_SCALE;
+    return max(tn, 0.0) <= min(tf, D);
+}
+
+#ifdef HS_HAS_MESHES
+// the current instance's cone (model space, apex om): axis, cosine and sine bounds, length
+vec3 hs_pk_ax;
+float hs_pk_cos, hs_pk_sin, hs_pk_len;
+
+float hs_amax(vec3 v) { vec3 a = abs(v); return max(max(a.x, a.y), a.z); }
+
+// The rays among 'need' (model space: origin om, unit directions hs_pk_od, lengths hs_pk_ol)
+// that hit triangle v0 v1 v2 at t in (floor, length). A triangle whose bounding sphere lies
+// outside the instance's cone takes no ray test (the signed distance of the sphere's centre to
+// the cone's mantle, h cos - d1 sin, with the bounds' cos below and sin above the true angle's).
+uint hs_pk_tri(vec3 om, uint need, vec3 v0, vec3 v1, vec3 v2)
+{
+    precise vec3 A = v0 - om;
+    precise vec3 B = v1 - om;
+    precise vec3 C = v2 - om;
+    vec3 ctr = (A + B + C) * (1.0 / 3.0);
+    vec3 ea = A - ctr, eb = B - ctr, ec = C - ctr;
+    float r = sqrt(max(max(dot(ea, ea), dot(eb, eb)), dot(ec, ec))) * 1.0001 + 1.0e-6 * hs_amax(ctr);
+    float dv = length(ctr);
+    if (dv > r) {
+        float d1 = dot(ctr, hs_pk_ax);
+        float h = length(ctr - d1 * hs_pk_ax);   // (not sqrt(dv^2 - d1^2): it cancels)
+        if (d1 < -r || (d1 >= 0.0 && h * hs_pk_cos - d1 * hs_pk_sin > r) || dv - r > hs_pk_len) return 0u;
+    }
+    precise vec3 nab = vec3(A.y * B.z - A.z * B.y, A.z * B.x - A.x * B.z, A.x * B.y - A.y * B.x);
+    precise vec3 nbc = vec3(B.y * C.z - B.z * C.y, B.z * C.x - B.x * C.z, B.x * C.y - B.y * C.x);
+    precise vec3 nca = vec3(C.y * A.z - C.z * A.y, C.z * A.x - C.x * A.z, C.x * A.y - C.y * A.x);
+    precise float T = (A.x * nbc.x + A.y * nbc.y) + A.z * nbc.z;   // t = T / det
+    // hits nearer than the float32 error of T are the receiver's own surface (as hs_tri_hit_b)
+    float fl = HS_TFLOOR * max(max(hs_amax(A), hs_amax(B)), hs_amax(C));
+    uint hit = 0u;
+    for (int k = 0; k < hs_pk_cnt; ++k) {
+        vec3 d = hs_pk_od[k];
+        precise float e0 = (d.x * nbc.x + d.y * nbc.y) + d.z * nbc.z;
+        precise float e1 = (d.x * nca.x + d.y * nca.y) + d.z * nca.z;
+        precise float e2 = (d.x * nab.x + d.y * nab.y) + d.z * nab.z;
+        bool mixed = (e0 < 0.0 || e1 < 0.0 || e2 < 0.0) && (e0 > 0.0 || e1 > 0.0 || e2 > 0.0);
+        precise float det = (e0 + e1) + e2;
+        float tl = hs_pk_ol[k];
+        bool h = !mixed && ((det > 0.0) ? (T > fl * det && T < tl * det)
+                                        : (det < 0.0 && T < fl * det && T > tl * det));
+        if (h) hit |= 1u << uint(k);
+    }
+    return hit & need;
+}
+#endif
+
+// Bit k set: ray k of the packet (live bit k) is blocked.
+uint hs_trace_packet(vec3 o, int cnt, uint live)
+{
+    if (live == 0u) return 0u;
+    hs_pk_cnt = cnt;
+    vec3 s = vec3(0.0);
+    float len = 0.0;
+    for (int k = 0; k < cnt; ++k) {
+        float l = length(hs_pk_d[k]);
+        bool on = ((live >> uint(k)) & 1u) != 0u && l > 0.0 && hs_pk_t[k] > 0.0;
+        if (!on) live &= ~(1u << uint(k));
+        vec3 u = on ? hs_pk_d[k] / l : vec3(0.0);
+        hs_pk_u[k] = u;
+        hs_pk_l[k] = on ? min(l * min(hs_pk_t[k], HS_FLT_BIG), 1.0e30) : 0.0;
+        s += u;
+        len = max(len, hs_pk_l[k]);
+    }
+    if (live == 0u) return 0u;
+    vec3 ax = normalize(s);
+    float cmin = 1.0, smax = 0.0;
+    for (int k = 0; k < cnt; ++k) {
+        if (((live >> uint(k)) & 1u) != 0u) {
+            cmin = min(cmin, dot(hs_pk_u[k], ax));
+            smax = max(smax, length(cross(hs_pk_u[k], ax)));
+        }
+    }
+    uint occ = 0u;
+    if (!(cmin > HS_PACKET_MIN_COS)) {   // too wide a spread to bound: ray by ray
+        for (int k = 0; k < cnt; ++k)
+            if (((live >> uint(k)) & 1u) != 0u && hs_occluded(o, hs_pk_d[k], hs_pk_t[k])) occ |= 1u << uint(k);
+        return occ;
+    }
+    HsCone tc;
+    precise vec3 toq = (o - hs_tlas_base) * hs_tlas_inv_scale;
+    vec3 ta = abs(toq);
+    precise float te = HS_TLAS_EPS * (((ta.x + ta.y) + ta.z) + hs_tlas_babs);
+    tc.apex = toq;
+    tc.axis = ax;
+    tc.inv = hs_slab_inv(ax);
+    tc.sin_a = hs_cone_sin(smax);
+    tc.len = len * hs_tlas_inv_scale;
+    tc.e = te;
+    HsCone c = tc;
+    int i = hs_tlas_root;
+    int ret = -1;   // >= 0: inside a model tree, resume the top level there
+    int bend = 0;   // end of the current model tree
+#ifdef HS_HAS_MESHES
+    vec3 om = vec3(0.0);
+#endif
+    for (;;) {
+        uint w = 0u;
+        bool found = false;
+        bool walking = true;
+        while (walking) {
+            if (ret >= 0 && i >= bend) { i = ret; ret = -1; c = tc; }
+            if (ret < 0 && i >= hs_tlas_end) {
+                walking = false;
+            } else {
+                uvec4 n = texelFetch(hs_node_tex, hs_texel(i), 0);
+                bool leaf = (n.w & HS_LEAF_FLAG) != 0u;
+                bool hit = hs_cone_box_hit(c, n);
+                if (hit && leaf) {
+                    w = n.w;
+                    found = true;
+                    walking = false;
+                } else {
+                    i = (hit || leaf) ? i + 1 : int(n.w);
+                }
+            }
+        }
+        if (!found) break;
+        uint pay = w & 0x7FFFFFFFu;
+        int next = i + 1;
+        int at = ret < 0 ? 5 * int(pay) : int(pay >> 3u);
+        vec4 x0 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at), 0));
+        vec4 x1 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 1), 0));
+        vec4 x2 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 2), 0));
+        uvec4 u3 = texelFetch(hs_leaf_tex, hs_texel(at + 3), 0);
+        vec4 x3 = uintBitsToFloat(u3);
+        vec4 x4 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 4), 0));
+        vec4 x5 = vec4(0.0), x6 = vec4(0.0), x7 = vec4(0.0), x8 = vec4(0.0);
+#if defined(HS_HAS_MESHES) && HS_BVH_LEAF_SIZE > 2
+        x5 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 5), 0));
+        x6 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 6), 0));
+#endif
+#if defined(HS_HAS_MESHES) && HS_BVH_LEAF_SIZE > 3
+        x7 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 7), 0));
+        x8 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 8), 0));
+#endif
+        if (ret < 0) {
+            // an instance: the rays in its model space (t is shared: lengths scale with |Minv d|)
+            precise vec3 m_o = vec3(((x0.x * o.x + x0.y * o.y) + x0.z * o.z) + x0.w,
+                                    ((x1.x * o.x + x1.y * o.y) + x1.z * o.z) + x1.w,
+                                    ((x2.x * o.x + x2.y * o.y) + x2.z * o.z) + x2.w);
+            vec3 ms = vec3(0.0);
+            float ml = 0.0;
+            for (int k = 0; k < cnt; ++k) {
+                vec3 u = hs_pk_u[k];
+                vec3 md = vec3(dot(x0.xyz, u), dot(x1.xyz, u), dot(x2.xyz, u));
+                float l = length(md);
+                bool on = ((live >> uint(k)) & 1u) != 0u && l > 0.0;
+                vec3 mu = on ? md / l : vec3(0.0);
+                hs_pk_od[k] = mu;
+                hs_pk_ol[k] = on ? hs_pk_l[k] * l : 0.0;
+                ms += mu;
+                ml = max(ml, hs_pk_ol[k]);
+            }
+            bool is_sphere = (u3.z & HS_SPHERE_FLAG) != 0u;
+#ifdef HS_HAS_SPHERES
+            if (is_sphere) {
+                for (int k = 0; k < cnt; ++k)
+                    if (((live >> uint(k)) & 1u) != 0u && hs_sphere_hit(m_o, hs_pk_od[k], x4.xyz, x4.w, hs_pk_ol[k]))
+                        occ |= 1u << uint(k);
+                if ((occ & live) == live) return occ & live;
+            }
+#endif
+#ifdef HS_HAS_MESHES
+            if (!is_sphere) {
+                vec3 mx = normalize(ms);
+                float mc = 1.0, mn = 0.0;
+                for (int k = 0; k < cnt; ++k) {
+                    if (((live >> uint(k)) & 1u) != 0u) {
+                        mc = min(mc, dot(hs_pk_od[k], mx));
+                        mn = max(mn, length(cross(hs_pk_od[k], mx)));
+                    }
+                }
+                om = m_o;
+                bool narrow = mc > 0.05;   // else (a strong shear): every node of the model
+                hs_pk_ax = mx;
+                hs_pk_sin = narrow ? hs_cone_sin(mn) : 1.0e30;
+                hs_pk_cos = narrow ? max(mc - 1.0e-4, 0.0) : 0.0;
+                hs_pk_len = ml;
+                precise vec3 oq = (m_o - x4.xyz) * x4.w;
+                vec3 aq = abs(oq);
+                precise float e = HS_QEPS * ((aq.x + aq.y) + aq.z);
+                c.apex = oq;
+                c.axis = mx;
+                c.inv = hs_slab_inv(mx);
+                c.sin_a = narrow ? hs_cone_sin(mn) : 1.0e30;
+                c.len = ml * x4.w;
+                c.e = e;
+                ret = i + 1;
+                next = int(u3.x);
+                bend = int(u3.y);
+            }
+#endif
+        }
+#ifdef HS_HAS_MESHES
+        else {
+            int tc_n = int(pay & 7u);
+            occ |= hs_pk_tri(om, live & ~occ, x0.xyz, vec3(x0.w, x1.xy), vec3(x1.zw, x2.x));
+#if HS_BVH_LEAF_SIZE > 1
+            if (tc_n > 1) occ |= hs_pk_tri(om, live & ~occ, x2.yzw, x3.xyz, vec3(x3.w, x4.xy));
+#endif
+#if HS_BVH_LEAF_SIZE > 2
+            if (tc_n > 2) occ |= hs_pk_tri(om, live & ~occ, vec3(x4.zw, x5.x), x5.yzw, x6.xyz);
+#endif
+#if HS_BVH_LEAF_SIZE > 3
+            if (tc_n > 3) occ |= hs_pk_tri(om, live & ~occ, vec3(x6.w, x7.xy), vec3(x7.zw, x8.x), x8.yzw);
+#endif
+            if (occ == live) return occ;
+        }
+#endif
+        i = next;
+    }
+    return occ & live;
+}
+
+#endif // HS_SCENE_PACKET_GLSL
