@@ -13,9 +13,14 @@
 // see common/compact.glsl; texels past the list's end are discarded), HS_SOFT with HS_SOFT_SHAPE
 // (an extended light: u_samples rays towards points on it, common/soft_light.glsl; the mask is
 // the weighted share of the light the pixel sees; HS_SOFT_PROBE traces HS_PROBES of them,
-// HS_SOFT_REFINE then traces all of them only near pixels whose probes disagree). The probe
-// pass writes RG32F sums (weighted visibility, weight) instead of the mask, (value, 1) where the
-// answer is known without a ray: the refinement continues each pixel's sequence after them.
+// HS_SOFT_REFINE then traces all of them only near pixels whose probes disagree: it is drawn
+// under the depth test, on the pixels soft_range.glsl's CLASSIFY marked). The probe pass writes
+// RG32F sums (weighted visibility, weight) instead of the mask, (value, 1) where the answer is
+// known without a ray: the refinement continues each pixel's sequence after them. HS_PROBE_HALF:
+// probes on every other pixel only (a checkerboard, packed two pixels to a probe texel, which
+// also keeps the unprobed pixel's answer known without a ray: RGBA32F); a refined pixel without
+// probes traces all its samples. HS_SOFT_PACKET: a pixel's samples walk the scene together
+// (common/scene_packet.glsl); HS_SOFT_FULL: a refined pixel never stops early.
 // HS_SOFT_ACCUM (the viewport's running sums, soft_accumulate.glsl) writes the same sums of its
 // u_samples rays; a pixel none of whose rays had a weight writes its highest point's answer with
 // a weight of HS_ACCUM_TOP_WEIGHT, which decides only where no frame saw any weight, as a final
@@ -40,9 +45,6 @@
 #include "common/soft_light.glsl"
 #ifdef HS_SOFT_REFINE
 uniform sampler2D u_probe;      // the probe pass's sums (full resolution; see hs_probe_value)
-#ifndef HS_SOFT_MASKED
-uniform sampler2D u_probe_range; // its (min, max) over the covered texels within HS_PROBE_RADIUS (soft_range.glsl)
-#endif
 #endif
 #endif
 
@@ -58,11 +60,38 @@ in vec2 v_uv;
 #if defined(HS_SOFT_PROBE) || defined(HS_SOFT_ACCUM)
 #define HS_SOFT_SUMS
 #define HS_ACCUM_TOP_WEIGHT 1.0e-30
+#if defined(HS_SOFT_PROBE) && defined(HS_PROBE_HALF)
+out vec4 o_sums;                // (the probed pixel's sums, its unprobed partner's known answer or -1, 0)
+#else
 out vec2 o_sums;                // (weighted visibility, weight) of this pass's rays
+#endif
 float o_mask;                   // the answers known without a ray: written as (o_mask, 1)
 vec2 hs_sums = vec2(-1.0);
 #else
 out float o_mask;
+#endif
+
+#if defined(HS_SOFT_PROBE) && defined(HS_PROBE_HALF)
+// HS_PROBE_HALF: the probes of pixel (x, y) with x and y alike odd or even, at probe texel
+// (x / 2, y); texel (i, y) holds that pixel (k 0) and its unprobed partner (k 1), whose answer
+// known without a ray (as the refinement's) the texel keeps as well
+ivec2 hs_probed_pixel(ivec2 t, int k)
+{
+    return ivec2(min(2 * t.x + ((t.y + k) & 1), u_full_size.x - 1), t.y);
+}
+
+float hs_known(ivec2 px)
+{
+    vec3 p, n, to_light;
+    float depth;
+    float known = shadow_ray_prelude(px, p, n, depth, to_light);
+    if (known >= 0.0) return known;
+    vec3 o = offset_origin(p, n, depth * 3.0e-6);
+    vec3 top_d;
+    float top_tmax, top_w;
+    hs_light_top(o, n, top_d, top_tmax, top_w);
+    return (top_w == 0.0 && !(dot(n, top_d) > 0.0)) ? 0.0 : -1.0;
+}
 #endif
 
 void trace_main()
@@ -81,6 +110,8 @@ void trace_main()
     int k = compact_index(mt);
     if (k >= compact_total()) discard;    // (an occlusion query counts the rays)
     ivec2 px = compact_find(k);
+#elif defined(HS_SOFT_PROBE) && defined(HS_PROBE_HALF)
+    ivec2 px = hs_probed_pixel(mt, 0);
 #else
     ivec2 px = mask_source_pixel(mt, u_scale, u_full_size);
 #endif
@@ -103,22 +134,17 @@ void trace_main()
 #else
     int n_samples = u_samples;
 #ifdef HS_SOFT_REFINE
-    // the probe pass traced HS_PROBES rays per pixel: where every probe nearby saw all or none
-    // of the light alike, this pixel lies outside any penumbra and keeps its probe answer
+    // (the pixels outside any penumbra, where every probe nearby saw all or none of the light
+    // alike, kept their probe answer: soft_range.glsl's CLASSIFY wrote it, and the depth test
+    // keeps this pass off them)
+#ifdef HS_PROBE_HALF
+    // (probes on every other pixel: a pixel without its own traces all its samples)
+    bool probed = ((px.x ^ px.y) & 1) == 0;
+    vec2 ps = probed ? texelFetch(u_probe, ivec2(px.x >> 1, px.y), 0).rg : vec2(0.0);
+#else
     vec2 ps = texelFetch(u_probe, px, 0).rg;
+#endif
     float pv = hs_probe_value(ps);
-#ifndef HS_SOFT_MASKED   // (else soft_range.glsl's CLASSIFY decided, and this pixel is refined)
-    {
-        vec2 near = texelFetch(u_probe_range, px, 0).rg;   // (soft_range.glsl: px is covered)
-        if ((pv == 0.0 || pv == 1.0) && near.x == pv && near.y == pv) {
-#ifdef HS_SOFT_ACCUM
-            hs_sums = ps;   // (a viewport frame: the probes' own sums, which later frames add to)
-#endif
-            o_mask = pv;
-            return;
-        }
-    }
-#endif
 #endif
 #endif
     float sw = 0.0, sv = 0.0;
@@ -127,21 +153,21 @@ void trace_main()
     // the probes were this pixel's first HS_PROBES samples (the same sequence, in the same
     // order): continue after them with their sums, exactly as if traced again (below 10
     // samples the early stop's check falls among the probes: those are traced again)
-#ifdef HS_SOFT_ACCUM
-    { sv = ps.x; sw = ps.y; k0 = HS_PROBES; }   // (a viewport frame: all its samples, no early stop)
+#if defined(HS_PROBE_HALF)
+    if (probed) { sv = ps.x; sw = ps.y; k0 = HS_PROBES; }
+#elif defined(HS_SOFT_ACCUM) || defined(HS_SOFT_FULL)
+    { sv = ps.x; sw = ps.y; k0 = HS_PROBES; }   // (a viewport frame, packets: all its samples, no early stop)
 #else
     if ((n_samples >> 1) > HS_PROBES) { sv = ps.x; sw = ps.y; k0 = HS_PROBES; }
 #endif
 #endif
 #ifdef HS_SOFT_PACKET
     // the samples in packets of up to HS_PACKET rays, each packet one walk of the scene
-    // (common/scene_packet.glsl); a packet ends where the early stop below looks
+    // (common/scene_packet.glsl; with HS_SOFT_FULL: a refined pixel traces all its samples, one
+    // walk costs less than two halves with a stop between)
     float pw[HS_PACKET];
     for (int k = k0; k < n_samples; ) {
         int kend = min(n_samples, k + HS_PACKET);
-#if defined(HS_SOFT_REFINE) && !defined(HS_SOFT_ACCUM)
-        if (k < (n_samples >> 1)) kend = min(kend, n_samples >> 1);
-#endif
         int cnt = kend - k;
         uint live = 0u;
         for (int j = 0; j < cnt; ++j) {
@@ -164,9 +190,6 @@ void trace_main()
             }
         }
         k = kend;
-#if defined(HS_SOFT_REFINE) && !defined(HS_SOFT_ACCUM)
-        if (k == (n_samples >> 1) && sw > 0.0 && ((pv == 0.0 && sv == 0.0) || (pv == 1.0 && sv == sw))) break;
-#endif
     }
 #else
     for (int k = k0; k < n_samples; ++k) {
@@ -180,7 +203,7 @@ void trace_main()
             sv += w * hs_visibility(o, sd, stm);
             sw += w;
         }
-#if defined(HS_SOFT_REFINE) && !defined(HS_SOFT_ACCUM)
+#if defined(HS_SOFT_REFINE) && !defined(HS_SOFT_ACCUM) && !defined(HS_SOFT_FULL)
         // a pixel refined only for a neighbour's sake (a penumbra's fringe): when the first
         // half of its samples, spread over the light, all agree with its own probes, it keeps
         // that answer (its share is then within a few % of it)
@@ -236,11 +259,17 @@ void trace_main()
     o_mask = hs_visibility(o, d, tmax);
 }
 
+
 void main()
 {
     trace_main();
 #ifdef HS_SOFT_SUMS
+#if defined(HS_SOFT_PROBE) && defined(HS_PROBE_HALF)
+    o_sums = vec4(hs_sums.y >= 0.0 ? hs_sums : vec2(o_mask, 1.0),
+                  hs_known(hs_probed_pixel(ivec2(gl_FragCoord.xy), 1)), 0.0);
+#else
     o_sums = hs_sums.y >= 0.0 ? hs_sums : vec2(o_mask, 1.0);
+#endif
 #endif
 }
 #endif

@@ -1,8 +1,9 @@
 """Soft-shadow packets (``shaders/common/scene_packet.glsl``): a pixel's rays towards an extended
 light walk the two-level BVH together, bounded by a cone, and each leaf triangle is tested
 against every ray of the packet with shared-origin edge planes. Every ray must get the answer it
-gets traced alone (``hs_occluded``), so the masks equal the ray-by-ray masks but for rays that
-graze an edge or the receiver within float32 error.
+gets traced alone (``hs_occluded``), so the masks equal the ray-by-ray masks (without their early
+stop, which packets do not take) but for rays that graze an edge or the receiver within float32
+error.
 
 Scenes: the soft-light test scene and stiff scenes whose lights are made extended here
 (non-uniformly scaled and sheared instances, 100 km from the origin, sub-pixel casters,
@@ -33,12 +34,14 @@ def extended(scene):
 def masks(pipe, scene, packets: bool, samples: int = 32):
     rt = pipe.shadow_pass("raytrace")
     rt.packets = packets
+    rt.early_stop = packets  # (a packet traces all of a refined pixel's samples: so does the reference)
+    rt.half_probes = False   # (the same probes on both sides)
     pipe.set_scene(scene, "bvh")
     pipe.reset_history()
     try:
         f = pipe.render(scene, Settings(mode="raytrace", quality="high", samples=samples), W, H)
     finally:
-        rt.packets = True
+        rt.packets = rt.early_stop = rt.half_probes = True
     return f, [f.mask_array(i) for i in range(len(scene.lights))]
 
 

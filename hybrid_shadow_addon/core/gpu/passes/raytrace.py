@@ -89,6 +89,8 @@ class RaytracePass(ShadowPass):
         self.accumulated = None  # fewest samples per pixel of the soft lights' accumulated masks
         self._scene_frame = 1  # the animation frame being rendered (seeds the sample patterns)
         self.packets = True  # soft lights: a pixel's rays walk the scene together (else ray by ray)
+        self.half_probes = True  # with packets (final renders): probes on every other pixel
+        self.early_stop = True  # ray by ray: a penumbra's fringe pixel may stop after half its samples
 
     def reset_history(self) -> None:
         """Forget interlacing and accumulation history (any camera, object, light or setting
@@ -213,10 +215,12 @@ class RaytracePass(ShadowPass):
         """``HS_SOFT_PACKET`` (a pixel's soft-shadow rays walk the scene together,
         ``shaders/common/scene_packet.glsl``) for a pass that traces ``rays`` rays per pixel:
         two-level BVH, opaque scenes, from PACKET_MIN_RAYS rays on (fewer are faster one by
-        one on llvmpipe), unless :attr:`packets` is off."""
+        one on llvmpipe), unless :attr:`packets` is off. With it ``HS_SOFT_FULL``: a refined
+        pixel traces all its samples in one walk (cheaper than two halves with the ray-by-ray
+        path's early stop between them, and exact)."""
         ok = (self.packets and rays >= PACKET_MIN_RAYS and "HS_STRUCTURE_BVH" in defines
               and "HS_HAS_ALPHA" not in defines)
-        return {"HS_SOFT_PACKET": 1} if ok else {}
+        return {"HS_SOFT_PACKET": 1, "HS_SOFT_FULL": 1} if ok else {}
 
     def _light_uniforms(self, light, light_vec, gbuffer, settings) -> dict:
         axis, cone = light_cone(light)
@@ -288,17 +292,27 @@ class RaytracePass(ShadowPass):
         the probes are exact. ``defines`` with ``HS_SOFT_ACCUM``: ``out`` gets the sums (RG)."""
         ctx = self.ctx
         full = gbuffer.size
+        accum = "HS_SOFT_ACCUM" in defines
+        packets = self._packet_defines(defines, int(settings.samples) - SOFT_PROBES)
+        # probes on every other pixel (a final render with packets: a refined pixel without
+        # probes of its own traces all its samples in the same one walk)
+        half = {"HS_PROBE_HALF": 1} if packets and not accum and self.half_probes else {}
         probe_defs = {k: v for k, v in defines.items() if k != "HS_SOFT_ACCUM"}  # (the same probes either way)
-        _, pvao, _ = self._program({**probe_defs, "HS_SOFT_PROBE": 1}, light, light_vec, gbuffer, settings, 1, cmap)
-        probe = self._target((li, "probe"), *full, components=2)  # (sums: raytrace.glsl)
+        _, pvao, _ = self._program({**probe_defs, "HS_SOFT_PROBE": 1, **half}, light, light_vec, gbuffer, settings, 1,
+                                   cmap)
+        if half:
+            probe = self._target((li, "probe half"), (full[0] + 1) // 2, full[1], components=4)
+        else:
+            probe = self._target((li, "probe"), *full, components=2)  # (sums: raytrace.glsl)
         draw_fullscreen(ctx, pvao, probe)
         # the probe ranges' second pass writes the probe answers where they stand and marks the
         # rest in the depth buffer: only those are shaded by the refinement
-        self._range((li, "probe"), probe.texture, gbuffer, sums=True,
-                    classify=(out, probe.texture, "HS_SOFT_ACCUM" in defines))
-        refine_defs = {**defines, "HS_SOFT_REFINE": 1, "HS_SOFT_MASKED": 1,
-                       **self._packet_defines(defines, int(settings.samples) - SOFT_PROBES)}
-        self.last_defines.update({k: v for k, v in refine_defs.items() if k == "HS_SOFT_PACKET"})
+        self._range((li, "probe"), probe.texture, gbuffer, sums=True, classify=(out, probe.texture, accum),
+                    half=bool(half))
+        refine_defs = {**defines, "HS_SOFT_REFINE": 1, **packets, **half}
+        if not self.early_stop:
+            refine_defs["HS_SOFT_FULL"] = 1
+        self.last_defines.update({k: v for k, v in refine_defs.items() if k in ("HS_SOFT_PACKET", "HS_PROBE_HALF")})
         prog, vao, unit = self._program(refine_defs, light, light_vec, gbuffer, settings, 1, cmap)
         probe.texture.use(unit)
         prog["u_probe"].value = unit
@@ -356,13 +370,14 @@ class RaytracePass(ShadowPass):
         self.accumulated = got if self.accumulated is None else min(self.accumulated, got)
         return self._denoise(li, mean, gbuffer, denoise_radius(got), got)
 
-    def _range(self, key, tex, gbuffer, sums: bool = False, classify=None):
+    def _range(self, key, tex, gbuffer, sums: bool = False, classify=None, half: bool = False):
         """(min, max) of mask ``tex`` (``sums``: of the probe pass's sums) over the covered
         texels within 2 pixels of each (``shaders/soft_range.glsl``: two 1D passes): an RG32F
         texture. ``classify`` = (target, probe sums, accumulating): the second pass writes the
         probe answers that stand into the target instead and marks the other pixels for
-        :meth:`Refiner.draw_marked` (returns None)."""
-        w, h = tex.size
+        :meth:`Refiner.draw_marked` (returns None). ``half``: ``tex`` holds the probes of every
+        other pixel (``HS_PROBE_HALF``)."""
+        w, h = gbuffer.size
         src = tex
         for first, step in ((True, (1, 0)), (False, (0, 1))):
             defs = {}
@@ -370,6 +385,8 @@ class RaytracePass(ShadowPass):
                 defs = {"FIRST": 1, "SUMS": 1} if sums else {"FIRST": 1}
             elif classify is not None:
                 defs = {"CLASSIFY": 1, "ACCUM": 1} if classify[2] else {"CLASSIFY": 1}
+            if half and (first or classify is not None):
+                defs["HALF"] = 1
             prog, vao = self.programs.fullscreen("soft_range", defs)
             if first:
                 gbuffer.bind(prog, 1)
@@ -378,6 +395,7 @@ class RaytracePass(ShadowPass):
             if not first and classify is not None:
                 classify[1].use(1)
                 set_uniforms(prog, {"u_probe": 1})
+                gbuffer.bind(prog, 2)
                 self.refiner.mark((key[0], "soft"), classify[0], vao)
                 return None
             out = self._targets.get((key, "range", first), w, h, components=2)
