@@ -166,27 +166,28 @@ void trace_main()
     // (common/scene_packet.glsl; with HS_SOFT_FULL: a refined pixel traces all its samples, one
     // walk costs less than two halves with a stop between)
     float pw[HS_PACKET];
+    uvec2 seeds = hs_sample_seeds(px);
     for (int k = k0; k < n_samples; ) {
         int kend = min(n_samples, k + HS_PACKET);
         int cnt = kend - k;
-        uint live = 0u;
+        uvec2 live = uvec2(0u);
         for (int j = 0; j < cnt; ++j) {
             vec3 sd;
             float stm, w;
-            hs_light_sample(o, n, hs_sample2(px, u_sample_base + k + j), sd, stm, w);
+            hs_light_sample(o, n, hs_sample2s(seeds, u_sample_base + k + j), sd, stm, w);
 #ifdef HS_MAX_DISTANCE
             stm = min(stm, u_max_distance / length(sd));
 #endif
             hs_pk_d[j] = sd;
             hs_pk_t[j] = stm;
             pw[j] = w;
-            if (w > 0.0) live |= 1u << uint(j);
+            if (w > 0.0) live |= hs_bit(j);
         }
-        uint occ = hs_trace_packet(o, cnt, live);
+        uvec2 occ = hs_trace_packet(o, cnt, live);
         for (int j = 0; j < cnt; ++j) {
-            if (((live >> uint(j)) & 1u) != 0u) {
+            if (hs_has(live, j)) {
                 sw += pw[j];
-                if (((occ >> uint(j)) & 1u) == 0u) sv += pw[j];
+                if (!hs_has(occ, j)) sv += pw[j];
             }
         }
         k = kend;

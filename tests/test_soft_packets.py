@@ -52,16 +52,17 @@ def pipe(gl_ctx):
     p.release()
 
 
-@pytest.mark.parametrize("spec", ["soft_lights", "stiff/instance_scales", "stiff/far_away", "stiff/thin",
-                                  "stiff/degenerate"])
-def test_packets_give_each_ray_its_own_answer(pipe, spec):
+@pytest.mark.parametrize("spec, samples", [("soft_lights", 32), ("soft_lights", 64), ("stiff/instance_scales", 32),
+                                           ("stiff/far_away", 32), ("stiff/thin", 32), ("stiff/degenerate", 32)])
+def test_packets_give_each_ray_its_own_answer(pipe, spec, samples):
+    """(64 samples: a packet of 60 rays, both halves of its 64-bit masks)"""
     from hybrid_shadow_addon.blender.load import load_scene
 
     scene = load_scene(spec)
     if not spec.startswith("soft"):
         scene = extended(scene)
-    f1, a = masks(pipe, scene, packets=True)
-    f0, b = masks(pipe, scene, packets=False)
+    f1, a = masks(pipe, scene, packets=True, samples=samples)
+    f0, b = masks(pipe, scene, packets=False, samples=samples)
     assert "HS_SOFT_PACKET=1" in f1.stats["defines"] and "HS_SOFT_PACKET=1" not in f0.stats["defines"]
     penumbra = 0
     for li, (x, y) in enumerate(zip(a, b)):

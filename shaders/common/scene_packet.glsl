@@ -27,7 +27,7 @@
 #ifndef HS_SCENE_PACKET_GLSL
 #define HS_SCENE_PACKET_GLSL
 
-#define HS_PACKET 32
+#define HS_PACKET 64
 #define HS_PACKET_MIN_COS 0.5
 
 vec3 hs_pk_d[HS_PACKET];    // the rays (bake space), set by the caller
@@ -37,6 +37,11 @@ float hs_pk_l[HS_PACKET];   // and lengths
 vec3 hs_pk_od[HS_PACKET];   // the current instance's: unit model-space directions
 float hs_pk_ol[HS_PACKET];  // and lengths in model units
 int hs_pk_cnt;              // rays in the packet
+
+// ray masks: bit k of (x: rays 0..31, y: rays 32..63)
+uvec2 hs_bit(int k) { uint b = 1u << uint(k & 31); return k < 32 ? uvec2(b, 0u) : uvec2(0u, b); }
+bool hs_has(uvec2 m, int k) { return (((k < 32 ? m.x : m.y) >> uint(k & 31)) & 1u) != 0u; }
+bool hs_none(uvec2 m) { return (m.x | m.y) == 0u; }
 
 struct HsCone { vec3 apex; vec3 axis; vec3 inv; float sin_a; float len; float e; };
 
@@ -71,7 +76,7 @@ float hs_amax(vec3 v) { vec3 a = abs(v); return max(max(a.x, a.y), a.z); }
 // that hit triangle v0 v1 v2 at t in (floor, length). A triangle whose bounding sphere lies
 // outside the instance's cone takes no ray test (the signed distance of the sphere's centre to
 // the cone's mantle, h cos - d1 sin, with the bounds' cos below and sin above the true angle's).
-uint hs_pk_tri(vec3 om, uint need, vec3 v0, vec3 v1, vec3 v2)
+uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2)
 {
     precise vec3 A = v0 - om;
     precise vec3 B = v1 - om;
@@ -83,7 +88,7 @@ uint hs_pk_tri(vec3 om, uint need, vec3 v0, vec3 v1, vec3 v2)
     if (dv > r) {
         float d1 = dot(ctr, hs_pk_ax);
         float h = length(ctr - d1 * hs_pk_ax);   // (not sqrt(dv^2 - d1^2): it cancels)
-        if (d1 < -r || (d1 >= 0.0 && h * hs_pk_cos - d1 * hs_pk_sin > r) || dv - r > hs_pk_len) return 0u;
+        if (d1 < -r || (d1 >= 0.0 && h * hs_pk_cos - d1 * hs_pk_sin > r) || dv - r > hs_pk_len) return uvec2(0u);
     }
     precise vec3 nab = vec3(A.y * B.z - A.z * B.y, A.z * B.x - A.x * B.z, A.x * B.y - A.y * B.x);
     precise vec3 nbc = vec3(B.y * C.z - B.z * C.y, B.z * C.x - B.x * C.z, B.x * C.y - B.y * C.x);
@@ -91,7 +96,7 @@ uint hs_pk_tri(vec3 om, uint need, vec3 v0, vec3 v1, vec3 v2)
     precise float T = (A.x * nbc.x + A.y * nbc.y) + A.z * nbc.z;   // t = T / det
     // hits nearer than the float32 error of T are the receiver's own surface (as hs_tri_hit_b)
     float fl = HS_TFLOOR * max(max(hs_amax(A), hs_amax(B)), hs_amax(C));
-    uint hit = 0u;
+    uvec2 hit = uvec2(0u);
     for (int k = 0; k < hs_pk_cnt; ++k) {
         vec3 d = hs_pk_od[k];
         precise float e0 = (d.x * nbc.x + d.y * nbc.y) + d.z * nbc.z;
@@ -102,42 +107,42 @@ uint hs_pk_tri(vec3 om, uint need, vec3 v0, vec3 v1, vec3 v2)
         float tl = hs_pk_ol[k];
         bool h = !mixed && ((det > 0.0) ? (T > fl * det && T < tl * det)
                                         : (det < 0.0 && T < fl * det && T > tl * det));
-        if (h) hit |= 1u << uint(k);
+        if (h) hit |= hs_bit(k);
     }
     return hit & need;
 }
 #endif
 
-// Bit k set: ray k of the packet (live bit k) is blocked.
-uint hs_trace_packet(vec3 o, int cnt, uint live)
+// Bit k set: ray k of the packet (live bit k) is blocked (masks: hs_bit).
+uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
 {
-    if (live == 0u) return 0u;
+    if (hs_none(live)) return uvec2(0u);
     hs_pk_cnt = cnt;
     vec3 s = vec3(0.0);
     float len = 0.0;
     for (int k = 0; k < cnt; ++k) {
         float l = length(hs_pk_d[k]);
-        bool on = ((live >> uint(k)) & 1u) != 0u && l > 0.0 && hs_pk_t[k] > 0.0;
-        if (!on) live &= ~(1u << uint(k));
+        bool on = hs_has(live, k) && l > 0.0 && hs_pk_t[k] > 0.0;
+        if (!on) live &= ~hs_bit(k);
         vec3 u = on ? hs_pk_d[k] / l : vec3(0.0);
         hs_pk_u[k] = u;
         hs_pk_l[k] = on ? min(l * min(hs_pk_t[k], HS_FLT_BIG), 1.0e30) : 0.0;
         s += u;
         len = max(len, hs_pk_l[k]);
     }
-    if (live == 0u) return 0u;
+    if (hs_none(live)) return uvec2(0u);
     vec3 ax = normalize(s);
     float cmin = 1.0, smax = 0.0;
     for (int k = 0; k < cnt; ++k) {
-        if (((live >> uint(k)) & 1u) != 0u) {
+        if (hs_has(live, k)) {
             cmin = min(cmin, dot(hs_pk_u[k], ax));
             smax = max(smax, length(cross(hs_pk_u[k], ax)));
         }
     }
-    uint occ = 0u;
+    uvec2 occ = uvec2(0u);
     if (!(cmin > HS_PACKET_MIN_COS)) {   // too wide a spread to bound: ray by ray
         for (int k = 0; k < cnt; ++k)
-            if (((live >> uint(k)) & 1u) != 0u && hs_occluded(o, hs_pk_d[k], hs_pk_t[k])) occ |= 1u << uint(k);
+            if (hs_has(live, k) && hs_occluded(o, hs_pk_d[k], hs_pk_t[k])) occ |= hs_bit(k);
         return occ;
     }
     HsCone tc;
@@ -208,7 +213,7 @@ uint hs_trace_packet(vec3 o, int cnt, uint live)
                 vec3 u = hs_pk_u[k];
                 vec3 md = vec3(dot(x0.xyz, u), dot(x1.xyz, u), dot(x2.xyz, u));
                 float l = length(md);
-                bool on = ((live >> uint(k)) & 1u) != 0u && l > 0.0;
+                bool on = hs_has(live, k) && l > 0.0;
                 vec3 mu = on ? md / l : vec3(0.0);
                 hs_pk_od[k] = mu;
                 hs_pk_ol[k] = on ? hs_pk_l[k] * l : 0.0;
@@ -219,9 +224,9 @@ uint hs_trace_packet(vec3 o, int cnt, uint live)
 #ifdef HS_HAS_SPHERES
             if (is_sphere) {
                 for (int k = 0; k < cnt; ++k)
-                    if (((live >> uint(k)) & 1u) != 0u && hs_sphere_hit(m_o, hs_pk_od[k], x4.xyz, x4.w, hs_pk_ol[k]))
-                        occ |= 1u << uint(k);
-                if ((occ & live) == live) return occ & live;
+                    if (hs_has(live, k) && hs_sphere_hit(m_o, hs_pk_od[k], x4.xyz, x4.w, hs_pk_ol[k]))
+                        occ |= hs_bit(k);
+                if (all(equal(occ & live, live))) return occ & live;
             }
 #endif
 #ifdef HS_HAS_MESHES
@@ -229,7 +234,7 @@ uint hs_trace_packet(vec3 o, int cnt, uint live)
                 vec3 mx = normalize(ms);
                 float mc = 1.0, mn = 0.0;
                 for (int k = 0; k < cnt; ++k) {
-                    if (((live >> uint(k)) & 1u) != 0u) {
+                    if (hs_has(live, k)) {
                         mc = min(mc, dot(hs_pk_od[k], mx));
                         mn = max(mn, length(cross(hs_pk_od[k], mx)));
                     }
@@ -268,7 +273,7 @@ uint hs_trace_packet(vec3 o, int cnt, uint live)
 #if HS_BVH_LEAF_SIZE > 3
             if (tc_n > 3) occ |= hs_pk_tri(om, live & ~occ, vec3(x6.w, x7.xy), vec3(x7.zw, x8.x), x8.yzw);
 #endif
-            if (occ == live) return occ;
+            if (all(equal(occ, live))) return occ;
         }
 #endif
         i = next;

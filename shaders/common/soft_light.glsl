@@ -64,18 +64,26 @@ uint hs_owen(uint x, uint seed)
 // power-of-two prefix is stratified in all elementary intervals), Owen-scrambled with seeds
 // from a hash of the pixel and the light, so pixels are decorrelated and a frame that continues
 // at u_sample_base carries on the same sequence
-vec2 hs_sample2(ivec2 px, int k)
+uvec2 hs_sample_seeds(ivec2 px)
 {
     uint seed = hs_hash(uvec3(uvec2(px), u_seed));
+    return uvec2(seed, hs_hash(uvec3(seed, 0x9E3779B9u, u_seed)));
+}
+
+// (with the pixel's seeds, hs_sample_seeds: a loop over a pixel's samples hashes once)
+vec2 hs_sample2s(uvec2 seeds, int k)
+{
     uint i = uint(k);
     uint y = 0u;
     for (uint v = 0x80000000u, b = i; b != 0u; b >>= 1u, v ^= v >> 1u)
         if ((b & 1u) != 0u) y ^= v;
     uint x = bitfieldReverse(i);
-    x = hs_owen(x, seed);
-    y = hs_owen(y, hs_hash(uvec3(seed, 0x9E3779B9u, u_seed)));
+    x = hs_owen(x, seeds.x);
+    y = hs_owen(y, seeds.y);
     return vec2(float(x >> 8u), float(y >> 8u)) * (1.0 / 16777216.0);
 }
+
+vec2 hs_sample2(ivec2 px, int k) { return hs_sample2s(hs_sample_seeds(px), k); }
 
 // Shirley-Chiu concentric map of the unit square onto the unit disk
 vec2 hs_concentric(vec2 u)
