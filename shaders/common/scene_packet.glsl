@@ -66,34 +66,35 @@ bool hs_cone_box_hit(HsCone c, uvec4 n)
 }
 
 #ifdef HS_HAS_MESHES
-// the current instance's cone (model space, apex om): axis, cosine and sine bounds, length
+// the current instance's cone (model space, apex om): axis, sine bound, length
 vec3 hs_pk_ax;
-float hs_pk_cos, hs_pk_sin, hs_pk_len;
+float hs_pk_sin, hs_pk_len;
 
 float hs_amax(vec3 v) { vec3 a = abs(v); return max(max(a.x, a.y), a.z); }
 
 // The rays among 'need' (model space: origin om, unit directions hs_pk_od, lengths hs_pk_ol)
-// that hit triangle v0 v1 v2 at t in (floor, length). A triangle whose bounding sphere lies
-// outside the instance's cone takes no ray test (the signed distance of the sphere's centre to
-// the cone's mantle, h cos - d1 sin, with the bounds' cos below and sin above the true angle's).
+// that hit triangle v0 v1 v2 at t in (floor, length). A triangle that no ray of the instance's
+// cone can hit takes no ray test (on soft_lights, 1 in 2 to 7 of those tested has a hit).
 uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2)
 {
     precise vec3 A = v0 - om;
     precise vec3 B = v1 - om;
     precise vec3 C = v2 - om;
-    vec3 ctr = (A + B + C) * (1.0 / 3.0);
-    vec3 ea = A - ctr, eb = B - ctr, ec = C - ctr;
-    float r = sqrt(max(max(dot(ea, ea), dot(eb, eb)), dot(ec, ec))) * 1.0001 + 1.0e-6 * hs_amax(ctr);
-    float dv = length(ctr);
-    if (dv > r) {
-        float d1 = dot(ctr, hs_pk_ax);
-        float h = length(ctr - d1 * hs_pk_ax);   // (not sqrt(dv^2 - d1^2): it cancels)
-        if (d1 < -r || (d1 >= 0.0 && h * hs_pk_cos - d1 * hs_pk_sin > r) || dv - r > hs_pk_len) return uvec2(0u);
-    }
     precise vec3 nab = vec3(A.y * B.z - A.z * B.y, A.z * B.x - A.x * B.z, A.x * B.y - A.y * B.x);
     precise vec3 nbc = vec3(B.y * C.z - B.z * C.y, B.z * C.x - B.x * C.z, B.x * C.y - B.y * C.x);
     precise vec3 nca = vec3(C.y * A.z - C.z * A.y, C.z * A.x - C.x * A.z, C.x * A.y - C.y * A.x);
     precise float T = (A.x * nbc.x + A.y * nbc.y) + A.z * nbc.z;   // t = T / det
+    // a ray hits only where each of its edge products has T's sign (then t = T / det > 0): no
+    // ray does when the whole cone lies on the other side of one edge's plane, or the plane lies
+    // beyond every ray's length
+    {
+        float sg = T > 0.0 ? 1.0 : -1.0;
+        float sa = hs_pk_sin;
+        vec3 ax = hs_pk_ax;
+        bool apart = sg * dot(ax, nbc) < -sa * length(nbc) || sg * dot(ax, nca) < -sa * length(nca)
+                  || sg * dot(ax, nab) < -sa * length(nab);
+        if (T == 0.0 || apart || abs(T) > 1.0001 * hs_pk_len * length(nab + nbc + nca)) return uvec2(0u);
+    }
     // hits nearer than the float32 error of T are the receiver's own surface (as hs_tri_hit_b)
     float fl = HS_TFLOOR * max(max(hs_amax(A), hs_amax(B)), hs_amax(C));
     uvec2 hit = uvec2(0u);
@@ -243,7 +244,6 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
                 bool narrow = mc > 0.05;   // else (a strong shear): every node of the model
                 hs_pk_ax = mx;
                 hs_pk_sin = narrow ? hs_cone_sin(mn) : 1.0e30;
-                hs_pk_cos = narrow ? max(mc - 1.0e-4, 0.0) : 0.0;
                 hs_pk_len = ml;
                 precise vec3 oq = (m_o - x4.xyz) * x4.w;
                 vec3 aq = abs(oq);
