@@ -87,8 +87,8 @@ uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2)
     // a ray hits only where each of its edge products has T's sign (then t = T / det > 0): no
     // ray does when the whole cone lies on the other side of one edge's plane, or the plane lies
     // beyond every ray's length
+    float sg = T > 0.0 ? 1.0 : -1.0;
     {
-        float sg = T > 0.0 ? 1.0 : -1.0;
         float sa = hs_pk_sin;
         vec3 ax = hs_pk_ax;
         bool apart = sg * dot(ax, nbc) < -sa * length(nbc) || sg * dot(ax, nca) < -sa * length(nca)
@@ -97,17 +97,20 @@ uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2)
     }
     // hits nearer than the float32 error of T are the receiver's own surface (as hs_tri_hit_b)
     float fl = HS_TFLOOR * max(max(hs_amax(A), hs_amax(B)), hs_amax(C));
+    // the edge planes turned so that a hit has all three products >= 0 (an exact sign flip: the
+    // same answers as "all of one sign" with t = T / det > 0), and det = their sum > 0
+    precise vec3 pbc = sg * nbc;
+    precise vec3 pca = sg * nca;
+    precise vec3 pab = sg * nab;
+    float aT = abs(T);
     uvec2 hit = uvec2(0u);
     for (int k = 0; k < hs_pk_cnt; ++k) {
         vec3 d = hs_pk_od[k];
-        precise float e0 = (d.x * nbc.x + d.y * nbc.y) + d.z * nbc.z;
-        precise float e1 = (d.x * nca.x + d.y * nca.y) + d.z * nca.z;
-        precise float e2 = (d.x * nab.x + d.y * nab.y) + d.z * nab.z;
-        bool mixed = (e0 < 0.0 || e1 < 0.0 || e2 < 0.0) && (e0 > 0.0 || e1 > 0.0 || e2 > 0.0);
+        precise float e0 = (d.x * pbc.x + d.y * pbc.y) + d.z * pbc.z;
+        precise float e1 = (d.x * pca.x + d.y * pca.y) + d.z * pca.z;
+        precise float e2 = (d.x * pab.x + d.y * pab.y) + d.z * pab.z;
         precise float det = (e0 + e1) + e2;
-        float tl = hs_pk_ol[k];
-        bool h = !mixed && ((det > 0.0) ? (T > fl * det && T < tl * det)
-                                        : (det < 0.0 && T < fl * det && T > tl * det));
+        bool h = min(min(e0, e1), e2) >= 0.0 && aT > fl * det && aT < hs_pk_ol[k] * det;
         if (h) hit |= hs_bit(k);
     }
     return hit & need;
@@ -208,7 +211,6 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
             precise vec3 m_o = vec3(((x0.x * o.x + x0.y * o.y) + x0.z * o.z) + x0.w,
                                     ((x1.x * o.x + x1.y * o.y) + x1.z * o.z) + x1.w,
                                     ((x2.x * o.x + x2.y * o.y) + x2.z * o.z) + x2.w);
-            vec3 ms = vec3(0.0);
             float ml = 0.0;
             for (int k = 0; k < cnt; ++k) {
                 vec3 u = hs_pk_u[k];
@@ -218,7 +220,6 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
                 vec3 mu = on ? md / l : vec3(0.0);
                 hs_pk_od[k] = mu;
                 hs_pk_ol[k] = on ? hs_pk_l[k] * l : 0.0;
-                ms += mu;
                 ml = max(ml, hs_pk_ol[k]);
             }
             bool is_sphere = (u3.z & HS_SPHERE_FLAG) != 0u;
@@ -232,18 +233,21 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
 #endif
 #ifdef HS_HAS_MESHES
             if (!is_sphere) {
-                vec3 mx = normalize(ms);
-                float mc = 1.0, mn = 0.0;
-                for (int k = 0; k < cnt; ++k) {
-                    if (hs_has(live, k)) {
-                        mc = min(mc, dot(hs_pk_od[k], mx));
-                        mn = max(mn, length(cross(hs_pk_od[k], mx)));
-                    }
-                }
+                // the cone in model space, from the bake-space one: the linear map L (rows x0..x2)
+                // turns an angle of sine s about the axis into one of sine <= s sigma_max /
+                // sigma_min (Gershgorin bounds of L^T L's eigenvalues), which stays below 90
+                // degrees while kappa^2 tan < 1; else (a strong shear) every node of the model
+                vec3 l0 = vec3(x0.x, x1.x, x2.x), l1 = vec3(x0.y, x1.y, x2.y), l2 = vec3(x0.z, x1.z, x2.z);
+                float g01 = abs(dot(l0, l1)), g02 = abs(dot(l0, l2)), g12 = abs(dot(l1, l2));
+                float ghi = max(max(dot(l0, l0) + g01 + g02, dot(l1, l1) + g01 + g12), dot(l2, l2) + g02 + g12);
+                float glo = min(min(dot(l0, l0) - g01 - g02, dot(l1, l1) - g01 - g12), dot(l2, l2) - g02 - g12);
+                float kap2 = glo > 0.0 ? 1.0002 * ghi / glo : 1.0e30;
+                float ws = tc.sin_a;
+                bool narrow = kap2 * ws < 0.7 * sqrt(max(1.0 - ws * ws, 0.0));
+                vec3 mx = normalize(vec3(dot(x0.xyz, tc.axis), dot(x1.xyz, tc.axis), dot(x2.xyz, tc.axis)));
                 om = m_o;
-                bool narrow = mc > 0.05;   // else (a strong shear): every node of the model
                 hs_pk_ax = mx;
-                hs_pk_sin = narrow ? hs_cone_sin(mn) : 1.0e30;
+                hs_pk_sin = narrow ? hs_cone_sin(sqrt(kap2) * ws) : 1.0e30;
                 hs_pk_len = ml;
                 precise vec3 oq = (m_o - x4.xyz) * x4.w;
                 vec3 aq = abs(oq);
@@ -251,7 +255,7 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
                 c.apex = oq;
                 c.axis = mx;
                 c.inv = hs_slab_inv(mx);
-                c.sin_a = narrow ? hs_cone_sin(mn) : 1.0e30;
+                c.sin_a = hs_pk_sin;
                 c.len = ml * x4.w;
                 c.e = e;
                 ret = i + 1;
