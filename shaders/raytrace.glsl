@@ -16,10 +16,7 @@
 // HS_SOFT_REFINE then traces all of them only near pixels whose probes disagree: it is drawn
 // under the depth test, on the pixels soft_range.glsl's CLASSIFY marked). The probe pass writes
 // RG32F sums (weighted visibility, weight) instead of the mask, (value, 1) where the answer is
-// known without a ray: the refinement continues each pixel's sequence after them. HS_PROBE_HALF:
-// probes on every other pixel only (a checkerboard, packed two pixels to a probe texel, which
-// also keeps the unprobed pixel's answer known without a ray: RGBA32F); a refined pixel without
-// probes traces all its samples. HS_SOFT_PACKET: a pixel's samples walk the scene together
+// known without a ray: the refinement continues each pixel's sequence after them. HS_SOFT_PACKET: a pixel's samples walk the scene together
 // (common/scene_packet.glsl); HS_SOFT_FULL: a refined pixel never stops early.
 // HS_SOFT_ACCUM (the viewport's running sums, soft_accumulate.glsl) writes the same sums of its
 // u_samples rays; a pixel none of whose rays had a weight writes its highest point's answer with
@@ -57,41 +54,15 @@ uniform int u_valid_phases;     // bit p set: history texels of phase p are up t
 #endif
 
 in vec2 v_uv;
+#define HS_LOOP_SPENT -7.0
 #if defined(HS_SOFT_PROBE) || defined(HS_SOFT_ACCUM)
 #define HS_SOFT_SUMS
 #define HS_ACCUM_TOP_WEIGHT 1.0e-30
-#if defined(HS_SOFT_PROBE) && defined(HS_PROBE_HALF)
-out vec4 o_sums;                // (the probed pixel's sums, its unprobed partner's known answer or -1, 0)
-#else
 out vec2 o_sums;                // (weighted visibility, weight) of this pass's rays
-#endif
 float o_mask;                   // the answers known without a ray: written as (o_mask, 1)
 vec2 hs_sums = vec2(-1.0);
 #else
 out float o_mask;
-#endif
-
-#if defined(HS_SOFT_PROBE) && defined(HS_PROBE_HALF)
-// HS_PROBE_HALF: the probes of pixel (x, y) with x and y alike odd or even, at probe texel
-// (x / 2, y); texel (i, y) holds that pixel (k 0) and its unprobed partner (k 1), whose answer
-// known without a ray (as the refinement's) the texel keeps as well
-ivec2 hs_probed_pixel(ivec2 t, int k)
-{
-    return ivec2(min(2 * t.x + ((t.y + k) & 1), u_full_size.x - 1), t.y);
-}
-
-float hs_known(ivec2 px)
-{
-    vec3 p, n, to_light;
-    float depth;
-    float known = shadow_ray_prelude(px, p, n, depth, to_light);
-    if (known >= 0.0) return known;
-    vec3 o = offset_origin(p, n, depth * 3.0e-6);
-    vec3 top_d;
-    float top_tmax, top_w;
-    hs_light_top(o, n, top_d, top_tmax, top_w);
-    return (top_w == 0.0 && !(dot(n, top_d) > 0.0)) ? 0.0 : -1.0;
-}
 #endif
 
 void trace_main()
@@ -110,8 +81,6 @@ void trace_main()
     int k = compact_index(mt);
     if (k >= compact_total()) discard;    // (an occlusion query counts the rays)
     ivec2 px = compact_find(k);
-#elif defined(HS_SOFT_PROBE) && defined(HS_PROBE_HALF)
-    ivec2 px = hs_probed_pixel(mt, 0);
 #else
     ivec2 px = mask_source_pixel(mt, u_scale, u_full_size);
 #endif
@@ -137,13 +106,7 @@ void trace_main()
     // (the pixels outside any penumbra, where every probe nearby saw all or none of the light
     // alike, kept their probe answer: soft_range.glsl's CLASSIFY wrote it, and the depth test
     // keeps this pass off them)
-#ifdef HS_PROBE_HALF
-    // (probes on every other pixel: a pixel without its own traces all its samples)
-    bool probed = ((px.x ^ px.y) & 1) == 0;
-    vec2 ps = probed ? texelFetch(u_probe, ivec2(px.x >> 1, px.y), 0).rg : vec2(0.0);
-#else
     vec2 ps = texelFetch(u_probe, px, 0).rg;
-#endif
     float pv = hs_probe_value(ps);
 #endif
 #endif
@@ -153,9 +116,7 @@ void trace_main()
     // the probes were this pixel's first HS_PROBES samples (the same sequence, in the same
     // order): continue after them with their sums, exactly as if traced again (below 10
     // samples the early stop's check falls among the probes: those are traced again)
-#if defined(HS_PROBE_HALF)
-    if (probed) { sv = ps.x; sw = ps.y; k0 = HS_PROBES; }
-#elif defined(HS_SOFT_ACCUM) || defined(HS_SOFT_FULL)
+#if defined(HS_SOFT_ACCUM) || defined(HS_SOFT_FULL)
     { sv = ps.x; sw = ps.y; k0 = HS_PROBES; }   // (a viewport frame, packets: all its samples, no early stop)
 #else
     if ((n_samples >> 1) > HS_PROBES) { sv = ps.x; sw = ps.y; k0 = HS_PROBES; }
@@ -230,6 +191,20 @@ void trace_main()
 #else
     o_mask = sw > 0.0 ? sv / sw : 0.0;
 #endif
+#ifdef HS_LOOP_CHECK
+    // llvmpipe stops every loop of an invocation once all its loops together have run 65535
+    // iterations: a loop over u_samples that ends early here says this pixel's rays were cut
+    // short (a test's check: the answer becomes HS_LOOP_SPENT)
+    {
+        int q = 0;
+        for (int z = 0; z < u_samples; ++z) ++q;
+#ifdef HS_SOFT_SUMS
+        if (q != u_samples) hs_sums = vec2(HS_LOOP_SPENT, 1.0);
+#else
+        if (q != u_samples) o_mask = HS_LOOP_SPENT;
+#endif
+    }
+#endif
     return;
 #endif
 #ifdef HS_LIGHT_LOCAL
@@ -265,12 +240,7 @@ void main()
 {
     trace_main();
 #ifdef HS_SOFT_SUMS
-#if defined(HS_SOFT_PROBE) && defined(HS_PROBE_HALF)
-    o_sums = vec4(hs_sums.y >= 0.0 ? hs_sums : vec2(o_mask, 1.0),
-                  hs_known(hs_probed_pixel(ivec2(gl_FragCoord.xy), 1)), 0.0);
-#else
     o_sums = hs_sums.y >= 0.0 ? hs_sums : vec2(o_mask, 1.0);
-#endif
 #endif
 }
 #endif

@@ -14,9 +14,7 @@
 // which pixels keep their probe answer (u_probe: the probe pass's sums), as raytrace.glsl's
 // HS_SOFT_REFINE would: those get it (the value; ACCUM: the sums) and gl_FragDepth 1, the
 // others gl_FragDepth 0, so the refinement draw runs only on them under the depth test
-// (raytrace.glsl HS_SOFT_REFINE) and the pixels it leaves cost nothing. HALF: the probes were traced on every
-// other pixel (raytrace.glsl HS_PROBE_HALF); a pixel without its own takes the answer every probe
-// within reach saw alike, or its answer known without a ray, which the probe texel keeps.
+// (raytrace.glsl HS_SOFT_REFINE) and the pixels it leaves cost nothing.
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
 #endif
@@ -39,31 +37,16 @@ out vec2 o_answer;
 out vec2 o_range;
 #endif
 
-#ifdef HALF
-// HALF: probes on every other pixel (raytrace.glsl HS_PROBE_HALF): pixel q's probe texel and,
-// where q has no probes, its answer known without a ray (-1: none)
-vec4 hs_probe_texel(ivec2 q) { return texelFetch(u_src, ivec2(q.x >> 1, q.y), 0); }
-bool hs_probed(ivec2 q) { return ((q.x ^ q.y) & 1) == 0; }
-#endif
-
 void main()
 {
     ivec2 px = ivec2(gl_FragCoord.xy);
-#if defined(HALF) && defined(FIRST)
-    ivec2 lim = textureSize(u_gb_position, 0) - 1;
-#else
     ivec2 lim = textureSize(u_src, 0) - 1;
-#endif
     vec2 r = vec2(HS_RANGE_BIG, -HS_RANGE_BIG);
     for (int k = -HS_RANGE_RADIUS; k <= HS_RANGE_RADIUS; ++k) {
         ivec2 q = clamp(px + k * u_step, ivec2(0), lim);
 #ifdef FIRST
         if (texelFetch(u_gb_position, q, 0).w != 0.0) {
-#if defined(SUMS) && defined(HALF)
-            vec4 t = hs_probe_texel(q);
-            float v = hs_probed(q) ? hs_probe_value(t.rg) : t.b;
-            if (!hs_probed(q) && v < 0.0) continue;   // (no probes, not known: no say)
-#elif defined(SUMS)
+#if defined(SUMS)
             float v = hs_probe_value(texelFetch(u_src, q, 0).rg);   // the probe pass's sums
 #else
             float v = texelFetch(u_src, q, 0).r;
@@ -76,18 +59,9 @@ void main()
 #endif
     }
 #ifdef CLASSIFY
-#ifdef HALF
-    // a pixel without probes: its known answer, or what every probe around it saw alike
-    vec4 t = texelFetch(u_probe, ivec2(px.x >> 1, px.y), 0);
-    bool probed = ((px.x ^ px.y) & 1) == 0;
-    vec2 ps = t.rg;
-    float pv = probed ? hs_probe_value(ps) : (t.b >= 0.0 ? t.b : r.x);
-    bool keep = (!probed && t.b >= 0.0) || ((pv == 0.0 || pv == 1.0) && r.x == pv && r.y == pv);
-#else
     vec2 ps = texelFetch(u_probe, px, 0).rg;
     float pv = hs_probe_value(ps);
     bool keep = (pv == 0.0 || pv == 1.0) && r.x == pv && r.y == pv;
-#endif
     if (texelFetch(u_gb_position, px, 0).w == 0.0) {   // background: lit, as the trace writes it
         keep = true;
         pv = 1.0;

@@ -35,13 +35,12 @@ def masks(pipe, scene, packets: bool, samples: int = 32):
     rt = pipe.shadow_pass("raytrace")
     rt.packets = packets
     rt.early_stop = packets  # (a packet traces all of a refined pixel's samples: so does the reference)
-    rt.half_probes = False   # (the same probes on both sides)
     pipe.set_scene(scene, "bvh")
     pipe.reset_history()
     try:
         f = pipe.render(scene, Settings(mode="raytrace", quality="high", samples=samples), W, H)
     finally:
-        rt.packets = rt.early_stop = rt.half_probes = True
+        rt.packets = rt.early_stop = True
     return f, [f.mask_array(i) for i in range(len(scene.lights))]
 
 
@@ -69,7 +68,9 @@ def test_packets_give_each_ray_its_own_answer(pipe, spec, samples):
         fin = np.isfinite(y)
         np.testing.assert_array_equal(np.isfinite(x), fin)
         d = np.abs(x - y)[fin]
-        assert (d == 0).mean() > 0.999, f"light {li}: {(d > 0).sum()} pixels differ"
+        # (the reference adds 64 samples' sums in three draws of at most CHUNK_RAYS: another
+        # order of the float additions than one packet's)
+        assert (d <= 1e-5).mean() > 0.999, f"light {li}: {(d > 1e-5).sum()} pixels differ"
         assert d.mean() < 1e-4, f"light {li}: mean difference {d.mean():.2e}"
         penumbra += int(((y > 0.02) & (y < 0.98)).sum())
     assert penumbra > 200, "the scene should show penumbrae"
@@ -88,3 +89,27 @@ def test_packets_through_analytic_spheres(pipe):
         d = np.abs(x - y)[fin]
         assert (d == 0).mean() > 0.999 and d.mean() < 1e-4
     assert sum(((y > 0.02) & (y < 0.98)).sum() for y in b) > 200
+
+
+@pytest.mark.parametrize("packets, samples", [(True, 64), (True, 256), (False, 64), (False, 128)])
+def test_no_pixel_spends_llvmpipe_loop_budget(pipe, packets, samples):
+    """llvmpipe stops every loop of a shader invocation once all its loops together have run
+    65535 iterations: a pixel whose rays spend that budget keeps the rays it traced so far and
+    looks plausible. On ``forest`` (a million triangles, palms over hills under a dawn sun) 64
+    rays one by one spent it on 1 in 7 of the sun's penumbra pixels, and so did 64-ray packets
+    while each triangle looped over its rays one at a time. The refinement now traces at most
+    CHUNK_RAYS rays per draw; HS_LOOP_CHECK marks a spent pixel (a loop over u_samples that
+    ends early) with a negative mask."""
+    from hybrid_shadow_addon.blender.load import load_scene
+
+    rt = pipe.shadow_pass("raytrace")
+    scene = load_scene("forest")
+    rt.loop_check = True
+    try:
+        f, ms = masks(pipe, scene, packets=packets, samples=samples)
+    finally:
+        rt.loop_check = False
+    assert ("HS_SOFT_PACKET=1" in f.stats["defines"]) == packets
+    for li, m in enumerate(ms):
+        assert not (np.nan_to_num(m) < -0.5).any(), f"light {li}: {(np.nan_to_num(m) < -0.5).sum()} pixels spent the budget"
+    assert ((ms[0] > 0.02) & (ms[0] < 0.98)).sum() > 300, "the sun should show penumbrae"

@@ -34,8 +34,6 @@ vec3 hs_pk_d[HS_PACKET];    // the rays (bake space), set by the caller
 float hs_pk_t[HS_PACKET];
 vec3 hs_pk_u[HS_PACKET];    // their unit directions (bake space)
 float hs_pk_l[HS_PACKET];   // and lengths
-vec3 hs_pk_od[HS_PACKET];   // the current instance's: unit model-space directions
-float hs_pk_ol[HS_PACKET];  // and lengths in model units
 int hs_pk_cnt;              // rays in the packet
 
 // ray masks: bit k of (x: rays 0..31, y: rays 32..63)
@@ -45,8 +43,8 @@ bool hs_none(uvec2 m) { return (m.x | m.y) == 0u; }
 
 struct HsCone { vec3 apex; vec3 axis; vec3 inv; float sin_a; float len; float e; };
 
-// sine bound of the cone around the unit vectors hs_pk_u / hs_pk_od (model) of live rays
-// about unit axis ax (cross products: exact for narrow cones, where 1 - cos^2 is not)
+// sine bound of the cone from the largest sine s of a ray's angle to the axis (s from cross
+// products: exact for narrow cones, where 1 - cos^2 is not)
 float hs_cone_sin(float s) { return s * 1.0001 + 1.0e-6; }
 
 // Does any ray of cone c reach the quantised node n (box widened by c.e, as the single ray's)?
@@ -66,15 +64,24 @@ bool hs_cone_box_hit(HsCone c, uvec4 n)
 }
 
 #ifdef HS_HAS_MESHES
-// the current instance's cone (model space, apex om): axis, sine bound, length
+// the current instance: rows of its linear map L (bake space -> model space) and the columns of
+// its inverse; the bake-space cone's axis, sine bound and length
+vec3 hs_pk_r0, hs_pk_r1, hs_pk_r2;
+vec3 hs_pk_i0, hs_pk_i1, hs_pk_i2;   // the columns of L^-1
 vec3 hs_pk_ax;
 float hs_pk_sin, hs_pk_len;
 
+vec3 hs_pk_back(vec3 a) { return (a.x * hs_pk_i0 + a.y * hs_pk_i1) + a.z * hs_pk_i2; }
+
 float hs_amax(vec3 v) { vec3 a = abs(v); return max(max(a.x, a.y), a.z); }
 
-// The rays among 'need' (model space: origin om, unit directions hs_pk_od, lengths hs_pk_ol)
-// that hit triangle v0 v1 v2 at t in (floor, length). A triangle that no ray of the instance's
-// cone can hit takes no ray test (on soft_lights, 1 in 2 to 7 of those tested has a hit).
+// The rays among 'need' (bake space: origin o, unit directions hs_pk_u, lengths hs_pk_l) that
+// hit triangle v0 v1 v2 (model space, om = o in model space) at t in (floor, length). The edge
+// planes through the origin are set up in model space (A x B, ...) and turned into bake space
+// once per triangle (L^T n: a ray's product d . L^T n is its model-space direction's, L d . n,
+// so t = T / det is the bake-space distance); no ray is moved into model space. A triangle that
+// no ray of the cone can hit takes no ray test (on soft_lights, 1 in 2 to 7 of those tested has
+// a hit).
 uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2)
 {
     precise vec3 A = v0 - om;
@@ -84,34 +91,38 @@ uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2)
     precise vec3 nbc = vec3(B.y * C.z - B.z * C.y, B.z * C.x - B.x * C.z, B.x * C.y - B.y * C.x);
     precise vec3 nca = vec3(C.y * A.z - C.z * A.y, C.z * A.x - C.x * A.z, C.x * A.y - C.y * A.x);
     precise float T = (A.x * nbc.x + A.y * nbc.y) + A.z * nbc.z;   // t = T / det
-    // a ray hits only where each of its edge products has T's sign (then t = T / det > 0): no
-    // ray does when the whole cone lies on the other side of one edge's plane, or the plane lies
-    // beyond every ray's length
+    // L^T n, with the sign of T (an exact flip: a hit then has all three products >= 0 and
+    // det = their sum > 0; a shared edge's plane is still the other triangle's negated)
     float sg = T > 0.0 ? 1.0 : -1.0;
+    precise vec3 pbc = sg * ((nbc.x * hs_pk_r0 + nbc.y * hs_pk_r1) + nbc.z * hs_pk_r2);
+    precise vec3 pca = sg * ((nca.x * hs_pk_r0 + nca.y * hs_pk_r1) + nca.z * hs_pk_r2);
+    precise vec3 pab = sg * ((nab.x * hs_pk_r0 + nab.y * hs_pk_r1) + nab.z * hs_pk_r2);
+    float aT = abs(T);
+    // no ray hits when the whole cone lies on the outer side of one edge's plane, or the plane
+    // lies beyond every ray's length
     {
         float sa = hs_pk_sin;
         vec3 ax = hs_pk_ax;
-        bool apart = sg * dot(ax, nbc) < -sa * length(nbc) || sg * dot(ax, nca) < -sa * length(nca)
-                  || sg * dot(ax, nab) < -sa * length(nab);
-        if (T == 0.0 || apart || abs(T) > 1.0001 * hs_pk_len * length(nab + nbc + nca)) return uvec2(0u);
+        bool apart = dot(ax, pbc) < -sa * length(pbc) || dot(ax, pca) < -sa * length(pca)
+                  || dot(ax, pab) < -sa * length(pab);
+        if (T == 0.0 || apart || aT > 1.0001 * hs_pk_len * length(pab + pbc + pca)) need = uvec2(0u);
     }
-    // hits nearer than the float32 error of T are the receiver's own surface (as hs_tri_hit_b)
-    float fl = HS_TFLOOR * max(max(hs_amax(A), hs_amax(B)), hs_amax(C));
-    // the edge planes turned so that a hit has all three products >= 0 (an exact sign flip: the
-    // same answers as "all of one sign" with t = T / det > 0), and det = their sum > 0
-    precise vec3 pbc = sg * nbc;
-    precise vec3 pca = sg * nca;
-    precise vec3 pab = sg * nab;
-    float aT = abs(T);
+    // hits nearer than the float32 error of T are the receiver's own surface (as hs_tri_hit_b:
+    // HS_TFLOOR x the vertices' reach, here in bake space, L^-1 A)
+    float fl = HS_TFLOOR * max(max(hs_amax(hs_pk_back(A)), hs_amax(hs_pk_back(B))), hs_amax(hs_pk_back(C)));
     uvec2 hit = uvec2(0u);
-    for (int k = 0; k < hs_pk_cnt; ++k) {
-        vec3 d = hs_pk_od[k];
-        precise float e0 = (d.x * pbc.x + d.y * pbc.y) + d.z * pbc.z;
-        precise float e1 = (d.x * pca.x + d.y * pca.y) + d.z * pca.z;
-        precise float e2 = (d.x * pab.x + d.y * pab.y) + d.z * pab.z;
-        precise float det = (e0 + e1) + e2;
-        bool h = min(min(e0, e1), e2) >= 0.0 && aT > fl * det && aT < hs_pk_ol[k] * det;
-        if (h) hit |= hs_bit(k);
+    int nk = hs_none(need) ? 0 : hs_pk_cnt;
+    for (int k4 = 0; k4 < nk; k4 += 4) {   // (4 rays an iteration: see HS_PK_STEP)
+        for (int q = 0; q < 4; ++q) {
+            int k = k4 + q;
+            vec3 d = hs_pk_u[k];
+            precise float e0 = (d.x * pbc.x + d.y * pbc.y) + d.z * pbc.z;
+            precise float e1 = (d.x * pca.x + d.y * pca.y) + d.z * pca.z;
+            precise float e2 = (d.x * pab.x + d.y * pab.y) + d.z * pab.z;
+            precise float det = (e0 + e1) + e2;
+            bool h = min(min(e0, e1), e2) >= 0.0 && aT > fl * det && aT < hs_pk_l[k] * det;
+            if (h) hit |= hs_bit(k);
+        }
     }
     return hit & need;
 }
@@ -120,7 +131,6 @@ uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2)
 // Bit k set: ray k of the packet (live bit k) is blocked (masks: hs_bit).
 uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
 {
-    if (hs_none(live)) return uvec2(0u);
     hs_pk_cnt = cnt;
     vec3 s = vec3(0.0);
     float len = 0.0;
@@ -134,7 +144,6 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
         s += u;
         len = max(len, hs_pk_l[k]);
     }
-    if (hs_none(live)) return uvec2(0u);
     vec3 ax = normalize(s);
     float cmin = 1.0, smax = 0.0;
     for (int k = 0; k < cnt; ++k) {
@@ -144,10 +153,11 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
         }
     }
     uvec2 occ = uvec2(0u);
-    if (!(cmin > HS_PACKET_MIN_COS)) {   // too wide a spread to bound: ray by ray
+    bool going = !hs_none(live);   // (one return, at the end: see the walk below)
+    if (going && !(cmin > HS_PACKET_MIN_COS)) {   // too wide a spread to bound: ray by ray
         for (int k = 0; k < cnt; ++k)
             if (hs_has(live, k) && hs_occluded(o, hs_pk_d[k], hs_pk_t[k])) occ |= hs_bit(k);
-        return occ;
+        going = false;
     }
     HsCone tc;
     precise vec3 toq = (o - hs_tlas_base) * hs_tlas_inv_scale;
@@ -160,18 +170,23 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
     tc.len = len * hs_tlas_inv_scale;
     tc.e = te;
     HsCone c = tc;
+#ifdef HS_HAS_MESHES
+    hs_pk_ax = ax;
+    hs_pk_sin = tc.sin_a;
+    hs_pk_len = len;
+#endif
     int i = hs_tlas_root;
     int ret = -1;   // >= 0: inside a model tree, resume the top level there
     int bend = 0;   // end of the current model tree
 #ifdef HS_HAS_MESHES
     vec3 om = vec3(0.0);
 #endif
-    for (;;) {
+    while (going) {
         uint w = 0u;
         bool found = false;
         bool walking = true;
         while (walking) {
-            if (ret >= 0 && i >= bend) { i = ret; ret = -1; c = tc; }
+                if (ret >= 0 && i >= bend) { i = ret; ret = -1; c = tc; }
             if (ret < 0 && i >= hs_tlas_end) {
                 walking = false;
             } else {
@@ -187,100 +202,96 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
                 }
             }
         }
-        if (!found) break;
-        uint pay = w & 0x7FFFFFFFu;
-        int next = i + 1;
-        int at = ret < 0 ? 5 * int(pay) : int(pay >> 3u);
-        vec4 x0 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at), 0));
-        vec4 x1 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 1), 0));
-        vec4 x2 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 2), 0));
-        uvec4 u3 = texelFetch(hs_leaf_tex, hs_texel(at + 3), 0);
-        vec4 x3 = uintBitsToFloat(u3);
-        vec4 x4 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 4), 0));
-        vec4 x5 = vec4(0.0), x6 = vec4(0.0), x7 = vec4(0.0), x8 = vec4(0.0);
+        if (!found) {
+            going = false;
+        } else {
+            uint pay = w & 0x7FFFFFFFu;
+            int next = i + 1;
+            int at = ret < 0 ? 5 * int(pay) : int(pay >> 3u);
+            vec4 x0 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at), 0));
+            vec4 x1 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 1), 0));
+            vec4 x2 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 2), 0));
+            uvec4 u3 = texelFetch(hs_leaf_tex, hs_texel(at + 3), 0);
+            vec4 x3 = uintBitsToFloat(u3);
+            vec4 x4 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 4), 0));
+            vec4 x5 = vec4(0.0), x6 = vec4(0.0), x7 = vec4(0.0), x8 = vec4(0.0);
 #if defined(HS_HAS_MESHES) && HS_BVH_LEAF_SIZE > 2
-        x5 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 5), 0));
-        x6 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 6), 0));
+            x5 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 5), 0));
+            x6 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 6), 0));
 #endif
 #if defined(HS_HAS_MESHES) && HS_BVH_LEAF_SIZE > 3
-        x7 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 7), 0));
-        x8 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 8), 0));
+            x7 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 7), 0));
+            x8 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 8), 0));
 #endif
-        if (ret < 0) {
-            // an instance: the rays in its model space (t is shared: lengths scale with |Minv d|)
-            precise vec3 m_o = vec3(((x0.x * o.x + x0.y * o.y) + x0.z * o.z) + x0.w,
-                                    ((x1.x * o.x + x1.y * o.y) + x1.z * o.z) + x1.w,
-                                    ((x2.x * o.x + x2.y * o.y) + x2.z * o.z) + x2.w);
-            float ml = 0.0;
-            for (int k = 0; k < cnt; ++k) {
-                vec3 u = hs_pk_u[k];
-                vec3 md = vec3(dot(x0.xyz, u), dot(x1.xyz, u), dot(x2.xyz, u));
-                float l = length(md);
-                bool on = hs_has(live, k) && l > 0.0;
-                vec3 mu = on ? md / l : vec3(0.0);
-                hs_pk_od[k] = mu;
-                hs_pk_ol[k] = on ? hs_pk_l[k] * l : 0.0;
-                ml = max(ml, hs_pk_ol[k]);
-            }
-            bool is_sphere = (u3.z & HS_SPHERE_FLAG) != 0u;
-#ifdef HS_HAS_SPHERES
-            if (is_sphere) {
-                for (int k = 0; k < cnt; ++k)
-                    if (hs_has(live, k) && hs_sphere_hit(m_o, hs_pk_od[k], x4.xyz, x4.w, hs_pk_ol[k]))
-                        occ |= hs_bit(k);
-                if (all(equal(occ & live, live))) return occ & live;
-            }
-#endif
-#ifdef HS_HAS_MESHES
-            if (!is_sphere) {
-                // the cone in model space, from the bake-space one: the linear map L (rows x0..x2)
-                // turns an angle of sine s about the axis into one of sine <= s sigma_max /
-                // sigma_min (Gershgorin bounds of L^T L's eigenvalues), which stays below 90
-                // degrees while kappa^2 tan < 1; else (a strong shear) every node of the model
+            if (ret < 0) {
+                // an instance: the cone in model space, from the bake-space one: the linear map L
+                // (rows x0..x2) turns an angle of sine s about the axis into one of sine <= s
+                // sigma_max / sigma_min (Gershgorin bounds of L^T L's eigenvalues), which stays below
+                // 90 degrees while kappa^2 tan < 1 (else, a strong shear: every node of the model);
+                // lengths grow by sigma_max at most
+                precise vec3 m_o = vec3(((x0.x * o.x + x0.y * o.y) + x0.z * o.z) + x0.w,
+                                        ((x1.x * o.x + x1.y * o.y) + x1.z * o.z) + x1.w,
+                                        ((x2.x * o.x + x2.y * o.y) + x2.z * o.z) + x2.w);
                 vec3 l0 = vec3(x0.x, x1.x, x2.x), l1 = vec3(x0.y, x1.y, x2.y), l2 = vec3(x0.z, x1.z, x2.z);
                 float g01 = abs(dot(l0, l1)), g02 = abs(dot(l0, l2)), g12 = abs(dot(l1, l2));
-                float ghi = max(max(dot(l0, l0) + g01 + g02, dot(l1, l1) + g01 + g12), dot(l2, l2) + g02 + g12);
-                float glo = min(min(dot(l0, l0) - g01 - g02, dot(l1, l1) - g01 - g12), dot(l2, l2) - g02 - g12);
-                float kap2 = glo > 0.0 ? 1.0002 * ghi / glo : 1.0e30;
-                float ws = tc.sin_a;
-                bool narrow = kap2 * ws < 0.7 * sqrt(max(1.0 - ws * ws, 0.0));
-                vec3 mx = normalize(vec3(dot(x0.xyz, tc.axis), dot(x1.xyz, tc.axis), dot(x2.xyz, tc.axis)));
-                om = m_o;
-                hs_pk_ax = mx;
-                hs_pk_sin = narrow ? hs_cone_sin(sqrt(kap2) * ws) : 1.0e30;
-                hs_pk_len = ml;
-                precise vec3 oq = (m_o - x4.xyz) * x4.w;
-                vec3 aq = abs(oq);
-                precise float e = HS_QEPS * ((aq.x + aq.y) + aq.z);
-                c.apex = oq;
-                c.axis = mx;
-                c.inv = hs_slab_inv(mx);
-                c.sin_a = hs_pk_sin;
-                c.len = ml * x4.w;
-                c.e = e;
-                ret = i + 1;
-                next = int(u3.x);
-                bend = int(u3.y);
-            }
+                float ghi = 1.0001 * max(max(dot(l0, l0) + g01 + g02, dot(l1, l1) + g01 + g12), dot(l2, l2) + g02 + g12);
+                float glo = 0.9999 * min(min(dot(l0, l0) - g01 - g02, dot(l1, l1) - g01 - g12), dot(l2, l2) - g02 - g12);
+                float ml = len * sqrt(ghi);
+                bool is_sphere = (u3.z & HS_SPHERE_FLAG) != 0u;
+#ifdef HS_HAS_SPHERES
+                if (is_sphere) {
+                    for (int k = 0; k < cnt; ++k) {
+                        vec3 u = hs_pk_u[k];
+                        vec3 md = vec3(dot(x0.xyz, u), dot(x1.xyz, u), dot(x2.xyz, u));
+                        if (hs_has(live, k) && hs_sphere_hit(m_o, md, x4.xyz, x4.w, hs_pk_l[k])) occ |= hs_bit(k);
+                    }
+                    if (all(equal(occ & live, live))) next = hs_tlas_end;   // (all blocked: the walk ends)
+                }
 #endif
-        }
 #ifdef HS_HAS_MESHES
-        else {
-            int tc_n = int(pay & 7u);
-            occ |= hs_pk_tri(om, live & ~occ, x0.xyz, vec3(x0.w, x1.xy), vec3(x1.zw, x2.x));
+                if (!is_sphere) {
+                    float kap2 = glo > 0.0 ? ghi / glo : 1.0e30;
+                    float ws = tc.sin_a;
+                    bool narrow = kap2 * ws < 0.7 * sqrt(max(1.0 - ws * ws, 0.0));
+                    vec3 mx = normalize(vec3(dot(x0.xyz, tc.axis), dot(x1.xyz, tc.axis), dot(x2.xyz, tc.axis)));
+                    om = m_o;
+                    hs_pk_r0 = x0.xyz; hs_pk_r1 = x1.xyz; hs_pk_r2 = x2.xyz;
+                    vec3 c0 = cross(x1.xyz, x2.xyz), c1 = cross(x2.xyz, x0.xyz), c2 = cross(x0.xyz, x1.xyz);
+                float ldet = dot(x0.xyz, c0);
+                hs_pk_i0 = c0 / ldet; hs_pk_i1 = c1 / ldet; hs_pk_i2 = c2 / ldet;
+                    precise vec3 oq = (m_o - x4.xyz) * x4.w;
+                    vec3 aq = abs(oq);
+                    precise float e = HS_QEPS * ((aq.x + aq.y) + aq.z);
+                    c.apex = oq;
+                    c.axis = mx;
+                    c.inv = hs_slab_inv(mx);
+                    c.sin_a = narrow ? hs_cone_sin(sqrt(kap2) * ws) : 1.0e30;
+                    c.len = ml * x4.w;
+                    c.e = e;
+                    ret = i + 1;
+                    next = int(u3.x);
+                    bend = int(u3.y);
+                }
+#endif
+            }
+#ifdef HS_HAS_MESHES
+            else {
+                int tc_n = int(pay & 7u);
+                occ |= hs_pk_tri(om, live & ~occ, x0.xyz, vec3(x0.w, x1.xy), vec3(x1.zw, x2.x));
 #if HS_BVH_LEAF_SIZE > 1
-            if (tc_n > 1) occ |= hs_pk_tri(om, live & ~occ, x2.yzw, x3.xyz, vec3(x3.w, x4.xy));
+                if (tc_n > 1) occ |= hs_pk_tri(om, live & ~occ, x2.yzw, x3.xyz, vec3(x3.w, x4.xy));
 #endif
 #if HS_BVH_LEAF_SIZE > 2
-            if (tc_n > 2) occ |= hs_pk_tri(om, live & ~occ, vec3(x4.zw, x5.x), x5.yzw, x6.xyz);
+                if (tc_n > 2) occ |= hs_pk_tri(om, live & ~occ, vec3(x4.zw, x5.x), x5.yzw, x6.xyz);
 #endif
 #if HS_BVH_LEAF_SIZE > 3
-            if (tc_n > 3) occ |= hs_pk_tri(om, live & ~occ, vec3(x6.w, x7.xy), vec3(x7.zw, x8.x), x8.yzw);
+                if (tc_n > 3) occ |= hs_pk_tri(om, live & ~occ, vec3(x6.w, x7.xy), vec3(x7.zw, x8.x), x8.yzw);
 #endif
-            if (all(equal(occ, live))) return occ;
+                if (all(equal(occ, live))) { next = hs_tlas_end; ret = -1; }   // (all blocked: the walk ends)
+            }
+#endif
+            i = next;
         }
-#endif
-        i = next;
     }
     return occ & live;
 }

@@ -47,6 +47,11 @@ from .refine import Refiner
 
 SOFT_PROBES = 4  # HS_PROBES of shaders/common/soft_light.glsl
 PACKET_MIN_RAYS = 8  # a soft pass traces its rays as packets from this many rays per pixel on
+#: The most rays per pixel one draw traces, ray by ray or as one packet walk: llvmpipe stops every
+#: loop of a shader invocation once all of them together have run 65535 iterations, which a
+#: pixel's rays through a heavy scene reach (forest, 64 rays one by one: 1 in 7 penumbra pixels
+#: of its sun), silently leaving rays untraced. More rays take more draws, whose sums add up.
+CHUNK_RAYS = {"rays": 28, "packets": 64}
 
 
 def first_frame_lead(frame_samples: int) -> int:
@@ -89,8 +94,8 @@ class RaytracePass(ShadowPass):
         self.accumulated = None  # fewest samples per pixel of the soft lights' accumulated masks
         self._scene_frame = 1  # the animation frame being rendered (seeds the sample patterns)
         self.packets = True  # soft lights: a pixel's rays walk the scene together (else ray by ray)
-        self.half_probes = True  # with packets (final renders): probes on every other pixel
         self.early_stop = True  # ray by ray: a penumbra's fringe pixel may stop after half its samples
+        self.loop_check = False  # tests: refined pixels whose loops hit llvmpipe's budget read HS_LOOP_SPENT
 
     def reset_history(self) -> None:
         """Forget interlacing and accumulation history (any camera, object, light or setting
@@ -222,6 +227,11 @@ class RaytracePass(ShadowPass):
               and "HS_HAS_ALPHA" not in defines)
         return {"HS_SOFT_PACKET": 1, "HS_SOFT_FULL": 1} if ok else {}
 
+    @staticmethod
+    def _chunk(packet_defines: dict) -> int:
+        """The most rays per pixel one refinement draw traces (CHUNK_RAYS)."""
+        return CHUNK_RAYS["packets" if packet_defines else "rays"]
+
     def _light_uniforms(self, light, light_vec, gbuffer, settings) -> dict:
         axis, cone = light_cone(light)
         u = {"u_light_vec": light_vec, "u_light_axis": axis, "u_light_cone": cone,
@@ -293,26 +303,47 @@ class RaytracePass(ShadowPass):
         ctx = self.ctx
         full = gbuffer.size
         accum = "HS_SOFT_ACCUM" in defines
-        packets = self._packet_defines(defines, int(settings.samples) - SOFT_PROBES)
-        # probes on every other pixel (a final render with packets: a refined pixel without
-        # probes of its own traces all its samples in the same one walk)
-        half = {"HS_PROBE_HALF": 1} if packets and not accum and self.half_probes else {}
+        rays = int(settings.samples) - SOFT_PROBES
+        packets = self._packet_defines(defines, rays)
+        chunk = self._chunk(packets)
+        chunked = rays > chunk
         probe_defs = {k: v for k, v in defines.items() if k != "HS_SOFT_ACCUM"}  # (the same probes either way)
-        _, pvao, _ = self._program({**probe_defs, "HS_SOFT_PROBE": 1, **half}, light, light_vec, gbuffer, settings, 1,
-                                   cmap)
-        if half:
-            probe = self._target((li, "probe half"), (full[0] + 1) // 2, full[1], components=4)
-        else:
-            probe = self._target((li, "probe"), *full, components=2)  # (sums: raytrace.glsl)
+        _, pvao, _ = self._program({**probe_defs, "HS_SOFT_PROBE": 1}, light, light_vec, gbuffer, settings, 1, cmap)
+        probe = self._target((li, "probe"), *full, components=2)  # (sums: raytrace.glsl)
         draw_fullscreen(ctx, pvao, probe)
         # the probe ranges' second pass writes the probe answers where they stand and marks the
         # rest in the depth buffer: only those are shaded by the refinement
-        self._range((li, "probe"), probe.texture, gbuffer, sums=True, classify=(out, probe.texture, accum),
-                    half=bool(half))
-        refine_defs = {**defines, "HS_SOFT_REFINE": 1, **packets, **half}
+        sums = out
+        if chunked and not accum:  # (the refinement adds up sums, divided at the end)
+            sums = self._target((li, "sums"), *full, components=2)
+        self._range((li, "probe"), probe.texture, gbuffer, sums=True,
+                    classify=(sums, probe.texture, accum or chunked))
+        if chunked:
+            # more rays than one draw may trace (CHUNK_RAYS): draws of at most that many
+            # samples each, added to the probes' sums (the viewport's frames, at once)
+            base = self.sample_base
+            for start in range(SOFT_PROBES, int(settings.samples), chunk):
+                n = min(chunk, int(settings.samples) - start)
+                self.sample_base = base + start
+                cdefs = {**defines, "HS_SOFT_ACCUM": 1, **self._packet_defines(defines, n)}
+                if self.loop_check:
+                    cdefs["HS_LOOP_CHECK"] = 1
+                self.last_defines.update({k: v for k, v in cdefs.items() if k == "HS_SOFT_PACKET"})
+                _, vao, _ = self._program(cdefs, light, light_vec, gbuffer, settings.replace(samples=n), 1, cmap)
+                self.refiner.draw_marked((li, "soft"), sums, vao, add=True)
+            self.sample_base = base
+            if not accum:
+                res_prog, res_vao = self.programs.fullscreen("soft_accumulate", {"RESOLVE": 1})
+                sums.texture.use(0)
+                set_uniforms(res_prog, {"u_sums": 0})
+                draw_fullscreen(ctx, res_vao, out)
+            return
+        refine_defs = {**defines, "HS_SOFT_REFINE": 1, **packets}
         if not self.early_stop:
             refine_defs["HS_SOFT_FULL"] = 1
-        self.last_defines.update({k: v for k, v in refine_defs.items() if k in ("HS_SOFT_PACKET", "HS_PROBE_HALF")})
+        if self.loop_check:
+            refine_defs["HS_LOOP_CHECK"] = 1
+        self.last_defines.update({k: v for k, v in refine_defs.items() if k == "HS_SOFT_PACKET"})
         prog, vao, unit = self._program(refine_defs, light, light_vec, gbuffer, settings, 1, cmap)
         probe.texture.use(unit)
         prog["u_probe"].value = unit
@@ -347,10 +378,18 @@ class RaytracePass(ShadowPass):
             if n == 0 and lead:  # probes everywhere, fs + lead samples in the penumbrae
                 self._probe_and_refine(li, light, light_vec, accum, gbuffer, settings.replace(samples=fs + lead),
                                        cmap, new)
-            else:
-                _, vao, _ = self._program({**accum, **self._packet_defines(accum, fs)}, light, light_vec, gbuffer,
-                                          settings.replace(samples=fs), 1, cmap)
-                draw_fullscreen(ctx, vao, new)
+            else:  # fs samples, in draws of at most CHUNK_RAYS whose sums add up
+                chunk = self._chunk(self._packet_defines(accum, fs))
+                for start in range(0, fs, chunk):
+                    n_rays = min(chunk, fs - start)
+                    self.sample_base = done + start
+                    _, vao, _ = self._program({**accum, **self._packet_defines(accum, n_rays)}, light, light_vec,
+                                              gbuffer, settings.replace(samples=n_rays), 1, cmap)
+                    if start:
+                        ctx.enable(moderngl.BLEND)
+                        ctx.blend_func = moderngl.ONE, moderngl.ONE
+                    draw_fullscreen(ctx, vao, new)
+                    ctx.disable(moderngl.BLEND)
             self.sample_base = base
             acc_prog, acc_vao = self.programs.fullscreen("soft_accumulate", {"ACCUMULATE": 1})
             src = self._target((li, "acc", cur), *full, components=2)
@@ -370,13 +409,12 @@ class RaytracePass(ShadowPass):
         self.accumulated = got if self.accumulated is None else min(self.accumulated, got)
         return self._denoise(li, mean, gbuffer, denoise_radius(got), got)
 
-    def _range(self, key, tex, gbuffer, sums: bool = False, classify=None, half: bool = False):
+    def _range(self, key, tex, gbuffer, sums: bool = False, classify=None):
         """(min, max) of mask ``tex`` (``sums``: of the probe pass's sums) over the covered
         texels within 2 pixels of each (``shaders/soft_range.glsl``: two 1D passes): an RG32F
         texture. ``classify`` = (target, probe sums, accumulating): the second pass writes the
         probe answers that stand into the target instead and marks the other pixels for
-        :meth:`Refiner.draw_marked` (returns None). ``half``: ``tex`` holds the probes of every
-        other pixel (``HS_PROBE_HALF``)."""
+        :meth:`Refiner.draw_marked` (returns None)."""
         w, h = gbuffer.size
         src = tex
         for first, step in ((True, (1, 0)), (False, (0, 1))):
@@ -385,8 +423,6 @@ class RaytracePass(ShadowPass):
                 defs = {"FIRST": 1, "SUMS": 1} if sums else {"FIRST": 1}
             elif classify is not None:
                 defs = {"CLASSIFY": 1, "ACCUM": 1} if classify[2] else {"CLASSIFY": 1}
-            if half and (first or classify is not None):
-                defs["HALF"] = 1
             prog, vao = self.programs.fullscreen("soft_range", defs)
             if first:
                 gbuffer.bind(prog, 1)

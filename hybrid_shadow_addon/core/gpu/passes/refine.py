@@ -193,12 +193,16 @@ class Refiner:
         vao.render(moderngl.TRIANGLES, vertices=3)
         ctx.disable(moderngl.DEPTH_TEST)
 
-    def draw_marked(self, key, target, vao) -> None:
+    def draw_marked(self, key, target, vao, add: bool = False) -> None:
         """Draw the full-screen ``vao`` into ``target`` only where :meth:`mark` marked pixels
-        (early depth test: the others are not shaded)."""
+        (early depth test: the others are not shaded); ``add``: added to what is there."""
         fbo = self._fbo(key, target)
         with self._masked(fbo, target):
+            if add:
+                self.ctx.enable(moderngl.BLEND)
+                self.ctx.blend_func = moderngl.ONE, moderngl.ONE
             vao.render(moderngl.TRIANGLES, vertices=3)
+            self.ctx.disable(moderngl.BLEND)
 
     # -- depth-masked targets -----------------------------------------------------------------
     class _Masked:
