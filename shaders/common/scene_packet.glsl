@@ -8,7 +8,16 @@
  * triangle is fetched once, its three edge planes through the origin (A x B, B x C, C x A) set
  * up once, and each ray then costs three dot products: the sign test of Benthin et al.'s
  * shared-origin packets, watertight as the single-ray test (an edge shared by two triangles
- * gives the same plane with the opposite sign, computed without contraction: 'precise').
+ * gives the same plane with the opposite sign, computed without contraction: 'precise'). The
+ * planes are set up in the instance's model space and turned into bake space (L^T n, L the
+ * instance's inverse world matrix), so the rays never move into model space. Measured on
+ * soft_lights: a 28-ray packet visits 6-8x fewer nodes than its rays one by one; a triangle that
+ * no ray of the cone can hit (the cone beyond one of its edge planes) takes no ray test.
+ *
+ * llvmpipe counts the iterations of all the loops of a shader invocation against one budget of
+ * 65535, after which every loop stops (rays left untested, answers that look plausible): the
+ * walk's loops and the rays of a triangle, four to an iteration, stay well within it for 64
+ * rays on forest (raytrace.py's CHUNK_RAYS caps the rays of one draw; HS_LOOP_CHECK tests it).
  *
  * Cone: apex o, unit axis a, every ray within the angle whose sine is sin_a of a, and no ray
  * point further than len from the apex. A point p of a ray with |p - o| <= D projects onto the

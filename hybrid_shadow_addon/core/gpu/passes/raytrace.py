@@ -20,11 +20,17 @@ receivers nearer the light than every caster in their map column are lit without
 others trace only up to the first possible caster depth (exact: the masks do not change).
 
 Lights with a size (``lights.soft_shape``, unless ``Settings.hard``) compile ``HS_SOFT``: at
-``high`` a probe pass traces 4 rays per pixel, the trace then gives ``samples`` rays only to
-pixels near a probe that saw part of the light, and a penumbra-only filter
-(``shaders/soft_accumulate.glsl``, narrowing as the samples add up) follows; with
-``Settings.accumulate`` (the viewport) each frame adds the sums of ``frame_samples`` rays per
-pixel to those of the frames before instead, until ``reset_history``.
+``high`` a probe pass traces 4 rays per pixel, the second probe-range pass
+(``shaders/soft_range.glsl`` CLASSIFY) writes the probe answer where every probe within 2
+pixels saw all or none of the light and marks the other pixels in the depth buffer, the trace
+then gives those alone (early depth test) the rest of their ``samples`` rays, and a
+penumbra-only filter (``shaders/soft_accumulate.glsl``, narrowing as the samples add up)
+follows; with ``Settings.accumulate`` (the viewport) each frame adds the sums of
+``frame_samples`` rays per pixel to those of the frames before instead, until
+``reset_history``. On the two-level BVH of an opaque scene a pixel's rays walk the scene as one
+packet (``HS_SOFT_PACKET``, ``shaders/common/scene_packet.glsl``); a draw traces at most
+``CHUNK_RAYS`` rays per pixel (more take several draws whose sums add up), since llvmpipe stops
+every loop of an invocation after 65535 iterations in all.
 
 ``stats``: ``rays_traced`` counts the pixels the trace shaded (occlusion queries; facing-away
 and map-decided pixels among them cost no traversal), ``pixels`` the pixels with geometry times
