@@ -166,6 +166,37 @@ float hs_leaf_vis(vec3 o, HsShear s, int cnt, vec4 a, vec4 b, vec4 c, vec4 d, ve
 #define HS_UNBLOCKED false
 #endif
 
+// The record at [leaf] texel at: an instance (5 texels) or a model leaf's triangles (9 floats
+// each), read as the same max(5, ceil(9 HS_BVH_LEAF_SIZE / 4)) texels either way (x3 is u3's bits)
+void hs_leaf_record(int at, out vec4 x0, out vec4 x1, out vec4 x2, out uvec4 u3, out vec4 x3,
+                    out vec4 x4, out vec4 x5, out vec4 x6, out vec4 x7, out vec4 x8)
+{
+    x0 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at), 0));
+    x1 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 1), 0));
+    x2 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 2), 0));
+    u3 = texelFetch(hs_leaf_tex, hs_texel(at + 3), 0);
+    x3 = uintBitsToFloat(u3);
+    x4 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 4), 0));
+    x5 = vec4(0.0); x6 = vec4(0.0); x7 = vec4(0.0); x8 = vec4(0.0);
+#if defined(HS_HAS_MESHES) && HS_BVH_LEAF_SIZE > 2
+    x5 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 5), 0));
+    x6 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 6), 0));
+#endif
+#if defined(HS_HAS_MESHES) && HS_BVH_LEAF_SIZE > 3
+    x7 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 7), 0));
+    x8 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 8), 0));
+#endif
+}
+
+// The point p moved by the affine map of rows r0..r2 (an instance's inverse world matrix)
+vec3 hs_affine(vec4 r0, vec4 r1, vec4 r2, vec3 p)
+{
+    precise vec3 q = vec3(((r0.x * p.x + r0.y * p.y) + r0.z * p.z) + r0.w,
+                          ((r1.x * p.x + r1.y * p.y) + r1.z * p.z) + r1.w,
+                          ((r2.x * p.x + r2.y * p.y) + r2.z * p.z) + r2.w);
+    return q;
+}
+
 // The shadow-ray query, "while-while" (Aila & Laine 2009): the inner loop walks nodes (top level
 // or model tree, one node per iteration) until the ray hits a leaf; the outer loop handles that
 // leaf (an instance: enter its model tree; a model leaf: its triangles) and resumes. The model
@@ -223,28 +254,12 @@ HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax)
         if (!found) break;
         uint pay = w & 0x7FFFFFFFu;
         int next = i + 1;
-        // the leaf's record: an instance (5 texels) or a model leaf's triangles (9 floats each),
-        // read as the same max(5, ceil(9 HS_BVH_LEAF_SIZE / 4)) texels either way
         int at = ret < 0 ? 5 * int(pay) : int(pay >> 3u);
-        vec4 x0 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at), 0));
-        vec4 x1 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 1), 0));
-        vec4 x2 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 2), 0));
-        uvec4 u3 = texelFetch(hs_leaf_tex, hs_texel(at + 3), 0);
-        vec4 x3 = uintBitsToFloat(u3);
-        vec4 x4 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 4), 0));
-        vec4 x5 = vec4(0.0), x6 = vec4(0.0), x7 = vec4(0.0), x8 = vec4(0.0);
-#if defined(HS_HAS_MESHES) && HS_BVH_LEAF_SIZE > 2
-        x5 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 5), 0));
-        x6 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 6), 0));
-#endif
-#if defined(HS_HAS_MESHES) && HS_BVH_LEAF_SIZE > 3
-        x7 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 7), 0));
-        x8 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 8), 0));
-#endif
+        vec4 x0, x1, x2, x3, x4, x5, x6, x7, x8;
+        uvec4 u3;
+        hs_leaf_record(at, x0, x1, x2, u3, x3, x4, x5, x6, x7, x8);
         if (ret < 0) {
-            precise vec3 m_o = vec3(((x0.x * o.x + x0.y * o.y) + x0.z * o.z) + x0.w,
-                                    ((x1.x * o.x + x1.y * o.y) + x1.z * o.z) + x1.w,
-                                    ((x2.x * o.x + x2.y * o.y) + x2.z * o.z) + x2.w);
+            vec3 m_o = hs_affine(x0, x1, x2, o);
             precise vec3 m_d = vec3((x0.x * d.x + x0.y * d.y) + x0.z * d.z,
                                     (x1.x * d.x + x1.y * d.y) + x1.z * d.z,
                                     (x2.x * d.x + x2.y * d.y) + x2.z * d.z);

@@ -217,30 +217,16 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
             uint pay = w & 0x7FFFFFFFu;
             int next = i + 1;
             int at = ret < 0 ? 5 * int(pay) : int(pay >> 3u);
-            vec4 x0 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at), 0));
-            vec4 x1 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 1), 0));
-            vec4 x2 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 2), 0));
-            uvec4 u3 = texelFetch(hs_leaf_tex, hs_texel(at + 3), 0);
-            vec4 x3 = uintBitsToFloat(u3);
-            vec4 x4 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 4), 0));
-            vec4 x5 = vec4(0.0), x6 = vec4(0.0), x7 = vec4(0.0), x8 = vec4(0.0);
-#if defined(HS_HAS_MESHES) && HS_BVH_LEAF_SIZE > 2
-            x5 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 5), 0));
-            x6 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 6), 0));
-#endif
-#if defined(HS_HAS_MESHES) && HS_BVH_LEAF_SIZE > 3
-            x7 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 7), 0));
-            x8 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 8), 0));
-#endif
+            vec4 x0, x1, x2, x3, x4, x5, x6, x7, x8;
+            uvec4 u3;
+            hs_leaf_record(at, x0, x1, x2, u3, x3, x4, x5, x6, x7, x8);
             if (ret < 0) {
                 // an instance: the cone in model space, from the bake-space one: the linear map L
                 // (rows x0..x2) turns an angle of sine s about the axis into one of sine <= s
                 // sigma_max / sigma_min (Gershgorin bounds of L^T L's eigenvalues), which stays below
                 // 90 degrees while kappa^2 tan < 1 (else, a strong shear: every node of the model);
                 // lengths grow by sigma_max at most
-                precise vec3 m_o = vec3(((x0.x * o.x + x0.y * o.y) + x0.z * o.z) + x0.w,
-                                        ((x1.x * o.x + x1.y * o.y) + x1.z * o.z) + x1.w,
-                                        ((x2.x * o.x + x2.y * o.y) + x2.z * o.z) + x2.w);
+                vec3 m_o = hs_affine(x0, x1, x2, o);
                 vec3 l0 = vec3(x0.x, x1.x, x2.x), l1 = vec3(x0.y, x1.y, x2.y), l2 = vec3(x0.z, x1.z, x2.z);
                 float g01 = abs(dot(l0, l1)), g02 = abs(dot(l0, l2)), g12 = abs(dot(l1, l2));
                 float ghi = 1.0001 * max(max(dot(l0, l0) + g01 + g02, dot(l1, l1) + g01 + g12), dot(l2, l2) + g02 + g12);

@@ -134,14 +134,7 @@ class Refiner:
         self._work.get("geometry", *gbuffer.size).texture.use(unit + 2)
         set_uniforms(prog, {**uniforms, **self._grid_uniforms(gbuffer), "u_coarse": unit, "u_cells": unit + 1,
                             "u_geometry": unit + 2, "u_grazing": float(self.rules["grazing"])})
-        fbo = self._fbo(key, target, with_need=self.method == "compact")
-        ctx.enable(moderngl.DEPTH_TEST)
-        ctx.depth_func = "1"
-        fbo.depth_mask = True
-        fbo.use()
-        ctx.viewport = (0, 0, *target.texture.size)
-        vao.render(moderngl.TRIANGLES, vertices=3)
-        ctx.disable(moderngl.DEPTH_TEST)
+        self._draw_marks(self._fbo(key, target, with_need=self.method == "compact"), target, vao)
 
     def refine(self, key, target, vao) -> None:
         """``depth``: draw the (already set up) full-resolution trace ``vao`` into ``target``
@@ -182,9 +175,12 @@ class Refiner:
     def mark(self, key, target, vao) -> None:
         """Draw ``vao``, a full-screen program that writes its answers and marks (``gl_FragDepth``
         0: the next :meth:`draw_marked` shades the pixel, 1: done), into ``target``."""
+        self.ctx.disable(moderngl.BLEND)
+        self._draw_marks(self._fbo(key, target), target, vao)
+
+    def _draw_marks(self, fbo, target, vao) -> None:
+        """A full-screen draw into ``fbo`` (``target``'s) that writes the depth marks."""
         ctx = self.ctx
-        fbo = self._fbo(key, target)
-        ctx.disable(moderngl.BLEND)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.depth_func = "1"
         fbo.depth_mask = True
