@@ -121,7 +121,7 @@ uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2)
     float fl = HS_TFLOOR * max(max(hs_amax(hs_pk_back(A)), hs_amax(hs_pk_back(B))), hs_amax(hs_pk_back(C)));
     uvec2 hit = uvec2(0u);
     int nk = hs_none(need) ? 0 : hs_pk_cnt;
-    for (int k4 = 0; k4 < nk; k4 += 4) {   // (4 rays an iteration: see HS_PK_STEP)
+    for (int k4 = 0; k4 < nk; k4 += 4) {   // (4 rays an iteration: llvmpipe's loop budget, above)
         for (int q = 0; q < 4; ++q) {
             int k = k4 + q;
             vec3 d = hs_pk_u[k];
@@ -162,7 +162,7 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
         }
     }
     uvec2 occ = uvec2(0u);
-    bool going = !hs_none(live);   // (one return, at the end: see the walk below)
+    bool going = !hs_none(live);   // (no return or break inside the loops: the walk ends by this flag)
     if (going && !(cmin > HS_PACKET_MIN_COS)) {   // too wide a spread to bound: ray by ray
         for (int k = 0; k < cnt; ++k)
             if (hs_has(live, k) && hs_occluded(o, hs_pk_d[k], hs_pk_t[k])) occ |= hs_bit(k);
@@ -195,7 +195,7 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
         bool found = false;
         bool walking = true;
         while (walking) {
-                if (ret >= 0 && i >= bend) { i = ret; ret = -1; c = tc; }
+            if (ret >= 0 && i >= bend) { i = ret; ret = -1; c = tc; }
             if (ret < 0 && i >= hs_tlas_end) {
                 walking = false;
             } else {
