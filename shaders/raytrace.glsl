@@ -16,8 +16,9 @@
 // HS_SOFT_REFINE then traces all of them only near pixels whose probes disagree: it is drawn
 // under the depth test, on the pixels soft_range.glsl's CLASSIFY marked). The probe pass writes
 // RG32F sums (weighted visibility, weight) instead of the mask, (value, 1) where the answer is
-// known without a ray: the refinement continues each pixel's sequence after them. HS_SOFT_PACKET: a pixel's samples walk the scene together
-// (common/scene_packet.glsl); HS_SOFT_FULL: a refined pixel never stops early.
+// known without a ray: the refinement continues each pixel's sequence after them.
+// HS_SOFT_PACKET: a pixel's samples walk the scene together (common/scene_packet.glsl);
+// HS_SOFT_FULL: a refined pixel never stops early; HS_LOOP_CHECK (tests): see below.
 // HS_SOFT_ACCUM (the viewport's running sums, soft_accumulate.glsl) writes the same sums of its
 // u_samples rays; a pixel none of whose rays had a weight writes its highest point's answer with
 // a weight of HS_ACCUM_TOP_WEIGHT, which decides only where no frame saw any weight, as a final
@@ -234,7 +235,6 @@ void trace_main()
 #endif
     o_mask = hs_visibility(o, d, tmax);
 }
-
 
 void main()
 {

@@ -46,7 +46,7 @@ void main()
         ivec2 q = clamp(px + k * u_step, ivec2(0), lim);
 #ifdef FIRST
         if (texelFetch(u_gb_position, q, 0).w != 0.0) {
-#if defined(SUMS)
+#ifdef SUMS
             float v = hs_probe_value(texelFetch(u_src, q, 0).rg);   // the probe pass's sums
 #else
             float v = texelFetch(u_src, q, 0).r;

@@ -50,7 +50,7 @@ uvec2 hs_bit(int k) { uint b = 1u << uint(k & 31); return k < 32 ? uvec2(b, 0u) 
 bool hs_has(uvec2 m, int k) { return (((k < 32 ? m.x : m.y) >> uint(k & 31)) & 1u) != 0u; }
 bool hs_none(uvec2 m) { return (m.x | m.y) == 0u; }
 
-struct HsCone { vec3 apex; vec3 axis; vec3 inv; float sin_a; float len; float e; };
+struct HsCone { vec3 apex; vec3 inv; float sin_a; float len; float e; };   // (inv: 1 / axis)
 
 // sine bound of the cone from the largest sine s of a ray's angle to the axis (s from cross
 // products: exact for narrow cones, where 1 - cos^2 is not)
@@ -173,7 +173,6 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
     vec3 ta = abs(toq);
     precise float te = HS_TLAS_EPS * (((ta.x + ta.y) + ta.z) + hs_tlas_babs);
     tc.apex = toq;
-    tc.axis = ax;
     tc.inv = hs_slab_inv(ax);
     tc.sin_a = hs_cone_sin(smax);
     tc.len = len * hs_tlas_inv_scale;
@@ -248,17 +247,16 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
                     float kap2 = glo > 0.0 ? ghi / glo : 1.0e30;
                     float ws = tc.sin_a;
                     bool narrow = kap2 * ws < 0.7 * sqrt(max(1.0 - ws * ws, 0.0));
-                    vec3 mx = normalize(vec3(dot(x0.xyz, tc.axis), dot(x1.xyz, tc.axis), dot(x2.xyz, tc.axis)));
+                    vec3 mx = normalize(vec3(dot(x0.xyz, ax), dot(x1.xyz, ax), dot(x2.xyz, ax)));
                     om = m_o;
                     hs_pk_r0 = x0.xyz; hs_pk_r1 = x1.xyz; hs_pk_r2 = x2.xyz;
                     vec3 c0 = cross(x1.xyz, x2.xyz), c1 = cross(x2.xyz, x0.xyz), c2 = cross(x0.xyz, x1.xyz);
-                float ldet = dot(x0.xyz, c0);
-                hs_pk_i0 = c0 / ldet; hs_pk_i1 = c1 / ldet; hs_pk_i2 = c2 / ldet;
+                    float ldet = dot(x0.xyz, c0);
+                    hs_pk_i0 = c0 / ldet; hs_pk_i1 = c1 / ldet; hs_pk_i2 = c2 / ldet;
                     precise vec3 oq = (m_o - x4.xyz) * x4.w;
                     vec3 aq = abs(oq);
                     precise float e = HS_QEPS * ((aq.x + aq.y) + aq.z);
                     c.apex = oq;
-                    c.axis = mx;
                     c.inv = hs_slab_inv(mx);
                     c.sin_a = narrow ? hs_cone_sin(sqrt(kap2) * ws) : 1.0e30;
                     c.len = ml * x4.w;

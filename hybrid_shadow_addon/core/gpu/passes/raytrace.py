@@ -238,6 +238,31 @@ class RaytracePass(ShadowPass):
         """The most rays per pixel one refinement draw traces (CHUNK_RAYS)."""
         return CHUNK_RAYS["packets" if packet_defines else "rays"]
 
+    def _soft_defines(self, defines, rays: int) -> dict:
+        """A soft pass's own defines for ``rays`` rays per pixel: packets where they pay
+        (:meth:`_packet_defines`, recorded in the stats) and, in tests, ``HS_LOOP_CHECK``."""
+        d = self._packet_defines(defines, rays)
+        self.last_defines.update(d)
+        self.last_defines.pop("HS_SOFT_FULL", None)
+        if self.loop_check:
+            d["HS_LOOP_CHECK"] = 1
+        return d
+
+    def _chunk_draws(self, accum_defines, light, light_vec, gbuffer, settings, cmap, first: int, total: int):
+        """The vaos of the draws that trace samples [first, total) of each pixel's sequence
+        after ``sample_base`` as sums (``accum_defines`` hold ``HS_SOFT_ACCUM``), at most
+        CHUNK_RAYS per draw: the caller adds their outputs up."""
+        base = self.sample_base
+        step = self._chunk(self._packet_defines(accum_defines, total - first))
+        try:
+            for start in range(first, total, step):
+                n = min(step, total - start)
+                self.sample_base = base + start
+                defs = {**accum_defines, **self._soft_defines(accum_defines, n)}
+                yield self._program(defs, light, light_vec, gbuffer, settings.replace(samples=n), 1, cmap)[1]
+        finally:
+            self.sample_base = base
+
     def _light_uniforms(self, light, light_vec, gbuffer, settings) -> dict:
         axis, cone = light_cone(light)
         u = {"u_light_vec": light_vec, "u_light_axis": axis, "u_light_cone": cone,
@@ -310,9 +335,7 @@ class RaytracePass(ShadowPass):
         full = gbuffer.size
         accum = "HS_SOFT_ACCUM" in defines
         rays = int(settings.samples) - SOFT_PROBES
-        packets = self._packet_defines(defines, rays)
-        chunk = self._chunk(packets)
-        chunked = rays > chunk
+        chunked = rays > self._chunk(self._packet_defines(defines, rays))
         probe_defs = {k: v for k, v in defines.items() if k != "HS_SOFT_ACCUM"}  # (the same probes either way)
         _, pvao, _ = self._program({**probe_defs, "HS_SOFT_PROBE": 1}, light, light_vec, gbuffer, settings, 1, cmap)
         probe = self._target((li, "probe"), *full, components=2)  # (sums: raytrace.glsl)
@@ -327,29 +350,18 @@ class RaytracePass(ShadowPass):
         if chunked:
             # more rays than one draw may trace (CHUNK_RAYS): draws of at most that many
             # samples each, added to the probes' sums (the viewport's frames, at once)
-            base = self.sample_base
-            for start in range(SOFT_PROBES, int(settings.samples), chunk):
-                n = min(chunk, int(settings.samples) - start)
-                self.sample_base = base + start
-                cdefs = {**defines, "HS_SOFT_ACCUM": 1, **self._packet_defines(defines, n)}
-                if self.loop_check:
-                    cdefs["HS_LOOP_CHECK"] = 1
-                self.last_defines.update({k: v for k, v in cdefs.items() if k == "HS_SOFT_PACKET"})
-                _, vao, _ = self._program(cdefs, light, light_vec, gbuffer, settings.replace(samples=n), 1, cmap)
+            for vao in self._chunk_draws({**defines, "HS_SOFT_ACCUM": 1}, light, light_vec, gbuffer, settings,
+                                         cmap, SOFT_PROBES, int(settings.samples)):
                 self.refiner.draw_marked((li, "soft"), sums, vao, add=True)
-            self.sample_base = base
             if not accum:
                 res_prog, res_vao = self.programs.fullscreen("soft_accumulate", {"RESOLVE": 1})
                 sums.texture.use(0)
                 set_uniforms(res_prog, {"u_sums": 0})
                 draw_fullscreen(ctx, res_vao, out)
             return
-        refine_defs = {**defines, "HS_SOFT_REFINE": 1, **packets}
+        refine_defs = {**defines, "HS_SOFT_REFINE": 1, **self._soft_defines(defines, rays)}
         if not self.early_stop:
             refine_defs["HS_SOFT_FULL"] = 1
-        if self.loop_check:
-            refine_defs["HS_LOOP_CHECK"] = 1
-        self.last_defines.update({k: v for k, v in refine_defs.items() if k == "HS_SOFT_PACKET"})
         prog, vao, unit = self._program(refine_defs, light, light_vec, gbuffer, settings, 1, cmap)
         probe.texture.use(unit)
         prog["u_probe"].value = unit
@@ -385,13 +397,8 @@ class RaytracePass(ShadowPass):
                 self._probe_and_refine(li, light, light_vec, accum, gbuffer, settings.replace(samples=fs + lead),
                                        cmap, new)
             else:  # fs samples, in draws of at most CHUNK_RAYS whose sums add up
-                chunk = self._chunk(self._packet_defines(accum, fs))
-                for start in range(0, fs, chunk):
-                    n_rays = min(chunk, fs - start)
-                    self.sample_base = done + start
-                    _, vao, _ = self._program({**accum, **self._packet_defines(accum, n_rays)}, light, light_vec,
-                                              gbuffer, settings.replace(samples=n_rays), 1, cmap)
-                    if start:
+                for j, vao in enumerate(self._chunk_draws(accum, light, light_vec, gbuffer, settings, cmap, 0, fs)):
+                    if j:
                         ctx.enable(moderngl.BLEND)
                         ctx.blend_func = moderngl.ONE, moderngl.ONE
                     draw_fullscreen(ctx, vao, new)
