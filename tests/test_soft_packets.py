@@ -68,8 +68,8 @@ def test_packets_give_each_ray_its_own_answer(pipe, spec, samples):
         fin = np.isfinite(y)
         np.testing.assert_array_equal(np.isfinite(x), fin)
         d = np.abs(x - y)[fin]
-        # (the reference adds 64 samples' sums in three draws of at most CHUNK_RAYS: another
-        # order of the float additions than one packet's)
+        # (the reference adds its samples' sums in draws of at most CHUNK_RAYS: another order
+        # of the float additions than one packet's)
         assert (d <= 1e-5).mean() > 0.999, f"light {li}: {(d > 1e-5).sum()} pixels differ"
         assert d.mean() < 1e-4, f"light {li}: mean difference {d.mean():.2e}"
         penumbra += int(((y > 0.02) & (y < 0.98)).sum())
@@ -87,7 +87,8 @@ def test_packets_through_analytic_spheres(pipe):
     for x, y in zip(a, b):
         fin = np.isfinite(y)
         d = np.abs(x - y)[fin]
-        assert (d == 0).mean() > 0.999 and d.mean() < 1e-4
+        # (the reference's 30 rays after the probes take two draws of at most CHUNK_RAYS)
+        assert (d <= 1e-5).mean() > 0.999 and d.mean() < 1e-4
     assert sum(((y > 0.02) & (y < 0.98)).sum() for y in b) > 200
 
 

@@ -137,9 +137,9 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
                                    description="Honour the lights' sizes (sun angle, point and spot radius, area "
                                                "light size) with several shadow rays per pixel; off: every light "
                                                "is hard, one ray to its centre")
-    samples: IntProperty(name="Shadow Samples", default=32, min=1, max=4096, soft_max=256,
+    samples: IntProperty(name="Shadow Samples", default=64, min=1, max=4096, soft_max=256,
                          description="Final render: shadow rays per pixel towards each light with a size "
-                                     "(pixels away from any penumbra take 4)")
+                                     "(pixels away from any penumbra take 2)")
     viewport_samples: IntProperty(name="Viewport Samples", default=64, min=1, max=4096, soft_max=256,
                                   description="Viewport: shadow rays per pixel a still view accumulates towards each "
                                               "light with a size, a few per redraw (the first redraws filtered)")

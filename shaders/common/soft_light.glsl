@@ -33,9 +33,6 @@ uniform vec3 u_light_v;
 uniform float u_light_blend;  // spot blend (a sphere light that is a spot; u_light_cone is its cone)
 uniform vec2 u_light_spread;  // area light: (tan of the half spread, its normalisation); x < 0: none
 
-#define HS_PROBES 4           // rays per pixel of the probe pass (HS_SOFT_PROBE)
-#define HS_PROBE_RADIUS 2     // a pixel takes its probe answer when every probe within this
-                              // many pixels saw all or none of the light alike
 
 uint hs_hash(uvec3 v)
 {
