@@ -57,7 +57,8 @@ def measure(root: Path, spec: str, size: str, samples: int, what: str = "final")
                        capture_output=True, text=True)
     if p.returncode != 0:
         raise RuntimeError(f"{root}: {p.stderr[-2000:]}")
-    return json.loads(p.stdout.strip().splitlines()[-1])
+    # (the last JSON line: Blender may print its own lines at exit, e.g. about unfreed memory)
+    return json.loads([line for line in p.stdout.splitlines() if line.startswith("{")][-1])
 
 
 def main(argv=None) -> int:

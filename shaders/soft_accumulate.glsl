@@ -51,6 +51,20 @@ void main() {
 }
 #endif
 
+#ifdef PARTIAL
+// The marks of the second half of a refinement traced ray by ray in several draws (the early
+// stop of raytrace.glsl's single draw, between draws): pixels whose sums so far (probes and
+// the first half) give a share strictly between 0 and 1 go on (gl_FragDepth 0); the others,
+// all of whose samples saw all or none of the light alike, keep their share (1). Marks only.
+uniform sampler2D u_sums;
+
+void main() {
+    vec2 s = texelFetch(u_sums, ivec2(gl_FragCoord.xy), 0).rg;
+    o_mask = 0.0;
+    gl_FragDepth = (s.y > 0.0 && s.x > 0.0 && s.x < s.y) ? 0.0 : 1.0;
+}
+#endif
+
 #ifdef DENOISE
 uniform sampler2D u_mask;
 uniform sampler2D u_mask_range; // u_mask's (min, max) over the covered texels within 2 (soft_range.glsl)

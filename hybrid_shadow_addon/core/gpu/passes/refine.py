@@ -172,11 +172,17 @@ class Refiner:
         with self._masked(fbo, target):
             svao.render(moderngl.TRIANGLES, vertices=3)
 
-    def mark(self, key, target, vao) -> None:
+    def mark(self, key, target, vao, color: bool = True) -> None:
         """Draw ``vao``, a full-screen program that writes its answers and marks (``gl_FragDepth``
-        0: the next :meth:`draw_marked` shades the pixel, 1: done), into ``target``."""
+        0: the next :meth:`draw_marked` shades the pixel, 1: done), into ``target`` (``color``
+        False: the marks alone, ``target`` kept)."""
         self.ctx.disable(moderngl.BLEND)
-        self._draw_marks(self._fbo(key, target), target, vao)
+        fbo = self._fbo(key, target)
+        fbo.color_mask = (color,) * 4
+        try:
+            self._draw_marks(fbo, target, vao)
+        finally:
+            fbo.color_mask = (True,) * 4
 
     def _draw_marks(self, fbo, target, vao) -> None:
         """A full-screen draw into ``fbo`` (``target``'s) that writes the depth marks."""
