@@ -149,7 +149,11 @@ void trace_main()
         for (int j = 0; j < cnt; ++j) {
             if (hs_has(live, j)) {
                 sw += pw[j];
+#ifdef HS_HAS_ALPHA
+                if (!hs_has(occ, j)) sv += pw[j] * hs_pk_vis[j];
+#else
                 if (!hs_has(occ, j)) sv += pw[j];
+#endif
             }
         }
         k = kend;

@@ -7,7 +7,8 @@ error.
 
 Scenes: the soft-light test scene and stiff scenes whose lights are made extended here
 (non-uniformly scaled and sheared instances, 100 km from the origin, sub-pixel casters,
-coincident faces, analytic spheres), so the cone is carried into odd model spaces as well.
+coincident faces, analytic spheres), so the cone is carried into odd model spaces as well, and
+alpha-cut casters (a packet's rays keep a transmittance each).
 """
 import numpy as np
 import pytest
@@ -90,6 +91,41 @@ def test_packets_through_analytic_spheres(pipe):
         # (the reference's 30 rays after the probes take two draws of at most CHUNK_RAYS)
         assert (d <= 1e-5).mean() > 0.999 and d.mean() < 1e-4
     assert sum(((y > 0.02) & (y < 0.98)).sum() for y in b) > 200
+
+
+@pytest.mark.parametrize("spec", ["alpha_scene", "alpha_cards"])
+def test_packets_through_alpha_cut_casters(pipe, spec):
+    """A packet's ray that hits an alpha-cut triangle keeps the transmittance at its UV (the
+    barycentrics from the edge products) and goes on, blocked only below HS_VIS_MIN, as the ray
+    traced alone: the masks equal the ray-by-ray ones. The test scene's cards (6° sun) and
+    ``alpha_cards`` with its lights made extended; with its own loop-budget check."""
+    from hybrid_shadow_addon.blender.load import load_scene
+    from tests.test_alpha_shadows import alpha_scene
+
+    if spec == "alpha_scene":
+        scene = alpha_scene(lights=("sun",))
+        scene.lights[0].angle = np.radians(6.0)
+    else:
+        scene = extended(load_scene(spec))
+    rt = pipe.shadow_pass("raytrace")
+    rt.loop_check = True
+    try:
+        f1, a = masks(pipe, scene, packets=True, samples=64)
+    finally:
+        rt.loop_check = False
+    f0, b = masks(pipe, scene, packets=False, samples=64)
+    assert "HS_HAS_ALPHA=1" in f1.stats["defines"] and "HS_SOFT_PACKET=1" in f1.stats["defines"]
+    assert "HS_SOFT_PACKET=1" not in f0.stats["defines"]
+    partial = 0
+    for li, (x, y) in enumerate(zip(a, b)):
+        fin = np.isfinite(y)
+        np.testing.assert_array_equal(np.isfinite(x), fin)
+        assert not (np.nan_to_num(x) < -0.5).any(), f"light {li}: pixels spent the loop budget"
+        d = np.abs(x - y)[fin]
+        assert (d <= 1e-5).mean() > 0.999, f"light {li}: {(d > 1e-5).sum()} pixels differ"
+        assert d.mean() < 1e-4, f"light {li}: mean difference {d.mean():.2e}"
+        partial += int(((y > 0.02) & (y < 0.98)).sum())
+    assert partial > 300, "the cards should cast partial shadows"
 
 
 @pytest.mark.parametrize("packets, samples", [(True, 64), (True, 256), (False, 64), (False, 128)])

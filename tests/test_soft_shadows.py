@@ -150,8 +150,8 @@ def test_soft_shadows_through_alpha_cards(pipeline):
 
 
 def test_ray_by_ray_refinement_stops_early_only_where_its_first_half_agreed(pipeline):
-    """Ray by ray in several draws (alpha scenes, the grid; 64 samples: 62 rays after the probes,
-    more than one draw's CHUNK_RAYS), a refined pixel traces the second half of its samples only
+    """Ray by ray in several draws (the thesis' grid; 64 samples: 62 rays after the probes, more
+    than one draw's CHUNK_RAYS), a refined pixel traces the second half of its samples only
     where the first half left its share strictly between 0 and 1 (``soft_accumulate.glsl``
     PARTIAL): the penumbrae get every sample, as without the stop, but for the rare pixel whose
     first half saw all or none of the light alike."""
@@ -161,11 +161,12 @@ def test_ray_by_ray_refinement_stops_early_only_where_its_first_half_agreed(pipe
     got = {}
     for stop in (True, False):
         rt.early_stop = stop
+        pipeline.set_scene(sc, "grid")
         try:
-            f = frame_of(pipeline, sc, samples=64)
+            f = pipeline.render(sc, Settings(mode="raytrace", quality="high", structure="grid", samples=64))
         finally:
             rt.early_stop = True
-        assert "HS_SOFT_PACKET=1" not in f.stats["defines"]  # (an alpha scene: ray by ray)
+        assert "HS_SOFT_PACKET=1" not in f.stats["defines"]  # (the grid: ray by ray)
         got[stop] = f.mask_array(0)
     a, b = got[True], got[False]
     ok = np.isfinite(b)

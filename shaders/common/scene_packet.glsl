@@ -28,10 +28,11 @@
  * light close to the surface) are traced ray by ray.
  *
  * Inputs: hs_pk_d[k], hs_pk_t[k] (the rays o + t d, t in (0, tmax), as hs_occluded takes them),
- * k < cnt, live: bit k set for the rays to trace. Result: bit k set where ray k is blocked.
- * Opaque scenes only (an alpha-cut caster's transmittance is a float per ray: those scenes trace
- * ray by ray). Mirror of each ray's answer: hs_occluded (the same rays, equal but for rays that
- * graze an edge or the receiver's own surface within float32 error).
+ * k < cnt, live: bit k set for the rays to trace. Result: bit k set where ray k is blocked;
+ * with HS_HAS_ALPHA also hs_pk_vis[k], the light ray k keeps through the alpha-cut surfaces it
+ * crosses (the product of their transmittances, as hs_visibility's; 0 where blocked). Mirror of
+ * each ray's answer: hs_visibility (the same rays, equal but for rays that graze an edge or the
+ * receiver's own surface within float32 error).
  */
 #ifndef HS_SCENE_PACKET_GLSL
 #define HS_SCENE_PACKET_GLSL
@@ -44,6 +45,12 @@ float hs_pk_t[HS_PACKET];
 vec3 hs_pk_u[HS_PACKET];    // their unit directions (bake space)
 float hs_pk_l[HS_PACKET];   // and lengths
 int hs_pk_cnt;              // rays in the packet
+#ifdef HS_HAS_ALPHA
+float hs_pk_vis[HS_PACKET]; // the light each ray keeps (the result, with the blocked bits)
+bool hs_pk_cuts;            // the current instance cuts its shadow (hs_pk_cut), its leaf at
+HsCut hs_pk_cut;            // [leaf] texel hs_pk_at
+int hs_pk_at;
+#endif
 
 // ray masks: bit k of (x: rays 0..31, y: rays 32..63)
 uvec2 hs_bit(int k) { uint b = 1u << uint(k & 31); return k < 32 ? uvec2(b, 0u) : uvec2(0u, b); }
@@ -90,8 +97,10 @@ float hs_amax(vec3 v) { vec3 a = abs(v); return max(max(a.x, a.y), a.z); }
 // once per triangle (L^T n: a ray's product d . L^T n is its model-space direction's, L d . n,
 // so t = T / det is the bake-space distance); no ray is moved into model space. A triangle that
 // no ray of the cone can hit takes no ray test (on soft_lights, 1 in 2 to 7 of those tested has
-// a hit).
-uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2)
+// a hit). With HS_HAS_ALPHA, where the instance cuts its shadow, a hit multiplies the ray's
+// hs_pk_vis by the transmittance at its UV (triangle ti of the leaf; the barycentrics are the
+// edge products over det, as hs_tri_hit_b's) and blocks it only below HS_VIS_MIN.
+uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2, int ti)
 {
     precise vec3 A = v0 - om;
     precise vec3 B = v1 - om;
@@ -130,6 +139,12 @@ uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2)
             precise float e2 = (d.x * pab.x + d.y * pab.y) + d.z * pab.z;
             precise float det = (e0 + e1) + e2;
             bool h = min(min(e0, e1), e2) >= 0.0 && aT > fl * det && aT < hs_pk_l[k] * det;
+#ifdef HS_HAS_ALPHA
+            if (h && hs_pk_cuts && hs_has(need, k)) {
+                hs_pk_vis[k] *= hs_cut_tri(hs_pk_cut, hs_pk_at, ti, vec3(e0, e1, e2) / det);
+                h = hs_pk_vis[k] < HS_VIS_MIN;
+            }
+#endif
             if (h) hit |= hs_bit(k);
         }
     }
@@ -150,6 +165,9 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
         vec3 u = on ? hs_pk_d[k] / l : vec3(0.0);
         hs_pk_u[k] = u;
         hs_pk_l[k] = on ? min(l * min(hs_pk_t[k], HS_FLT_BIG), 1.0e30) : 0.0;
+#ifdef HS_HAS_ALPHA
+        hs_pk_vis[k] = 1.0;
+#endif
         s += u;
         len = max(len, hs_pk_l[k]);
     }
@@ -164,8 +182,14 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
     uvec2 occ = uvec2(0u);
     bool going = !hs_none(live);   // (no return or break inside the loops: the walk ends by this flag)
     if (going && !(cmin > HS_PACKET_MIN_COS)) {   // too wide a spread to bound: ray by ray
-        for (int k = 0; k < cnt; ++k)
+        for (int k = 0; k < cnt; ++k) {
+#ifdef HS_HAS_ALPHA
+            if (hs_has(live, k)) hs_pk_vis[k] = hs_visibility(o, hs_pk_d[k], hs_pk_t[k]);
+            if (hs_has(live, k) && hs_pk_vis[k] == 0.0) occ |= hs_bit(k);
+#else
             if (hs_has(live, k) && hs_occluded(o, hs_pk_d[k], hs_pk_t[k])) occ |= hs_bit(k);
+#endif
+        }
         going = false;
     }
     HsCone tc;
@@ -188,6 +212,11 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
     int bend = 0;   // end of the current model tree
 #ifdef HS_HAS_MESHES
     vec3 om = vec3(0.0);
+#endif
+#ifdef HS_HAS_ALPHA
+    hs_pk_cuts = false;
+    hs_pk_cut = hs_cut_setup(0);
+    hs_pk_at = 0;
 #endif
     while (going) {
         uint w = 0u;
@@ -264,21 +293,28 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
                     ret = i + 1;
                     next = int(u3.x);
                     bend = int(u3.y);
+#ifdef HS_HAS_ALPHA
+                    hs_pk_cuts = u3.w != 0u;
+                    if (hs_pk_cuts) hs_pk_cut = hs_cut_setup(int(u3.w) - 1);
+#endif
                 }
 #endif
             }
 #ifdef HS_HAS_MESHES
             else {
                 int tc_n = int(pay & 7u);
-                occ |= hs_pk_tri(om, live & ~occ, x0.xyz, vec3(x0.w, x1.xy), vec3(x1.zw, x2.x));
+#ifdef HS_HAS_ALPHA
+                hs_pk_at = at;
+#endif
+                occ |= hs_pk_tri(om, live & ~occ, x0.xyz, vec3(x0.w, x1.xy), vec3(x1.zw, x2.x), 0);
 #if HS_BVH_LEAF_SIZE > 1
-                if (tc_n > 1) occ |= hs_pk_tri(om, live & ~occ, x2.yzw, x3.xyz, vec3(x3.w, x4.xy));
+                if (tc_n > 1) occ |= hs_pk_tri(om, live & ~occ, x2.yzw, x3.xyz, vec3(x3.w, x4.xy), 1);
 #endif
 #if HS_BVH_LEAF_SIZE > 2
-                if (tc_n > 2) occ |= hs_pk_tri(om, live & ~occ, vec3(x4.zw, x5.x), x5.yzw, x6.xyz);
+                if (tc_n > 2) occ |= hs_pk_tri(om, live & ~occ, vec3(x4.zw, x5.x), x5.yzw, x6.xyz, 2);
 #endif
 #if HS_BVH_LEAF_SIZE > 3
-                if (tc_n > 3) occ |= hs_pk_tri(om, live & ~occ, vec3(x6.w, x7.xy), vec3(x7.zw, x8.x), x8.yzw);
+                if (tc_n > 3) occ |= hs_pk_tri(om, live & ~occ, vec3(x6.w, x7.xy), vec3(x7.zw, x8.x), x8.yzw, 3);
 #endif
                 if (all(equal(occ, live))) { next = hs_tlas_end; ret = -1; }   // (all blocked: the walk ends)
             }

@@ -229,8 +229,7 @@ class RaytracePass(ShadowPass):
         one on llvmpipe), unless :attr:`packets` is off. With it ``HS_SOFT_FULL``: a refined
         pixel traces all its samples in one walk (cheaper than two halves with the ray-by-ray
         path's early stop between them, and exact)."""
-        ok = (self.packets and rays >= PACKET_MIN_RAYS and "HS_STRUCTURE_BVH" in defines
-              and "HS_HAS_ALPHA" not in defines)
+        ok = self.packets and rays >= PACKET_MIN_RAYS and "HS_STRUCTURE_BVH" in defines
         return {"HS_SOFT_PACKET": 1, "HS_SOFT_FULL": 1} if ok else {}
 
     @staticmethod
