@@ -27,10 +27,12 @@ then gives those alone (early depth test) the rest of their ``samples`` rays, an
 penumbra-only filter (``shaders/soft_accumulate.glsl``, narrowing as the samples add up)
 follows; with ``Settings.accumulate`` (the viewport) each frame adds the sums of
 ``frame_samples`` rays per pixel to those of the frames before instead, until
-``reset_history``. On the two-level BVH of an opaque scene a pixel's rays walk the scene as one
+``reset_history``. On the two-level BVH (alpha-cut casters too) a pixel's rays walk the scene as one
 packet (``HS_SOFT_PACKET``, ``shaders/common/scene_packet.glsl``); a draw traces at most
 ``CHUNK_RAYS`` rays per pixel (more take several draws whose sums add up), since llvmpipe stops
-every loop of an invocation after 65535 iterations in all.
+every loop of an invocation after 65535 iterations in all. Ray by ray in several draws (the
+grid), a refined pixel traces the second half of its rays only where the first left its share
+strictly between 0 and 1 (``soft_accumulate.glsl`` PARTIAL marks them).
 
 ``stats``: ``rays_traced`` counts the pixels the trace shaded (occlusion queries; facing-away
 and map-decided pixels among them cost no traversal), ``pixels`` the pixels with geometry times
@@ -225,8 +227,9 @@ class RaytracePass(ShadowPass):
     def _packet_defines(self, defines, rays: int) -> dict:
         """``HS_SOFT_PACKET`` (a pixel's soft-shadow rays walk the scene together,
         ``shaders/common/scene_packet.glsl``) for a pass that traces ``rays`` rays per pixel:
-        two-level BVH, opaque scenes, from PACKET_MIN_RAYS rays on (fewer are faster one by
-        one on llvmpipe), unless :attr:`packets` is off. With it ``HS_SOFT_FULL``: a refined
+        two-level BVH (each ray keeps its own transmittance through alpha-cut casters), from
+        PACKET_MIN_RAYS rays on (fewer are faster one by one on llvmpipe), unless
+        :attr:`packets` is off. With it ``HS_SOFT_FULL``: a refined
         pixel traces all its samples in one walk (cheaper than two halves with the ray-by-ray
         path's early stop between them, and exact)."""
         ok = self.packets and rays >= PACKET_MIN_RAYS and "HS_STRUCTURE_BVH" in defines
