@@ -159,9 +159,9 @@ def test_ray_by_ray_refinement_stops_early_only_where_its_first_half_agreed(pipe
     sc.lights[0].angle = np.radians(6)
     rt = pipeline.shadow_pass("raytrace")
     got = {}
+    pipeline.set_scene(sc, "grid")
     for stop in (True, False):
         rt.early_stop = stop
-        pipeline.set_scene(sc, "grid")
         try:
             f = pipeline.render(sc, Settings(mode="raytrace", quality="high", structure="grid", samples=64))
         finally:

@@ -184,8 +184,10 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
     if (going && !(cmin > HS_PACKET_MIN_COS)) {   // too wide a spread to bound: ray by ray
         for (int k = 0; k < cnt; ++k) {
 #ifdef HS_HAS_ALPHA
-            if (hs_has(live, k)) hs_pk_vis[k] = hs_visibility(o, hs_pk_d[k], hs_pk_t[k]);
-            if (hs_has(live, k) && hs_pk_vis[k] == 0.0) occ |= hs_bit(k);
+            if (hs_has(live, k)) {
+                hs_pk_vis[k] = hs_visibility(o, hs_pk_d[k], hs_pk_t[k]);
+                if (hs_pk_vis[k] == 0.0) occ |= hs_bit(k);
+            }
 #else
             if (hs_has(live, k) && hs_occluded(o, hs_pk_d[k], hs_pk_t[k])) occ |= hs_bit(k);
 #endif

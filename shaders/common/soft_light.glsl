@@ -33,7 +33,6 @@ uniform vec3 u_light_v;
 uniform float u_light_blend;  // spot blend (a sphere light that is a spot; u_light_cone is its cone)
 uniform vec2 u_light_spread;  // area light: (tan of the half spread, its normalisation); x < 0: none
 
-
 uint hs_hash(uvec3 v)
 {
     // pcg3d (Jarzynski & Olano 2020), first component

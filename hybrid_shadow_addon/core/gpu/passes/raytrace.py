@@ -340,9 +340,10 @@ class RaytracePass(ShadowPass):
         rays = total - SOFT_PROBES
         packet = self._packet_defines(defines, rays)
         chunked = rays > self._chunk(packet)
-        # ray by ray in several draws (alpha scenes, the grid): the early stop between draws,
-        # the second half only where the first left the share partial
+        # ray by ray in several draws (the grid): the early stop between draws, the second half
+        # only where the first left the share partial
         half = SOFT_PROBES + rays // 2 if chunked and not (accum or packet) and self.early_stop else total
+        stages = [(SOFT_PROBES, half), (half, total)] if half < total else [(SOFT_PROBES, total)]
         probe_defs = {k: v for k, v in defines.items() if k != "HS_SOFT_ACCUM"}  # (the same probes either way)
         _, pvao, _ = self._program({**probe_defs, "HS_SOFT_PROBE": 1}, light, light_vec, gbuffer, settings, 1, cmap)
         probe = self._target((li, "probe"), *full, components=2)  # (sums: raytrace.glsl)
@@ -357,16 +358,14 @@ class RaytracePass(ShadowPass):
         if chunked:
             # more rays than one draw may trace (CHUNK_RAYS): draws of at most that many
             # samples each, added to the probes' sums (the viewport's frames, at once)
-            for vao in self._chunk_draws({**defines, "HS_SOFT_ACCUM": 1}, light, light_vec, gbuffer, settings,
-                                         cmap, SOFT_PROBES, half):
-                self.refiner.draw_marked((li, "soft"), sums, vao, add=True)
-            if half < total:
-                mark_prog, mark_vao = self.programs.fullscreen("soft_accumulate", {"PARTIAL": 1})
-                sums.texture.use(0)
-                set_uniforms(mark_prog, {"u_sums": 0})
-                self.refiner.mark((li, "soft"), sums, mark_vao, color=False)
+            for j, (first, last) in enumerate(stages):
+                if j:  # (the second half: only the pixels the first left partial)
+                    mark_prog, mark_vao = self.programs.fullscreen("soft_accumulate", {"PARTIAL": 1})
+                    sums.texture.use(0)
+                    set_uniforms(mark_prog, {"u_sums": 0})
+                    self.refiner.mark((li, "soft"), sums, mark_vao, color=False)
                 for vao in self._chunk_draws({**defines, "HS_SOFT_ACCUM": 1}, light, light_vec, gbuffer, settings,
-                                             cmap, half, total):
+                                             cmap, first, last):
                     self.refiner.draw_marked((li, "soft"), sums, vao, add=True)
             if not accum:
                 res_prog, res_vao = self.programs.fullscreen("soft_accumulate", {"RESOLVE": 1})
