@@ -129,6 +129,9 @@ void trace_main()
     // walk costs less than two halves with a stop between)
     float pw[HS_PACKET];
     uvec2 seeds = hs_sample_seeds(px);
+#ifdef HS_PACKET_PLANES
+    hs_pk_set_pyramid(o, u_light_vec, u_light_u, u_light_v);
+#endif
     for (int k = k0; k < n_samples; ) {
         int kend = min(n_samples, k + HS_PACKET);
         int cnt = kend - k;

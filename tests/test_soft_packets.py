@@ -19,12 +19,21 @@ from hybrid_shadow_addon.core.settings import Settings
 W, H = 160, 120
 
 
-def extended(scene):
+def extended(scene, area: bool = False):
     """``scene`` with every light given a size: a 3° sun, 0.25 m point/spot radii, 1 m area
-    lights."""
+    lights; with ``area``, point lights become tilted 2 x 0.7 m rectangle area lights (the
+    packets of rectangle and ellipse lights are bounded by the pyramid over the light as well,
+    whose planes are carried into each instance's model space)."""
     for light in scene.lights:
         if light.type == "SUN":
             light.angle = np.radians(3.0)
+        elif light.type == "POINT" and area:
+            c, s = np.cos(0.5), np.sin(0.5)
+            tilt = np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]) @ \
+                np.array([[1, 0, 0, 0], [0, 0.9, -0.44, 0], [0, 0.44, 0.9, 0], [0, 0, 0, 1]])
+            m = tilt.copy()
+            m[:3, 3] = light.position
+            light.type, light.area_shape, light.size, light.size_y, light.matrix = "AREA", "RECTANGLE", 2.0, 0.7, m
         elif light.type in ("POINT", "SPOT"):
             light.radius = 0.25
         else:
@@ -53,14 +62,17 @@ def pipe(gl_ctx):
 
 
 @pytest.mark.parametrize("spec, samples", [("soft_lights", 32), ("soft_lights", 64), ("stiff/instance_scales", 32),
-                                           ("stiff/far_away", 32), ("stiff/thin", 32), ("stiff/degenerate", 32)])
+                                           ("stiff/instance_scales:area", 32), ("stiff/far_away", 32),
+                                           ("stiff/far_away:area", 32), ("stiff/thin", 32), ("stiff/degenerate", 32)])
 def test_packets_give_each_ray_its_own_answer(pipe, spec, samples):
-    """(64 samples: a packet of 60 rays, both halves of its 64-bit masks)"""
+    """(64 samples: a packet of 60 rays, both halves of its 64-bit masks; ``:area``: the point
+    lights become rectangle area lights, over mirrored, squashed and rotated instances)"""
     from hybrid_shadow_addon.blender.load import load_scene
 
+    spec, _, area = spec.partition(":")
     scene = load_scene(spec)
     if not spec.startswith("soft"):
-        scene = extended(scene)
+        scene = extended(scene, area=bool(area))
     f1, a = masks(pipe, scene, packets=True, samples=samples)
     f0, b = masks(pipe, scene, packets=False, samples=samples)
     assert "HS_SOFT_PACKET=1" in f1.stats["defines"] and "HS_SOFT_PACKET=1" not in f0.stats["defines"]
@@ -150,3 +162,52 @@ def test_no_pixel_spends_llvmpipe_loop_budget(pipe, packets, samples):
     for li, m in enumerate(ms):
         assert not (np.nan_to_num(m) < -0.5).any(), f"light {li}: {(np.nan_to_num(m) < -0.5).sum()} pixels spent the budget"
     assert ((ms[0] > 0.02) & (ms[0] < 0.98)).sum() > 300, "the sun should show penumbrae"
+
+
+def pegs_scene():
+    """A board of 10 x 10 small cubes (one model, a tree several levels deep) placed twice with
+    strongly non-uniform, sheared and mirrored transforms over a ground plane, under a tilted
+    1.2 x 0.4 m rectangle area light and a 0.8 m disk light, whose packets are bounded by the
+    planes of the pyramid over the light, carried into each instance's model space."""
+    from hybrid_shadow_addon.core.scene import Camera, Instances, Light, Model, Scene
+    from tests.test_gpu_scenes import cube_model, look_at, plane_model, trs
+
+    cube = cube_model()
+    vs, ts = [], []
+    for i in range(10):
+        for j in range(10):
+            ts.append(cube.triangles + len(vs) * 8)
+            vs.append(cube.vertices * np.float32(0.03) + np.array([-0.65 + 0.13 * i, -0.65 + 0.13 * j, 0.0], np.float32))
+    pegs = Model("pegs", np.concatenate(vs), np.concatenate(ts).astype(np.uint32))
+    shear = np.eye(4)
+    shear[0, 1], shear[2, 0] = 0.6, 0.3
+    mats = [trs((0, 0, 0), scale=(6, 6, 1)),
+            trs((0.3, -0.2, 1.0), rot_z=0.7, rot_x=0.2, scale=(1.6, 0.7, 2.5)) @ shear,
+            trs((-1.3, 1.2, 0.7), rot_z=-0.4, rot_x=-0.3, scale=(-1.2, 0.8, 2.0)) @ shear.T]
+    inst = Instances(names=["ground", "pegs", "mirrored"], model_ids=[0, 1, 1], matrices=np.array(mats),
+                     base_color=[(0.8, 0.8, 0.8, 1)] * 3, specular=[0.5] * 3, roughness=[0.5] * 3,
+                     sphere=[False] * 3)
+    rect = trs((0.2, 0.0, 2.6), rot_z=0.5, rot_x=0.3)
+    disk = trs((-1.0, 0.8, 2.4), rot_z=-0.3, rot_x=-0.3)
+    lights = [Light("rect", "AREA", power=500.0, matrix=rect, size=1.2, size_y=0.4, area_shape="RECTANGLE"),
+              Light("disk", "AREA", power=500.0, matrix=disk, size=0.8, size_y=0.8, area_shape="DISK")]
+    cam = Camera(matrix=look_at((1.0, -2.5, 6.0), (-0.4, 0.3, 0.0)), type="PERSP", lens=30.0)
+    return Scene(models=[plane_model(), pegs], instances=inst, lights=lights, camera=cam,
+                 world_color=(0.05, 0.06, 0.08), resolution=(W, H))
+
+
+def test_packet_pyramid_planes_in_odd_model_spaces(pipe):
+    """Rectangle and disk lights bound a packet by the four planes of the pyramid over the light
+    as well as by its cone; under sheared, squashed and mirrored instances the masks equal the
+    ray-by-ray ones (one plane turned the wrong way: 842 of the rectangle light's pixels differ)."""
+    scene = pegs_scene()
+    f1, a = masks(pipe, scene, packets=True)
+    f0, b = masks(pipe, scene, packets=False)
+    assert "HS_SOFT_PACKET=1" in f1.stats["defines"]
+    for li, (x, y) in enumerate(zip(a, b)):
+        fin = np.isfinite(y)
+        np.testing.assert_array_equal(np.isfinite(x), fin)
+        d = np.abs(x - y)[fin]
+        assert (d <= 1e-5).mean() > 0.999, f"light {li}: {(d > 1e-5).sum()} pixels differ"
+        assert d.mean() < 1e-4, f"light {li}: mean difference {d.mean():.2e}"
+        assert ((y > 0.02) & (y < 0.98)).sum() > 1000, f"light {li}: the pegs should cast penumbrae"

@@ -39,6 +39,9 @@
 
 #define HS_PACKET 64
 #define HS_PACKET_MIN_COS 0.5
+#if defined(HS_SOFT_SHAPE) && HS_SOFT_SHAPE >= 2
+#define HS_PACKET_PLANES   // rectangle and ellipse lights: the pyramid over the light bounds the rays
+#endif
 
 vec3 hs_pk_d[HS_PACKET];    // the rays (bake space), set by the caller
 float hs_pk_t[HS_PACKET];
@@ -57,7 +60,39 @@ uvec2 hs_bit(int k) { uint b = 1u << uint(k & 31); return k < 32 ? uvec2(b, 0u) 
 bool hs_has(uvec2 m, int k) { return (((k < 32 ? m.x : m.y) >> uint(k & 31)) & 1u) != 0u; }
 bool hs_none(uvec2 m) { return (m.x | m.y) == 0u; }
 
-struct HsCone { vec3 apex; vec3 inv; float sin_a; float len; float e; };   // (inv: 1 / axis)
+struct HsCone {
+    vec3 apex; vec3 inv; float sin_a; float len; float e;   // (inv: 1 / axis)
+#ifdef HS_PACKET_PLANES
+    vec3 p0, p1, p2, p3;   // inward normals of the four planes through the apex that bound the rays
+#endif
+};
+
+#ifdef HS_PACKET_PLANES
+// The pyramid from o over the rectangle u_light_vec +- u_light_u +- u_light_v (an ellipse lies
+// inside it), widened by 0.1 %: every ray of the packet lies inside its four planes through o
+// (normals pointing inwards, bake space; set by the caller with hs_pk_set_pyramid)
+vec3 hs_pk_pyr[4];
+void hs_pk_set_pyramid(vec3 o, vec3 c, vec3 u, vec3 v)
+{
+    vec3 q0 = c - 1.001 * u - 1.001 * v - o, q1 = c + 1.001 * u - 1.001 * v - o;
+    vec3 q2 = c + 1.001 * u + 1.001 * v - o, q3 = c - 1.001 * u + 1.001 * v - o;
+    vec3 m = c - o;
+    vec3 n0 = cross(q0, q1), n1 = cross(q1, q2), n2 = cross(q2, q3), n3 = cross(q3, q0);
+    hs_pk_pyr[0] = dot(n0, m) < 0.0 ? -n0 : n0;
+    hs_pk_pyr[1] = dot(n1, m) < 0.0 ? -n1 : n1;
+    hs_pk_pyr[2] = dot(n2, m) < 0.0 ? -n2 : n2;
+    hs_pk_pyr[3] = dot(n3, m) < 0.0 ? -n3 : n3;
+}
+
+// Is the box [lo, hi] (widened by e) wholly outside the plane through the apex with inward
+// normal pn? (its corner furthest along pn behind the plane, with a margin for float error)
+bool hs_plane_out(vec3 pn, vec3 lo, vec3 hi, vec3 apex, float e)
+{
+    vec3 pv = mix(lo, hi, step(0.0, pn)) - apex;
+    vec3 an = abs(pn);
+    return dot(pn, pv) < -(e * ((an.x + an.y) + an.z) + 1.0e-4 * dot(an, abs(pv)));
+}
+#endif
 
 // sine bound of the cone from the largest sine s of a ray's angle to the axis (s from cross
 // products: exact for narrow cones, where 1 - cos^2 is not)
@@ -76,6 +111,10 @@ bool hs_cone_box_hit(HsCone c, uvec4 n)
     vec3 tn3 = min(t1, t2), tf3 = max(t1, t2);
     float tn = max(max(tn3.x, tn3.y), tn3.z);
     float tf = min(min(tf3.x, tf3.y), tf3.z) * HS_TFAR_SCALE;
+#ifdef HS_PACKET_PLANES
+    if (hs_plane_out(c.p0, blo, bhi, c.apex, c.e) || hs_plane_out(c.p1, blo, bhi, c.apex, c.e)
+        || hs_plane_out(c.p2, blo, bhi, c.apex, c.e) || hs_plane_out(c.p3, blo, bhi, c.apex, c.e)) return false;
+#endif
     return max(tn, 0.0) <= min(tf, D);
 }
 
@@ -203,6 +242,10 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
     tc.sin_a = hs_cone_sin(smax);
     tc.len = len * hs_tlas_inv_scale;
     tc.e = te;
+#ifdef HS_PACKET_PLANES
+    // (top-level boxes are bake space scaled by a power of two and moved: the same normals)
+    tc.p0 = hs_pk_pyr[0]; tc.p1 = hs_pk_pyr[1]; tc.p2 = hs_pk_pyr[2]; tc.p3 = hs_pk_pyr[3];
+#endif
     HsCone c = tc;
 #ifdef HS_HAS_MESHES
     hs_pk_ax = ax;
@@ -292,6 +335,16 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
                     c.sin_a = narrow ? hs_cone_sin(sqrt(kap2) * ws) : 1.0e30;
                     c.len = ml * x4.w;
                     c.e = e;
+#ifdef HS_PACKET_PLANES
+                    // a plane n.(x - o) >= 0 in bake space is (L^-T n).(m - m_o) >= 0 in model
+                    // space (L^-T n: the products with the columns of L^-1), and the same in the
+                    // model's quantised space (scaled by a positive factor and moved); none
+                    // (zero normals) under a strong shear, whose inverse is too inexact
+                    c.p0 = narrow ? vec3(dot(hs_pk_i0, hs_pk_pyr[0]), dot(hs_pk_i1, hs_pk_pyr[0]), dot(hs_pk_i2, hs_pk_pyr[0])) : vec3(0.0);
+                    c.p1 = narrow ? vec3(dot(hs_pk_i0, hs_pk_pyr[1]), dot(hs_pk_i1, hs_pk_pyr[1]), dot(hs_pk_i2, hs_pk_pyr[1])) : vec3(0.0);
+                    c.p2 = narrow ? vec3(dot(hs_pk_i0, hs_pk_pyr[2]), dot(hs_pk_i1, hs_pk_pyr[2]), dot(hs_pk_i2, hs_pk_pyr[2])) : vec3(0.0);
+                    c.p3 = narrow ? vec3(dot(hs_pk_i0, hs_pk_pyr[3]), dot(hs_pk_i1, hs_pk_pyr[3]), dot(hs_pk_i2, hs_pk_pyr[3])) : vec3(0.0);
+#endif
                     ret = i + 1;
                     next = int(u3.x);
                     bend = int(u3.y);
