@@ -167,7 +167,7 @@ def test_no_pixel_spends_llvmpipe_loop_budget(pipe, packets, samples):
 def pegs_scene():
     """A board of 10 x 10 small cubes (one model, a tree several levels deep) placed twice with
     strongly non-uniform, sheared and mirrored transforms over a ground plane, under a tilted
-    1.2 x 0.4 m rectangle area light and a 0.8 m disk light, whose packets are bounded by the
+    1.2 x 0.4 m rectangle area light and a 1 x 0.5 m ellipse light, whose packets are bounded by the
     planes of the pyramid over the light, carried into each instance's model space."""
     from hybrid_shadow_addon.core.scene import Camera, Instances, Light, Model, Scene
     from tests.test_gpu_scenes import cube_model, look_at, plane_model, trs
@@ -188,22 +188,22 @@ def pegs_scene():
                      base_color=[(0.8, 0.8, 0.8, 1)] * 3, specular=[0.5] * 3, roughness=[0.5] * 3,
                      sphere=[False] * 3)
     rect = trs((0.2, 0.0, 2.6), rot_z=0.5, rot_x=0.3)
-    disk = trs((-1.0, 0.8, 2.4), rot_z=-0.3, rot_x=-0.3)
+    ell = trs((-1.0, 0.8, 2.4), rot_z=-0.3, rot_x=-0.3)
     lights = [Light("rect", "AREA", power=500.0, matrix=rect, size=1.2, size_y=0.4, area_shape="RECTANGLE"),
-              Light("disk", "AREA", power=500.0, matrix=disk, size=0.8, size_y=0.8, area_shape="DISK")]
+              Light("ellipse", "AREA", power=500.0, matrix=ell, size=1.0, size_y=0.5, area_shape="ELLIPSE")]
     cam = Camera(matrix=look_at((1.0, -2.5, 6.0), (-0.4, 0.3, 0.0)), type="PERSP", lens=30.0)
     return Scene(models=[plane_model(), pegs], instances=inst, lights=lights, camera=cam,
                  world_color=(0.05, 0.06, 0.08), resolution=(W, H))
 
 
 def test_packet_pyramid_planes_in_odd_model_spaces(pipe):
-    """Rectangle and disk lights bound a packet by the four planes of the pyramid over the light
+    """Rectangle and elongated ellipse lights bound a packet by the four planes of the pyramid over the light
     as well as by its cone; under sheared, squashed and mirrored instances the masks equal the
     ray-by-ray ones (one plane turned the wrong way: 842 of the rectangle light's pixels differ)."""
     scene = pegs_scene()
     f1, a = masks(pipe, scene, packets=True)
     f0, b = masks(pipe, scene, packets=False)
-    assert "HS_SOFT_PACKET=1" in f1.stats["defines"]
+    assert "HS_SOFT_PACKET=1" in f1.stats["defines"] and "HS_PACKET_PLANES=1" in f1.stats["defines"]
     for li, (x, y) in enumerate(zip(a, b)):
         fin = np.isfinite(y)
         np.testing.assert_array_equal(np.isfinite(x), fin)
@@ -211,3 +211,20 @@ def test_packet_pyramid_planes_in_odd_model_spaces(pipe):
         assert (d <= 1e-5).mean() > 0.999, f"light {li}: {(d > 1e-5).sum()} pixels differ"
         assert d.mean() < 1e-4, f"light {li}: mean difference {d.mean():.2e}"
         assert ((y > 0.02) & (y < 0.98)).sum() > 1000, f"light {li}: the pegs should cast penumbrae"
+
+
+def test_pyramid_bounds_only_where_the_cone_is_loose():
+    """Rectangles and ellipses at least 1.5 times as long as wide take the pyramid's planes; a
+    disk, whose cone already fits it, a sun and a sphere light do not."""
+    from hybrid_shadow_addon.core.gpu.lights import soft_shape
+    from hybrid_shadow_addon.core.gpu.passes.raytrace import pyramid_bounds
+    from hybrid_shadow_addon.core.scene import Light
+
+    def area(shape, sx, sy):
+        return soft_shape(Light("a", "AREA", size=sx, size_y=sy, area_shape=shape))
+
+    assert pyramid_bounds(area("RECTANGLE", 2.0, 1.9)) and pyramid_bounds(area("SQUARE", 1.0, 0.0))
+    assert pyramid_bounds(area("ELLIPSE", 2.0, 1.0)) and not pyramid_bounds(area("ELLIPSE", 2.0, 1.5))
+    assert not pyramid_bounds(area("DISK", 1.0, 0.0))
+    assert not pyramid_bounds(soft_shape(Light("s", "SUN", angle=0.1)))
+    assert not pyramid_bounds(soft_shape(Light("p", "POINT", radius=0.3)))

@@ -60,6 +60,7 @@ PACKET_MIN_RAYS = 8  # a soft pass traces its rays as packets from this many ray
 #: pixel's rays through a heavy scene reach (forest, 64 rays one by one: 1 in 7 penumbra pixels
 #: of its sun), silently leaving rays untraced. More rays take more draws, whose sums add up.
 CHUNK_RAYS = {"rays": 28, "packets": 64}
+PLANES_MIN_ASPECT = 1.5  # ellipse lights this elongated bound their packets by the pyramid too
 
 
 def first_frame_lead(frame_samples: int) -> int:
@@ -69,6 +70,19 @@ def first_frame_lead(frame_samples: int) -> int:
     probes' answer, and add the later frames' samples to it). 0 where a frame traces no more
     samples than the probes."""
     return int(frame_samples) if 2 * int(frame_samples) > SOFT_PROBES else 0
+
+
+def pyramid_bounds(soft: dict) -> bool:
+    """Whether a soft light's packets are bounded by the pyramid over its rectangle as well as
+    by their cone (``HS_PACKET_PLANES``, ``shaders/common/scene_packet.glsl``): rectangles, and
+    ellipses at least PLANES_MIN_ASPECT times as long as wide (a rounder ellipse's cone already
+    lies almost inside the pyramid: four plane tests per node would buy nothing)."""
+    if soft["shape"] == 2:
+        return True
+    if soft["shape"] != 3:
+        return False
+    lu, lv = (float(np.linalg.norm(soft[k])) for k in ("u_light_u", "u_light_v"))
+    return max(lu, lv) >= PLANES_MIN_ASPECT * min(lu, lv)
 
 
 def denoise_radius(samples: int) -> int:
@@ -117,6 +131,8 @@ class RaytracePass(ShadowPass):
         if soft is not None:
             d["HS_SOFT"] = 1
             d["HS_SOFT_SHAPE"] = int(soft["shape"])
+            if pyramid_bounds(soft):
+                d["HS_PACKET_PLANES"] = 1
         if settings.max_distance > 0:
             d["HS_MAX_DISTANCE"] = 1
         if settings.interlace:
