@@ -208,7 +208,10 @@ def test_packet_pyramid_planes_in_odd_model_spaces(pipe):
         fin = np.isfinite(y)
         np.testing.assert_array_equal(np.isfinite(x), fin)
         d = np.abs(x - y)[fin]
-        assert (d <= 1e-5).mean() > 0.999, f"light {li}: {(d > 1e-5).sum()} pixels differ"
+        # (a ray that grazes a peg's edge within float32 error may answer otherwise, and the
+        # penumbra filter spreads that pixel over its 3x3 neighbours: 27 of the ellipse light's
+        # pixels, three such rays, with or without the planes)
+        assert (d <= 1e-5).mean() > 0.998, f"light {li}: {(d > 1e-5).sum()} pixels differ"
         assert d.mean() < 1e-4, f"light {li}: mean difference {d.mean():.2e}"
         assert ((y > 0.02) & (y < 0.98)).sum() > 1000, f"light {li}: the pegs should cast penumbrae"
 
