@@ -135,18 +135,40 @@ void trace_main()
     for (int k = k0; k < n_samples; ) {
         int kend = min(n_samples, k + HS_PACKET);
         int cnt = kend - k;
+        // the rays ordered by where they aim across the light (8 bands), so that the rays a
+        // caster's edge blocks tend to leave a narrower span of rays for the next triangles
+        vec2 xs[HS_PACKET];
+        int grp[HS_PACKET];
+        int gn[8];
+        for (int g = 0; g < 8; ++g) gn[g] = 0;
+        for (int j = 0; j < cnt; ++j) {
+            xs[j] = hs_sample2s(seeds, u_sample_base + k + j);
+#if HS_SOFT_SHAPE == 1
+            int g = min(int(xs[j].y * 8.0), 7);
+#else
+            int g = min(int(xs[j].x * 8.0), 7);
+#endif
+            grp[j] = g;
+            gn[g] += 1;
+        }
+        int at[8];
+        int acc = 0;
+        for (int g = 0; g < 8; ++g) { at[g] = acc; acc += gn[g]; }
         uvec2 live = uvec2(0u);
         for (int j = 0; j < cnt; ++j) {
+            int g = grp[j];
+            int q = at[g];
+            at[g] = q + 1;
             vec3 sd;
             float stm, w;
-            hs_light_sample(o, n, hs_sample2s(seeds, u_sample_base + k + j), sd, stm, w);
+            hs_light_sample(o, n, xs[j], sd, stm, w);
 #ifdef HS_MAX_DISTANCE
             stm = min(stm, u_max_distance / length(sd));
 #endif
-            hs_pk_d[j] = sd;
-            hs_pk_t[j] = stm;
-            pw[j] = w;
-            if (w > 0.0) live |= hs_bit(j);
+            hs_pk_d[q] = sd;
+            hs_pk_t[q] = stm;
+            pw[q] = w;
+            if (w > 0.0) live |= hs_bit(q);
         }
         uvec2 occ = hs_trace_packet(o, cnt, live);
         for (int j = 0; j < cnt; ++j) {

@@ -172,8 +172,10 @@ uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2, int ti)
     // HS_TFLOOR x the vertices' reach, here in bake space, L^-1 A)
     float fl = HS_TFLOOR * max(max(hs_amax(hs_pk_back(A)), hs_amax(hs_pk_back(B))), hs_amax(hs_pk_back(C)));
     uvec2 hit = uvec2(0u);
-    int nk = hs_none(need) ? 0 : hs_pk_cnt;
-    for (int k4 = 0; k4 < nk; k4 += 4) {   // (4 rays an iteration: llvmpipe's loop budget, above)
+    // (only the span of rays still needed: the lowest to the highest bit of need)
+    int klo = need.x != 0u ? findLSB(need.x) : 32 + findLSB(need.y);
+    int nk = hs_none(need) ? 0 : (need.y != 0u ? 33 + findMSB(need.y) : 1 + findMSB(need.x));
+    for (int k4 = klo & ~3; k4 < nk; k4 += 4) {   // (4 rays an iteration: llvmpipe's loop budget, above)
         for (int q = 0; q < 4; ++q) {
             int k = k4 + q;
             vec3 d = hs_pk_u[k];
