@@ -133,35 +133,34 @@ void trace_main()
     hs_pk_set_pyramid(o, u_light_vec, u_light_u, u_light_v);
 #endif
     for (int k = k0; k < n_samples; ) {
-        int kend = min(n_samples, k + HS_PACKET);
+        // a packet's rays in the order of the band across the light they aim at (eight bands),
+        // so that a caster's edge that blocks the rays of one side leaves a narrower span of
+        // rays to test against the next triangles (scene_packet.glsl). A packet stays within one
+        // aligned block of 64 samples of the sequence; within the smallest aligned block of
+        // P >= 8 samples that holds it each band has at most P / 8 of them (every dimension of
+        // the scrambled Sobol sequence is a (0,1)-sequence), so ray slot cap * band + i is the
+        // i-th ray of that band, and the slots a packet leaves empty are not live.
+        int s0 = u_sample_base + k;
+        int kend = min(n_samples, min(k + HS_PACKET, k + 64 - (s0 & 63)));
         int cnt = kend - k;
-        // the rays ordered by where they aim across the light (8 bands), so that the rays a
-        // caster's edge blocks tend to leave a narrower span of rays for the next triangles
-        vec2 xs[HS_PACKET];
-        int grp[HS_PACKET];
-        int gn[8];
-        for (int g = 0; g < 8; ++g) gn[g] = 0;
-        for (int j = 0; j < cnt; ++j) {
-            xs[j] = hs_sample2s(seeds, u_sample_base + k + j);
-#if HS_SOFT_SHAPE == 1
-            int g = min(int(xs[j].y * 8.0), 7);
-#else
-            int g = min(int(xs[j].x * 8.0), 7);
-#endif
-            grp[j] = g;
-            gn[g] += 1;
-        }
-        int at[8];
-        int acc = 0;
-        for (int g = 0; g < 8; ++g) { at[g] = acc; acc += gn[g]; }
+        int span = s0 ^ (s0 + cnt - 1);
+        int slots = span == 0 ? 8 : max(8, 2 << findMSB(span));
+        int cap = slots >> 3;
+        int fill[8];
+        for (int g = 0; g < 8; ++g) fill[g] = 0;
         uvec2 live = uvec2(0u);
         for (int j = 0; j < cnt; ++j) {
-            int g = grp[j];
-            int q = at[g];
-            at[g] = q + 1;
+            vec2 xi = hs_sample2s(seeds, s0 + j);
+#if HS_SOFT_SHAPE == 1
+            int g = min(int(xi.y * 8.0), 7);   // (a sphere light: eighths of a turn)
+#else
+            int g = min(int(xi.x * 8.0), 7);
+#endif
+            int q = cap * g + fill[g];
+            fill[g] += 1;
             vec3 sd;
             float stm, w;
-            hs_light_sample(o, n, xs[j], sd, stm, w);
+            hs_light_sample(o, n, xi, sd, stm, w);
 #ifdef HS_MAX_DISTANCE
             stm = min(stm, u_max_distance / length(sd));
 #endif
@@ -170,8 +169,8 @@ void trace_main()
             pw[q] = w;
             if (w > 0.0) live |= hs_bit(q);
         }
-        uvec2 occ = hs_trace_packet(o, cnt, live);
-        for (int j = 0; j < cnt; ++j) {
+        uvec2 occ = hs_trace_packet(o, slots, live);
+        for (int j = 0; j < slots; ++j) {
             if (hs_has(live, j)) {
                 sw += pw[j];
 #ifdef HS_HAS_ALPHA
