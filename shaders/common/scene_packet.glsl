@@ -172,7 +172,9 @@ uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2, int ti)
     // HS_TFLOOR x the vertices' reach, here in bake space, L^-1 A)
     float fl = HS_TFLOOR * max(max(hs_amax(hs_pk_back(A)), hs_amax(hs_pk_back(B))), hs_amax(hs_pk_back(C)));
     uvec2 hit = uvec2(0u);
-    // (only the span of rays still needed: the lowest to the highest bit of need)
+    // (only the span of rays still needed, the lowest to the highest bit of need: raytrace.glsl
+    // orders a packet's rays in bands across the light, so once a caster's edge has blocked
+    // the rays of one side the span is shorter; forest's sun 8 % less time)
     int klo = need.x != 0u ? findLSB(need.x) : 32 + findLSB(need.y);
     int nk = hs_none(need) ? 0 : (need.y != 0u ? 33 + findMSB(need.y) : 1 + findMSB(need.x));
     for (int k4 = klo & ~3; k4 < nk; k4 += 4) {   // (4 rays an iteration: llvmpipe's loop budget, above)
