@@ -231,3 +231,21 @@ def test_pyramid_bounds_only_where_the_cone_is_loose():
     assert not pyramid_bounds(area("DISK", 1.0, 0.0))
     assert not pyramid_bounds(soft_shape(Light("s", "SUN", angle=0.1)))
     assert not pyramid_bounds(soft_shape(Light("p", "POINT", radius=0.3)))
+
+
+def test_chunk_draws_end_on_aligned_blocks():
+    """A refinement of more rays than one draw takes (CHUNK_RAYS) is cut where the sequence
+    reaches a multiple of 64, as the shader cuts its packets: 128 samples after the 2 probes
+    take draws of 62 and 64 (not 64 and 62, whose first would walk the scene twice)."""
+    from hybrid_shadow_addon.core.gpu.passes.raytrace import CHUNK_RAYS, chunk_spans
+
+    step = CHUNK_RAYS["packets"]
+    assert step == 64
+    assert chunk_spans(0, 2, 128, step) == [(2, 62), (64, 64)]
+    assert chunk_spans(0, 2, 256, step) == [(2, 62), (64, 64), (128, 64), (192, 64)]
+    assert chunk_spans(16, 0, 4, step) == [(0, 4)]                 # a viewport frame
+    assert chunk_spans(60, 0, 8, step) == [(0, 4), (4, 4)]         # one across a border
+    assert chunk_spans(0, 2, 100, step) == [(2, 62), (64, 36)]
+    spans = chunk_spans(5, 3, 200, 28)                             # ray by ray
+    assert sum(n for _, n in spans) == 197 and all(n <= 28 for _, n in spans)
+    assert all((5 + s + n) % 28 == 0 for s, n in spans[:-1])

@@ -72,6 +72,19 @@ def first_frame_lead(frame_samples: int) -> int:
     return int(frame_samples) if 2 * int(frame_samples) > SOFT_PROBES else 0
 
 
+def chunk_spans(base: int, first: int, total: int, step: int) -> list:
+    """``(start, count)`` of the draws that trace samples [first, total) after ``base``, at most
+    ``step`` (CHUNK_RAYS) each, ending on multiples of ``step`` of the sequence (base + start):
+    a packet never spans two aligned blocks of 64 samples (``shaders/raytrace.glsl``), so a
+    draw across such a border would walk the scene once more."""
+    spans, start = [], int(first)
+    while start < total:
+        n = min(step - (base + start) % step, total - start)
+        spans.append((start, n))
+        start += n
+    return spans
+
+
 def pyramid_bounds(soft: dict) -> bool:
     """Whether a soft light's packets are bounded by the pyramid over its rectangle as well as
     by their cone (``HS_PACKET_PLANES``, ``shaders/common/scene_packet.glsl``): rectangles, and
@@ -273,8 +286,7 @@ class RaytracePass(ShadowPass):
         base = self.sample_base
         step = self._chunk(self._packet_defines(accum_defines, total - first))
         try:
-            for start in range(first, total, step):
-                n = min(step, total - start)
+            for start, n in chunk_spans(base, first, total, step):
                 self.sample_base = base + start
                 defs = {**accum_defines, **self._soft_defines(accum_defines, n)}
                 yield self._program(defs, light, light_vec, gbuffer, settings.replace(samples=n), 1, cmap)[1]
