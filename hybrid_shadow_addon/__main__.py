@@ -272,7 +272,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="raytrace: acceleration structure, hierarchical grid or two-level BVH (default: Settings')")
     pr.add_argument("--samples", type=int, default=None, metavar="N",
                     help="raytrace: shadow rays per pixel towards a light with a size (soft shadows; "
-                    "default: Settings'); pixels away from any penumbra take 2")
+                    "default: Settings'); pixels away from any penumbra take 1")
     pr.add_argument("--hard", action="store_true",
                     help="every light hard: one ray to its centre, sizes ignored (as compare's references)")
     pr.set_defaults(func=cmd_render)

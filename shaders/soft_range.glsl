@@ -1,11 +1,11 @@
 // The smallest and largest value of a soft mask over the 5x5 texels around each one (the
-// probe pass's sums, SUMS and CLASSIFY: 7x7, HS_PROBE_RADIUS; the G-buffer's covered texels
-// only; borders clamped), in two 1D passes of 5 (7) texels: FIRST along x
+// probe pass's sums, SUMS and CLASSIFY: 9x9, HS_PROBE_RADIUS; the G-buffer's covered texels
+// only; borders clamped), in two 1D passes of 5 (9) texels: FIRST along x
 // from the mask (R; with SUMS the probe pass's sums, RG), then along y from FIRST's ranges (RG). Output (min, max); (big, -big)
 // where no covered texel is in reach.
 //
 // raytrace.glsl (HS_SOFT_REFINE) reads the probe mask's ranges: a pixel whose probes and every
-// covered probe within 3 pixels saw all or none of the light alike (min = max = its own value,
+// covered probe within HS_PROBE_RADIUS pixels saw all or none of the light alike (min = max = its own value,
 // 0 or 1) keeps its probe answer; soft_accumulate.glsl (DENOISE) reads the refined mask's
 // ranges the same way to leave umbrae and lit areas alone. Both once looped over the 25 texels
 // themselves (50 fetches per pixel on a software rasteriser, where fetches dominate); these

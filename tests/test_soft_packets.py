@@ -235,13 +235,13 @@ def test_pyramid_bounds_only_where_the_cone_is_loose():
 
 def test_chunk_draws_end_on_aligned_blocks():
     """A refinement of more rays than one draw takes (CHUNK_RAYS) is cut where the sequence
-    reaches a multiple of 64, as the shader cuts its packets: 128 samples after the 2 probes
-    take draws of 62 and 64 (not 64 and 62, whose first would walk the scene twice)."""
-    from hybrid_shadow_addon.core.gpu.passes.raytrace import CHUNK_RAYS, chunk_spans
+    reaches a multiple of 64, as the shader cuts its packets: 128 samples after the probe take
+    draws of 63 and 64 (not 64 and 63, whose first would walk the scene twice)."""
+    from hybrid_shadow_addon.core.gpu.passes.raytrace import CHUNK_RAYS, SOFT_PROBES, chunk_spans
 
     step = CHUNK_RAYS["packets"]
-    assert step == 64
-    assert chunk_spans(0, 2, 128, step) == [(2, 62), (64, 64)]
+    assert step == 64 and SOFT_PROBES == 1
+    assert chunk_spans(0, SOFT_PROBES, 128, step) == [(1, 63), (64, 64)]
     assert chunk_spans(0, 2, 256, step) == [(2, 62), (64, 64), (128, 64), (192, 64)]
     assert chunk_spans(16, 0, 4, step) == [(0, 4)]                 # a viewport frame
     assert chunk_spans(60, 0, 8, step) == [(0, 4), (4, 4)]         # one across a border

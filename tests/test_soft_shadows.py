@@ -252,8 +252,9 @@ def test_viewport_sums_do_not_depend_on_how_frames_split_the_samples(pipeline):
     ``soft_lights``' spot was 0.0084-0.0088 off Cycles on average, the final render 0.0015.)
     Both first frames probe every pixel and give the penumbrae twice a frame's samples; pixels
     outside them keep their probes and add the later frames' samples, which differ between the
-    two runs: those may differ (rarely: their samples all agree with their probes' as a rule; 13
-    of the 1992 penumbra pixels of the second light here, by at most 0.07)."""
+    two runs: those may differ (rarely: their samples all agree with their probes' as a rule; with
+    one probe per pixel 12 of the 1991 penumbra pixels of the second light here and 30 of its
+    13723 pixels, by at most 0.06)."""
     spot = Light("spot", "SPOT", power=800.0, matrix=trs((0.8, -0.8, 3.0), rot_x=0.15), radius=0.35,
                  spot_size=np.radians(50.0), spot_blend=0.2)
     sc = soft_scene([spot, LIGHTS[3]])
@@ -275,7 +276,7 @@ def test_viewport_sums_do_not_depend_on_how_frames_split_the_samples(pipeline):
         pen = (a[ok] > 0.02) & (a[ok] < 0.98)
         assert pen.sum() > 300, "the test should see a penumbra"
         same = np.abs(a[ok] - b[ok]) <= 2e-5
-        assert same[pen].mean() > 0.99 and same.mean() > 0.998, (same[pen].mean(), same.mean())
+        assert same[pen].mean() > 0.99 and same.mean() > 0.997, (same[pen].mean(), same.mean())
     pipeline.reset_history()
 
 

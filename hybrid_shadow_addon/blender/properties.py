@@ -139,7 +139,7 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
                                                "is hard, one ray to its centre")
     samples: IntProperty(name="Shadow Samples", default=64, min=1, max=4096, soft_max=256,
                          description="Final render: shadow rays per pixel towards each light with a size "
-                                     "(pixels away from any penumbra take 2)")
+                                     "(pixels away from any penumbra take 1)")
     viewport_samples: IntProperty(name="Viewport Samples", default=64, min=1, max=4096, soft_max=256,
                                   description="Viewport: shadow rays per pixel a still view accumulates towards each "
                                               "light with a size, a few per redraw (the first redraws filtered)")

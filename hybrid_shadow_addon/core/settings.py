@@ -47,8 +47,8 @@ class Settings:
       re-bakes the scene.
     - ``samples``: shadow rays per pixel towards a light with a size (a sun's angle, a point or
       spot light's radius, an area light), well spread over it: the mask is the share of the
-      light the pixel sees (soft shadows). A probe pass traces 2 of them per pixel first; only
-      pixels within 3 pixels of a probe that saw part of the light (penumbrae) trace them all.
+      light the pixel sees (soft shadows). A probe pass traces 1 of them per pixel first; only
+      pixels within 4 pixels of a probe that saw part of the light (penumbrae) trace them all.
     - ``hard``: every light hard (one ray to its centre, sizes ignored), as the hard Cycles
       references of ``compare`` are rendered.
     - ``accumulate`` (the viewport, ``raytrace`` at ``high``): each frame traces

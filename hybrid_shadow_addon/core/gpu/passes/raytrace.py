@@ -20,8 +20,8 @@ receivers nearer the light than every caster in their map column are lit without
 others trace only up to the first possible caster depth (exact: the masks do not change).
 
 Lights with a size (``lights.soft_shape``, unless ``Settings.hard``) compile ``HS_SOFT``: at
-``high`` a probe pass traces 2 rays per pixel, the second probe-range pass
-(``shaders/soft_range.glsl`` CLASSIFY) writes the probe answer where every probe within 3
+``high`` a probe pass traces 1 ray per pixel, the second probe-range pass
+(``shaders/soft_range.glsl`` CLASSIFY) writes the probe answer where every probe within 4
 pixels saw all or none of the light and marks the other pixels in the depth buffer, the trace
 then gives those alone (early depth test) the rest of their ``samples`` rays, and a
 penumbra-only filter (``shaders/soft_accumulate.glsl``, narrowing as the samples add up)
@@ -53,7 +53,7 @@ from .conservative import ConservativeMaps
 from .refine import Refiner
 
 
-SOFT_PROBES = 2  # HS_PROBES of shaders/common/soft_probe.glsl
+SOFT_PROBES = 1  # HS_PROBES of shaders/common/soft_probe.glsl
 PACKET_MIN_RAYS = 8  # a soft pass traces its rays as packets from this many rays per pixel on
 #: The most rays per pixel one draw traces, ray by ray or as one packet walk: llvmpipe stops every
 #: loop of a shader invocation once all of them together have run 65535 iterations, which a
@@ -466,8 +466,8 @@ class RaytracePass(ShadowPass):
 
     def _range(self, key, tex, gbuffer, sums: bool = False, classify=None):
         """(min, max) of mask ``tex`` (``sums``: of the probe pass's sums) over the covered
-        texels within 2 pixels of each (probe sums: 3; ``shaders/soft_range.glsl``: two 1D passes): an RG32F
-        texture. ``classify`` = (target, probe sums, accumulating): the second pass writes the
+        texels within 2 pixels of each (probe sums: HS_PROBE_RADIUS, 4; ``shaders/soft_range.glsl``:
+        two 1D passes): an RG32F texture. ``classify`` = (target, probe sums, accumulating): the second pass writes the
         probe answers that stand into the target instead and marks the other pixels for
         :meth:`Refiner.draw_marked` (returns None)."""
         w, h = gbuffer.size
