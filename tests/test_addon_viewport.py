@@ -191,10 +191,10 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
         r["refine_interlace"] = {"stats": run(eng, 7), "redraws": eng.redraws}
         vpe.free(eng)
         scene.hybrid_shadows.use_interlace = False
-        # soft lights: after the fast pass, the first redraw gives the penumbrae 8 samples, the
-        # next ones add 4 each until 12 are reached
+        # soft lights: after the fast pass, the first redraw gives the penumbrae 16 samples, the
+        # next ones add 4 each until 20 are reached
         scene.hybrid_shadows.use_soft_shadows = True
-        scene.hybrid_shadows.viewport_samples, scene.hybrid_shadows.viewport_frame_samples = 12, 4
+        scene.hybrid_shadows.viewport_samples, scene.hybrid_shadows.viewport_frame_samples = 20, 4
         eng = stand()
         r["refine_soft"] = {"stats": run(eng, 5), "redraws": eng.redraws}
         vpe.free(eng)
@@ -375,8 +375,8 @@ def test_refine_after_fast_pass(report):
     assert len(rendered) == 5 and inter["redraws"] == 4 and inter["stats"][5] is None
     soft = report["refine_soft"]
     assert "Ray traced low" in soft["stats"][0]
-    assert "8/12 soft samples" in soft["stats"][1] and "refining" in soft["stats"][1]
-    assert "12/12 soft samples" in soft["stats"][2] and "refining" not in soft["stats"][2]
+    assert "16/20 soft samples" in soft["stats"][1] and "refining" in soft["stats"][1]
+    assert "20/20 soft samples" in soft["stats"][2] and "refining" not in soft["stats"][2]
     assert soft["stats"][3] is None and soft["redraws"] == 2
 
 

@@ -100,13 +100,13 @@ def test_viewport_accumulation_converges_and_first_frame_is_close(pipeline, orac
     pipeline.set_scene(sc, "bvh")
     s = Settings(mode="raytrace", quality="high", accumulate=True, frame_samples=4, samples=64)
     first = pipeline.render(sc, s)
-    assert first.stats["accumulated_samples"] == 8  # (probes everywhere, 8 samples in the penumbrae)
+    assert first.stats["accumulated_samples"] == 16  # (probes everywhere, 16 samples in the penumbrae)
     e1 = [e.mean() for e in errors(first, ref)]
     assert max(e1) < 0.02, e1  # filtered: already smooth and plausible
     last, frames = first, 1
     while last.stats["accumulated_samples"] < 64:  # (the frame that traces the last samples)
         last, frames = pipeline.render(sc, s), frames + 1
-    assert last.stats["accumulated_samples"] == 64 and frames == 15  # 8, then 4 per frame
+    assert last.stats["accumulated_samples"] == 64 and frames == 13  # 16, then 4 per frame
     e16 = [e.mean() for e in errors(last, ref)]
     assert max(e16) < 0.006 and np.mean(e16) < np.mean(e1)
     t0 = last.timings["shadow_ms"]
@@ -126,7 +126,7 @@ def test_no_ghost_after_a_move(pipeline):
     rep = sync_scene(pipeline, a, b, structure="bvh")
     assert 1 in rep.moved
     after = pipeline.render(b, s)
-    assert after.stats["accumulated_samples"] == 8  # started afresh
+    assert after.stats["accumulated_samples"] == 16  # started afresh
     c = soft_scene()
     c.instances.set_matrices([1], trs((-1.2, 0.8, 1.0))[None])
     pipeline.set_scene(c, "bvh")
@@ -250,11 +250,11 @@ def test_viewport_sums_do_not_depend_on_how_frames_split_the_samples(pipeline):
     points barely reach the pixel carries little weight. (Averaging each frame's share instead,
     as the viewport once did, counted such a frame as much as the others: after 8 still frames
     ``soft_lights``' spot was 0.0084-0.0088 off Cycles on average, the final render 0.0015.)
-    Both first frames probe every pixel and give the penumbrae twice a frame's samples; pixels
-    outside them keep their probes and add the later frames' samples, which differ between the
-    two runs: those may differ (rarely: their samples all agree with their probes' as a rule; with
-    one probe per pixel 12 of the 1991 penumbra pixels of the second light here and 30 of its
-    13723 pixels, by at most 0.06)."""
+    Both first frames probe every pixel and give the penumbrae four times a frame's samples (at
+    most the 32); pixels outside them keep their probes and add the later frames' samples, which
+    differ between the two runs: those may differ (rarely: their samples all agree with their
+    probes' as a rule; with one probe per pixel 14 of the 1993 penumbra pixels of the second
+    light here and 30 of its 13723 pixels, by at most 0.06)."""
     spot = Light("spot", "SPOT", power=800.0, matrix=trs((0.8, -0.8, 3.0), rot_x=0.15), radius=0.35,
                  spot_size=np.radians(50.0), spot_blend=0.2)
     sc = soft_scene([spot, LIGHTS[3]])
@@ -267,7 +267,7 @@ def test_viewport_sums_do_not_depend_on_how_frames_split_the_samples(pipeline):
         while not counts or counts[-1] < 32:
             f = pipeline.render(sc, s)
             counts.append(f.stats["accumulated_samples"])
-        assert counts == ([8, 12, 16, 20, 24, 28, 32] if fs == 4 else [32])
+        assert counts == ([16, 20, 24, 28, 32] if fs == 4 else [32])
         masks[fs] = [f.mask_array(li) for li in range(2)]
     for li in range(2):
         a, b = masks[4][li], masks[16][li]

@@ -97,8 +97,8 @@ def test_refinement_runs_in_the_worker(worker, direct, base):
 
 
 def test_soft_shadows_accumulate_until_the_samples(worker, base):
-    # (the first full frame gives the penumbrae 8 samples, the next one adds 4)
-    soft_full = Settings(mode="raytrace", quality="high", hard=False, accumulate=True, samples=12, frame_samples=4)
+    # (the first full frame gives the penumbrae 16 samples, the next one adds 4)
+    soft_full = Settings(mode="raytrace", quality="high", hard=False, accumulate=True, samples=20, frame_samples=4)
     soft_fast = Settings(mode="raytrace", quality="low", hard=False, accumulate=True, samples=4, frame_samples=4)
     worker.set_scene(base)
     n = len(worker.log)
@@ -106,7 +106,7 @@ def test_soft_shadows_accumulate_until_the_samples(worker, base):
     last = finish(worker, "s")
     steps = [(s, left) for v, sq, s, q, left in worker.log[n:] if v == "s" and sq == seq]
     assert steps == [(0, 1), (1, 1), (2, 0)]
-    assert last.stats["accumulated_samples"] == 12
+    assert last.stats["accumulated_samples"] == 20
 
 
 def test_requests_for_a_view_coalesce(worker, base):

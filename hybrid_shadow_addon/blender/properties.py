@@ -145,7 +145,7 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
                                               "light with a size, a few per redraw (the first redraws filtered)")
     viewport_frame_samples: IntProperty(name="Samples per Redraw", default=4, min=1, max=64,
                                         description="Viewport: shadow rays per pixel and soft light each redraw adds "
-                                                    "(the first redraw after a change: twice as many in the penumbrae)")
+                                                    "(the first redraw after a change: four times as many in the penumbrae)")
     use_specular: BoolProperty(name="Specular", default=True,
                                description="Add the specular lobe of the materials to the lighting",
                                update=_tag_viewport)

@@ -54,7 +54,7 @@ class Settings:
     - ``accumulate`` (the viewport, ``raytrace`` at ``high``): each frame traces
       ``frame_samples`` rays per pixel towards each soft light and adds their sums to those of
       the frames before, until ``samples`` are reached; the first frame after a change probes
-      every pixel as a final render does and gives the penumbrae twice ``frame_samples``. The
+      every pixel as a final render does and gives the penumbrae four times ``frame_samples``. The
       mask is filtered within its penumbrae, the more the fewer its samples. Any change
       (``Pipeline.reset_history``) starts afresh.
     """

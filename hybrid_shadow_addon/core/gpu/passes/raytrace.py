@@ -66,10 +66,13 @@ PLANES_MIN_ASPECT = 1.5  # ellipse lights this elongated bound their packets by 
 def first_frame_lead(frame_samples: int) -> int:
     """Samples the viewport's first frame after a change traces beyond ``frame_samples`` in the
     penumbrae: it probes every pixel as a final render does and gives the pixels near a probe
-    that saw part of the light twice the samples of a later frame (pixels elsewhere keep their
-    probes' answer, and add the later frames' samples to it). 0 where a frame traces no more
+    that saw part of the light four times the samples of a later frame (pixels elsewhere keep
+    their probes' answer, and add the later frames' samples to it). At the default 4 that is 16:
+    enough for a pixel's rays to walk the scene as one packet (at 8 they went one by one, and
+    the frame cost more), and enough to bring `forest`'s dawn sun within 0.02 of Cycles on the
+    first frame (BENCHMARKS.md "The viewport's first frame"). 0 where a frame traces no more
     samples than the probes."""
-    return int(frame_samples) if 2 * int(frame_samples) > SOFT_PROBES else 0
+    return 3 * int(frame_samples) if 2 * int(frame_samples) > SOFT_PROBES else 0
 
 
 def chunk_spans(base: int, first: int, total: int, step: int) -> list:
@@ -435,8 +438,9 @@ class RaytracePass(ShadowPass):
             self.sample_base = done
             accum = {**defines, "HS_SOFT_ACCUM": 1}
             new = self._target((li, "new"), *full, components=2)
-            if n == 0 and lead:  # probes everywhere, fs + lead samples in the penumbrae
-                self._probe_and_refine(li, light, light_vec, accum, gbuffer, settings.replace(samples=fs + lead),
+            if n == 0 and lead:  # probes everywhere, fs + lead samples in the penumbrae (at most samples)
+                first = settings.replace(samples=min(fs + lead, int(settings.samples)))
+                self._probe_and_refine(li, light, light_vec, accum, gbuffer, first,
                                        cmap, new)
             else:  # fs samples, in draws of at most CHUNK_RAYS whose sums add up
                 for j, vao in enumerate(self._chunk_draws(accum, light, light_vec, gbuffer, settings, cmap, 0, fs)):
