@@ -346,12 +346,15 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
 #ifdef HS_PACKET_PLANES
                     // a plane n.(x - o) >= 0 in bake space is (L^-T n).(m - m_o) >= 0 in model
                     // space (L^-T n: the products with the columns of L^-1), and the same in the
-                    // model's quantised space (scaled by a positive factor and moved); none
-                    // (zero normals) under a strong shear, whose inverse is too inexact
-                    c.p0 = narrow ? vec3(dot(hs_pk_i0, hs_pk_pyr[0]), dot(hs_pk_i1, hs_pk_pyr[0]), dot(hs_pk_i2, hs_pk_pyr[0])) : vec3(0.0);
-                    c.p1 = narrow ? vec3(dot(hs_pk_i0, hs_pk_pyr[1]), dot(hs_pk_i1, hs_pk_pyr[1]), dot(hs_pk_i2, hs_pk_pyr[1])) : vec3(0.0);
-                    c.p2 = narrow ? vec3(dot(hs_pk_i0, hs_pk_pyr[2]), dot(hs_pk_i1, hs_pk_pyr[2]), dot(hs_pk_i2, hs_pk_pyr[2])) : vec3(0.0);
-                    c.p3 = narrow ? vec3(dot(hs_pk_i0, hs_pk_pyr[3]), dot(hs_pk_i1, hs_pk_pyr[3]), dot(hs_pk_i2, hs_pk_pyr[3])) : vec3(0.0);
+                    // model's quantised space (scaled by a positive factor and moved). Also
+                    // where the cone is lost to a strong shear (not narrow), as long as L^-1 is
+                    // exact enough for the planes' margin (kappa < 100); beyond, none (zero
+                    // normals)
+                    bool planes = kap2 < 1.0e4;
+                    c.p0 = planes ? vec3(dot(hs_pk_i0, hs_pk_pyr[0]), dot(hs_pk_i1, hs_pk_pyr[0]), dot(hs_pk_i2, hs_pk_pyr[0])) : vec3(0.0);
+                    c.p1 = planes ? vec3(dot(hs_pk_i0, hs_pk_pyr[1]), dot(hs_pk_i1, hs_pk_pyr[1]), dot(hs_pk_i2, hs_pk_pyr[1])) : vec3(0.0);
+                    c.p2 = planes ? vec3(dot(hs_pk_i0, hs_pk_pyr[2]), dot(hs_pk_i1, hs_pk_pyr[2]), dot(hs_pk_i2, hs_pk_pyr[2])) : vec3(0.0);
+                    c.p3 = planes ? vec3(dot(hs_pk_i0, hs_pk_pyr[3]), dot(hs_pk_i1, hs_pk_pyr[3]), dot(hs_pk_i2, hs_pk_pyr[3])) : vec3(0.0);
 #endif
                     ret = i + 1;
                     next = int(u3.x);
