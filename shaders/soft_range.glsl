@@ -5,8 +5,8 @@
 // where no covered texel is in reach.
 //
 // raytrace.glsl (HS_SOFT_REFINE) reads the probe mask's ranges: a pixel whose probes and every
-// covered probe within HS_PROBE_RADIUS pixels saw all or none of the light alike (min = max = its own value,
-// 0 or 1) keeps its probe answer; soft_accumulate.glsl (DENOISE) reads the refined mask's
+// covered probe within HS_PROBE_RADIUS pixels saw all or none of the light alike (min = max =
+// its own value, 0 or 1) keeps its probe answer; soft_accumulate.glsl (DENOISE) reads the refined mask's
 // ranges the same way to leave umbrae and lit areas alone. Both once looped over the 25 texels
 // themselves (50 fetches per pixel on a software rasteriser, where fetches dominate); these
 // two passes take 15.

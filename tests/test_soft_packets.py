@@ -28,11 +28,8 @@ def extended(scene, area: bool = False):
         if light.type == "SUN":
             light.angle = np.radians(3.0)
         elif light.type == "POINT" and area:
-            c, s = np.cos(0.5), np.sin(0.5)
-            tilt = np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]) @ \
-                np.array([[1, 0, 0, 0], [0, 0.9, -0.44, 0], [0, 0.44, 0.9, 0], [0, 0, 0, 1]])
-            m = tilt.copy()
-            m[:3, 3] = light.position
+            from tests.test_gpu_scenes import trs
+            m = trs(light.position, rot_z=0.5, rot_x=0.45)
             light.type, light.area_shape, light.size, light.size_y, light.matrix = "AREA", "RECTANGLE", 2.0, 0.7, m
         elif light.type in ("POINT", "SPOT"):
             light.radius = 0.25
@@ -163,8 +160,8 @@ def test_no_pixel_spends_llvmpipe_loop_budget(pipe, packets, samples):
 def pegs_scene():
     """A board of 10 x 10 small cubes (one model, a tree several levels deep) placed twice with
     strongly non-uniform, sheared and mirrored transforms over a ground plane, under a tilted
-    1.2 x 0.4 m rectangle area light and a 1 x 0.5 m ellipse light, whose packets are bounded by the
-    planes of the pyramid over the light, carried into each instance's model space."""
+    1.2 x 0.4 m rectangle area light and a 1 x 0.5 m ellipse light, whose packets are bounded by
+    the planes of the pyramid over the light, carried into each instance's model space."""
     from hybrid_shadow_addon.core.scene import Camera, Instances, Light, Model, Scene
     from tests.test_gpu_scenes import cube_model, look_at, plane_model, trs
 
@@ -193,9 +190,9 @@ def pegs_scene():
 
 
 def test_packet_pyramid_planes_in_odd_model_spaces(pipe):
-    """Rectangle and elongated ellipse lights bound a packet by the four planes of the pyramid over the light
-    as well as by its cone; under sheared, squashed and mirrored instances the masks equal the
-    ray-by-ray ones (one plane turned the wrong way: 842 of the rectangle light's pixels differ)."""
+    """Rectangle and elongated ellipse lights bound a packet by the four planes of the pyramid
+    over the light as well as by its cone; under sheared, squashed and mirrored instances the masks equal the
+    ray-by-ray ones (one plane turned the wrong way: 846 of the rectangle light's pixels differ)."""
     scene = pegs_scene()
     f1, a = masks(pipe, scene, packets=True)
     f0, b = masks(pipe, scene, packets=False)

@@ -29,10 +29,10 @@
  *
  * A rectangle or elongated ellipse light (HS_PACKET_PLANES, raytrace.py's pyramid_bounds)
  * bounds its rays tighter still: every ray lies inside the pyramid from the origin over the
- * light's rectangle, so a node wholly outside one of its four planes is skipped as well (the planes go into each instance's model space as
- * L^-T n). A cone around a rectangle sweeps a circle about it, twice the rectangle's area at
- * 2:1: clusters' 6 x 3 m light walks 41 % less time (BENCHMARKS.md "The pyramid over an area
- * light").
+ * light's rectangle, so a node wholly outside one of its four planes is skipped as well (the
+ * planes go into each instance's model space as L^-T n). A cone around a rectangle sweeps a
+ * circle about it, twice the rectangle's area at 2:1: clusters' 6 x 3 m light walks 41 % less
+ * time (BENCHMARKS.md "The pyramid over an area light").
  *
  * Inputs: hs_pk_d[k], hs_pk_t[k] (the rays o + t d, t in (0, tmax), as hs_occluded takes them),
  * k < cnt, live: bit k set for the rays to trace. Result: bit k set where ray k is blocked;
@@ -78,9 +78,8 @@ struct HsCone {
 vec3 hs_pk_pyr[4];
 void hs_pk_set_pyramid(vec3 o, vec3 c, vec3 u, vec3 v)
 {
-    vec3 q0 = c - 1.001 * u - 1.001 * v - o, q1 = c + 1.001 * u - 1.001 * v - o;
-    vec3 q2 = c + 1.001 * u + 1.001 * v - o, q3 = c - 1.001 * u + 1.001 * v - o;
-    vec3 m = c - o;
+    vec3 m = c - o, uw = 1.001 * u, vw = 1.001 * v;
+    vec3 q0 = m - uw - vw, q1 = m + uw - vw, q2 = m + uw + vw, q3 = m - uw + vw;
     vec3 n0 = cross(q0, q1), n1 = cross(q1, q2), n2 = cross(q2, q3), n3 = cross(q3, q0);
     hs_pk_pyr[0] = dot(n0, m) < 0.0 ? -n0 : n0;
     hs_pk_pyr[1] = dot(n1, m) < 0.0 ? -n1 : n1;
@@ -131,6 +130,8 @@ vec3 hs_pk_ax;
 float hs_pk_sin, hs_pk_len;
 
 vec3 hs_pk_back(vec3 a) { return (a.x * hs_pk_i0 + a.y * hs_pk_i1) + a.z * hs_pk_i2; }
+// L^-T n: a bake-space plane normal in model space (the products with the columns of L^-1)
+vec3 hs_pk_normal(vec3 n) { return vec3(dot(hs_pk_i0, n), dot(hs_pk_i1, n), dot(hs_pk_i2, n)); }
 
 float hs_amax(vec3 v) { vec3 a = abs(v); return max(max(a.x, a.y), a.z); }
 
@@ -345,16 +346,15 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
                     c.e = e;
 #ifdef HS_PACKET_PLANES
                     // a plane n.(x - o) >= 0 in bake space is (L^-T n).(m - m_o) >= 0 in model
-                    // space (L^-T n: the products with the columns of L^-1), and the same in the
-                    // model's quantised space (scaled by a positive factor and moved). Also
-                    // where the cone is lost to a strong shear (not narrow), as long as L^-1 is
-                    // exact enough for the planes' margin (kappa < 100); beyond, none (zero
-                    // normals)
+                    // space (hs_pk_normal), and the same in the model's quantised space (scaled
+                    // by a positive factor and moved). Also where the cone is lost to a strong
+                    // shear (not narrow), as long as L^-1 is exact enough for the planes'
+                    // margin (kappa < 100); beyond, none (zero normals)
                     bool planes = kap2 < 1.0e4;
-                    c.p0 = planes ? vec3(dot(hs_pk_i0, hs_pk_pyr[0]), dot(hs_pk_i1, hs_pk_pyr[0]), dot(hs_pk_i2, hs_pk_pyr[0])) : vec3(0.0);
-                    c.p1 = planes ? vec3(dot(hs_pk_i0, hs_pk_pyr[1]), dot(hs_pk_i1, hs_pk_pyr[1]), dot(hs_pk_i2, hs_pk_pyr[1])) : vec3(0.0);
-                    c.p2 = planes ? vec3(dot(hs_pk_i0, hs_pk_pyr[2]), dot(hs_pk_i1, hs_pk_pyr[2]), dot(hs_pk_i2, hs_pk_pyr[2])) : vec3(0.0);
-                    c.p3 = planes ? vec3(dot(hs_pk_i0, hs_pk_pyr[3]), dot(hs_pk_i1, hs_pk_pyr[3]), dot(hs_pk_i2, hs_pk_pyr[3])) : vec3(0.0);
+                    c.p0 = planes ? hs_pk_normal(hs_pk_pyr[0]) : vec3(0.0);
+                    c.p1 = planes ? hs_pk_normal(hs_pk_pyr[1]) : vec3(0.0);
+                    c.p2 = planes ? hs_pk_normal(hs_pk_pyr[2]) : vec3(0.0);
+                    c.p3 = planes ? hs_pk_normal(hs_pk_pyr[3]) : vec3(0.0);
 #endif
                     ret = i + 1;
                     next = int(u3.x);

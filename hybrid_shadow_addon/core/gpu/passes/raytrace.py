@@ -471,9 +471,9 @@ class RaytracePass(ShadowPass):
     def _range(self, key, tex, gbuffer, sums: bool = False, classify=None):
         """(min, max) of mask ``tex`` (``sums``: of the probe pass's sums) over the covered
         texels within 2 pixels of each (probe sums: HS_PROBE_RADIUS, 4; ``shaders/soft_range.glsl``:
-        two 1D passes): an RG32F texture. ``classify`` = (target, probe sums, accumulating): the second pass writes the
-        probe answers that stand into the target instead and marks the other pixels for
-        :meth:`Refiner.draw_marked` (returns None)."""
+        two 1D passes): an RG32F texture. ``classify`` = (target, probe sums, accumulating): the
+        second pass writes the probe answers that stand into the target instead and marks the
+        other pixels for :meth:`Refiner.draw_marked` (returns None)."""
         w, h = gbuffer.size
         src = tex
         for first, step in ((True, (1, 0)), (False, (0, 1))):
