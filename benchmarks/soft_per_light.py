@@ -28,8 +28,10 @@ from hybrid_shadow_addon.tools.metrics import mask_error  # noqa: E402
 
 
 def reference(spec: str, size, samples: int, cache: Path) -> dict:
-    """{light name: visibility (H, W), NaN where invalid} from the cache, or rendered into it."""
-    path = cache / f"{spec.replace('/', '_').replace(':', '_')}_{size[0]}x{size[1]}_{samples}.npz"
+    """{light name: visibility (H, W), NaN where invalid} from the cache, or rendered into it (the
+    file name carries the reference recipe's version: a new recipe renders again)."""
+    from hybrid_shadow_addon.blender.cycles_reference import RECIPE_VERSION
+    path = cache / f"{spec.replace('/', '_').replace(':', '_')}_{size[0]}x{size[1]}_{samples}_r{RECIPE_VERSION}.npz"
     if path.exists():
         return dict(np.load(path))
     import bpy  # noqa: F401  (load_scene left the Blender scene open)

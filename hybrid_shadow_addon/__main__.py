@@ -188,7 +188,8 @@ def cmd_compare(args) -> int:
         scene = current_scene(resolution=args.resolution)
     progress = _progress(args, "compare")
     with blender_output_to_stderr():
-        m = run_compare(scene, args.output_dir, reference=CyclesReferenceProvider(bscene, hard=not args.soft),
+        m = run_compare(scene, args.output_dir, reference=CyclesReferenceProvider(bscene, hard=not args.soft,
+                                                                           mesh_spheres=args.mesh_spheres),
                         resolution=args.resolution, variants=variants, repeats=args.repeats, warmup=args.warmup,
                         samples=args.samples, cache_dir=args.cache_dir, use_cache=not args.no_cache,
                         progress=progress, scene_label=args.scene, soft=args.soft,
@@ -304,6 +305,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "the %% of pixels lit in one and shadowed in the other)")
     pc.add_argument("--shadow-samples", type=int, default=None, metavar="N",
                     help="with --soft: our shadow rays per pixel towards a light with a size (default: Settings')")
+    pc.add_argument("--mesh-spheres", action="store_true",
+                    help="Cycles renders objects flagged as sphere primitives as their meshes (default: as the "
+                    "sphere we trace, so the error is the shadows', not the flag's stand-in)")
     pc.add_argument("--cache-dir", default=None, help="Cycles reference cache (default: "
                     "$XDG_CACHE_HOME/hybrid_shadows/cycles)")
     pc.add_argument("--no-cache", action="store_true", help="always render the Cycles reference, store nothing")

@@ -81,6 +81,10 @@ class RENDER_OT_hybrid_shadows_compare(bpy.types.Operator):
                                    description="Timed frames per variant (median)")
     resolution_percentage: bpy.props.IntProperty(name="Resolution %", default=50, min=1, max=100, subtype="PERCENTAGE",
                                                  description="Of the scene's render resolution")
+    mesh_spheres: bpy.props.BoolProperty(name="Spheres as Meshes", default=False,
+                                         description="Cycles renders objects marked Sphere Primitive as their "
+                                         "meshes (default: as the sphere the add-on traces, so that the error "
+                                         "measures the shadows)")
     open_report: bpy.props.BoolProperty(name="Open Report", default=True)
 
     _timer = None
@@ -113,7 +117,7 @@ class RENDER_OT_hybrid_shadows_compare(bpy.types.Operator):
         self._pipeline = create_pipeline()
         pipe = self._pipeline
         self._result = {}
-        self._steps = compare_steps(core_scene, self.output, reference=CyclesReferenceProvider(scene),
+        self._steps = compare_steps(core_scene, self.output, reference=CyclesReferenceProvider(scene, mesh_spheres=self.mesh_spheres),
                                     resolution=resolution, variants=variants, repeats=self.repeats, pipeline=pipe,
                                     gl_scope=lambda: gl_scope(pipe),
                                     scene_label=f"{scene.name} (frame {scene.frame_current})", result=self._result)

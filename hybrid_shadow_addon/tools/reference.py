@@ -25,7 +25,8 @@ class ReferenceProvider(Protocol):
     - ``name``: the renderer (``"Cycles"``); names the reference in progress labels and the
       default cache folder.
     - ``version``: the renderer's version string (``metrics.json``'s ``bpy_version``).
-    - ``recipe_version``: bumped when the way the reference is rendered changes.
+    - ``recipe_version``: bumped when the way the reference is rendered changes (an int, or any
+      value that also marks the provider's options that change what it renders).
 
     - ``hard`` (optional, default True): the lights are made hard for the reference (point-like,
       as ``compare``'s hard variants); False keeps their sizes (soft shadows, ``compare --soft``).
@@ -36,7 +37,7 @@ class ReferenceProvider(Protocol):
 
     name: str
     version: str
-    recipe_version: int
+    recipe_version: object
 
     def light_names(self, scene: Scene) -> list:
         """Names of the lights of ``scene`` the reference can render, one at a time."""
