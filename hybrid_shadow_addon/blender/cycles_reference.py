@@ -19,7 +19,7 @@ cut-out's edge on a lit surface in front or behind, and the pixel would measure 
 
 Objects flagged as analytic sphere primitives (``hybrid_sphere``) are rendered as the sphere we
 trace for them, not as their mesh: for the reference each gets, for a moment, a fine UV sphere
-(:data:`SPHERE_SEGMENTS`) over its mesh's bounding sphere (the centre of its box, the radius to
+(:data:`SPHERE_SEGMENTS`, one per mesh) over its mesh's bounding sphere (the centre of its box, the radius to
 its furthest vertex, as :class:`~hybrid_shadow_addon.core.scene.Model` derives it), modifiers
 off. The comparison then measures the shadows, not the flag's stand-in: a 24 x 12 UV sphere's
 facets lie up to 0.9 % of the radius inside the sphere through its vertices, and on ``clusters``
@@ -55,8 +55,9 @@ UNSHADOWED_EDGE = 0.01
 #: transparent bounces of the reference renders: enough for stacks of alpha cards and fences
 TRANSPARENT_BOUNCES = 64
 #: segments and rings of the UV sphere that stands in for a sphere primitive in the reference: its
-#: facets lie within 0.01 % of the radius of the sphere through its vertices
-SPHERE_SEGMENTS = (256, 128)
+#: facets lie within 0.03 % of the radius of the sphere through its vertices (objects that share a
+#: mesh share the stand-in, so that Cycles instances it as before)
+SPHERE_SEGMENTS = (128, 64)
 RECIPE_VERSION = 4  # bump when the reference recipe changes: invalidates the cached references
 
 
@@ -221,23 +222,27 @@ def _spheres_as_traced(saved: _Saved, made: list) -> None:
 
     from .export import is_sphere_primitive
 
+    shared = {}  # (the object's mesh, its sphere) -> the stand-in: instances stay instances
     for ob in list(bpy.data.objects):
         if ob.type != "MESH" or ob.library is not None or not is_sphere_primitive(ob):
             continue
         centre, radius = _sphere_of(ob)
-        bm = bmesh.new()
-        try:
-            bmesh.ops.create_uvsphere(bm, u_segments=SPHERE_SEGMENTS[0], v_segments=SPHERE_SEGMENTS[1],
-                                      radius=max(radius, 1e-9))
-            bmesh.ops.translate(bm, verts=bm.verts, vec=tuple(centre))
-            mesh = bpy.data.meshes.new(f"{ob.name} (reference sphere)")
-            made.append(mesh)
-            bm.to_mesh(mesh)
-        finally:
-            bm.free()
-        mesh.polygons.foreach_set("use_smooth", np.ones(len(mesh.polygons), bool))
-        for mat in ob.data.materials:
-            mesh.materials.append(mat)
+        key = (ob.data.name_full, tuple(np.round(centre, 9)), round(radius, 9))
+        mesh = shared.get(key)
+        if mesh is None:
+            bm = bmesh.new()
+            try:
+                bmesh.ops.create_uvsphere(bm, u_segments=SPHERE_SEGMENTS[0], v_segments=SPHERE_SEGMENTS[1],
+                                          radius=max(radius, 1e-9))
+                bmesh.ops.translate(bm, verts=bm.verts, vec=tuple(centre))
+                mesh = shared[key] = bpy.data.meshes.new(f"{ob.data.name} (reference sphere)")
+                made.append(mesh)
+                bm.to_mesh(mesh)
+            finally:
+                bm.free()
+            mesh.polygons.foreach_set("use_smooth", np.ones(len(mesh.polygons), bool))
+            for mat in ob.data.materials:
+                mesh.materials.append(mat)
         for mod in ob.modifiers:
             saved.set(mod, "show_render", False)
         saved.set(ob, "data", mesh)
