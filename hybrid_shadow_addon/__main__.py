@@ -112,7 +112,8 @@ def cmd_render(args) -> int:
         settings = Settings(mode=args.mode, quality=args.quality, max_shadowed_lights=args.max_shadowed_lights,
                         max_distance=args.max_distance, interlace=False,
                         conservative=args.conservative_maps, structure=args.structure or Settings.structure,
-                        samples=args.samples if args.samples is not None else Settings.samples, hard=args.hard)
+                        samples=args.samples if args.samples is not None else Settings.samples, hard=args.hard,
+                        noise_target=args.noise_target if args.noise_target is not None else Settings.noise_target)
     except ValueError as e:
         raise SceneError(str(e)) from None
     if args.frames is not None:
@@ -274,6 +275,9 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--samples", type=int, default=None, metavar="N",
                     help="raytrace: shadow rays per pixel towards a light with a size (soft shadows; "
                     "default: Settings'); pixels away from any penumbra take 1")
+    pr.add_argument("--noise-target", type=float, default=None, metavar="E",
+                    help="raytrace, soft shadows: a light whose mask's noise is estimated above E (mean absolute "
+                    "error) gives its penumbrae as many samples again (default: Settings'; 0: never)")
     pr.add_argument("--hard", action="store_true",
                     help="every light hard: one ray to its centre, sizes ignored (as compare's references)")
     pr.set_defaults(func=cmd_render)

@@ -59,9 +59,13 @@ in vec2 v_uv;
 #if defined(HS_SOFT_PROBE) || defined(HS_SOFT_ACCUM)
 #define HS_SOFT_SUMS
 #define HS_ACCUM_TOP_WEIGHT 1.0e-30
-out vec2 o_sums;                // (weighted visibility, weight) of this pass's rays
+out vec4 o_sums;                // (weighted visibility, weight) of this pass's rays, and the same
+                                // of those among them before sample u_split (the first half of
+                                // a final render's samples, for its noise check: raytrace.py)
+uniform int u_split;
 float o_mask;                   // the answers known without a ray: written as (o_mask, 1)
 vec2 hs_sums = vec2(-1.0);
+vec2 hs_first = vec2(0.0);
 #else
 out float o_mask;
 #endif
@@ -149,6 +153,9 @@ void trace_main()
         int fill[8];
         for (int g = 0; g < 8; ++g) fill[g] = 0;
         uvec2 live = uvec2(0u);
+#ifdef HS_SOFT_SUMS
+        uvec2 early = uvec2(0u);        // the slots of samples before u_split
+#endif
         for (int j = 0; j < cnt; ++j) {
             vec2 xi = hs_sample2s(seeds, s0 + j);
 #if HS_SOFT_SHAPE == 1
@@ -168,15 +175,22 @@ void trace_main()
             hs_pk_t[q] = stm;
             pw[q] = w;
             if (w > 0.0) live |= hs_bit(q);
+#ifdef HS_SOFT_SUMS
+            if (s0 + j < u_split) early |= hs_bit(q);
+#endif
         }
         uvec2 occ = hs_trace_packet(o, slots, live);
         for (int j = 0; j < slots; ++j) {
             if (hs_has(live, j)) {
-                sw += pw[j];
 #ifdef HS_HAS_ALPHA
-                if (!hs_has(occ, j)) sv += pw[j] * hs_pk_vis[j];
+                float v = hs_has(occ, j) ? 0.0 : pw[j] * hs_pk_vis[j];
 #else
-                if (!hs_has(occ, j)) sv += pw[j];
+                float v = hs_has(occ, j) ? 0.0 : pw[j];
+#endif
+                sw += pw[j];
+                sv += v;
+#ifdef HS_SOFT_SUMS
+                if (hs_has(early, j)) hs_first += vec2(v, pw[j]);
 #endif
             }
         }
@@ -191,8 +205,12 @@ void trace_main()
         stm = min(stm, u_max_distance / length(sd));
 #endif
         if (w > 0.0) {
-            sv += w * hs_visibility(o, sd, stm);
+            float v = w * hs_visibility(o, sd, stm);
+            sv += v;
             sw += w;
+#ifdef HS_SOFT_SUMS
+            if (u_sample_base + k < u_split) hs_first += vec2(v, w);
+#endif
         }
 #if defined(HS_SOFT_REFINE) && !defined(HS_SOFT_ACCUM) && !defined(HS_SOFT_FULL)
         // a pixel refined only for a neighbour's sake (a penumbra's fringe): when the first
@@ -268,7 +286,7 @@ void main()
 {
     trace_main();
 #ifdef HS_SOFT_SUMS
-    o_sums = hs_sums.y >= 0.0 ? hs_sums : vec2(o_mask, 1.0);
+    o_sums = hs_sums.y >= 0.0 ? vec4(hs_sums, hs_first) : vec4(o_mask, 1.0, 0.0, 0.0);
 #endif
 }
 #endif

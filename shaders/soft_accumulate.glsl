@@ -27,7 +27,80 @@
 #endif
 
 #ifdef FRAGMENT_SHADER
-#ifdef ACCUMULATE
+#define HS_RANGE_K_BORDER 8.0   // DENOISE's K near a penumbra's border and inside one (see above;
+#define HS_RANGE_K_INSIDE 30.0  // measured against Cycles, BENCHMARKS.md "Soft shadows")
+#ifdef NOISE
+// A final render's noise check, per 8 x 8 block of pixels, on every other pixel of each row and
+// column (raytrace.py adds the blocks up): the sum of |a - b|, a and b the shares of the first and
+// of the second half of the samples (u_sums: RG all, BA the first half's, raytrace.glsl u_split),
+// each filtered here as DENOISE filters a mask of u_samples (half the samples) at radius 1 (its
+// "umbra or lit" test over 3 x 3 pixels instead of 5 x 5), and the count of covered pixels.
+layout(location = 0) out vec2 o_noise;
+uniform sampler2D u_sums;
+uniform float u_samples;
+uniform float u_plane_sigma;
+
+vec2 hs_halves(ivec2 q) {   // (first half's share, second half's); a half with no weight: the share
+    vec4 s = texelFetch(u_sums, q, 0);
+    float all_ = s.y > 0.0 ? s.x / s.y : 0.0;
+    vec2 late = s.xy - s.zw;
+    return vec2(s.w > 0.0 ? s.z / s.w : all_, late.y > 0.0 ? late.x / late.y : all_);
+}
+
+void main() {
+    ivec2 b0 = ivec2(gl_FragCoord.xy) * 8;
+    ivec2 lim = textureSize(u_sums, 0) - 1;
+    vec2 acc = vec2(0.0);
+    for (int y = 0; y < 8; y += 2)
+        for (int x = 0; x < 8; x += 2) {
+            ivec2 px = b0 + ivec2(x, y);
+            if (px.x > lim.x || px.y > lim.y) continue;
+            vec4 pos = texelFetch(u_gb_position, px, 0);
+            if (pos.w == 0.0) continue;
+            acc.y += 1.0;
+            vec2 c = hs_halves(px);
+            vec3 n = texelFetch(u_gb_normal, px, 0).xyz;
+            float depth = max(texelFetch(u_gb_depth, px, 0).r, 1e-6);
+            vec2 lo = c, hi = c, sum = vec2(0.0), wsum = vec2(0.0);
+            vec2 v[9];
+            float g[9];
+            for (int k = 0; k < 9; ++k) {
+                ivec2 q = px + ivec2(k % 3 - 1, k / 3 - 1);
+                g[k] = 0.0;
+                v[k] = c;
+                if (any(lessThan(q, ivec2(0))) || any(greaterThan(q, lim))) continue;
+                vec4 qp = texelFetch(u_gb_position, q, 0);
+                if (qp.w == 0.0) continue;
+                v[k] = hs_halves(q);
+                lo = min(lo, v[k]);
+                hi = max(hi, v[k]);
+                float plane = abs(dot(qp.xyz - pos.xyz, n)) / (u_plane_sigma * depth);
+                float nd = max(dot(texelFetch(u_gb_normal, q, 0).xyz, n), 0.0);
+                float r2 = float((k % 3 - 1) * (k % 3 - 1) + (k / 3 - 1) * (k / 3 - 1)) / 4.0;
+                g[k] = exp(-plane * plane - 2.0 * r2) * pow(nd, 8.0);
+            }
+            vec2 f;
+            for (int h = 0; h < 2; ++h) {
+                float ch = c[h];
+                if ((ch == 0.0 || ch == 1.0) && lo[h] == ch && hi[h] == ch) { f[h] = ch; continue; }
+                bool inside = lo[h] > 0.0 && hi[h] < 1.0;
+                float sigma2 = (inside ? HS_RANGE_K_INSIDE : HS_RANGE_K_BORDER) * max(ch * (1.0 - ch), 0.05)
+                             / pow(max(u_samples, 1.0), 1.5);
+                float s = 0.0, w = 0.0;
+                for (int k = 0; k < 9; ++k) {
+                    float d = v[k][h] - ch;
+                    float wk = g[k] * exp(-0.5 * d * d / sigma2);
+                    if (wk <= 1e-4) continue;
+                    s += wk * v[k][h];
+                    w += wk;
+                }
+                f[h] = w > 0.0 ? s / w : ch;
+            }
+            acc.x += abs(f.x - f.y);
+        }
+    o_noise = acc;
+}
+#elif defined(ACCUMULATE)
 layout(location = 0) out vec2 o_sums;
 uniform sampler2D u_new;        // this frame's sums
 uniform sampler2D u_acc;        // the sums of the u_count frames before
@@ -74,8 +147,6 @@ uniform float u_samples;        // samples per pixel of u_mask (the range kernel
                                 // the estimate's noise, so real detail such as a textured cut's
                                 // shadow stays and noise averages out)
 
-#define HS_RANGE_K_BORDER 8.0   // K near a penumbra's border and inside one (see above; measured
-#define HS_RANGE_K_INSIDE 30.0  // against Cycles, BENCHMARKS.md "Soft shadows")
 
 void main() {
     ivec2 px = ivec2(gl_FragCoord.xy);

@@ -37,7 +37,8 @@ uniform sampler2D u_src;
 uniform ivec2 u_step;         // (1, 0) or (0, 1)
 #ifdef CLASSIFY
 uniform sampler2D u_probe;
-out vec2 o_answer;
+out vec4 o_answer;            // (with ACCUM: the probe sums, twice: they are also the first of the
+                              // first half's samples, raytrace.glsl u_split)
 #else
 out vec2 o_range;
 #endif
@@ -73,9 +74,9 @@ void main()
         ps = vec2(1.0);
     }
 #ifdef ACCUM
-    o_answer = ps;
+    o_answer = vec4(ps, ps);
 #else
-    o_answer = vec2(pv, 0.0);
+    o_answer = vec4(pv, 0.0, 0.0, 0.0);
 #endif
     gl_FragDepth = keep ? 1.0 : 0.0;
 #else

@@ -76,11 +76,42 @@ def test_error_falls_with_the_samples(pipeline, oracle):
     sc, ref = oracle
     maes = {}
     for n in (4, 16, 64):
-        f = frame_of(pipeline, sc, samples=n)
+        f = frame_of(pipeline, sc, samples=n, noise_target=0.0)  # (exactly n: no noise check)
         maes[n] = np.mean([e.mean() for e in errors(f, ref)])
     assert maes[4] > maes[16] > maes[64]
     # 1/sqrt(samples) would give 4x from 4 to 64; the oracle's own noise floors it a little
     assert maes[4] / maes[64] > 2.5, maes
+
+
+def test_noise_check_gives_noisy_lights_twice_the_samples(pipeline, oracle):
+    """A final render estimates each soft light's noise from the masks of its two halves of
+    samples, each filtered: it must track the mask's real noise, change nothing while below the
+    target, and above it give the light's partial pixels as many samples again, closer to the
+    exact shares."""
+    sc, ref = oracle
+    n = 16
+
+    def render(samples, target):
+        f = frame_of(pipeline, sc, samples=samples, noise_target=target)
+        return f.stats, [f.mask_array(li) for li in range(len(LIGHTS))], errors(f, ref)  # (read now:
+        # the next render overwrites the pass's textures)
+
+    plain, plain_masks, e_plain = render(n, 0.0)
+    assert plain["samples"] == n and plain["noise"] == {}
+    checked, checked_masks, _ = render(n, 1.0)  # (estimated, never above)
+    assert checked["samples"] == n and set(checked["noise"]) == {l.name for l in LIGHTS}
+    _, many, _ = render(512, 0.0)
+    for light, a, b, m in zip(LIGHTS, plain_masks, checked_masks, many):
+        fin = np.isfinite(a)
+        assert (np.abs(a - b)[fin] <= 1e-5).mean() > 0.999, light.name  # (the same rays, other sums)
+        noise = np.abs(a - m)[fin].mean()
+        est = checked["noise"][light.name]
+        assert 0.5 < est / noise < 2.0, (light.name, est, noise)
+    doubled, _, e_doubled = render(n, 1e-9)
+    assert doubled["samples"] == 2 * n
+    for light, e0, e1 in zip(LIGHTS, e_plain, e_doubled):
+        assert e1.mean() <= 1.02 * e0.mean(), (light.name, e0.mean(), e1.mean())
+    assert np.mean([e.mean() for e in e_doubled]) < 0.9 * np.mean([e.mean() for e in e_plain])
 
 
 def test_hard_lights_are_unchanged(pipeline):

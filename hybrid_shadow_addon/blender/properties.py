@@ -140,6 +140,11 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
     samples: IntProperty(name="Shadow Samples", default=64, min=1, max=4096, soft_max=256,
                          description="Final render: shadow rays per pixel towards each light with a size "
                                      "(pixels away from any penumbra take 1)")
+    noise_target: FloatProperty(name="Noise Target", default=Settings.noise_target, min=0.0, soft_max=0.02,
+                                precision=4, step=0.01,
+                                description="Final render: a light whose shadow mask's noise is estimated above this "
+                                            "(mean error of its shares) gives its penumbrae as many samples again "
+                                            "(0: never)")
     viewport_samples: IntProperty(name="Viewport Samples", default=64, min=1, max=4096, soft_max=256,
                                   description="Viewport: shadow rays per pixel a still view accumulates towards each "
                                               "light with a size, a few per redraw (the first redraws filtered)")
@@ -171,6 +176,7 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
             quality, limit, interlace = self.quality, self.max_shadowed_lights, False
             samples, frame_samples = int(self.samples), 4
         return Settings(
+            noise_target=float(self.noise_target),
             mode=self.mode.lower(), quality=quality.lower(), max_distance=float(self.max_distance),
             max_shadowed_lights=int(limit) if limit > 0 else None, interlace=interlace,
             shadowmap_size=int(self.shadowmap_size), pcf=int(self.pcf), shadow_bias=float(self.shadow_bias),

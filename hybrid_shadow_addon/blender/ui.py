@@ -61,6 +61,7 @@ class RENDER_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         sub = col.column()
         sub.active = props.use_soft_shadows
         sub.prop(props, "samples", text="Render Samples")
+        sub.prop(props, "noise_target")
         draw_compare_button(layout)
 
 

@@ -49,6 +49,12 @@ class Settings:
       spot light's radius, an area light), well spread over it: the mask is the share of the
       light the pixel sees (soft shadows). A probe pass traces 1 of them per pixel first; only
       pixels within 4 pixels of a probe that saw part of the light (penumbrae) trace them all.
+    - ``noise_target``: a final render's noise check (soft lights, the two-level BVH): each
+      light's mask is estimated to be off from the exact shares by 0.45 x the mean difference of
+      the masks of its two halves of ``samples``, each filtered; a light above this gives its
+      partial pixels as many samples again (``Frame.stats["noise"]``: the estimates; ``samples``:
+      the most a pixel took). 0: never. The default, 0.003, leaves room within the 0.005 that a
+      mask may be off from Cycles' (BENCHMARKS.md).
     - ``hard``: every light hard (one ray to its centre, sizes ignored), as the hard Cycles
       references of ``compare`` are rendered.
     - ``accumulate`` (the viewport, ``raytrace`` at ``high``): each frame traces
@@ -75,6 +81,7 @@ class Settings:
     conservative: str = "off"
     structure: str = "bvh"
     samples: int = 64
+    noise_target: float = 0.003
     hard: bool = False
     accumulate: bool = False
     frame_samples: int = 4
@@ -126,6 +133,7 @@ class Settings:
         if not isinstance(self.hard, bool):
             raise ValueError(f"hard must be True or False, not {self.hard!r}")
         _integer(self.samples, "samples", low=1, high=4096)
+        _number(self.noise_target, "noise_target", low=0.0)
         _integer(self.frame_samples, "frame_samples", low=1, high=4096)
         if not isinstance(self.accumulate, bool):
             raise ValueError(f"accumulate must be True or False, not {self.accumulate!r}")

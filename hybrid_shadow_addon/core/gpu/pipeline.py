@@ -213,6 +213,7 @@ class Pipeline:
             "pixels": shadow_stats.get("pixels", 0),
             "samples": shadow_stats.get("samples", 1),
             "accumulated_samples": shadow_stats.get("accumulated_samples"),
+            "noise": shadow_stats.get("noise", {}),
             "shadowed_lights": len(job.lights),
             "defines": shadow_stats["defines"],
         }

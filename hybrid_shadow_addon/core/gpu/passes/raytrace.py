@@ -32,7 +32,11 @@ packet (``HS_SOFT_PACKET``, ``shaders/common/scene_packet.glsl``); a draw traces
 ``CHUNK_RAYS`` rays per pixel (more take several draws whose sums add up), since llvmpipe stops
 every loop of an invocation after 65535 iterations in all. Ray by ray in several draws (the
 grid), a refined pixel traces the second half of its rays only where the first left its share
-strictly between 0 and 1 (``soft_accumulate.glsl`` PARTIAL marks them).
+strictly between 0 and 1 (``soft_accumulate.glsl`` PARTIAL marks them). With packets, a final
+render checks each light's noise (``Settings.noise_target``): its sums keep those of the first
+half of the samples apart (``u_split``), the masks of the two halves are filtered as masks of
+half the samples and compared (NOISE), and a light estimated above the target gives its partial
+pixels as many samples again.
 
 ``stats``: ``rays_traced`` counts the pixels the trace shaded (occlusion queries; facing-away
 and map-decided pixels among them cost no traversal), ``pixels`` the pixels with geometry times
@@ -47,7 +51,7 @@ import moderngl
 import numpy as np
 
 from ..lights import light_cone, light_ray_uniforms, soft_shape
-from ..targets import TargetCache, draw_fullscreen, set_uniforms
+from ..targets import TargetCache, draw_fullscreen, read_texture, set_uniforms
 from .base import ShadowPass
 from .conservative import ConservativeMaps
 from .refine import Refiner
@@ -60,7 +64,12 @@ PACKET_MIN_RAYS = 8  # a soft pass traces its rays as packets from this many ray
 #: pixel's rays through a heavy scene reach (forest, 64 rays one by one: 1 in 7 penumbra pixels
 #: of its sun), silently leaving rays untraced. More rays take more draws, whose sums add up.
 CHUNK_RAYS = {"rays": 28, "packets": 64}
-PLANES_MIN_ASPECT = 1.5  # ellipse lights this elongated bound their packets by the pyramid too
+#: a final render's mask, filtered, is off from its exact share by about this times the mean
+#: |a - b| of the masks of its two halves, each filtered alike (0.38-0.61 over the 18 soft masks of
+#: forest, clusters, soft_lights and alpha_cards against 1024-sample masks; BENCHMARKS.md)
+NOISE_PER_SPLIT = 0.45
+PLANES_MIN_ASPECT = 1.5
+PLANE_SIGMA = 0.02  # the penumbra filter's tangent-plane distance scale, relative to the view depth  # ellipse lights this elongated bound their packets by the pyramid too
 
 
 def first_frame_lead(frame_samples: int) -> int:
@@ -128,6 +137,8 @@ class RaytracePass(ShadowPass):
         self.last_defines: dict = {}
         self.last_samples = 1  # rays per pixel of the softest light of the last frame
         self.sample_base = 0  # first sample index of this frame (accumulation advances it)
+        self.split = 0  # the samples before this index also sum apart (raytrace.glsl u_split)
+        self.last_noise = {}  # light name -> the last final render's noise estimate
         self._accum: dict = {}  # light -> (frames accumulated, current target index, settings key)
         self.accumulated = None  # fewest samples per pixel of the soft lights' accumulated masks
         self._scene_frame = 1  # the animation frame being rendered (seeds the sample patterns)
@@ -172,6 +183,7 @@ class RaytracePass(ShadowPass):
         return {"mask_resolution": [mw, mh], "rays": int(mw * mh * n),
                 "rays_traced": int(traced), "pixels": int(valid * n), "samples": int(self.last_samples),
                 "accumulated_samples": self.accumulated,
+                "noise": {k: round(v, 6) for k, v in self.last_noise.items()},
                 "defines": sorted(f"{k}={v}" for k, v in self.last_defines.items())}
 
     def _plan_of(self, settings) -> str:
@@ -220,6 +232,7 @@ class RaytracePass(ShadowPass):
         origin = self.scene_textures.baked.origin
         self.last_samples = 1
         self.accumulated = None
+        self.last_noise = {}
         self._scene_frame = int(getattr(scene, "frame", 1))
         for li in lights:
             job.light_started(li)
@@ -305,6 +318,7 @@ class RaytracePass(ShadowPass):
         if soft is not None:
             u.update({k: v for k, v in soft.items() if k != "shape"})
             u.update({"u_samples": int(settings.samples), "u_sample_base": int(self.sample_base),
+                      "u_split": int(self.split),
                       "u_seed": self._seed(light, self._scene_frame)})
         return u
 
@@ -325,8 +339,9 @@ class RaytracePass(ShadowPass):
             out = self._target((li, "out" if plan == "full" else "coarse"), *size)
             probed = plan == "full" and "HS_SOFT" in defines and settings.samples > SOFT_PROBES
             if probed:
-                self._probe_and_refine(li, light, light_vec, defines, gbuffer, settings, cmap, out)
-                return self._denoise(li, out, gbuffer, denoise_radius(int(settings.samples)), int(settings.samples))
+                got = self._probe_and_refine(li, light, light_vec, defines, gbuffer, settings, cmap, out)
+                self.last_samples = max(self.last_samples, got)
+                return self._denoise(li, out, gbuffer, denoise_radius(got), got)
             _, vao, _ = self._program(defines, light, light_vec, gbuffer, settings, scale, cmap)
             draw_fullscreen(ctx, vao, out)
             return out.texture
@@ -370,7 +385,11 @@ class RaytracePass(ShadowPass):
         total = int(settings.samples)
         rays = total - SOFT_PROBES
         packet = self._packet_defines(defines, rays)
-        chunked = rays > self._chunk(packet)
+        # a final render's noise check (packets): the sums keep their first half's apart; a light
+        # whose masks of the two halves, each filtered, differ by more than the target allows
+        # gives its partial pixels as many samples again
+        check = bool(packet) and not accum and float(settings.noise_target) > 0.0 and total >= 2 * SOFT_PROBES
+        chunked = rays > self._chunk(packet) or check
         # ray by ray in several draws (the grid): the early stop between draws, the second half
         # only where the first left the share partial
         half = SOFT_PROBES + rays // 2 if chunked and not (accum or packet) and self.early_stop else total
@@ -383,27 +402,34 @@ class RaytracePass(ShadowPass):
         # rest in the depth buffer: only those are shaded by the refinement
         sums = out
         if chunked and not accum:  # (the refinement adds up sums, divided at the end)
-            sums = self._target((li, "sums"), *full, components=2)
+            sums = self._target((li, "sums4" if check else "sums"), *full, components=4 if check else 2)
         self._range((li, "probe"), probe.texture, gbuffer, sums=True,
                     classify=(sums, probe.texture, accum or chunked))
+        got = total
         if chunked:
             # more rays than one draw may trace (CHUNK_RAYS): draws of at most that many
             # samples each, added to the probes' sums (the viewport's frames, at once)
-            for j, (first, last) in enumerate(stages):
-                if j:  # (the second half: only the pixels the first left partial)
-                    mark_prog, mark_vao = self.programs.fullscreen("soft_accumulate", {"PARTIAL": 1})
-                    sums.texture.use(0)
-                    set_uniforms(mark_prog, {"u_sums": 0})
-                    self.refiner.mark((li, "soft"), sums, mark_vao, color=False)
-                for vao in self._chunk_draws({**defines, "HS_SOFT_ACCUM": 1}, light, light_vec, gbuffer, settings,
-                                             cmap, first, last):
-                    self.refiner.draw_marked((li, "soft"), sums, vao, add=True)
+            accum_defs = {**defines, "HS_SOFT_ACCUM": 1}
+            self.split = total // 2 if check else 0
+            try:
+                for j, (first, last) in enumerate(stages):
+                    if j:  # (the second half: only the pixels the first left partial)
+                        self._mark_partial(li, sums)
+                    for vao in self._chunk_draws(accum_defs, light, light_vec, gbuffer, settings, cmap, first, last):
+                        self.refiner.draw_marked((li, "soft"), sums, vao, add=True)
+            finally:
+                self.split = 0
+            if check:
+                self.last_noise[light.name] = noise = self._noise(li, sums, gbuffer, total // 2)
+                if noise > float(settings.noise_target):
+                    self._mark_partial(li, sums)
+                    for vao in self._chunk_draws(accum_defs, light, light_vec, gbuffer, settings, cmap,
+                                                 total, 2 * total):
+                        self.refiner.draw_marked((li, "soft"), sums, vao, add=True)
+                    got = 2 * total
             if not accum:
-                res_prog, res_vao = self.programs.fullscreen("soft_accumulate", {"RESOLVE": 1})
-                sums.texture.use(0)
-                set_uniforms(res_prog, {"u_sums": 0})
-                draw_fullscreen(ctx, res_vao, out)
-            return
+                self._resolve(sums.texture, out)
+            return got
         refine_defs = {**defines, "HS_SOFT_REFINE": 1, **self._soft_defines(defines, rays)}
         if not self.early_stop:
             refine_defs["HS_SOFT_FULL"] = 1
@@ -411,6 +437,37 @@ class RaytracePass(ShadowPass):
         probe.texture.use(unit)
         prog["u_probe"].value = unit
         self.refiner.draw_marked((li, "soft"), out, vao)
+        return got
+
+    def _resolve(self, sums, out) -> None:
+        """``out`` = the shares of sums texture ``sums`` (``soft_accumulate.glsl`` RESOLVE)."""
+        prog, vao = self.programs.fullscreen("soft_accumulate", {"RESOLVE": 1})
+        sums.use(0)
+        set_uniforms(prog, {"u_sums": 0})
+        draw_fullscreen(self.ctx, vao, out)
+
+    def _mark_partial(self, li, sums) -> None:
+        """Mark the pixels whose sums give a share strictly between 0 and 1 (the others keep
+        theirs): the next :meth:`Refiner.draw_marked` shades those alone."""
+        prog, vao = self.programs.fullscreen("soft_accumulate", {"PARTIAL": 1})
+        sums.texture.use(0)
+        set_uniforms(prog, {"u_sums": 0})
+        self.refiner.mark((li, "soft"), sums, vao, color=False)
+
+    def _noise(self, li, sums, gbuffer, half: int) -> float:
+        """The estimated mean absolute noise of the mask of ``2 half`` samples in ``sums``: the
+        masks of its two halves, each filtered as one of ``half`` samples is, differ by a mean
+        |a - b| (every other pixel of each row and column); the full mask's noise after its filter
+        is about NOISE_PER_SPLIT times that (``soft_accumulate.glsl`` NOISE, per 8 x 8 block)."""
+        w, h = gbuffer.size
+        prog, vao = self.programs.fullscreen("soft_accumulate", {"NOISE": 1})
+        sums.texture.use(0)
+        set_uniforms(prog, {"u_sums": 0, "u_samples": float(half), "u_plane_sigma": PLANE_SIGMA})
+        gbuffer.bind(prog, 1)
+        blocks = self._target((li, "noise"), (w + 7) // 8, (h + 7) // 8, components=2)
+        draw_fullscreen(self.ctx, vao, blocks)
+        acc = read_texture(blocks.texture).reshape(-1, 2).astype(np.float64).sum(axis=0)
+        return NOISE_PER_SPLIT * float(acc[0]) / max(float(acc[1]), 1.0)
 
     def _accumulate(self, li, light, light_vec, defines, gbuffer, settings, cmap):
         """One more frame of a soft light's running sums (``Settings.accumulate``): trace
@@ -507,7 +564,7 @@ class RaytracePass(ShadowPass):
         gbuffer.bind(prog, 2)
         mask.texture.use(0)
         near.use(1)
-        set_uniforms(prog, {"u_mask": 0, "u_mask_range": 1, "u_radius": int(radius), "u_plane_sigma": 0.02,
+        set_uniforms(prog, {"u_mask": 0, "u_mask_range": 1, "u_radius": int(radius), "u_plane_sigma": PLANE_SIGMA,
                             "u_samples": float(samples)})
         out = self._target((li, "denoised"), *gbuffer.size)
         draw_fullscreen(self.ctx, vao, out)
