@@ -68,8 +68,8 @@ CHUNK_RAYS = {"rays": 28, "packets": 64}
 #: |a - b| of the masks of its two halves, each filtered alike (0.38-0.61 over the 18 soft masks of
 #: forest, clusters, soft_lights and alpha_cards against 1024-sample masks; BENCHMARKS.md)
 NOISE_PER_SPLIT = 0.45
-PLANES_MIN_ASPECT = 1.5
-PLANE_SIGMA = 0.02  # the penumbra filter's tangent-plane distance scale, relative to the view depth  # ellipse lights this elongated bound their packets by the pyramid too
+PLANES_MIN_ASPECT = 1.5  # ellipse lights this elongated bound their packets by the pyramid too
+PLANE_SIGMA = 0.02  # the penumbra filter's tangent-plane distance scale, relative to the view depth
 
 
 def first_frame_lead(frame_samples: int) -> int:
