@@ -29,6 +29,24 @@
 #ifdef FRAGMENT_SHADER
 #define HS_RANGE_K_BORDER 8.0   // DENOISE's K near a penumbra's border and inside one (see above;
 #define HS_RANGE_K_INSIDE 30.0  // measured against Cycles, BENCHMARKS.md "Soft shadows")
+
+// The penumbra filter (DENOISE, and NOISE's filter of the two halves): the range kernel's
+// variance for share c of a mask of `samples` (inside a penumbra or near its border), and the
+// weight of a neighbour at position qp with normal qn, r2 pixels squared away relative to the
+// radius + 1, whose share differs from c by d, for the pixel at p (normal n, view depth depth).
+float hs_range_sigma2(float c, bool inside, float samples)
+{
+    return (inside ? HS_RANGE_K_INSIDE : HS_RANGE_K_BORDER) * max(c * (1.0 - c), 0.05)
+         / pow(max(samples, 1.0), 1.5);
+}
+
+float hs_filter_weight(vec3 p, vec3 n, float depth, vec3 qp, vec3 qn, float r2, float d, float sigma2,
+                       float plane_sigma)
+{
+    float plane = abs(dot(qp - p, n)) / (plane_sigma * depth);
+    float nd = max(dot(qn, n), 0.0);
+    return exp(-plane * plane - 2.0 * r2 - 0.5 * d * d / sigma2) * pow(nd, 8.0);
+}
 #ifdef NOISE
 // A final render's noise check, per 8 x 8 block of pixels, on every other pixel of each row and
 // column (raytrace.py adds the blocks up): the sum of |a - b|, a and b the shares of the first and
@@ -61,35 +79,34 @@ void main() {
             vec2 c = hs_halves(px);
             vec3 n = texelFetch(u_gb_normal, px, 0).xyz;
             float depth = max(texelFetch(u_gb_depth, px, 0).r, 1e-6);
-            vec2 lo = c, hi = c, sum = vec2(0.0), wsum = vec2(0.0);
+            vec2 lo = c, hi = c;
             vec2 v[9];
-            float g[9];
+            vec3 qps[9], qns[9];
+            bool in_reach[9];
             for (int k = 0; k < 9; ++k) {
                 ivec2 q = px + ivec2(k % 3 - 1, k / 3 - 1);
-                g[k] = 0.0;
-                v[k] = c;
+                in_reach[k] = false;
                 if (any(lessThan(q, ivec2(0))) || any(greaterThan(q, lim))) continue;
                 vec4 qp = texelFetch(u_gb_position, q, 0);
                 if (qp.w == 0.0) continue;
+                in_reach[k] = true;
                 v[k] = hs_halves(q);
+                qps[k] = qp.xyz;
+                qns[k] = texelFetch(u_gb_normal, q, 0).xyz;
                 lo = min(lo, v[k]);
                 hi = max(hi, v[k]);
-                float plane = abs(dot(qp.xyz - pos.xyz, n)) / (u_plane_sigma * depth);
-                float nd = max(dot(texelFetch(u_gb_normal, q, 0).xyz, n), 0.0);
-                float r2 = float((k % 3 - 1) * (k % 3 - 1) + (k / 3 - 1) * (k / 3 - 1)) / 4.0;
-                g[k] = exp(-plane * plane - 2.0 * r2) * pow(nd, 8.0);
             }
             vec2 f;
             for (int h = 0; h < 2; ++h) {
                 float ch = c[h];
                 if ((ch == 0.0 || ch == 1.0) && lo[h] == ch && hi[h] == ch) { f[h] = ch; continue; }
-                bool inside = lo[h] > 0.0 && hi[h] < 1.0;
-                float sigma2 = (inside ? HS_RANGE_K_INSIDE : HS_RANGE_K_BORDER) * max(ch * (1.0 - ch), 0.05)
-                             / pow(max(u_samples, 1.0), 1.5);
+                float sigma2 = hs_range_sigma2(ch, lo[h] > 0.0 && hi[h] < 1.0, u_samples);
                 float s = 0.0, w = 0.0;
                 for (int k = 0; k < 9; ++k) {
-                    float d = v[k][h] - ch;
-                    float wk = g[k] * exp(-0.5 * d * d / sigma2);
+                    if (!in_reach[k]) continue;
+                    float r2 = float((k % 3 - 1) * (k % 3 - 1) + (k / 3 - 1) * (k / 3 - 1)) / 4.0;
+                    float wk = hs_filter_weight(pos.xyz, n, depth, qps[k], qns[k], r2, v[k][h] - ch, sigma2,
+                                                u_plane_sigma);
                     if (wk <= 1e-4) continue;
                     s += wk * v[k][h];
                     w += wk;
@@ -160,20 +177,17 @@ void main() {
     vec3 n = texelFetch(u_gb_normal, px, 0).xyz;
     float depth = max(texelFetch(u_gb_depth, px, 0).r, 1e-6);
     float sum = 0.0, wsum = 0.0;
-    bool inside = near.x > 0.0 && near.y < 1.0;
-    float sigma2 = (inside ? HS_RANGE_K_INSIDE : HS_RANGE_K_BORDER) * max(c * (1.0 - c), 0.05)
-                 / pow(max(u_samples, 1.0), 1.5);
+    float sigma2 = hs_range_sigma2(c, near.x > 0.0 && near.y < 1.0, u_samples);
     for (int dy = -u_radius; dy <= u_radius; ++dy)
         for (int dx = -u_radius; dx <= u_radius; ++dx) {
             ivec2 q = px + ivec2(dx, dy);
             if (any(lessThan(q, ivec2(0))) || any(greaterThan(q, lim))) continue;
             vec4 qp = texelFetch(u_gb_position, q, 0);
             if (qp.w == 0.0) continue;
-            float plane = abs(dot(qp.xyz - p, n)) / (u_plane_sigma * depth);
-            float nd = max(dot(texelFetch(u_gb_normal, q, 0).xyz, n), 0.0);
             float r2 = float(dx * dx + dy * dy) / float((u_radius + 1) * (u_radius + 1));
             float v = texelFetch(u_mask, q, 0).r;
-            float w = exp(-plane * plane - 2.0 * r2 - 0.5 * (v - c) * (v - c) / sigma2) * pow(nd, 8.0);
+            float w = hs_filter_weight(p, n, depth, qp.xyz, texelFetch(u_gb_normal, q, 0).xyz, r2, v - c, sigma2,
+                                       u_plane_sigma);
             if (w <= 1e-4) continue;
             sum += w * v;
             wsum += w;

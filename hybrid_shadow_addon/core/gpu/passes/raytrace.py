@@ -516,11 +516,8 @@ class RaytracePass(ShadowPass):
             draw_fullscreen(ctx, acc_vao, dst)
             n, cur = n + 1, 1 - cur
             self._accum[li] = (n, cur, key)
-        res_prog, res_vao = self.programs.fullscreen("soft_accumulate", {"RESOLVE": 1})
-        self._target((li, "acc", cur), *full, components=2).texture.use(0)
-        set_uniforms(res_prog, {"u_sums": 0})
         mean = self._target((li, "mean"), *full)
-        draw_fullscreen(ctx, res_vao, mean)
+        self._resolve(self._target((li, "acc", cur), *full, components=2).texture, mean)
         got = min(traced(n), int(settings.samples))
         self.accumulated = got if self.accumulated is None else min(self.accumulated, got)
         return self._denoise(li, mean, gbuffer, denoise_radius(got), got)
