@@ -105,3 +105,38 @@ def test_smooth_shading_normals(gpass):
     assert np.percentile(err_shade, 95) < 2.0 < np.percentile(err_geo, 95)
     flat = gb.coverage() & (np.round(inst) == 1)
     np.testing.assert_allclose(shade[flat], geo[flat], atol=2e-3)
+
+
+@pytest.mark.parametrize("camera_type", ["PERSP", "ORTHO"])
+def test_instances_outside_the_view_are_not_drawn_and_change_nothing(gpass, monkeypatch, camera_type):
+    """Frustum culling leaves out the instances whose bounding sphere misses the view (behind
+    the camera, beside it, beyond clip_end, a sphere primitive too) and keeps the one that
+    straddles the image's edge: the G-buffer is the same, bit for bit, as drawing every one."""
+    from hybrid_shadow_addon.core.gpu.passes import gbuffer as gbuffer_module
+    from hybrid_shadow_addon.core.scene import Instances
+
+    base = basic_scene(camera_type=camera_type, with_sphere=True)
+    cam = base.camera.world_matrix_normalized()
+    pos, right, up, back = cam[:3, 3], cam[:3, 0], cam[:3, 1], cam[:3, 2]
+    o, d = base.camera.pixel_rays(W, H)
+    edge = o[H // 2, 0] + 6.0 * d[H // 2, 0] - 0.4 * right  # just left of the image, 6 m out: a corner shows
+    ahead = pos - 8.0 * back
+    outside = [pos + 3.0 * back, ahead - 40.0 * right, ahead + 40.0 * right, ahead + 40.0 * up,
+               ahead - 40.0 * up, pos - 5000.0 * back]
+    where = outside + [edge, ahead - 40.0 * right]
+    sphere = [False] * (len(where) - 1) + [True]
+    extra = Instances(names=[f"x{i}" for i in range(len(where))], model_ids=[1] * len(where),
+                      matrices=np.array([trs(tuple(p), scale=(0.5, 0.5, 0.5)) for p in where]),
+                      base_color=[(0.5, 0.5, 0.5, 1)] * len(where), sphere=sphere)
+    scene = base.__class__(**{**base.__dict__, "instances": Instances.concatenate([base.instances, extra])})
+    n0 = len(base.instances)
+    gb = gpass.gbuffer(scene, W, H)
+    assert gpass.gbuffer_pass.culled == len(outside) + 1
+    names = ("position", "normal", "shading_normal", "albedo", "material", "depth")
+    culled = {k: gb.read(k).copy() for k in names}
+    assert (culled["material"][..., 2].round() == n0 + len(outside)).any()  # the edge cube is drawn
+    monkeypatch.setattr(gbuffer_module, "frustum_visible", lambda s, *a: np.ones(len(s.instances), bool))
+    gb = gpass.gbuffer(scene, W, H)
+    assert gpass.gbuffer_pass.culled == 0
+    for k in names:
+        assert np.array_equal(culled[k], gb.read(k)), k

@@ -4,9 +4,9 @@ builds the ray-trace program without it (``RaytracePass.last_defines`` / the fra
 uniform or sampler behind).
 
 Light types: the ray-trace pass has one program per light *kind* (``HS_LIGHT_SUN`` for suns,
-``HS_LIGHT_LOCAL`` for point, spot and area lights); ``shaders/lighting.glsl`` has no per-type
-defines (it branches on the type read from the light table), so there is nothing to leave out
-there; ``benchmarks/bench_variants.py`` shows a sun-only scene does not pay for the other paths.
+``HS_LIGHT_LOCAL`` for point, spot and area lights); the lighting pass compiles the kinds of
+light in its table (``HS_LIT_*``, tested in ``test_gpu_lighting.py``);
+``benchmarks/bench_variants.py`` shows a sun-only scene does not pay for the other paths.
 """
 import numpy as np
 import pytest
@@ -138,16 +138,6 @@ def test_max_distance_and_interlace_only_when_on(gl_ctx):
     assert "HS_INTERLACE" not in d and "u_history" not in u
     d, u, _ = trace(gl_ctx, make_scene(), max_distance=5.0)
     assert "HS_MAX_DISTANCE" in d and "u_max_distance" in u
-
-
-def test_lighting_shader_has_no_per_type_defines():
-    """Documents the fact stated in the module doc: if lighting.glsl grows per-light-type
-    defines, extend the tests above to it."""
-    from pathlib import Path
-
-    src = (Path(__file__).resolve().parents[1] / "shaders" / "lighting.glsl").read_text()
-    src += (Path(__file__).resolve().parents[1] / "shaders" / "common" / "lights.glsl").read_text()
-    assert "#ifdef HS_LIGHT" not in src and "#if defined(HS_LIGHT" not in src
 
 
 # ---- structure "bvh": the two-level walk and nothing of the grid -------------------------------

@@ -9,6 +9,13 @@
 //   t3: spot_blend, area half height, area shape (0 rectangle, 1 ellipse), tan of the area
 //       light's half spread (< 0: no spread); t2.w its normalisation (Cycles' soft-box grid)
 //   t4: area light's unit x axis, half width (0: a zero-size area light, a Lambertian point)
+//
+// The kinds of light the pass may meet are defines (core/gpu/lights.py lighting_defines, from the
+// light table itself), so a scene pays only for what it has: a software rasteriser runs every
+// branch of a lane group whatever its lights, and an area light's polygon costs several times
+// a point light. HS_LIT_SUN, HS_LIT_POINT, HS_LIT_SPOT, HS_LIT_AREA_POINT (an area light of
+// size 0), HS_LIT_AREA_RECT and HS_LIT_AREA_ELLIPSE (sized, no spread), HS_LIT_AREA_SPREAD
+// (sized, spread below 180°). A light of a kind not defined contributes nothing.
 #define LIGHT_SUN 0
 #define LIGHT_POINT 1
 #define LIGHT_SPOT 2
@@ -16,6 +23,20 @@
 #define HS_LIGHT_TEXELS 5
 #define HS_PI 3.14159265358979
 #define HS_ELLIPSE_SIDES 24
+#if defined(HS_LIT_POINT) || defined(HS_LIT_SPOT) || defined(HS_LIT_AREA_POINT)
+#define HS_LIT_LOCAL_POINT
+#endif
+#if defined(HS_LIT_AREA_RECT) || defined(HS_LIT_AREA_ELLIPSE)
+#define HS_LIT_AREA_POLY
+#endif
+#if defined(HS_LIT_AREA_POLY) || defined(HS_LIT_AREA_SPREAD)
+#define HS_LIT_AREA_SIZED
+#endif
+#ifdef HS_LIT_AREA_ELLIPSE
+#define HS_POLY_MAX HS_ELLIPSE_SIDES
+#else
+#define HS_POLY_MAX 4
+#endif
 uniform sampler2D u_lights;
 
 vec4 light_texel(int row, int k) { return texelFetch(u_lights, ivec2(HS_LIGHT_TEXELS * row + k, 0), 0); }
@@ -32,24 +53,34 @@ vec3 light_incident(int row, vec3 p, out vec3 l) {
     vec4 t1 = light_texel(row, 1);
     vec4 t2 = light_texel(row, 2);
     int type = int(t0.w + 0.5);
+#ifdef HS_LIT_SUN
     if (type == LIGHT_SUN) {
         l = -t1.xyz;
         return t2.rgb;
     }
+#endif
+#ifdef HS_LIT_LOCAL_POINT
     vec3 d = t0.xyz - p;
     float r2 = max(dot(d, d), 1e-12);
     l = d * inversesqrt(r2);
     float k = 1.0 / r2;
     float t = dot(-l, t1.xyz);     // cosine between the light's axis and the light->point direction
+#ifdef HS_LIT_SPOT
     if (type == LIGHT_SPOT) {
         float blend = light_texel(row, 3).x;
         float ch = t1.w;
         float s = (blend > 0.0) ? smoothstep01((t - ch) / ((1.0 - ch) * blend)) : (t > ch ? 1.0 : 0.0);
         k *= s;
-    } else if (type == LIGHT_AREA) {
-        k *= max(t, 0.0);
     }
+#endif
+#ifdef HS_LIT_AREA_POINT
+    if (type == LIGHT_AREA) k *= max(t, 0.0);
+#endif
     return t2.rgb * k;
+#else
+    l = vec3(0.0, 0.0, 1.0);
+    return vec3(0.0);
+#endif
 }
 
 // Lambert + normalised Blinn-Phong (F0 = 0.08 * specular, exponent from roughness); the
@@ -75,7 +106,8 @@ vec3 brdf_cos(vec3 n, vec3 l, vec3 v, vec3 albedo, float specular, float roughne
 // Irradiance at p (normal n) from a uniformly emitting polygon of unit radiance, the polygon
 // clipped to p's upper hemisphere (Lambert's formula: E = 1/2 sum over edges of the angle
 // subtended times the cosine of the edge plane's normal with n).
-float polygon_irradiance(vec3 verts[HS_ELLIPSE_SIDES], int count, vec3 p, vec3 n) {
+#ifdef HS_LIT_AREA_POLY
+float polygon_irradiance(vec3 verts[HS_POLY_MAX], int count, vec3 p, vec3 n) {
     float sum = 0.0;
     vec3 prev = verts[count - 1] - p;
     float hp = dot(prev, n);
@@ -83,7 +115,7 @@ float polygon_irradiance(vec3 verts[HS_ELLIPSE_SIDES], int count, vec3 p, vec3 n
     // Sutherland-Hodgman against the plane dot(x, n) = 0, integrating each kept edge at once
     vec3 last = vec3(0.0);
     bool have_last = false;
-    for (int i = 0; i < HS_ELLIPSE_SIDES; ++i) {
+    for (int i = 0; i < HS_POLY_MAX; ++i) {
         if (i >= count) break;
         vec3 cur = verts[i] - p;
         float hc = dot(cur, n);
@@ -118,11 +150,13 @@ float polygon_irradiance(vec3 verts[HS_ELLIPSE_SIDES], int count, vec3 p, vec3 n
     }
     return 0.5 * abs(sum);
 }
+#endif
 
 // Irradiance from an area light with a spread below 180°: the emitted radiance falls off with
 // the angle from the axis (max((tan h - tan a) N, 0), Cycles' soft-box grid), which no polygon
 // formula integrates: 8 x 8 Gauss-Legendre nodes over the rectangle (an ellipse in polar
 // coordinates), the receiver's cosine clamped at its horizon.
+#ifdef HS_LIT_AREA_SPREAD
 const float HS_GL8_X[4] = float[4](0.1834346424956498, 0.5255324099163290, 0.7966664774136267, 0.9602898564975363);
 const float HS_GL8_W[4] = float[4](0.3626837833783620, 0.3137066458778873, 0.2223810344533745, 0.1012285362903763);
 
@@ -155,9 +189,11 @@ float spread_irradiance(vec3 c, vec3 axis, vec3 ex, vec3 ey, bool ellipse, vec2 
     }
     return sum * length(ex) * length(ey);
 }
+#endif
 
 // Irradiance at p (normal n) from area light `row` (rectangle or equal-area 24-gon ellipse), 0
 // behind its emitting side.
+#ifdef HS_LIT_AREA_SIZED
 vec3 area_irradiance(int row, vec3 p, vec3 n) {
     vec4 t0 = light_texel(row, 0);
     vec4 t1 = light_texel(row, 1);
@@ -168,15 +204,22 @@ vec3 area_irradiance(int row, vec3 p, vec3 n) {
     if (dot(p - c, axis) <= 0.0) return vec3(0.0);
     vec3 ex = t4.xyz * t4.w;
     vec3 ey = normalize(cross(axis, t4.xyz)) * t3.y;
+#ifdef HS_LIT_AREA_SPREAD
     if (t3.w >= 0.0)
         return light_texel(row, 2).rgb * spread_irradiance(c, axis, ex, ey, t3.z >= 0.5,
                                                            vec2(t3.w, light_texel(row, 2).w), p, n);
-    vec3 verts[HS_ELLIPSE_SIDES];
-    int count;
+#endif
+#ifdef HS_LIT_AREA_POLY
+    vec3 verts[HS_POLY_MAX];
+    int count = 4;
+#ifdef HS_LIT_AREA_RECT
     if (t3.z < 0.5) {
         verts[0] = c - ex - ey; verts[1] = c + ex - ey; verts[2] = c + ex + ey; verts[3] = c - ex + ey;
         count = 4;
-    } else {
+    }
+#endif
+#ifdef HS_LIT_AREA_ELLIPSE
+    if (t3.z >= 0.5) {
         // equal area: an inscribed N-gon of radius k covers (N/2) sin(2 pi/N) k^2 = pi
         const float k = 1.00574;   // sqrt(2 pi / (N sin(2 pi / N))), N = 24
         for (int i = 0; i < HS_ELLIPSE_SIDES; ++i) {
@@ -185,13 +228,19 @@ vec3 area_irradiance(int row, vec3 p, vec3 n) {
         }
         count = HS_ELLIPSE_SIDES;
     }
+#endif
     return light_texel(row, 2).rgb * polygon_irradiance(verts, count, p, n);
+#else
+    return vec3(0.0);
+#endif
 }
+#endif
 
 // Outgoing radiance at p from light `row`, before its shadow mask.
 vec3 light_contribution(int row, vec3 p, vec3 n, vec3 v, vec3 albedo, float specular, float roughness,
                         int use_specular) {
     int type = int(light_texel(row, 0).w + 0.5);
+#ifdef HS_LIT_AREA_SIZED
     if (type == LIGHT_AREA && light_texel(row, 4).w > 0.0) {
         // diffuse: the exact irradiance of the polygon; specular: its far field from the centre
         vec3 c = albedo * (1.0 / HS_PI) * area_irradiance(row, p, n);
@@ -207,6 +256,7 @@ vec3 light_contribution(int row, vec3 p, vec3 n, vec3 v, vec3 albedo, float spec
         }
         return c;
     }
+#endif
     vec3 l;
     vec3 e = light_incident(row, p, l);
     return e * brdf_cos(n, l, v, albedo, specular, roughness, use_specular);

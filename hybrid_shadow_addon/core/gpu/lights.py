@@ -90,6 +90,24 @@ def light_table(lights) -> np.ndarray:
     return out
 
 
+def lighting_defines(table: np.ndarray) -> dict:
+    """The kinds of light in a light table, as the defines of ``shaders/common/lights.glsl``
+    (the kinds absent are compiled out of the lighting pass). Read from the table as the GPU
+    gets it (float32), with the shader's own tests: type code, half width > 0 (a sized area
+    light), tan of the half spread >= 0 (a spread), shape >= 0.5 (an ellipse)."""
+    t = np.asarray(table, np.float32).reshape(-1, LIGHT_TEXELS, 4)
+    code = (t[:, 0, 3] + np.float32(0.5)).astype(np.int64)
+    area = code == LIGHT_CODES["AREA"]
+    sized = area & (t[:, 4, 3] > 0)
+    spread = sized & (t[:, 3, 3] >= 0)
+    poly = sized & ~spread
+    kinds = {"HS_LIT_SUN": code == LIGHT_CODES["SUN"], "HS_LIT_POINT": code == LIGHT_CODES["POINT"],
+             "HS_LIT_SPOT": code == LIGHT_CODES["SPOT"], "HS_LIT_AREA_POINT": area & ~sized,
+             "HS_LIT_AREA_RECT": poly & (t[:, 3, 2] < 0.5), "HS_LIT_AREA_ELLIPSE": poly & (t[:, 3, 2] >= 0.5),
+             "HS_LIT_AREA_SPREAD": spread}
+    return {k: 1 for k, rows in kinds.items() if rows.any()}
+
+
 def select_shadowed_lights(scene, settings=None) -> list:
     """Indices of the lights that get a mask: ``use_shadow`` lights; with
     ``settings.max_shadowed_lights`` = N only N of them: suns first (always kept, thesis 3.2),

@@ -32,6 +32,26 @@ TEXTURED_ATTRS = INSTANCE_ATTRS + ("in_matid",)
 SPHERE_ATTRS = INSTANCE_ATTRS + ("in_i0", "in_i1", "in_i2", "in_sphere")
 
 
+def frustum_visible(scene, clip_from_rel: np.ndarray, cam_pos: np.ndarray) -> np.ndarray:
+    """(N,) bool per instance: its world bounding sphere may reach the view frustum (the six
+    planes of ``clip_from_rel``, camera-relative; Gribb & Hartmann). Conservative: the sphere
+    bounds every triangle and a sphere primitive's proxy box is drawn only where the sphere
+    is, so an instance left out draws no fragment; the spheres are widened by 1e-4 of their
+    radius and 1e-6 of their distance for the float rounding of the rasteriser's clip test."""
+    inst = scene.instances
+    if not len(inst):
+        return np.zeros(0, bool)
+    c, r = scene.instance_spheres()
+    rel = c - cam_pos
+    m = np.asarray(clip_from_rel, np.float64)
+    planes = np.stack([m[3] + m[0], m[3] - m[0], m[3] + m[1], m[3] - m[1], m[3] + m[2], m[3] - m[2]])
+    norm = np.linalg.norm(planes[:, :3], axis=1)
+    planes = planes / np.where(norm > 0, norm, 1.0)[:, None]
+    dist = rel @ planes[:, :3].T + planes[:, 3]
+    slack = r * (1.0 + 1e-4) + 1e-6 * np.linalg.norm(rel, axis=1)
+    return ~np.isfinite(dist).all(axis=1) | (dist >= -slack[:, None]).all(axis=1)
+
+
 def log_depth_scale(camera) -> float:
     """``1 / log2(clip_end / clip_start)``: the G-buffer's depth test runs on
     ``log2(view depth / clip_start) * scale`` (``shaders/gbuffer.glsl``), which keeps a relative
@@ -53,6 +73,7 @@ class GBufferPass(Pass):
         self._gbuffer: GBuffer | None = None
         self._cube = ProxyMesh(self.ctx, unit_cube)
         self.draw_calls = 0
+        self.culled = 0  # instances of the last render outside the view frustum (not drawn)
 
     # -- targets -------------------------------------------------------------------------------
     def _targets(self, width, height) -> GBuffer:
@@ -112,12 +133,14 @@ class GBufferPass(Pass):
         self.draw_calls = 0
         self.models.prune(scene.models)
         inst = scene.instances
-        if len(inst):
+        visible = frustum_visible(scene, cam.clip_from_rel, cam.cam_pos)
+        self.culled = int(len(visible) - np.count_nonzero(visible))
+        if visible.any():
             prog = self.programs.get("gbuffer")
             cam.apply(prog)
             prog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
             order = np.argsort(inst.model_ids, kind="stable")
-            tri_rows = order[~inst.sphere[order]]
+            tri_rows = order[~inst.sphere[order] & visible[order]]
             bounds = np.searchsorted(inst.model_ids[tri_rows], np.arange(len(scene.models) + 1))
             tprog = None
             if scene.materials:
@@ -141,7 +164,7 @@ class GBufferPass(Pass):
                                                  INSTANCE_FORMAT, INSTANCE_ATTRS)
                 vao.render(moderngl.TRIANGLES, vertices=nverts, instances=len(rows))
                 self.draw_calls += 1
-            sph_rows = np.nonzero(inst.sphere)[0]
+            sph_rows = np.nonzero(inst.sphere & visible)[0]
             if len(sph_rows):
                 prog = self.programs.get("gbuffer", {"SPHERE": 1})
                 cam.apply(prog)

@@ -2,14 +2,15 @@
 
 The lighting model (units in :mod:`..lights`, BRDF in ``shaders/common/lights.glsl``) has a
 numpy mirror in ``core/oracle/lighting.py``. Lights with a mask are multiplied by it; the others
-are unshadowed. The light table is a texture (``LIGHT_TEXELS`` RGBA32F texels per light).
+are unshadowed. The light table is a texture (``LIGHT_TEXELS`` RGBA32F texels per light); the
+program is the variant of the kinds of light in it (:func:`..lights.lighting_defines`).
 """
 from __future__ import annotations
 
 import moderngl
 import numpy as np
 
-from ..lights import LIGHT_TEXELS, light_table
+from ..lights import LIGHT_TEXELS, light_table, lighting_defines
 from ..targets import TargetCache, set_uniforms
 from .base import Pass
 
@@ -50,7 +51,7 @@ class LightingPass(Pass):
         out = self._out.get("image", *gbuffer.size)
         out.use(ctx)
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-        prog, vao = self.programs.fullscreen("lighting")
+        prog, vao = self.programs.fullscreen("lighting", lighting_defines(table))
         unit = gbuffer.bind(prog)
         lights_tex.use(unit)
         prog["u_lights"].value = unit
