@@ -1,4 +1,4 @@
-// Pass 1: the G-buffer. One instanced draw per model (triangles), or per sphere-primitive
+// Pass 1: the G-buffer. One instanced, indexed draw per model (triangles), or per sphere-primitive
 // batch (define SPHERE: a box proxy around the model's bounding sphere, ray/ellipsoid in the
 // fragment shader).
 //
@@ -18,9 +18,8 @@
 uniform float u_log_depth_scale;   // 1 / log2(clip_end / clip_start)
 
 #ifdef VERTEX_SHADER
-layout(location = 0) in vec3 in_pos;          // model space (de-indexed: 3 per triangle)
-layout(location = 1) in vec3 in_face_normal;  // model space, unit (zero if degenerate)
-layout(location = 2) in vec3 in_shading_normal;  // model space: smooth corner normal (else the face's)
+layout(location = 0) in vec3 in_pos;          // model space (a triangle's last corner: its plane point)
+layout(location = 2) in vec3 in_shading_normal;  // model space: smooth corner normal (zero: flat)
 // per instance
 in vec4 in_m0; in vec4 in_m1; in vec4 in_m2;  // rows of the camera-relative world matrix
 in vec3 in_n0; in vec3 in_n1; in vec3 in_n2;  // rows of the normal matrix (inverse transpose)
@@ -40,7 +39,6 @@ flat out vec4 v_sphere;
 #endif
 
 flat out vec3 v_plane_point;   // a point of the triangle (the provoking vertex), camera-relative
-flat out vec3 v_normal;        // world face normal (unnormalised)
 flat out vec4 v_color;
 flat out vec3 v_material;
 flat out vec3 v_n0; flat out vec3 v_n1; flat out vec3 v_n2;
@@ -56,7 +54,6 @@ void main() {
     vec3 rel = vec3(dot(in_m0, p), dot(in_m1, p), dot(in_m2, p));
     v_rel = rel;
     v_plane_point = rel;
-    v_normal = vec3(dot(in_n0, in_face_normal), dot(in_n1, in_face_normal), dot(in_n2, in_face_normal));
     v_shading = vec3(dot(in_n0, in_shading_normal), dot(in_n1, in_shading_normal), dot(in_n2, in_shading_normal));
     v_n0 = in_n0; v_n1 = in_n1; v_n2 = in_n2;
     v_color = in_color;
@@ -76,7 +73,9 @@ in vec2 v_uv;
 flat in int v_matid;
 #endif
 flat in vec3 v_plane_point;
-flat in vec3 v_normal;
+#ifndef SPHERE
+uniform sampler2D u_face_normals;  // model space unit face normal of triangle i at (i % 4096, i / 4096)
+#endif
 flat in vec4 v_color;
 flat in vec3 v_material;
 flat in vec3 v_n0; flat in vec3 v_n1; flat in vec3 v_n2;
@@ -133,7 +132,10 @@ void main() {
     float zndc = clip.z / clip.w;
     if (zndc < -1.0 || zndc > 1.0) discard;
 #else
-    n = v_normal;
+    // the face normal by the triangle's index (the model is drawn indexed: shared corners carry
+    // no per-triangle attribute), into the world by the instance's normal matrix
+    vec3 fn = texelFetch(u_face_normals, ivec2(gl_PrimitiveID & 4095, gl_PrimitiveID >> 12), 0).xyz;
+    n = vec3(dot(v_n0, fn), dot(v_n1, fn), dot(v_n2, fn));
     float denom = dot(n, rd);
     p = v_rel;
     if (abs(denom) > 1e-12 * length(n) * length(rd)) {

@@ -140,3 +140,64 @@ def test_instances_outside_the_view_are_not_drawn_and_change_nothing(gpass, monk
     assert gpass.gbuffer_pass.culled == 0
     for k in names:
         assert np.array_equal(culled[k], gb.read(k)), k
+
+
+def test_indexed_layout_keeps_every_corner_and_face():
+    """The indexed buffers give back each triangle's corners (position, normal, UV) in order,
+    share the corners that are equal, and keep the face normals in triangle order."""
+    from hybrid_shadow_addon.core.gpu.geometry import face_normals, face_vertex_data, indexed_vertex_data
+    from hybrid_shadow_addon.core.scene import Model
+
+    rng = np.random.default_rng(3)
+    n = 9
+    g = np.stack(np.meshgrid(np.arange(n), np.arange(n), indexing="ij"), -1).reshape(-1, 2).astype(np.float32)
+    verts = np.concatenate([g, rng.random((len(g), 1), np.float32)], 1)
+    quads = [(i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1) for i in range(n - 1) for j in range(n - 1)]
+    tris = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], np.uint32)
+    smooth = rng.normal(size=(len(verts), 3)).astype(np.float32)
+    for normals, uvs in ((None, None), (smooth[tris], None), (smooth[tris], verts[tris][..., :2] * 0.1)):
+        m = Model("grid", verts, tris, normals=normals, uvs=uvs)
+        vb, idx = indexed_vertex_data(m)
+        corners = vb[idx].reshape(-1, 3, 8)
+        assert np.array_equal(corners[..., :3], m.vertices[m.triangles])
+        assert np.array_equal(corners[..., 3:6], np.zeros_like(corners[..., 3:6]) if normals is None else m.normals)
+        assert np.array_equal(corners[..., 6:], np.zeros_like(corners[..., 6:]) if uvs is None else m.uvs)
+        assert len(vb) == len(verts)  # shared corners shared (per-vertex normals and UVs here)
+        assert np.array_equal(face_normals(m), face_vertex_data(m).reshape(-1, 3, 9)[:, 0, 3:6])
+
+
+def test_face_normals_past_the_first_texture_row(gpass):
+    """A bumpy 48 x 48-quad grid (4608 triangles: the face texture's second row is read by
+    gl_PrimitiveID >= 4096): every pixel's normal is its hit triangle's, the position the ray's."""
+    from hybrid_shadow_addon.core.scene import Instances, Model, Scene
+
+    n = 49
+    rng = np.random.default_rng(5)
+    xy = np.stack(np.meshgrid(np.linspace(-3, 3, n), np.linspace(-3, 3, n), indexing="ij"), -1).reshape(-1, 2)
+    verts = np.concatenate([xy, 0.15 * rng.random((len(xy), 1))], 1).astype(np.float32)
+    quads = [(i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1) for i in range(n - 1) for j in range(n - 1)]
+    tris = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], np.uint32)
+    base = basic_scene()
+    scene = Scene(models=[Model("bumps", verts, tris)],
+                  instances=Instances(names=["bumps"], model_ids=[0], matrices=trs((0.2, 0.1, 0.0), rot_z=0.3)[None],
+                                      base_color=[(0.6, 0.6, 0.6, 1)]),
+                  lights=base.lights, camera=base.camera, world_color=base.world_color, resolution=(96, 72))
+    w, h = 96, 72
+    gb = gpass.gbuffer(scene, w, h)
+    o, d = scene.camera.pixel_rays(w, h)
+    t, inst, face = ray_cast(scene, o, d)
+    sel = np.isfinite(t)
+    assert sel.sum() > 0.3 * w * h and (face[sel] >= 4096).sum() > 100
+    m = scene.instances.matrices[0]
+    wv = verts.astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+    tri = wv[tris.astype(np.int64)]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+    ref = fn[face[sel]] * -np.sign((fn[face[sel]] * d[sel]).sum(-1, keepdims=True))
+    late = face[sel] >= 4096
+    for target, tol in (("normal", 1e-5), ("shading_normal", 1e-3)):  # (flat: the shading normal is
+        ok = np.abs(gb.read(target)[..., :3][sel] - ref).max(-1) < tol    # the face's, in half floats)
+        # (a pixel centre on a shared edge may fall to either triangle)
+        assert ok.mean() > 0.97 and ok[late].mean() > 0.97, (target, ok.mean(), ok[late].mean())
+    p = gb.read("position")[..., :3][sel].astype(np.float64)
+    assert (np.abs(p - (o + t[..., None] * d)[sel]).max(-1) < 1e-5).mean() > 0.97

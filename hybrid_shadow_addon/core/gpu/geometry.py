@@ -2,6 +2,7 @@
 meshes of sphere primitives, and the caster draw lists of the light-space passes."""
 from __future__ import annotations
 
+import moderngl
 import numpy as np
 
 def unit_cube() -> np.ndarray:
@@ -41,6 +42,44 @@ def face_vertex_data(model) -> np.ndarray:
     return out.reshape(-1, 9)
 
 
+# The G-buffer's indexed layout: the model's distinct corners (position, smooth corner normal
+# or zeros on a flat model, UV or zeros), an index buffer, and the face normals in a texture
+# read by gl_PrimitiveID (a shared vertex cannot carry a per-triangle attribute).
+INDEXED_FORMAT = "3f 3f 2f"
+INDEXED_ATTRS = ("in_pos", "in_shading_normal", "in_uv")
+INDEXED_FORMAT_NO_UV = "3f 3f 8x"
+FACE_TEX_WIDTH = 4096  # face normal texel of triangle i: (i % 4096, i // 4096)
+
+
+def face_normals(model) -> np.ndarray:
+    """(T, 3) float32 unit face normals (zero on a degenerate triangle), computed in float64."""
+    v = model.vertices.astype(np.float64)
+    tri = v[model.triangles.astype(np.int64)]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.where(ln > 0, n / np.where(ln > 0, ln, 1), 0.0).astype(np.float32)
+
+
+def indexed_vertex_data(model):
+    """``(vertices (V, 8) float32, indices (3T,) uint32)``: the model's distinct corners in
+    :data:`INDEXED_FORMAT` (a flat model's normals are zeros: the G-buffer then shades with the
+    face normal) and each triangle's three corners in order (the last one, GL's provoking
+    vertex, is the triangle's own last vertex, as in the de-indexed buffer)."""
+    t = len(model.triangles)
+    corners = np.zeros((t, 3, 8), np.float32)
+    corners[:, :, :3] = model.vertices[model.triangles]
+    if model.normals is not None:
+        corners[:, :, 3:6] = model.normals
+    if model.uvs is not None:
+        corners[:, :, 6:8] = model.uvs
+    flat = np.ascontiguousarray(corners.reshape(-1, 8))
+    if not len(flat):
+        return flat, np.zeros(0, np.uint32)
+    keys = flat.view(np.dtype((np.void, 32))).ravel()
+    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    return flat[first], inverse.astype(np.uint32).ravel()
+
+
 class ModelBufferCache:
     """De-indexed vertex buffers (:data:`VERTEX_FORMAT`) per model, shared by the
     passes that rasterise the scene. Keyed by model identity; :meth:`prune` drops the buffers
@@ -50,6 +89,7 @@ class ModelBufferCache:
         self.ctx = ctx
         self._entries: dict = {}  # id(model) -> (model, vbo, vertex_count)
         self._uv: dict = {}  # id(model) -> (model, uv vbo, the uvs array it holds)
+        self._indexed: dict = {}  # id(model) -> (model, key, vbo, ibo, index count, face texture)
 
     def get(self, model):
         """``(vbo, vertex_count)``; vbo is None for a model without triangles."""
@@ -62,6 +102,36 @@ class ModelBufferCache:
             e = (model, vbo, 3 * model.triangle_count)
             self._entries[id(model)] = e
         return e[1], e[2]
+
+    def indexed(self, model):
+        """``(vbo, ibo, index_count, face_texture)`` of :func:`indexed_vertex_data` and
+        :func:`face_normals` (an RGBA32F texture :data:`FACE_TEX_WIDTH` wide); ``vbo`` is None
+        for a model without triangles."""
+        key = (id(model.vertices), id(model.triangles), id(model.normals), id(model.uvs), len(model.triangles))
+        e = self._indexed.get(id(model))
+        if e is None or e[0] is not model or e[1] != key:
+            if e is not None:
+                self._release_indexed(e)
+            verts, idx = indexed_vertex_data(model)
+            if not len(idx):
+                e = (model, key, None, None, 0, None)
+            else:
+                fn = face_normals(model)
+                rows = -(-len(fn) // FACE_TEX_WIDTH)
+                data = np.zeros((rows * FACE_TEX_WIDTH, 4), np.float32)
+                data[:len(fn), :3] = fn
+                tex = self.ctx.texture((FACE_TEX_WIDTH if rows > 1 else len(fn), rows), 4,
+                                       data[:len(fn)].tobytes() if rows == 1 else data.tobytes(), dtype="f4")
+                tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+                e = (model, key, self.ctx.buffer(verts.tobytes()), self.ctx.buffer(idx.tobytes()), len(idx), tex)
+            self._indexed[id(model)] = e
+        return e[2], e[3], e[4], e[5]
+
+    @staticmethod
+    def _release_indexed(e) -> None:
+        for o in e[2:4] + e[5:6]:
+            if o is not None:
+                o.release()
 
     def uv(self, model):
         """De-indexed (3T, 2) float32 UV buffer of a model with a UV map (``UV_FORMAT``)."""
@@ -81,6 +151,8 @@ class ModelBufferCache:
                 vbo.release()
         for k in [k for k in self._uv if k not in keep]:
             self._uv.pop(k)[1].release()
+        for k in [k for k in self._indexed if k not in keep]:
+            self._release_indexed(self._indexed.pop(k))
 
     def buffer_ids(self) -> dict:
         return {k: id(e[1]) for k, e in self._entries.items()}
@@ -99,10 +171,12 @@ class InstanceBatch:
         self.capacity = 0
         self._key = None
 
-    def upload(self, data: np.ndarray, prog, vbo, vbo_format, vbo_attrs, inst_format, inst_attrs, extra=()):
-        """``extra``: more per-vertex buffers, ``(buffer, format, *attrs)`` each."""
+    def upload(self, data: np.ndarray, prog, vbo, vbo_format, vbo_attrs, inst_format, inst_attrs, extra=(),
+               index_buffer=None):
+        """``extra``: more per-vertex buffers, ``(buffer, format, *attrs)`` each;
+        ``index_buffer``: uint32 indices (an indexed draw)."""
         nbytes = data.nbytes
-        key = (id(prog), id(vbo), tuple(id(x[0]) for x in extra))
+        key = (id(prog), id(vbo), tuple(id(x[0]) for x in extra), id(index_buffer))
         if self.ibuf is None or self.capacity < nbytes or key != self._key:
             if self.vao is not None:
                 self.vao.release()
@@ -112,7 +186,8 @@ class InstanceBatch:
                 self.capacity = max(nbytes, 2 * self.capacity, 256)
                 self.ibuf = self.ctx.buffer(reserve=self.capacity, dynamic=True)
             self.vao = self.ctx.vertex_array(prog, [(vbo, vbo_format, *vbo_attrs), *extra,
-                                                    (self.ibuf, inst_format, *inst_attrs)], skip_errors=True)
+                                                    (self.ibuf, inst_format, *inst_attrs)],
+                                             index_buffer=index_buffer, index_element_size=4, skip_errors=True)
             self._key = key
         self.ibuf.write(data.tobytes())
         return self.vao

@@ -1,8 +1,12 @@
 """The G-buffer pass, rasterised with Blender's camera.
 
-One instanced draw call per model: a de-indexed vertex buffer (position + face normal + shading
-normal, :class:`~..geometry.ModelBufferCache`) and a per-model instance buffer (camera-relative
-world matrix rows, normal matrix, colour, specular/roughness/index) re-uploaded each render.
+One instanced, indexed draw call per model: the model's distinct corners (position, smooth
+shading normal, UV) with an index buffer, its face normals in a texture read by
+``gl_PrimitiveID`` (:meth:`~..geometry.ModelBufferCache.indexed`: a software rasteriser shades
+a vertex once per index of a de-indexed buffer, three times per triangle, which cost the
+G-buffer half its time on a 131k-triangle terrain), and a per-model instance buffer
+(camera-relative world matrix rows, normal matrix, colour, specular/roughness/index)
+re-uploaded each render. Instances whose bounding sphere misses the view are not drawn.
 Sphere primitives (``Instances.sphere``) are drawn as their model's bounding sphere
 (ray/ellipsoid per fragment). Models with UVs shown with a textured material draw with the
 ``TEXTURED`` variant: a UV buffer, the material per instance, the colour image's texel (mip
@@ -20,7 +24,8 @@ import numpy as np
 from ...errors import SceneError
 from ..context import check_render_size
 from ..frame import GBUFFER_TARGETS, CameraUniforms, GBuffer
-from ..geometry import UV_FORMAT, VERTEX_ATTRS, VERTEX_FORMAT, InstanceBatch, ProxyMesh, unit_cube
+from ..geometry import (INDEXED_ATTRS, INDEXED_FORMAT, INDEXED_FORMAT_NO_UV, VERTEX_ATTRS, VERTEX_FORMAT,
+                        InstanceBatch, ProxyMesh, unit_cube)
 from ..targets import create_texture
 from .base import Pass
 
@@ -147,22 +152,28 @@ class GBufferPass(Pass):
                 tprog = self.programs.get("gbuffer", {"TEXTURED": 1})
                 cam.apply(tprog)
                 tprog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
-                self.gpu.bind_materials(tprog, scene)
+            face_unit = 0
+            if tprog is not None:
+                face_unit = self.gpu.bind_materials(tprog, scene)
+            for p in (prog, tprog):
+                if p is not None and "u_face_normals" in p:
+                    p["u_face_normals"].value = face_unit
             for mi, model in enumerate(scene.models):
                 rows = tri_rows[bounds[mi]:bounds[mi + 1]]
                 if not len(rows) or not model.triangle_count:
                     continue
-                vbo, nverts = self.models.get(model)
+                vbo, ibo, nidx, faces = self.models.indexed(model)
+                faces.use(face_unit)
                 data = self.instance_data(scene, rows, cam.cam_pos)
                 if tprog is not None and model.uvs is not None and (inst.material_ids[rows] >= 0).any():
                     data = np.ascontiguousarray(np.concatenate(
                         [data, inst.material_ids[rows].astype(np.float32)[:, None]], axis=1))
-                    vao = self._batch(mi).upload(data, tprog, vbo, VERTEX_FORMAT, VERTEX_ATTRS, TEXTURED_FORMAT,
-                                                 TEXTURED_ATTRS, extra=[(self.models.uv(model), UV_FORMAT, "in_uv")])
+                    vao = self._batch(mi).upload(data, tprog, vbo, INDEXED_FORMAT, INDEXED_ATTRS, TEXTURED_FORMAT,
+                                                 TEXTURED_ATTRS, index_buffer=ibo)
                 else:
-                    vao = self._batch(mi).upload(data, prog, vbo, VERTEX_FORMAT, VERTEX_ATTRS,
-                                                 INSTANCE_FORMAT, INSTANCE_ATTRS)
-                vao.render(moderngl.TRIANGLES, vertices=nverts, instances=len(rows))
+                    vao = self._batch(mi).upload(data, prog, vbo, INDEXED_FORMAT_NO_UV, INDEXED_ATTRS[:2],
+                                                 INSTANCE_FORMAT, INSTANCE_ATTRS, index_buffer=ibo)
+                vao.render(moderngl.TRIANGLES, vertices=nidx, instances=len(rows))
                 self.draw_calls += 1
             sph_rows = np.nonzero(inst.sphere & visible)[0]
             if len(sph_rows):
