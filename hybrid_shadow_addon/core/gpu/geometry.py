@@ -1,9 +1,10 @@
-"""Geometry on the GPU: de-indexed model vertex buffers, growable instance batches, the proxy
-meshes of sphere primitives, and the caster draw lists of the light-space passes."""
+"""Geometry on the GPU: indexed model buffers, growable instance batches, the proxy meshes of
+sphere primitives, and the caster draw lists of the light-space passes."""
 from __future__ import annotations
 
 import moderngl
 import numpy as np
+
 
 def unit_cube() -> np.ndarray:
     """De-indexed (36, 3) float32 triangles of the cube [-1, 1]^3."""
@@ -13,11 +14,10 @@ def unit_cube() -> np.ndarray:
     return c[np.array(tris).ravel()]
 
 
-# The vertex layout of every model buffer (de-indexed: 3 vertices per triangle, model space).
+# The vertex layout of the proxy meshes (de-indexed: 3 vertices per triangle; normals zero).
 VERTEX_FORMAT = "3f 3f 3f"
 VERTEX_ATTRS = ("in_pos", "in_face_normal", "in_shading_normal")
-UV_FORMAT = "2f"  # the UV buffers (de-indexed like the model buffers)
-POSITION_FORMAT = "3f 24x"  # the same buffers read for positions only (depth-only passes)
+POSITION_FORMAT = "3f 24x"  # the proxies' buffers read for positions only (depth-only passes)
 
 
 def position_vertex_data(points: np.ndarray) -> np.ndarray:
@@ -25,21 +25,6 @@ def position_vertex_data(points: np.ndarray) -> np.ndarray:
     out = np.zeros((len(points), 9), np.float32)
     out[:, :3] = points
     return out
-
-
-def face_vertex_data(model) -> np.ndarray:
-    """(3T, 9) float32 de-indexed positions, the triangle's unit face normal and the shading
-    normal of each corner (the model's smooth normals, else the face normal)."""
-    v = model.vertices.astype(np.float64)
-    tri = v[model.triangles.astype(np.int64)]  # (T, 3, 3)
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    n = np.where(ln > 0, n / np.where(ln > 0, ln, 1), 0.0)
-    out = np.empty((len(tri), 3, 9), np.float32)
-    out[:, :, :3] = model.vertices[model.triangles]
-    out[:, :, 3:6] = n[:, None, :]
-    out[:, :, 6:9] = n[:, None, :] if model.normals is None else model.normals
-    return out.reshape(-1, 9)
 
 
 # The G-buffer's indexed layout: the model's distinct corners (position, smooth corner normal
@@ -63,8 +48,8 @@ def face_normals(model) -> np.ndarray:
 def indexed_vertex_data(model):
     """``(vertices (V, 8) float32, indices (3T,) uint32)``: the model's distinct corners in
     :data:`INDEXED_FORMAT` (a flat model's normals are zeros: the G-buffer then shades with the
-    face normal) and each triangle's three corners in order (the last one, GL's provoking
-    vertex, is the triangle's own last vertex, as in the de-indexed buffer)."""
+    face normal) and each triangle's three corners in order (its last corner, GL's provoking
+    vertex, gives the G-buffer its plane point)."""
     t = len(model.triangles)
     corners = np.zeros((t, 3, 8), np.float32)
     corners[:, :, :3] = model.vertices[model.triangles]
@@ -81,27 +66,13 @@ def indexed_vertex_data(model):
 
 
 class ModelBufferCache:
-    """De-indexed vertex buffers (:data:`VERTEX_FORMAT`) per model, shared by the
-    passes that rasterise the scene. Keyed by model identity; :meth:`prune` drops the buffers
-    of models no longer in the scene."""
+    """The indexed buffers of each model (:meth:`indexed`), shared by the passes that rasterise
+    the scene. Keyed by model identity; :meth:`prune` drops the buffers of models no longer in
+    the scene."""
 
     def __init__(self, ctx):
         self.ctx = ctx
-        self._entries: dict = {}  # id(model) -> (model, vbo, vertex_count)
-        self._uv: dict = {}  # id(model) -> (model, uv vbo, the uvs array it holds)
         self._indexed: dict = {}  # id(model) -> (model, key, vbo, ibo, index count, face texture)
-
-    def get(self, model):
-        """``(vbo, vertex_count)``; vbo is None for a model without triangles."""
-        e = self._entries.get(id(model))
-        if e is None or e[0] is not model or e[2] != 3 * model.triangle_count:
-            if e is not None and e[1] is not None:
-                e[1].release()
-            data = face_vertex_data(model)
-            vbo = self.ctx.buffer(data.tobytes()) if len(data) else None
-            e = (model, vbo, 3 * model.triangle_count)
-            self._entries[id(model)] = e
-        return e[1], e[2]
 
     def indexed(self, model):
         """``(vbo, ibo, index_count, face_texture)`` of :func:`indexed_vertex_data` and
@@ -117,11 +88,11 @@ class ModelBufferCache:
                 e = (model, key, None, None, 0, None)
             else:
                 fn = face_normals(model)
-                rows = -(-len(fn) // FACE_TEX_WIDTH)
-                data = np.zeros((rows * FACE_TEX_WIDTH, 4), np.float32)
+                width = min(len(fn), FACE_TEX_WIDTH)
+                rows = -(-len(fn) // width)
+                data = np.zeros((rows * width, 4), np.float32)
                 data[:len(fn), :3] = fn
-                tex = self.ctx.texture((FACE_TEX_WIDTH if rows > 1 else len(fn), rows), 4,
-                                       data[:len(fn)].tobytes() if rows == 1 else data.tobytes(), dtype="f4")
+                tex = self.ctx.texture((width, rows), 4, data.tobytes(), dtype="f4")
                 tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
                 e = (model, key, self.ctx.buffer(verts.tobytes()), self.ctx.buffer(idx.tobytes()), len(idx), tex)
             self._indexed[id(model)] = e
@@ -133,29 +104,13 @@ class ModelBufferCache:
             if o is not None:
                 o.release()
 
-    def uv(self, model):
-        """De-indexed (3T, 2) float32 UV buffer of a model with a UV map (``UV_FORMAT``)."""
-        e = self._uv.get(id(model))
-        if e is None or e[0] is not model or e[2] is not model.uvs:
-            if e is not None:
-                e[1].release()
-            e = (model, self.ctx.buffer(np.ascontiguousarray(model.uvs, np.float32).tobytes()), model.uvs)
-            self._uv[id(model)] = e
-        return e[1]
-
     def prune(self, models) -> None:
         keep = {id(m) for m in models}
-        for k in [k for k in self._entries if k not in keep]:
-            vbo = self._entries.pop(k)[1]
-            if vbo is not None:
-                vbo.release()
-        for k in [k for k in self._uv if k not in keep]:
-            self._uv.pop(k)[1].release()
         for k in [k for k in self._indexed if k not in keep]:
             self._release_indexed(self._indexed.pop(k))
 
     def buffer_ids(self) -> dict:
-        return {k: id(e[1]) for k, e in self._entries.items()}
+        return {k: id(e[2]) for k, e in self._indexed.items()}
 
     def release(self) -> None:
         self.prune(())
@@ -171,12 +126,11 @@ class InstanceBatch:
         self.capacity = 0
         self._key = None
 
-    def upload(self, data: np.ndarray, prog, vbo, vbo_format, vbo_attrs, inst_format, inst_attrs, extra=(),
+    def upload(self, data: np.ndarray, prog, vbo, vbo_format, vbo_attrs, inst_format, inst_attrs,
                index_buffer=None):
-        """``extra``: more per-vertex buffers, ``(buffer, format, *attrs)`` each;
-        ``index_buffer``: uint32 indices (an indexed draw)."""
+        """``index_buffer``: uint32 indices (an indexed draw)."""
         nbytes = data.nbytes
-        key = (id(prog), id(vbo), tuple(id(x[0]) for x in extra), id(index_buffer))
+        key = (id(prog), id(vbo), id(index_buffer))
         if self.ibuf is None or self.capacity < nbytes or key != self._key:
             if self.vao is not None:
                 self.vao.release()
@@ -185,7 +139,7 @@ class InstanceBatch:
                     self.ibuf.release()
                 self.capacity = max(nbytes, 2 * self.capacity, 256)
                 self.ibuf = self.ctx.buffer(reserve=self.capacity, dynamic=True)
-            self.vao = self.ctx.vertex_array(prog, [(vbo, vbo_format, *vbo_attrs), *extra,
+            self.vao = self.ctx.vertex_array(prog, [(vbo, vbo_format, *vbo_attrs),
                                                     (self.ibuf, inst_format, *inst_attrs)],
                                              index_buffer=index_buffer, index_element_size=4, skip_errors=True)
             self._key = key
@@ -274,8 +228,9 @@ def alpha_caster_rows(scene, rows) -> np.ndarray:
 
 class CasterDraws:
     """Instanced position-only draws of shadow casters for light-space passes (shadow maps,
-    conservative maps): per model one batch of world matrix rows relative to an origin, sphere
-    primitives as icospheres circumscribing their bounding spheres."""
+    conservative maps): per model one indexed batch of world matrix rows relative to an origin
+    (:meth:`ModelBufferCache.indexed`), sphere primitives as icospheres circumscribing their
+    bounding spheres."""
 
     def __init__(self, ctx, models: ModelBufferCache):
         self.ctx = ctx
@@ -298,8 +253,9 @@ class CasterDraws:
             if not model.triangle_count:
                 continue
             sel = rows[(~sph) & (mids == mi)]
-            vbo, nverts = self.models.get(model)
-            draws.append((self._upload(("m", int(mi)), inst.matrices[sel], origin, prog, vbo), nverts, len(sel)))
+            vbo, ibo, nidx, _ = self.models.indexed(model)
+            draws.append((self._upload(("m", int(mi)), inst.matrices[sel], origin, prog, vbo, index_buffer=ibo),
+                          nidx, len(sel)))
         srows = rows[sph]
         if len(srows):
             vbo, nverts = self._sphere.get()
@@ -319,14 +275,15 @@ class CasterDraws:
             if not model.triangle_count:
                 continue
             sel = rows[mids == mi]
-            vbo, nverts = self.models.get(model)
-            extra = [(self.models.uv(model), UV_FORMAT, "in_uv")]
+            vbo, ibo, nidx, _ = self.models.indexed(model)
             mat = inst.material_ids[sel].astype(np.float32)[:, None]
-            draws.append((self._upload(("a", int(mi)), inst.matrices[sel], origin, prog, vbo, mat, extra),
-                          nverts, len(sel)))
+            draws.append((self._upload(("a", int(mi)), inst.matrices[sel], origin, prog, vbo, mat,
+                                       index_buffer=ibo), nidx, len(sel)))
         return draws
 
-    def _upload(self, key, matrices, origin, prog, vbo, more=None, extra=()):
+    def _upload(self, key, matrices, origin, prog, vbo, more=None, index_buffer=None):
+        """``index_buffer`` given: ``vbo`` is a model's indexed buffer (:data:`INDEXED_FORMAT`,
+        positions and, for alpha-cut casters, UVs read), else a proxy's positions."""
         m = np.array(matrices, np.float64)
         m[:, :3, 3] -= np.asarray(origin, np.float64)
         data = m[:, :3, :].reshape(len(m), 12)
@@ -338,7 +295,10 @@ class CasterDraws:
         b = self._batches.get(key)
         if b is None:
             b = self._batches[key] = InstanceBatch(self.ctx)
-        return b.upload(data, prog, vbo, POSITION_FORMAT, ("in_pos",), fmt, attrs, extra=extra)
+        if index_buffer is None:
+            return b.upload(data, prog, vbo, POSITION_FORMAT, ("in_pos",), fmt, attrs)
+        vfmt, vattrs = ("3f 12x 2f", ("in_pos", "in_uv")) if more is not None else ("3f 20x", ("in_pos",))
+        return b.upload(data, prog, vbo, vfmt, vattrs, fmt, attrs, index_buffer=index_buffer)
 
     def release(self) -> None:
         for b in self._batches.values():
