@@ -1,0 +1,84 @@
+"""A whole frame's passes against a peer tree, same run: G-buffer, shadows, lighting and the
+frame, per scene, alternating the two trees.
+
+Each measurement is a subprocess in one tree (its own ``Pipeline``) rendering the scene
+``--frames`` times (the first two are dropped: program compilation and first uploads) and
+reporting the median of each pass. Trees alternate (peer, this, peer, this, ...)
+``--alternations`` times, so both see the same machine load; the table gives the median over
+the alternations and ``peer / this``.
+
+    rm -rf /tmp/framepeer && mkdir /tmp/framepeer && git archive <commit> | tar -x -C /tmp/framepeer
+    .venv/bin/python benchmarks/bench_frame.py --peer /tmp/framepeer [--scenes forest clusters city]
+        [--size 320x180] [--soft] [--frames 7] [--alternations 2]
+
+Lights are hard (as the hard Cycles reference renders them) unless ``--soft``; mode ``raytrace``,
+quality ``high``. ``--mode shadowmap`` or ``none`` measures those instead.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+PASSES = ("gbuffer_ms", "shadow_ms", "lighting_ms", "total_ms")
+
+CHILD = r"""
+import json, os, statistics, sys
+root = sys.argv[1]; sys.path.insert(0, root); os.chdir(root)
+from hybrid_shadow_addon.blender.load import load_scene
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.settings import Settings
+scene_arg, size, soft, mode, frames = sys.argv[2], sys.argv[3], sys.argv[4] == "1", sys.argv[5], int(sys.argv[6])
+W, H = (int(v) for v in size.split("x"))
+scene = load_scene(scene_arg)
+pipe = Pipeline()
+pipe.set_scene(scene)
+settings = Settings(mode=mode, quality="high", hard=not soft)
+rows = [pipe.render(scene, settings, W, H).timings for _ in range(frames)][2:]
+print("HS_FRAME " + json.dumps({k: statistics.median(r.get(k, 0.0) for r in rows) for k in %r}), flush=True)
+""" % (PASSES,)
+
+
+def measure(tree: Path, scene: str, size: str, soft: bool, mode: str, frames: int) -> dict:
+    out = subprocess.run([sys.executable, "-c", CHILD, str(tree), scene, size, "1" if soft else "0", mode,
+                          str(frames)], capture_output=True, text=True, cwd=str(tree))
+    if out.returncode != 0:
+        raise SystemExit(f"{tree}: {scene} failed:\n{out.stderr[-2000:]}")
+    line = [x for x in out.stdout.splitlines() if x.startswith("HS_FRAME ")][-1]
+    return json.loads(line[len("HS_FRAME "):])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--peer", required=True, type=Path, help="the other tree (a checked-out commit)")
+    ap.add_argument("--scenes", nargs="+", default=["forest", "clusters", "city"])
+    ap.add_argument("--size", default="320x180")
+    ap.add_argument("--soft", action="store_true", help="lights with their sizes (default: hard)")
+    ap.add_argument("--mode", default="raytrace", choices=("raytrace", "shadowmap", "none"))
+    ap.add_argument("--frames", type=int, default=7)
+    ap.add_argument("--alternations", type=int, default=2)
+    a = ap.parse_args(argv)
+    if not (a.peer / "hybrid_shadow_addon").is_dir():
+        raise SystemExit(f"--peer {a.peer}: not a tree of this project (no hybrid_shadow_addon/)")
+    trees = {"peer": a.peer.resolve(), "this": REPO}
+    print(f"| scene | pass | peer ms | this ms | peer / this |\n|---|---|---:|---:|---:|")
+    for scene in a.scenes:
+        got = {k: [] for k in trees}
+        for _ in range(a.alternations):
+            for name, tree in trees.items():
+                got[name].append(measure(tree, scene, a.size, a.soft, a.mode, a.frames))
+        for p in PASSES:
+            peer = statistics.median(r[p] for r in got["peer"])
+            this = statistics.median(r[p] for r in got["this"])
+            ratio = f"{peer / this:.2f}x" if this > 0 else "-"
+            label = p.replace("_ms", "").replace("total", "frame")
+            print(f"| {scene} | {label} | {peer:.1f} | {this:.1f} | {ratio} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
