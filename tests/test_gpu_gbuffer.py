@@ -155,14 +155,23 @@ def test_indexed_layout_keeps_every_corner_and_face():
     quads = [(i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1) for i in range(n - 1) for j in range(n - 1)]
     tris = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], np.uint32)
     smooth = rng.normal(size=(len(verts), 3)).astype(np.float32)
-    for normals, uvs in ((None, None), (smooth[tris], None), (smooth[tris], verts[tris][..., :2] * 0.1)):
+    sharp = smooth[tris].copy()
+    sharp[:10, 0] = sharp[10:20, 1] = (0.0, 0.0, 1.0)  # a sharp edge: vertices with two normals
+    seam = verts[tris][..., :2] * 0.1
+    seam[5:9, 2] = -1.0  # a UV seam
+    for normals, uvs, extra in ((None, None, 0), (smooth[tris], None, 0), (smooth[tris], verts[tris][..., :2] * 0.1, 0),
+                                (sharp, seam, None)):
         m = Model("grid", verts, tris, normals=normals, uvs=uvs)
         vb, idx = indexed_vertex_data(m)
         corners = vb[idx].reshape(-1, 3, 8)
         assert np.array_equal(corners[..., :3], m.vertices[m.triangles])
         assert np.array_equal(corners[..., 3:6], np.zeros_like(corners[..., 3:6]) if normals is None else m.normals)
         assert np.array_equal(corners[..., 6:], np.zeros_like(corners[..., 6:]) if uvs is None else m.uvs)
-        assert len(vb) == len(verts)  # shared corners shared (per-vertex normals and UVs here)
+        # corners equal in position, normal and UV are one vertex; others are not merged
+        distinct = len(np.unique(corners.reshape(-1, 8), axis=0))
+        assert len(np.unique(vb[idx], axis=0)) == distinct and len(np.unique(idx)) == distinct
+        if extra == 0:
+            assert len(vb) == len(verts)
         tri = verts.astype(np.float64)[tris.astype(np.int64)]
         fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         assert np.allclose(face_normals(m), fn / np.linalg.norm(fn, axis=1, keepdims=True), atol=1e-7)

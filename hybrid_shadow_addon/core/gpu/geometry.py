@@ -46,23 +46,40 @@ def face_normals(model) -> np.ndarray:
 
 
 def indexed_vertex_data(model):
-    """``(vertices (V, 8) float32, indices (3T,) uint32)``: the model's distinct corners in
+    """``(vertices (V', 8) float32, indices (3T,) uint32)``: the model's corners in
     :data:`INDEXED_FORMAT` (a flat model's normals are zeros: the G-buffer then shades with the
-    face normal) and each triangle's three corners in order (its last corner, GL's provoking
-    vertex, gives the G-buffer its plane point)."""
-    t = len(model.triangles)
-    corners = np.zeros((t, 3, 8), np.float32)
-    corners[:, :, :3] = model.vertices[model.triangles]
+    face normal), shared where they are equal, and each triangle's three corners in order (its
+    last corner, GL's provoking vertex, gives the G-buffer its plane point).
+
+    The model's own vertices carry each vertex's normal and UV; a corner whose normal or UV
+    differs from its vertex's (a sharp edge, a UV seam) gets a vertex of its own (equal such
+    corners one together). Linear in the corners: no sort of the whole mesh."""
+    tri = model.triangles.astype(np.int64).ravel()
+    nv = len(model.vertices)
+    verts = np.zeros((nv, 8), np.float32)
+    verts[:, :3] = model.vertices
+    if model.normals is None and model.uvs is None:
+        return verts, tri.astype(np.uint32)
+    attrs = np.zeros((len(tri), 5), np.float32)
     if model.normals is not None:
-        corners[:, :, 3:6] = model.normals
+        attrs[:, :3] = model.normals.reshape(-1, 3)
     if model.uvs is not None:
-        corners[:, :, 6:8] = model.uvs
-    flat = np.ascontiguousarray(corners.reshape(-1, 8))
-    if not len(flat):
-        return flat, np.zeros(0, np.uint32)
-    keys = flat.view(np.dtype((np.void, 32))).ravel()
-    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-    return flat[first], inverse.astype(np.uint32).ravel()
+        attrs[:, 3:] = model.uvs.reshape(-1, 2)
+    per_vertex = np.zeros((nv, 5), np.float32)
+    per_vertex[tri] = attrs
+    bits = attrs.view(np.int32)
+    own = (per_vertex[tri].view(np.int32) != bits).any(axis=1)  # (bitwise: -0.0 and NaN kept as given)
+    verts[:, 3:] = per_vertex
+    idx = tri.copy()
+    if own.any():
+        keys = np.concatenate([tri[own, None].astype(np.int32), bits[own]], axis=1)
+        keys = np.ascontiguousarray(keys).view(np.dtype((np.void, 24))).ravel()
+        _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+        rows = np.nonzero(own)[0][first]
+        extra = np.concatenate([model.vertices[tri[rows]], attrs[rows]], axis=1)
+        verts = np.concatenate([verts, extra])
+        idx[own] = nv + inverse.ravel()
+    return np.ascontiguousarray(verts, np.float32), idx.astype(np.uint32)
 
 
 class ModelBufferCache:
