@@ -54,10 +54,10 @@ class LightingPass(Pass):
         prog, vao = self.programs.fullscreen("lighting", lighting_defines(table))
         unit = gbuffer.bind(prog)
         lights_tex.use(unit)
-        prog["u_lights"].value = unit
+        set_uniforms(prog, {"u_lights": unit})  # (a scene without lights compiles none of it out)
         unit += 1
         mask_units = list(range(unit, unit + MAX_MASKS))
-        prog["u_masks"].value = mask_units
+        set_uniforms(prog, {"u_masks": mask_units})
         use_spec = 1 if (settings is None or settings.specular) else 0
         common = {"u_world_color": tuple(float(c) for c in scene.world_color), "u_specular": use_spec,
                   "u_transparent": int(bool(job.film_transparent)),
@@ -71,9 +71,8 @@ class LightingPass(Pass):
                 masks[order[row]].use(mask_units[k])
             for k in range(len(rows), MAX_MASKS):  # keep unused samplers on a valid texture
                 lights_tex.use(mask_units[k])
-            prog["u_masked_count"].value = len(rows)
-            prog["u_masked_rows"].value = rows + [0] * (MAX_MASKS - len(rows))
-            prog["u_first_batch"].value = int(b == 0)
+            set_uniforms(prog, {"u_masked_count": len(rows), "u_masked_rows": rows + [0] * (MAX_MASKS - len(rows)),
+                                "u_first_batch": int(b == 0)})
             if b == 1:
                 ctx.enable(moderngl.BLEND)
                 ctx.blend_equation = moderngl.FUNC_ADD
