@@ -222,38 +222,37 @@ HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax)
     vec3 q_lo = t_lo, q_hi = t_hi, q_inv = t_inv;
     int i = hs_tlas_root;
     int ret = -1;   // >= 0: inside a model tree, resume the top level there
-    int bend = 0;   // end of the current model tree
 #ifdef HS_HAS_MESHES
     vec3 om = vec3(0.0);
     HsShear sh;
     sh.mx = vec3(0.0); sh.my = vec3(0.0); sh.mz = vec3(0.0); sh.sz = 0.0;
 #endif
+    int limit = hs_tlas_end;   // the end of the tree being walked (the top level's, or the model tree's)
     for (;;) {
-        // nodes, until a leaf whose box the ray hits (a flag, not a nested break: llvmpipe
-        // miscompiled the break out of this inner loop, lanes lost their node index)
+        // nodes, until a leaf whose box the ray hits or the end of the tree (a flag, not a
+        // nested break: llvmpipe miscompiled the break out of this inner loop, lanes lost their
+        // node index). The loop body is the walk's cost on a SIMD software rasteriser, which
+        // runs every branch of it for all lanes: no branch in it, the return from a model tree
+        // to the top level is the outer loop's (a fifth less time than testing it every step).
         uint w = 0u;
         bool found = false;
-        bool walking = true;
+        bool walking = i < limit;
         while (walking) {
-            if (ret >= 0 && i >= bend) { i = ret; ret = -1; q_lo = t_lo; q_hi = t_hi; q_inv = t_inv; }
-            if (ret < 0 && i >= hs_tlas_end) {
-                walking = false;
-            } else {
-                uvec4 n = texelFetch(hs_node_tex, hs_texel(i), 0);
-                bool leaf = (n.w & HS_LEAF_FLAG) != 0u;
-                bool hit = hs_qbox_hit(q_lo, q_hi, q_inv, n, tmax);
-                if (hit && leaf) {
-                    w = n.w;
-                    found = true;
-                    walking = false;
-                } else {
-                    i = (hit || leaf) ? i + 1 : int(n.w);
-                }
-            }
+            uvec4 n = texelFetch(hs_node_tex, hs_texel(i), 0);
+            bool leaf = (n.w & HS_LEAF_FLAG) != 0u;
+            bool hit = hs_qbox_hit(q_lo, q_hi, q_inv, n, tmax);
+            found = hit && leaf;
+            w = n.w;
+            i = (hit || leaf) ? i + 1 : int(n.w);   // (a leaf found: i is the node after it)
+            walking = !found && i < limit;
         }
-        if (!found) break;
+        if (!found) {
+            if (ret < 0) break;
+            i = ret; ret = -1; q_lo = t_lo; q_hi = t_hi; q_inv = t_inv; limit = hs_tlas_end;
+            continue;
+        }
         uint pay = w & 0x7FFFFFFFu;
-        int next = i + 1;
+        int next = i;
         int at = ret < 0 ? 5 * int(pay) : int(pay >> 3u);
         vec4 x0, x1, x2, x3, x4, x5, x6, x7, x8;
         uvec4 u3;
@@ -278,9 +277,9 @@ HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax)
                 q_inv = hs_slab_inv(m_d * x4.w);
                 om = m_o;
                 sh = hs_shear_setup(m_d);
-                ret = i + 1;
+                ret = next;
                 next = int(u3.x);
-                bend = int(u3.y);
+                limit = int(u3.y);
 #ifdef HS_HAS_ALPHA
                 amat = int(u3.w);
                 if (amat != 0) cut = hs_cut_setup(amat - 1);

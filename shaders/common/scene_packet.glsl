@@ -263,7 +263,7 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
 #endif
     int i = hs_tlas_root;
     int ret = -1;   // >= 0: inside a model tree, resume the top level there
-    int bend = 0;   // end of the current model tree
+    int limit = hs_tlas_end;   // the end of the tree being walked (the top level's, or the model tree's)
 #ifdef HS_HAS_MESHES
     vec3 om = vec3(0.0);
 #endif
@@ -273,31 +273,28 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
     hs_pk_at = 0;
 #endif
     while (going) {
+        // (as hs_trace's walk: no branch in the node loop, the return to the top level here)
         uint w = 0u;
         bool found = false;
-        bool walking = true;
+        bool walking = i < limit;
         while (walking) {
-            if (ret >= 0 && i >= bend) { i = ret; ret = -1; c = tc; }
-            if (ret < 0 && i >= hs_tlas_end) {
-                walking = false;
-            } else {
-                uvec4 n = texelFetch(hs_node_tex, hs_texel(i), 0);
-                bool leaf = (n.w & HS_LEAF_FLAG) != 0u;
-                bool hit = hs_cone_box_hit(c, n);
-                if (hit && leaf) {
-                    w = n.w;
-                    found = true;
-                    walking = false;
-                } else {
-                    i = (hit || leaf) ? i + 1 : int(n.w);
-                }
-            }
+            uvec4 n = texelFetch(hs_node_tex, hs_texel(i), 0);
+            bool leaf = (n.w & HS_LEAF_FLAG) != 0u;
+            bool hit = hs_cone_box_hit(c, n);
+            found = hit && leaf;
+            w = n.w;
+            i = (hit || leaf) ? i + 1 : int(n.w);   // (a leaf found: i is the node after it)
+            walking = !found && i < limit;
         }
         if (!found) {
-            going = false;
+            if (ret < 0) {
+                going = false;
+            } else {
+                i = ret; ret = -1; c = tc; limit = hs_tlas_end;
+            }
         } else {
             uint pay = w & 0x7FFFFFFFu;
-            int next = i + 1;
+            int next = i;
             int at = ret < 0 ? 5 * int(pay) : int(pay >> 3u);
             vec4 x0, x1, x2, x3, x4, x5, x6, x7, x8;
             uvec4 u3;
@@ -356,9 +353,9 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
                     c.p2 = planes ? hs_pk_normal(hs_pk_pyr[2]) : vec3(0.0);
                     c.p3 = planes ? hs_pk_normal(hs_pk_pyr[3]) : vec3(0.0);
 #endif
-                    ret = i + 1;
+                    ret = next;
                     next = int(u3.x);
-                    bend = int(u3.y);
+                    limit = int(u3.y);
 #ifdef HS_HAS_ALPHA
                     hs_pk_cuts = u3.w != 0u;
                     if (hs_pk_cuts) hs_pk_cut = hs_cut_setup(int(u3.w) - 1);
@@ -382,7 +379,7 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
 #if HS_BVH_LEAF_SIZE > 3
                 if (tc_n > 3) occ |= hs_pk_tri(om, live & ~occ, vec3(x6.w, x7.xy), vec3(x7.zw, x8.x), x8.yzw, 3);
 #endif
-                if (all(equal(occ, live))) { next = hs_tlas_end; ret = -1; }   // (all blocked: the walk ends)
+                if (all(equal(occ, live))) { next = hs_tlas_end; ret = -1; limit = hs_tlas_end; }   // (all blocked: the walk ends)
             }
 #endif
             i = next;
