@@ -200,6 +200,23 @@ uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2, int ti)
 }
 #endif
 
+// hs_walk for the packet's cone (common/scene_bvh.glsl)
+bool hs_pk_walk(inout int i, inout uint w, int limit, HsCone c)
+{
+    bool found = false;
+    bool walking = i < limit;
+    while (walking) {
+        uvec4 n = texelFetch(hs_node_tex, hs_texel(i), 0);
+        bool leaf = (n.w & HS_LEAF_FLAG) != 0u;
+        bool hit = hs_cone_box_hit(c, n);
+        found = hit && leaf;
+        w = n.w;
+        i = (hit || leaf) ? i + 1 : int(n.w);   // (a leaf found: i is the node after it)
+        walking = !found && i < limit;
+    }
+    return found;
+}
+
 // Bit k set: ray k of the packet (live bit k) is blocked (masks: hs_bit).
 uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
 {
@@ -275,23 +292,13 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
     while (going) {
         // (as hs_trace's walk: no branch in the node loop, the return to the top level here)
         uint w = 0u;
-        bool found = false;
-        bool walking = i < limit;
-        while (walking) {
-            uvec4 n = texelFetch(hs_node_tex, hs_texel(i), 0);
-            bool leaf = (n.w & HS_LEAF_FLAG) != 0u;
-            bool hit = hs_cone_box_hit(c, n);
-            found = hit && leaf;
-            w = n.w;
-            i = (hit || leaf) ? i + 1 : int(n.w);   // (a leaf found: i is the node after it)
-            walking = !found && i < limit;
+        bool found = hs_pk_walk(i, w, limit, c);
+        if (!found && ret >= 0) {
+            i = ret; ret = -1; c = tc; limit = hs_tlas_end;
+            found = hs_pk_walk(i, w, limit, c);
         }
         if (!found) {
-            if (ret < 0) {
-                going = false;
-            } else {
-                i = ret; ret = -1; c = tc; limit = hs_tlas_end;
-            }
+            going = false;
         } else {
             uint pay = w & 0x7FFFFFFFu;
             int next = i;
