@@ -9,7 +9,7 @@ G-buffer half its time on a 131k-triangle terrain), and a per-model instance buf
 re-uploaded each render. Instances whose bounding sphere misses the view are not drawn.
 Sphere primitives (``Instances.sphere``) are drawn as their model's bounding sphere
 (ray/ellipsoid per fragment). Models with UVs shown with a textured material draw with the
-``TEXTURED`` variant: a UV buffer, the material per instance, the colour image's texel (mip
+``TEXTURED`` variant: the UVs of the indexed buffer, the material per instance, the colour image's texel (mip
 mapped) times the instance colour, and the fragments that the material's alpha cuts discarded.
 
 World positions are the pixel-centre camera ray intersected with the triangle's plane (see
@@ -152,9 +152,7 @@ class GBufferPass(Pass):
                 tprog = self.programs.get("gbuffer", {"TEXTURED": 1})
                 cam.apply(tprog)
                 tprog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
-            face_unit = 0
-            if tprog is not None:
-                face_unit = self.gpu.bind_materials(tprog, scene)
+            face_unit = self.gpu.bind_materials(tprog, scene) if tprog is not None else 0
             for p in (prog, tprog):
                 if p is not None and "u_face_normals" in p:
                     p["u_face_normals"].value = face_unit
