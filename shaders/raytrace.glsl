@@ -6,8 +6,8 @@
 // Defines (besides scene_data.glsl's): HS_LIGHT_SUN or HS_LIGHT_LOCAL (point, spot, area) picks
 // the light kind, one program per kind; HS_MAX_DISTANCE (shadows only on surfaces within
 // u_max_distance of the camera, as the shadow-map pass; rays are no longer than that either),
-// HS_INTERLACE (trace only the texels of phase u_phase in each 2x2 block; keep u_history where
-// that texel's phase is in u_valid_phases, else write -1 for refine_classify.glsl to refine),
+// HS_INTERLACE (a quarter-resolution pass: texel q traces the pixel of this frame's phase in
+// 2x2 block q, 2q + u_offset; interlace_merge.glsl puts it together with the history),
 // HS_CONSERVATIVE (a conservative occupancy map of the light decides or shortens the ray),
 // HS_COMPACT (texel k of a compacted list traces the k-th pixel that refine_classify.glsl marked,
 // see common/compact.glsl; texels past the list's end are discarded), HS_SOFT with HS_SOFT_SHAPE
@@ -49,9 +49,7 @@ uniform sampler2D u_probe;      // the probe pass's sums (full resolution; see h
 uniform int u_scale;            // mask texel = u_scale x u_scale full-resolution pixels
 uniform ivec2 u_full_size;      // G-buffer size
 #ifdef HS_INTERLACE
-uniform sampler2D u_history;
-uniform int u_phase;            // 0..3
-uniform int u_valid_phases;     // bit p set: history texels of phase p are up to date
+uniform ivec2 u_offset;         // texel q traces pixel 2q + u_offset (this frame's phase)
 #endif
 
 in vec2 v_uv;
@@ -73,19 +71,12 @@ out float o_mask;
 void trace_main()
 {
     ivec2 mt = ivec2(gl_FragCoord.xy);
-#ifdef HS_INTERLACE
-    int phase = (mt.x & 1) | ((mt.y & 1) << 1);
-    ivec2 block_ray = (mt & ~1) + ivec2(u_phase & 1, u_phase >> 1);
-    bool block_has_ray = all(lessThan(block_ray, textureSize(u_history, 0)));
-    if (phase != u_phase && block_has_ray) {  // (a block cut by the edge traces its own texels)
-        o_mask = ((u_valid_phases >> phase) & 1) != 0 ? texelFetch(u_history, mt, 0).r : -1.0;
-        return;
-    }
-#endif
 #ifdef HS_COMPACT
     int k = compact_index(mt);
     if (k >= compact_total()) discard;    // (an occlusion query counts the rays)
     ivec2 px = compact_find(k);
+#elif defined(HS_INTERLACE)
+    ivec2 px = min(mt * 2 + u_offset, u_full_size - 1);
 #else
     ivec2 px = mask_source_pixel(mt, u_scale, u_full_size);
 #endif

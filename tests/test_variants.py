@@ -135,7 +135,7 @@ def test_grid_levels_only_as_many_as_needed(gl_ctx):
 def test_max_distance_and_interlace_only_when_on(gl_ctx):
     d, u, _ = trace(gl_ctx, make_scene())
     assert "HS_MAX_DISTANCE" not in d and "u_max_distance" not in u
-    assert "HS_INTERLACE" not in d and "u_history" not in u
+    assert "HS_INTERLACE" not in d and "u_offset" not in u
     d, u, _ = trace(gl_ctx, make_scene(), max_distance=5.0)
     assert "HS_MAX_DISTANCE" in d and "u_max_distance" in u
 

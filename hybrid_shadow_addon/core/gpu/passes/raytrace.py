@@ -7,8 +7,11 @@
   their own ray, the very ray ``high`` traces, as a compacted list. ``Settings.upsample ==
   'nearest'`` skips the refinement and leaves the coarse mask to the upsample pass (the thesis'
   blocky look, for comparisons).
-- ``interlace`` (any quality; thesis 3.5.2): one pixel of every 2x2 block per frame at full
-  resolution; pixels whose history is not up to date since the last :meth:`reset_history` are
+- ``interlace`` (any quality; thesis 3.5.2): one pixel of every 2x2 block per frame, traced
+  as a quarter-resolution mask (a full-resolution pass in which three pixels of four only copy
+  their history would keep every 8-pixel SIMD group of a software rasteriser tracing) and merged
+  with the history (``shaders/interlace_merge.glsl``); pixels whose history is not up to date
+  since the last :meth:`reset_history` are
   refined from this frame's rays, so a change never leaves stale shadows behind, the first frame
   after it is nearly exact and a still view is exact after four frames.
 
@@ -357,14 +360,28 @@ class RaytracePass(ShadowPass):
             draw_fullscreen(ctx, vao, coarse)
             dst = self._target((li, "out"), *full)
             self.refiner.classify((li, "out"), dst, gbuffer, coarse.texture, class_defs, uniforms)
-        else:  # interlace: this frame's phase at full resolution, history elsewhere
-            prog, vao, unit = self._program(defines, light, light_vec, gbuffer, settings, 1, cmap)
+        else:  # interlace: this frame's phase pixel of each 2x2 block traced densely, with the history
+            off = (self._phase & 1, self._phase >> 1)
+            prog, vao, _ = self._program(defines, light, light_vec, gbuffer, settings, 2, cmap)
+            set_uniforms(prog, {"u_offset": off})
+            # (one size for every phase: an odd side's last texel then traces the edge pixel
+            # again; a scratch target, not _target's: it carries nothing from frame to frame)
+            traced = self._targets.get((li, "traced"), (full[0] + 1) // 2, (full[1] + 1) // 2)
+            draw_fullscreen(ctx, vao, traced)
             out = self._target((li, "out"), *full)
             hist = self._target((li, "hist"), *full)
-            hist.texture.use(unit)
-            set_uniforms(prog, {"u_history": unit, "u_phase": self._phase, "u_valid_phases": self._valid_phases})
-            draw_fullscreen(ctx, vao, out)
+            mprog, mvao = self.programs.fullscreen("interlace_merge")
+            traced.texture.use(0)
+            hist.texture.use(1)
+            set_uniforms(mprog, {"u_traced": 0, "u_history": 1, "u_phase": self._phase,
+                                 "u_valid_phases": self._valid_phases, "u_offset": off})
+            draw_fullscreen(ctx, mvao, out)
             dst = hist
+            if self._valid_phases | (1 << self._phase) == 15:
+                # a still view: every pixel has this frame's ray or an up-to-date history, so
+                # nothing to classify or refine (what classify would write is the merge itself)
+                ctx.copy_framebuffer(hist.fbo, out.fbo)
+                return hist.texture
             self.refiner.classify((li, "hist"), dst, gbuffer, out.texture, class_defs, uniforms)
         key = (li, "hist" if plan == "interlace" else "out")
         if self.refiner.method == "compact":
