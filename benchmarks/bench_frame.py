@@ -12,7 +12,8 @@ the alternations and ``peer / this``.
         [--size 320x180] [--soft] [--frames 7] [--alternations 2]
 
 Lights are hard (as the hard Cycles reference renders them) unless ``--soft``; mode ``raytrace``,
-quality ``high``. ``--mode shadowmap`` or ``none`` measures those instead.
+quality ``high``. ``--mode shadowmap`` or ``none`` measures those instead. ``--interlace``: the
+shadow pass with interlacing, the first frame after a change and a still view.
 """
 from __future__ import annotations
 
@@ -33,19 +34,35 @@ from hybrid_shadow_addon.blender.load import load_scene
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.settings import Settings
 scene_arg, size, soft, mode, frames = sys.argv[2], sys.argv[3], sys.argv[4] == "1", sys.argv[5], int(sys.argv[6])
+interlace = sys.argv[7] == "1"
 W, H = (int(v) for v in size.split("x"))
 scene = load_scene(scene_arg)
 pipe = Pipeline()
 pipe.set_scene(scene)
 settings = Settings(mode=mode, quality="high", hard=not soft)
-rows = [pipe.render(scene, settings, W, H).timings for _ in range(frames)][2:]
-print("HS_FRAME " + json.dumps({k: statistics.median(r.get(k, 0.0) for r in rows) for k in %r}), flush=True)
+if interlace:  # the first frame after a change and a still view (frames 5 on), for this many changes
+    inter = Settings(mode=mode, quality="high", hard=not soft, interlace=True)
+    for _ in range(2):
+        pipe.render(scene, inter, W, H)
+    first, still = [], []
+    for _ in range(max(1, frames - 2)):
+        pipe.reset_history()
+        first.append(pipe.render(scene, inter, W, H).timings["shadow_ms"])
+        for k in range(7):
+            t = pipe.render(scene, inter, W, H).timings["shadow_ms"]
+            if k >= 3:
+                still.append(t)
+    out = {"first_ms": statistics.median(first), "still_ms": statistics.median(still)}
+else:
+    rows = [pipe.render(scene, settings, W, H).timings for _ in range(frames)][2:]
+    out = {k: statistics.median(r.get(k, 0.0) for r in rows) for k in %r}
+print("HS_FRAME " + json.dumps(out), flush=True)
 """ % (PASSES,)
 
 
-def measure(tree: Path, scene: str, size: str, soft: bool, mode: str, frames: int) -> dict:
+def measure(tree: Path, scene: str, size: str, soft: bool, mode: str, frames: int, interlace: bool = False) -> dict:
     out = subprocess.run([sys.executable, "-c", CHILD, str(tree), scene, size, "1" if soft else "0", mode,
-                          str(frames)], capture_output=True, text=True, cwd=str(tree))
+                          str(frames), "1" if interlace else "0"], capture_output=True, text=True, cwd=str(tree))
     if out.returncode != 0:
         raise SystemExit(f"{tree}: {scene} failed:\n{out.stderr[-2000:]}")
     line = [x for x in out.stdout.splitlines() if x.startswith("HS_FRAME ")][-1]
@@ -61,6 +78,9 @@ def main(argv=None) -> int:
     ap.add_argument("--mode", default="raytrace", choices=("raytrace", "shadowmap", "none"))
     ap.add_argument("--frames", type=int, default=7)
     ap.add_argument("--alternations", type=int, default=2)
+    ap.add_argument("--interlace", action="store_true",
+                    help="interlacing's shadow ms instead: the first frame after a change, and a still view "
+                         "(frames 5-8 after it); --frames - 2 changes")
     a = ap.parse_args(argv)
     if not (a.peer / "hybrid_shadow_addon").is_dir():
         raise SystemExit(f"--peer {a.peer}: not a tree of this project (no hybrid_shadow_addon/)")
@@ -70,12 +90,13 @@ def main(argv=None) -> int:
         got = {k: [] for k in trees}
         for _ in range(a.alternations):
             for name, tree in trees.items():
-                got[name].append(measure(tree, scene, a.size, a.soft, a.mode, a.frames))
-        for p in PASSES:
+                got[name].append(measure(tree, scene, a.size, a.soft, a.mode, a.frames, a.interlace))
+        for p in (("first_ms", "still_ms") if a.interlace else PASSES):
             peer = statistics.median(r[p] for r in got["peer"])
             this = statistics.median(r[p] for r in got["this"])
             ratio = f"{peer / this:.2f}x" if this > 0 else "-"
-            label = p.replace("_ms", "").replace("total", "frame")
+            label = {"first_ms": "interlaced shadows, first frame after a change",
+                     "still_ms": "interlaced shadows, a still view"}.get(p, p.replace("_ms", "").replace("total", "frame"))
             print(f"| {scene} | {label} | {peer:.1f} | {this:.1f} | {ratio} |", flush=True)
     return 0
 
