@@ -14,17 +14,9 @@ def unit_cube() -> np.ndarray:
     return c[np.array(tris).ravel()]
 
 
-# The vertex layout of the proxy meshes (de-indexed: 3 vertices per triangle; normals zero).
-VERTEX_FORMAT = "3f 3f 3f"
-VERTEX_ATTRS = ("in_pos", "in_face_normal", "in_shading_normal")
-POSITION_FORMAT = "3f 24x"  # the proxies' buffers read for positions only (depth-only passes)
-
-
-def position_vertex_data(points: np.ndarray) -> np.ndarray:
-    """(N, 9) float32 vertices of proxy geometry: positions only, normals zero."""
-    out = np.zeros((len(points), 9), np.float32)
-    out[:, :3] = points
-    return out
+# The vertex layout of the proxy meshes: positions only, de-indexed (3 vertices per triangle).
+PROXY_FORMAT = "3f"
+PROXY_ATTRS = ("in_pos",)
 
 
 # The G-buffer's indexed layout: the model's distinct corners (position, smooth corner normal
@@ -203,7 +195,7 @@ def icosphere(subdiv: int = 2) -> np.ndarray:
 
 
 class ProxyMesh:
-    """A lazily created vertex buffer (:data:`VERTEX_FORMAT`) of positions-only proxy geometry."""
+    """A lazily created vertex buffer (:data:`PROXY_FORMAT`) of proxy geometry."""
 
     def __init__(self, ctx, make_points):
         self.ctx = ctx
@@ -215,7 +207,7 @@ class ProxyMesh:
         """``(vbo, vertex_count)``."""
         if self._vbo is None:
             pts = self._make()
-            self._vbo = self.ctx.buffer(position_vertex_data(pts).tobytes())
+            self._vbo = self.ctx.buffer(np.ascontiguousarray(pts, np.float32).tobytes())
             self.vertex_count = len(pts)
         return self._vbo, self.vertex_count
 
@@ -313,7 +305,7 @@ class CasterDraws:
         if b is None:
             b = self._batches[key] = InstanceBatch(self.ctx)
         if index_buffer is None:
-            return b.upload(data, prog, vbo, POSITION_FORMAT, ("in_pos",), fmt, attrs)
+            return b.upload(data, prog, vbo, PROXY_FORMAT, PROXY_ATTRS, fmt, attrs)
         vfmt, vattrs = ("3f 12x 2f", ("in_pos", "in_uv")) if more is not None else ("3f 20x", ("in_pos",))
         return b.upload(data, prog, vbo, vfmt, vattrs, fmt, attrs, index_buffer=index_buffer)
 

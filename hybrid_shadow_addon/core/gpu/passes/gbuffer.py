@@ -24,7 +24,7 @@ import numpy as np
 from ...errors import SceneError
 from ..context import check_render_size
 from ..frame import GBUFFER_TARGETS, CameraUniforms, GBuffer
-from ..geometry import (INDEXED_ATTRS, INDEXED_FORMAT, INDEXED_FORMAT_NO_UV, VERTEX_ATTRS, VERTEX_FORMAT,
+from ..geometry import (INDEXED_ATTRS, INDEXED_FORMAT, INDEXED_FORMAT_NO_UV, PROXY_ATTRS, PROXY_FORMAT,
                         InstanceBatch, ProxyMesh, unit_cube)
 from ..targets import create_texture
 from .base import Pass
@@ -180,7 +180,7 @@ class GBufferPass(Pass):
                 prog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
                 cube, nverts = self._cube.get()
                 data = self.instance_data(scene, sph_rows, cam.cam_pos, spheres=True)
-                vao = self._batch("spheres").upload(data, prog, cube, VERTEX_FORMAT, VERTEX_ATTRS,
+                vao = self._batch("spheres").upload(data, prog, cube, PROXY_FORMAT, PROXY_ATTRS,
                                                     SPHERE_FORMAT, SPHERE_ATTRS)
                 vao.render(moderngl.TRIANGLES, vertices=nverts, instances=len(sph_rows))
                 self.draw_calls += 1
