@@ -10,8 +10,8 @@
 #define HS_TLAS_EPS 3.814697265625e-06  // 2^-18: per-ray widening of top-level boxes
 #define HS_TFLOOR 1.9073486328125e-06   // 2^-19: nearest hit, x the vertices' reach along the ray
 
-uniform usampler2DArray hs_node_tex;
-uniform usampler2DArray hs_leaf_tex;
+uniform HS_USAMPLER hs_node_tex;
+uniform HS_USAMPLER hs_leaf_tex;
 uniform vec3 hs_tlas_base;
 uniform float hs_tlas_inv_scale;
 uniform float hs_tlas_babs;
@@ -115,7 +115,7 @@ bool hs_leaf_hit(vec3 o, HsShear s, int cnt, vec4 a, vec4 b, vec4 c, vec4 d, vec
 #include "common/alpha.glsl"
 // [uv] RGBA32F: the UVs of an alpha-cut model's triangles at the same texels as the triangles
 // in [leaf], 6 floats each back to back (u0 v0 u1 v1 u2 v2)
-uniform sampler2DArray hs_uv_tex;
+uniform HS_SAMPLER hs_uv_tex;
 #define HS_VIS_MIN 1.0e-3   // less light than this left: the ray is blocked
 
 // The light a ray keeps through triangle k (barycentrics b) of the leaf at [leaf] texel at,
@@ -123,8 +123,8 @@ uniform sampler2DArray hs_uv_tex;
 float hs_cut_tri(HsCut c, int at, int k, vec3 b)
 {
     int t = at + (3 * k) / 2;
-    vec4 p = texelFetch(hs_uv_tex, hs_texel(t), 0);
-    vec4 q = texelFetch(hs_uv_tex, hs_texel(t + 1), 0);
+    vec4 p = HS_FETCH(hs_uv_tex, t);
+    vec4 q = HS_FETCH(hs_uv_tex, t + 1);
     bool odd = (k & 1) != 0;
     vec2 a0 = odd ? p.zw : p.xy, a1 = odd ? q.xy : p.zw, a2 = odd ? q.zw : q.xy;
     return hs_cut_transmit(c, b.x * a0 + b.y * a1 + b.z * a2);
@@ -171,20 +171,20 @@ float hs_leaf_vis(vec3 o, HsShear s, int cnt, vec4 a, vec4 b, vec4 c, vec4 d, ve
 void hs_leaf_record(int at, out vec4 x0, out vec4 x1, out vec4 x2, out uvec4 u3, out vec4 x3,
                     out vec4 x4, out vec4 x5, out vec4 x6, out vec4 x7, out vec4 x8)
 {
-    x0 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at), 0));
-    x1 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 1), 0));
-    x2 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 2), 0));
-    u3 = texelFetch(hs_leaf_tex, hs_texel(at + 3), 0);
+    x0 = uintBitsToFloat(HS_FETCH(hs_leaf_tex, at));
+    x1 = uintBitsToFloat(HS_FETCH(hs_leaf_tex, at + 1));
+    x2 = uintBitsToFloat(HS_FETCH(hs_leaf_tex, at + 2));
+    u3 = HS_FETCH(hs_leaf_tex, at + 3);
     x3 = uintBitsToFloat(u3);
-    x4 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 4), 0));
+    x4 = uintBitsToFloat(HS_FETCH(hs_leaf_tex, at + 4));
     x5 = vec4(0.0); x6 = vec4(0.0); x7 = vec4(0.0); x8 = vec4(0.0);
 #if defined(HS_HAS_MESHES) && HS_BVH_LEAF_SIZE > 2
-    x5 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 5), 0));
-    x6 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 6), 0));
+    x5 = uintBitsToFloat(HS_FETCH(hs_leaf_tex, at + 5));
+    x6 = uintBitsToFloat(HS_FETCH(hs_leaf_tex, at + 6));
 #endif
 #if defined(HS_HAS_MESHES) && HS_BVH_LEAF_SIZE > 3
-    x7 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 7), 0));
-    x8 = uintBitsToFloat(texelFetch(hs_leaf_tex, hs_texel(at + 8), 0));
+    x7 = uintBitsToFloat(HS_FETCH(hs_leaf_tex, at + 7));
+    x8 = uintBitsToFloat(HS_FETCH(hs_leaf_tex, at + 8));
 #endif
 }
 
@@ -206,7 +206,7 @@ bool hs_walk(inout int i, inout uint w, int limit, vec3 q_lo, vec3 q_hi, vec3 q_
     bool found = false;
     bool walking = i < limit;
     while (walking) {
-        uvec4 n = texelFetch(hs_node_tex, hs_texel(i), 0);
+        uvec4 n = HS_FETCH(hs_node_tex, i);
         bool leaf = (n.w & HS_LEAF_FLAG) != 0u;
         bool hit = hs_qbox_hit(q_lo, q_hi, q_inv, n, tmax);
         found = hit && leaf;

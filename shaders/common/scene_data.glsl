@@ -8,8 +8,10 @@
  * walk in common/scene_bvh.glsl). Each bake holds the textures of its structure only.
  *
  * ============================== SCENE TEXTURE LAYOUT ======================================
- * Every texture is a 2D ARRAY texture, HS_TEX_WIDTH (= 2^HS_TEX_WIDTH_LOG2 <= 16384) wide.
- * Records are addressed by a linear texel index i:
+ * Records are addressed by a linear texel index i, read by HS_FETCH(tex, i) below. Where the GL
+ * has buffer textures that hold them (HS_TEXEL_BUFFERS, core/gpu/scene_textures.py), every
+ * texture here is one (texel i = element i); else it is a 2D ARRAY texture, HS_TEX_WIDTH
+ * (= 2^HS_TEX_WIDTH_LOG2 <= 16384) wide, of the same texels in the same order:
  *     x = i & (HS_TEX_WIDTH - 1);  row = i >> HS_TEX_WIDTH_LOG2;
  *     y = row & 16383;             layer = row >> 14              (hs_texel(i) below)
  * Height is the number of rows used (<= 16384), exactly 16384 when there are several layers.
@@ -143,6 +145,20 @@ ivec3 hs_texel(int i)
                  i >> (HS_TEX_WIDTH_LOG2 + HS_TEX_ROWS_LOG2));
 }
 
+// Record texel i of a scene texture. HS_TEXEL_BUFFERS (set by the GPU side, not the bake): the
+// textures are buffer textures and i is the texel itself, one cheap fetch (on llvmpipe a 2D
+// array fetch also computes mip, row and layer offsets: a node step costs a quarter more).
+// Without it they are 2D array textures and hs_texel splits i into (x, y, layer).
+#ifdef HS_TEXEL_BUFFERS
+#define HS_USAMPLER usamplerBuffer
+#define HS_SAMPLER samplerBuffer
+#define HS_FETCH(tex, i) texelFetch(tex, i)
+#else
+#define HS_USAMPLER usampler2DArray
+#define HS_SAMPLER sampler2DArray
+#define HS_FETCH(tex, i) texelFetch(tex, hs_texel(i), 0)
+#endif
+
 // ---------------------------------------------------------------- primitive tests ---------
 // Watertight ray/triangle (Woop, Benthin, Wald 2013). Set-up once per (ray, object).
 struct HsWoop { ivec3 k; vec3 s; };
@@ -252,12 +268,12 @@ bool hs_slab_hit(vec3 o, vec3 inv, vec3 bmin, vec3 bmax, float tmax)
 #include "common/scene_bvh.glsl"
 #else
 // ================================ hierarchical grid (structure "grid") ==================
-uniform usampler2DArray hs_grid_tex;
-uniform usampler2DArray hs_grid_index_tex;
-uniform sampler2DArray hs_object_tex;
-uniform usampler2DArray hs_model_tex;
-uniform usampler2DArray hs_bvh_tex;
-uniform sampler2DArray hs_tri_tex;
+uniform HS_USAMPLER hs_grid_tex;
+uniform HS_USAMPLER hs_grid_index_tex;
+uniform HS_SAMPLER hs_object_tex;
+uniform HS_USAMPLER hs_model_tex;
+uniform HS_USAMPLER hs_bvh_tex;
+uniform HS_SAMPLER hs_tri_tex;
 
 uniform vec2 hs_grid_origin;
 uniform float hs_node_size[HS_GRID_LEVELS];
@@ -267,20 +283,20 @@ uniform int hs_level_count[HS_GRID_LEVELS];
 uniform int hs_outside_node;
 uniform float hs_scene_max_height;
 
-uvec4 hs_fetch_grid(int node)        { return texelFetch(hs_grid_tex, hs_texel(node), 0); }
-uvec2 hs_fetch_index(int entry)      { return texelFetch(hs_grid_index_tex, hs_texel(entry), 0).xy; }
-vec4  hs_fetch_object(int obj, int k){ return texelFetch(hs_object_tex, hs_texel(4 * obj + k), 0); }
-uvec4 hs_fetch_model(int model, int k){ return texelFetch(hs_model_tex, hs_texel(2 * model + k), 0); }
+uvec4 hs_fetch_grid(int node)        { return HS_FETCH(hs_grid_tex, node); }
+uvec2 hs_fetch_index(int entry)      { return HS_FETCH(hs_grid_index_tex, entry).xy; }
+vec4  hs_fetch_object(int obj, int k){ return HS_FETCH(hs_object_tex, 4 * obj + k); }
+uvec4 hs_fetch_model(int model, int k){ return HS_FETCH(hs_model_tex, 2 * model + k); }
 #if defined(HS_HAS_MESHES) || defined(HS_HAS_NODE_BVH)
-uvec4 hs_fetch_bvh(int node, int k)  { return texelFetch(hs_bvh_tex, hs_texel(2 * node + k), 0); }
+uvec4 hs_fetch_bvh(int node, int k)  { return HS_FETCH(hs_bvh_tex, 2 * node + k); }
 #endif
-vec3  hs_fetch_vertex(int tri, int k){ return texelFetch(hs_tri_tex, hs_texel(3 * tri + k), 0).xyz; }
+vec3  hs_fetch_vertex(int tri, int k){ return HS_FETCH(hs_tri_tex, 3 * tri + k).xyz; }
 
 #ifdef HS_HAS_ALPHA
 // (common/alpha.glsl is included above, before the structure branch: the loader expands an
 // include once, at its first textual occurrence, whatever #ifdef surrounds it)
-uniform sampler2DArray hs_uv_tex;
-uniform usampler2DArray hs_object_mat_tex;
+uniform HS_SAMPLER hs_uv_tex;
+uniform HS_USAMPLER hs_object_mat_tex;
 #define HS_VIS_MIN 1.0e-3   // less light than this left: the ray is blocked (as scene_bvh.glsl)
 // Light kept through the alpha-cut surfaces crossed so far by the current ray (reset by
 // hs_occluded; the walk returns "occluded" once it falls below HS_VIS_MIN).
@@ -313,8 +329,8 @@ bool hs_bvh_occluded(vec3 o, vec3 d, int root, int count, float tmax, int mat)
                                       hs_fetch_vertex(t, 2), tmax, b)) {
 #ifdef HS_HAS_ALPHA
                     if (mat < 0) return true;
-                    vec4 p = texelFetch(hs_uv_tex, hs_texel(2 * t), 0);
-                    vec4 q = texelFetch(hs_uv_tex, hs_texel(2 * t + 1), 0);
+                    vec4 p = HS_FETCH(hs_uv_tex, 2 * t);
+                    vec4 q = HS_FETCH(hs_uv_tex, 2 * t + 1);
                     hs_vis *= hs_transmittance(mat, b.x * p.xy + b.y * p.zw + b.z * q.xy);
                     if (hs_vis < HS_VIS_MIN) return true;
 #else
@@ -356,7 +372,7 @@ bool hs_object_occludes(vec3 o, vec3 d, float tmax, uvec2 entry)
     if (info.y == 0u) return false;
     int mat = -1;
 #ifdef HS_HAS_ALPHA
-    mat = int(texelFetch(hs_object_mat_tex, hs_texel(obj), 0).x) - 1;
+    mat = int(HS_FETCH(hs_object_mat_tex, obj).x) - 1;
 #endif
     return hs_bvh_occluded(om, dm, int(info.x), int(info.y), tmax, mat);
 #else

@@ -206,7 +206,7 @@ bool hs_pk_walk(inout int i, inout uint w, int limit, HsCone c)
     bool found = false;
     bool walking = i < limit;
     while (walking) {
-        uvec4 n = texelFetch(hs_node_tex, hs_texel(i), 0);
+        uvec4 n = HS_FETCH(hs_node_tex, i);
         bool leaf = (n.w & HS_LEAF_FLAG) != 0u;
         bool hit = hs_cone_box_hit(c, n);
         found = hit && leaf;

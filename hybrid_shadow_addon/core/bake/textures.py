@@ -3,9 +3,10 @@
 THE layout of every texel is documented once, in ``shaders/common/scene_data.glsl`` (block comment
 "SCENE TEXTURE LAYOUT"); the constants below follow it and name the section they implement.
 
-Every texture is a 2D array texture (``sampler2DArray`` / ``usampler2DArray``) of ``width`` =
-``BakeConfig.tex_width`` texels (a power of two <= 16384). Records are addressed by a *linear texel
-index* ``i``::
+Every texture is held as a 2D array (``sampler2DArray`` / ``usampler2DArray``) of ``width`` =
+``BakeConfig.tex_width`` texels (a power of two <= 16384); the GPU side uploads the record
+textures as buffer textures where it can (``core/gpu/scene_textures.py``), whose element ``i`` is
+the same texel. Records are addressed by a *linear texel index* ``i``::
 
     x = i & (W - 1);  row = i >> log2(W);  y = row & (16384 - 1);  layer = row >> 14
 

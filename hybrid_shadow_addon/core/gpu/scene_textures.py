@@ -1,4 +1,9 @@
-"""The baked scene on the GPU: one texture array per :class:`~..bake.TextureData`.
+"""The baked scene on the GPU: one texture per :class:`~..bake.TextureData`.
+
+The record textures (every one but the materials' ``mat`` and ``atlas``) are buffer textures
+(:mod:`.buffer_textures`) where the GL offers them and each fits its limit, read by the shaders
+at texel i directly (``HS_TEXEL_BUFFERS``); else 2D array textures, which ``hs_texel`` addresses.
+Both hold the same texels, so the masks are the same either way.
 
 ``upload(baked)`` creates (or re-creates) every texture; ``apply(baked, report)`` re-uploads only
 the row ranges an incremental update changed (textures that grew are re-created whole).
@@ -11,15 +16,41 @@ import moderngl
 import numpy as np
 
 from ..errors import GPUError
+from .buffer_textures import BufferTexture, gl_functions, max_texels
+
+#: textures the shaders sample as images or share with other passes: always 2D arrays
+ARRAY_ONLY = frozenset({"mat", "atlas"})
 
 
 class SceneTextures:
-    def __init__(self, ctx: moderngl.Context):
+    def __init__(self, ctx: moderngl.Context, buffers: bool | None = None):
         self.ctx = ctx
-        self.textures: dict[str, moderngl.TextureArray] = {}
+        self.textures: dict = {}
         self.baked = None
+        #: record textures as buffer textures: None = where available, False = never (2D arrays),
+        #: True = always (a GPUError where they are not available)
+        self.buffers = buffers
+        self.using_buffers = False
 
-    def _create(self, td) -> moderngl.TextureArray:
+    @property
+    def defines(self) -> dict:
+        """The ``#define`` a program reading these textures needs (``HS_FETCH``)."""
+        return {"HS_TEXEL_BUFFERS": 1} if self.using_buffers else {}
+
+    def _fit_buffers(self, baked) -> bool:
+        if self.buffers is False:
+            return False
+        limit = max_texels(self.ctx) if gl_functions() is not None else 0
+        need = max((td.capacity for n, td in baked.textures.items() if n not in ARRAY_ONLY), default=0)
+        ok = limit > 0 and need <= limit
+        if not ok and self.buffers:
+            raise GPUError("buffer textures are not available here" if limit == 0 else
+                           f"a scene texture needs {need} texels; this GPU's buffer textures hold {limit}")
+        return ok
+
+    def _create(self, td):
+        if self.using_buffers and td.name not in ARRAY_ONLY:
+            return BufferTexture(self.ctx, np.ascontiguousarray(td.data).tobytes(), td.fmt, td.components)
         limits_2d = self.ctx.info["GL_MAX_TEXTURE_SIZE"]
         limits_layers = self.ctx.info["GL_MAX_ARRAY_TEXTURE_LAYERS"]
         if td.width > limits_2d or td.height > limits_2d or td.layers > limits_layers:
@@ -32,15 +63,17 @@ class SceneTextures:
         return tex
 
     def upload(self, baked) -> None:
+        buffers = self._fit_buffers(baked)  # (its error leaves the textures as they were)
         self.release()
+        self.using_buffers = buffers
         self.baked = baked
         for name, td in baked.textures.items():
             self.textures[name] = self._create(td)
 
     def apply(self, baked, report) -> int:
         """Re-upload what ``report`` (an ``UpdateReport``) changed; returns bytes written."""
-        if self.baked is not baked:
-            self.upload(baked)
+        if self.baked is not baked or (report.resized and self.using_buffers != self._fit_buffers(baked)):
+            self.upload(baked)  # (a texture outgrew the buffer textures' limit: 2D arrays from now on)
             return sum(t.nbytes for t in baked.textures.values())
         written = 0
         textures = baked.textures
@@ -56,7 +89,11 @@ class SceneTextures:
                 continue
             td = textures[name]
             rows = np.ascontiguousarray(td.data[layer, y0:y1])
-            self.textures[name].write(rows.tobytes(), viewport=(0, y0, layer, td.width, y1 - y0, 1))
+            tex = self.textures[name]
+            if isinstance(tex, BufferTexture):
+                tex.write(rows.tobytes(), offset=(layer * td.height + y0) * td.width * td.components * 4)
+            else:
+                tex.write(rows.tobytes(), viewport=(0, y0, layer, td.width, y1 - y0, 1))
             written += rows.nbytes
         return written
 
@@ -67,8 +104,11 @@ class SceneTextures:
         for name, tex in self.textures.items():
             sname = samplers[name]
             if sname in prog:
-                tex.use(unit)
-                prog[sname].value = unit
+                if isinstance(tex, BufferTexture):
+                    tex.use(prog, sname, unit)
+                else:
+                    tex.use(unit)
+                    prog[sname].value = unit
                 unit += 1
         for name, value in self.baked.uniforms.items():
             if name not in prog:
@@ -86,3 +126,4 @@ class SceneTextures:
             tex.release()
         self.textures.clear()
         self.baked = None
+        self.using_buffers = False

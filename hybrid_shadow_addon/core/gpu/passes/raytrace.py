@@ -157,6 +157,7 @@ class RaytracePass(ShadowPass):
 
     def defines(self, settings, local: bool, soft: dict | None = None) -> dict:
         d = dict(self.scene_textures.baked.defines)
+        d.update(self.scene_textures.defines)
         d["HS_LIGHT_LOCAL" if local else "HS_LIGHT_SUN"] = 1
         if soft is not None:
             d["HS_SOFT"] = 1
