@@ -1,6 +1,6 @@
 // G-buffer inputs of the full-screen passes (texelFetch only: nearest, exact).
 uniform sampler2D u_gb_position;   // world xyz, w = 1 on geometry, 0 on background
-uniform sampler2D u_gb_normal;     // unit geometric normal facing the camera
+uniform sampler2D u_gb_normal;     // unit geometric normal facing the camera; w as position's
 uniform sampler2D u_gb_shading;    // shading normal
 uniform sampler2D u_gb_albedo;     // linear base colour
 uniform sampler2D u_gb_material;   // specular, roughness, instance index

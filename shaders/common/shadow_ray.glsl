@@ -54,13 +54,14 @@ vec3 surface_point(ivec2 px, float depth)
 float shadow_ray_prelude(ivec2 px, out vec3 p, out vec3 n, out float depth, out vec3 to_light)
 {
     p = vec3(0.0); n = vec3(0.0); depth = 0.0; to_light = vec3(0.0);
-    if (texelFetch(u_gb_position, px, 0).w == 0.0) return 1.0;
+    vec4 nw = texelFetch(u_gb_normal, px, 0);
+    if (nw.w == 0.0) return 1.0;
     depth = texelFetch(u_gb_depth, px, 0).r;
     p = surface_point(px, depth);
 #ifdef HS_MAX_DISTANCE
     if (distance(p, u_cam_bake) > u_max_distance) return 1.0;
 #endif
-    n = texelFetch(u_gb_normal, px, 0).xyz;
+    n = nw.xyz;
 #ifdef HS_LIGHT_LOCAL
     to_light = u_light_vec - p;
 #else
