@@ -17,6 +17,7 @@
 // under the depth test, on the pixels soft_range.glsl's CLASSIFY marked). The probe pass writes
 // RG32F sums (weighted visibility, weight) instead of the mask, (value, 1) where the answer is
 // known without a ray: the refinement continues each pixel's sequence after them.
+// HS_NO_RAYS: the prelude's answers alone, for a light that reaches no pixel (light_cull.py).
 // HS_SOFT_PACKET: a pixel's samples walk the scene together (common/scene_packet.glsl);
 // HS_SOFT_FULL: a refined pixel never stops early; HS_LOOP_CHECK (tests): see below.
 // HS_SOFT_ACCUM (the viewport's running sums, soft_accumulate.glsl) writes the same sums of its
@@ -83,6 +84,11 @@ void trace_main()
     vec3 p, n, to_light;
     float depth;
     float known = shadow_ray_prelude(px, p, n, depth, to_light);
+#ifdef HS_NO_RAYS
+    // a light no pixel needs a ray of (passes/light_cull.py): the answers without one, no walk
+    o_mask = max(known, 0.0);
+    return;
+#endif
     if (known >= 0.0) { o_mask = known; return; }
 
     vec3 o = offset_origin(p, n, depth * 3.0e-6);

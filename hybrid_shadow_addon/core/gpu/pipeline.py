@@ -215,6 +215,7 @@ class Pipeline:
             "accumulated_samples": shadow_stats.get("accumulated_samples"),
             "noise": shadow_stats.get("noise", {}),
             "shadowed_lights": len(job.lights),
+            "lights_culled": shadow_stats.get("lights_culled", 0),
             "defines": shadow_stats["defines"],
         }
         return Frame(image=image, masks=job.masks, lights=job.lights, timings=timings, stats=stats,

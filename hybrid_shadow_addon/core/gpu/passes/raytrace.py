@@ -41,9 +41,14 @@ half of the samples apart (``u_split``), the masks of the two halves are filtere
 half the samples and compared (NOISE), and a light estimated above the target gives its partial
 pixels as many samples again.
 
+At ``high``, ``medium`` and ``low`` (not interlacing or accumulating) a light that reaches no
+visible surface (a spot whose cone holds none, :mod:`.light_cull`) takes no pass of rays; its
+mask, bit-identical, is the answers without rays (``HS_NO_RAYS``), one for all such lights of
+the frame.
+
 ``stats``: ``rays_traced`` counts the pixels the trace shaded (occlusion queries; facing-away
 and map-decided pixels among them cost no traversal), ``pixels`` the pixels with geometry times
-the shadowed lights. The numpy mirror of the rays traced here is ``core/oracle/rays.py``.
+the shadowed lights, ``lights_culled`` the lights left out as above. The numpy mirror of the rays traced here is ``core/oracle/rays.py``.
 """
 from __future__ import annotations
 
@@ -57,6 +62,7 @@ from ..lights import light_cone, light_ray_uniforms, soft_shape
 from ..targets import TargetCache, draw_fullscreen, read_texture, set_uniforms
 from .base import ShadowPass
 from .conservative import ConservativeMaps
+from .light_cull import LightCull, cull_candidate
 from .refine import Refiner
 
 
@@ -136,6 +142,9 @@ class RaytracePass(ShadowPass):
         self._phase = 0
         self._valid_phases = 0
         self.refiner = Refiner(gpu)
+        self.cull = LightCull(gpu)
+        self.cull_lights = True  # leave out the lights that reach no pixel (tests compare without)
+        self.culled: list = []  # the lights of the last frame that reached no pixel (no pass of rays)
         self._plan = self._last_plan = None
         self.last_defines: dict = {}
         self.last_samples = 1  # rays per pixel of the softest light of the last frame
@@ -181,12 +190,12 @@ class RaytracePass(ShadowPass):
         n = len(job.lights)
         valid = self.refiner.count("valid") if n else 0
         if self._plan == "full":
-            traced = valid * n
+            traced = valid * (n - len(self.culled))
         else:
-            traced = self.refiner.count("coarse") * n + self.refiner.count("refined")
+            traced = self.refiner.count("coarse") * (n - len(self.culled)) + self.refiner.count("refined")
         return {"mask_resolution": [mw, mh], "rays": int(mw * mh * n),
                 "rays_traced": int(traced), "pixels": int(valid * n), "samples": int(self.last_samples),
-                "accumulated_samples": self.accumulated,
+                "accumulated_samples": self.accumulated, "lights_culled": len(self.culled),
                 "noise": {k: round(v, 6) for k, v in self.last_noise.items()},
                 "defines": sorted(f"{k}={v}" for k, v in self.last_defines.items())}
 
@@ -234,13 +243,25 @@ class RaytracePass(ShadowPass):
             self.maps.begin_frame(scene, gbuffer)
             self.last_map_ms += (time.perf_counter() - t0) * 1e3
         origin = self.scene_textures.baked.origin
-        self.last_samples = 1
+        # lights that reach no pixel get the answers without rays (one shared mask), no trace
+        self.culled = []
+        cull = self.cull_lights and plan in ("full", "refine") and not settings.accumulate and any(
+            cull_candidate(scene.lights[li], settings.hard) for li in lights)
+        if cull:
+            self.cull.prepare(gbuffer, settings, gbuffer.camera.cam_pos - origin)
+        no_rays = None
         self.accumulated = None
         self.last_noise = {}
         self._scene_frame = int(getattr(scene, "frame", 1))
         for li in lights:
             job.light_started(li)
             local, vec = light_ray_uniforms(scene.lights[li], origin)
+            if cull and not self.cull.reaches(scene.lights[li], vec if local else None, settings.hard):
+                if no_rays is None:
+                    no_rays = self._no_rays(li, scene.lights[li], vec, local, gbuffer, settings)
+                masks[li] = no_rays
+                self.culled.append(li)
+                continue
             soft = soft_shape(scene.lights[li], settings.hard)
             if soft is not None:
                 self.last_samples = max(self.last_samples, int(settings.samples))
@@ -261,6 +282,16 @@ class RaytracePass(ShadowPass):
             self._valid_phases |= 1 << self._phase
             self._phase = (self._phase + 1) % 4
         return masks
+
+    def _no_rays(self, li, light, light_vec, local, gbuffer, settings):
+        """The mask of a light that no pixel needs a ray of: 1 on the background and beyond the
+        max distance, 0 elsewhere (facing away, out of reach), as the trace writes it; one for
+        all such lights of a frame (it depends on the G-buffer alone)."""
+        defines = {**self.defines(settings, local), "HS_NO_RAYS": 1}
+        _, vao, _ = self._program(defines, light, light_vec, gbuffer, settings.replace(hard=True), 1, None)
+        out = self._target(("no rays",), *gbuffer.size)
+        draw_fullscreen(self.ctx, vao, out)
+        return out.texture
 
     def _program(self, defines, light, light_vec, gbuffer, settings, scale, cmap):
         """The trace program of ``defines``, bound to this frame's inputs; ``(prog, vao, unit)``."""
@@ -386,7 +417,8 @@ class RaytracePass(ShadowPass):
             self.refiner.classify((li, "hist"), dst, gbuffer, out.texture, class_defs, uniforms)
         key = (li, "hist" if plan == "interlace" else "out")
         if self.refiner.method == "compact":
-            trace = self._program({**plain, "HS_COMPACT": 1}, light, light_vec, gbuffer, settings, 1, cmap)
+            def trace():  # (bound once the list is built: the reduction draws use the texture units too)
+                return self._program({**plain, "HS_COMPACT": 1}, light, light_vec, gbuffer, settings, 1, cmap)
             self.refiner.refine_compact(key, dst, trace, gbuffer)
         else:
             _, vao, _ = self._program(plain, light, light_vec, gbuffer, settings, 1, cmap)
@@ -606,6 +638,7 @@ class RaytracePass(ShadowPass):
         return unit + 1
 
     def release(self) -> None:
+        self.cull.release()
         self.refiner.release()
         self.maps.release()
         self._targets.release()

@@ -146,7 +146,9 @@ class Refiner:
 
     def refine_compact(self, key, target, trace, gbuffer) -> None:
         """``compact``: trace the marked pixels as a dense list and scatter the results into
-        ``target``. ``trace``: ``(prog, vao, next unit)`` of the ``HS_COMPACT`` trace, set up."""
+        ``target``. ``trace()``: sets up the ``HS_COMPACT`` trace (binds its inputs) and returns
+        ``(prog, vao, next unit)``; called after the list is built, whose draws bind texture
+        units of their own."""
         ctx = self.ctx
         w, h = target.texture.size
         need = self._work.get("need", w, h)
@@ -157,7 +159,7 @@ class Refiner:
         cw = -(-w // 4) * 4
         rays = self._work.get("rays", cw, -(-h // 4) * 4)
         rows = min(rays.texture.height, -(-n // (4 * cw)) * 4)  # the 4x4 blocks the list fills
-        prog, vao, unit = trace
+        prog, vao, unit = trace()
         self._bind_pyramid(prog, unit, need.texture, layout, atlases)
         set_uniforms(prog, {"u_compact_width": cw})
         ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)

@@ -1,0 +1,134 @@
+"""Lights that reach no visible surface are left out of the ray-traced pass (passes/light_cull.py):
+their masks are bit-identical to a trace's, a light with a pixel that needs a ray is never left
+out, and the stats count the rays not traced."""
+import math
+
+import numpy as np
+import pytest
+
+from hybrid_shadow_addon.core.scene import Camera, Instances, Light, Model, Scene
+from hybrid_shadow_addon.core.settings import Settings
+
+from tests.test_gpu_scenes import look_at, trs
+
+W, H = 96, 72
+DOWN = trs((0, 0, 0))  # lights shine along their local -Z: down
+UP = trs((0, 0, 0), rot_x=math.pi)
+
+
+def at(m, pos):
+    m = m.copy()
+    m[:3, 3] = pos
+    return m
+
+
+def cull_scene(lights):
+    quad = Model("ground", np.float32([[-6, -6, 0], [6, -6, 0], [6, 6, 0], [-6, 6, 0]]), np.uint32([[0, 1, 2], [0, 2, 3]]))
+    cube_v = np.float32([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (0, 2)])
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    cube = Model("cube", cube_v, np.uint32([t for q in quads for t in ((q[0], q[1], q[2]), (q[0], q[2], q[3]))]))
+    inst = Instances(names=["ground", "cube"], model_ids=[0, 1],
+                     matrices=np.array([trs((0, 0, 0)), trs((1.5, -1.0, 0), scale=(0.5, 0.5, 0.5))]))
+    cam = Camera(matrix=look_at((0.0, -9.0, 9.0), (0, 0, 0)), lens=30.0)
+    return Scene(models=[quad, cube], instances=inst, lights=lights, camera=cam, resolution=(W, H)).validate()
+
+
+LIGHTS = [
+    Light("sun", "SUN", power=3.0, matrix=trs((0, 0, 10), rot_z=0.7, rot_x=0.45)),
+    Light("spot up", "SPOT", matrix=at(UP, (0, 0, 3)), spot_size=math.radians(60)),     # away from all
+    Light("spot aside", "SPOT", matrix=at(DOWN, (20, 0, 3)), spot_size=math.radians(45)),  # off the ground
+    Light("spot narrow", "SPOT", matrix=at(DOWN, (1, 1, 4)), spot_size=math.radians(6)),  # a few pixels
+    Light("spot edge", "SPOT", matrix=at(DOWN, (8, 0, 2)), spot_size=math.radians(30), radius=1.5),
+    Light("area up", "AREA", matrix=at(UP, (-2, 2, 2)), size=0.0),                       # hard, facing away
+    Light("area sized", "AREA", matrix=at(UP, (-2, 2, 2)), size=1.0),                     # soft: never left out
+    Light("point", "POINT", matrix=trs((0.5, 0.8, 5.0))),
+]
+
+
+def needs_rays(frame, scene, li, origin) -> int:
+    """Pixels a hard light's trace gives a ray (numpy mirror of shadow_ray_prelude)."""
+    from hybrid_shadow_addon.core.oracle.rays import shadow_rays
+    m = frame.mask_array(li)
+    rows, cols = np.nonzero(~np.isnan(m))
+    facing = shadow_rays(frame.gbuffer, (rows, cols), scene.lights[li], origin)[3]
+    return int(facing.sum())
+
+
+def render_both(pipeline, scene, settings):
+    rp = pipeline.shadow_pass("raytrace")
+    out = {}
+    try:
+        for on in (True, False):
+            rp.cull_lights = on
+            f = pipeline.render(scene, settings, W, H)
+            out[on] = (f, {li: f.mask_array(li) for li in f.lights}, list(rp.culled))
+    finally:
+        rp.cull_lights = True
+    return out
+
+
+@pytest.mark.parametrize("hard, quality", [(True, "high"), (False, "high"), (True, "medium"), (False, "low")])
+def test_left_out_lights_give_the_traced_masks(pipeline, hard, quality):
+    scene = cull_scene(LIGHTS)
+    pipeline.set_scene(scene)
+    got = render_both(pipeline, scene, Settings(mode="raytrace", hard=hard, quality=quality))
+    frame, masks, culled = got[True]
+    _, ref, none = got[False]
+    assert none == []
+    for li in ref:
+        np.testing.assert_array_equal(masks[li], ref[li], err_msg=scene.lights[li].name)
+    names = {scene.lights[li].name for li in culled}
+    # (with hard lights the sized area light is a hard one too, and the edge spot's cone misses)
+    want = {"spot up", "spot aside", "area up"} | ({"spot edge", "area sized"} if hard else set())
+    assert names == want
+    assert frame.stats["lights_culled"] == len(culled)
+    if quality == "high":
+        valid = int(frame.gbuffer.coverage().sum())
+        assert frame.stats["rays_traced"] == valid * (len(frame.lights) - len(culled))
+    else:
+        assert frame.stats["rays_traced"] < got[False][0].stats["rays_traced"]
+
+
+def test_a_light_with_a_ray_is_never_left_out(pipeline):
+    """Narrow cones aimed over the whole view (and at its edges): every one with a pixel that
+    needs a ray is traced."""
+    rng = np.random.default_rng(2)
+    lights = []
+    for k in range(24):
+        target = np.append(rng.uniform(-7, 7, 2), 0.0)
+        pos = target + np.append(rng.uniform(-1, 1, 2), rng.uniform(1, 6))
+        d = target - pos
+        d /= np.linalg.norm(d)
+        # a matrix whose -Z is d
+        z = -d
+        x = np.cross([0.0, 1.0, 0.3], z)
+        x /= np.linalg.norm(x)
+        m = np.eye(4)
+        m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = x, np.cross(z, x), z, pos
+        lights.append(Light(f"spot {k}", "SPOT", matrix=m, spot_size=math.radians(rng.uniform(0.5, 4))))
+    scene = cull_scene(lights)
+    pipeline.set_scene(scene)
+    got = render_both(pipeline, scene, Settings(mode="raytrace", hard=True))
+    frame, masks, culled = got[True]
+    rays = {li: needs_rays(frame, scene, li, pipeline.baked.origin) for li in frame.lights}
+    assert all(rays[li] == 0 for li in culled)
+    assert sum(r == 0 for r in rays.values()) > len(culled) // 2 >= 1  # some left out, not all misses
+    assert any(0 < r < 6 for r in rays.values())  # cones of a few pixels were among them
+    for li in masks:
+        np.testing.assert_array_equal(masks[li], got[False][1][li])
+
+
+def test_max_distance_and_an_empty_view(pipeline):
+    scene = cull_scene(LIGHTS)
+    pipeline.set_scene(scene)
+    got = render_both(pipeline, scene, Settings(mode="raytrace", hard=True, max_distance=11.5))
+    for li in got[False][1]:
+        np.testing.assert_array_equal(got[True][1][li], got[False][1][li])
+    # the camera looking at the sky: no pixel needs a ray of any light
+    scene.camera = Camera(matrix=look_at((0.0, -9.0, 9.0), (0, -20, 30)), lens=30.0)
+    got = render_both(pipeline, scene, Settings(mode="raytrace", hard=True))
+    frame, masks, culled = got[True]
+    assert not frame.gbuffer.coverage().any()
+    assert sorted(culled) == sorted(frame.lights)
+    for li in masks:
+        assert (masks[li] == got[False][1][li]).all() or np.isnan(masks[li]).all()
