@@ -48,7 +48,8 @@ the frame.
 
 ``stats``: ``rays_traced`` counts the pixels the trace shaded (occlusion queries; facing-away
 and map-decided pixels among them cost no traversal), ``pixels`` the pixels with geometry times
-the shadowed lights, ``lights_culled`` the lights left out as above. The numpy mirror of the rays traced here is ``core/oracle/rays.py``.
+the shadowed lights, ``lights_culled`` the lights left out as above. The numpy mirror of the
+rays traced here is ``core/oracle/rays.py``.
 """
 from __future__ import annotations
 
@@ -250,6 +251,7 @@ class RaytracePass(ShadowPass):
         if cull:
             self.cull.prepare(gbuffer, settings, gbuffer.camera.cam_pos - origin)
         no_rays = None
+        self.last_samples = 1
         self.accumulated = None
         self.last_noise = {}
         self._scene_frame = int(getattr(scene, "frame", 1))
