@@ -142,3 +142,22 @@ def test_arrays_where_a_texture_outgrows_the_limit(gl_ctx, loaded, monkeypatch):
             scene.models[1] = old
     finally:
         pipe.release()
+
+
+def test_arrays_where_the_gl_will_not_make_a_buffer_texture(gl_ctx, loaded, monkeypatch):
+    """A driver that has the entry points but fails to make one (a format it lacks): the scene
+    is uploaded as 2D arrays, from then on, and renders the same masks."""
+    scene = loaded("alpha_cards")
+    pipe = Pipeline(gl_ctx)
+    try:
+        pipe.set_scene(scene)
+        _, ref = _masks(pipe, scene, Settings(mode="raytrace", hard=True))
+
+        def refuse(self, *a, **k):
+            raise GPUError("could not create a buffer texture (GL error 0x0500)")
+        monkeypatch.setattr(BufferTexture, "__init__", refuse)
+        pipe.set_scene(scene)
+        assert not pipe.scene_textures.using_buffers and pipe.scene_textures.buffers is False
+        _same(ref, _masks(pipe, scene, Settings(mode="raytrace", hard=True))[1])
+    finally:
+        pipe.release()

@@ -67,8 +67,16 @@ class SceneTextures:
         self.release()
         self.using_buffers = buffers
         self.baked = baked
-        for name, td in baked.textures.items():
-            self.textures[name] = self._create(td)
+        try:
+            for name, td in baked.textures.items():
+                self.textures[name] = self._create(td)
+        except GPUError:
+            if not buffers or self.buffers:  # (2D arrays that do not fit, or buffers asked for)
+                raise
+            # a GL that lists buffer textures but will not make one (a format it lacks): arrays
+            self.release()
+            self.buffers = False
+            self.upload(baked)
 
     def apply(self, baked, report) -> int:
         """Re-upload what ``report`` (an ``UpdateReport``) changed; returns bytes written."""
