@@ -4,8 +4,9 @@ A spot light's cone (an area light's front, for a hard one) often holds none of 
 view. Its trace would then write only answers known without a ray, yet cost a whole pass: on a
 software rasteriser the walk's code runs for every 8-pixel group, active lanes or not.
 :meth:`LightCull.prepare` draws ``shaders/light_cull.glsl`` once per frame, the box of the
-surface points of each 8x8 block of pixels (bake space, as the rays start from), and reads the
-boxes back; :meth:`LightCull.reaches` tests a light's reach, widened by a margin, against the
+surface points of each 4x4 block of pixels (bake space, as the rays start from; two per block,
+nearer and farther than the middle of its depths, so that a block on a silhouette does not span
+the gap behind it), and reads the boxes back; :meth:`LightCull.reaches` tests a light's reach, widened by a margin, against the
 bounding sphere of every box. A light it reaches nowhere has no pixel that needs a ray, so its
 mask is what every pixel gets without one (``raytrace.glsl`` HS_NO_RAYS): the same mask,
 bit for bit, at the price of one cheap pass per frame for all such lights.
@@ -49,7 +50,7 @@ class LightCull:
         bw, bh = -(-w // BLOCK), -(-h // BLOCK)
         if self._tex is None or self._tex[0].size != (bw, bh):
             self.release()
-            self._tex = [create_texture(self.ctx, bw, bh, 4, "f4") for _ in range(2)]
+            self._tex = [create_texture(self.ctx, bw, bh, 4, "f4") for _ in range(4)]
             self._fbo = self.ctx.framebuffer(color_attachments=self._tex)
         defines = {"HS_CULL_BLOCK": BLOCK}
         if settings.max_distance > 0:
@@ -61,8 +62,10 @@ class LightCull:
         self._fbo.use()
         self.ctx.viewport = (0, 0, bw, bh)
         vao.render(moderngl.TRIANGLES, vertices=3)
-        lo = np.frombuffer(self._fbo.read(components=4, dtype="f4", attachment=0), np.float32).reshape(-1, 4)
-        hi = np.frombuffer(self._fbo.read(components=4, dtype="f4", attachment=1), np.float32).reshape(-1, 4)
+        got = [np.frombuffer(self._fbo.read(components=4, dtype="f4", attachment=k), np.float32).reshape(-1, 4)
+               for k in range(4)]
+        lo = np.concatenate([got[0], got[2]])
+        hi = np.concatenate([got[1], got[3]])
         used = lo[:, 3] > 0.5
         lo = lo[used, :3].astype(np.float64)
         hi = hi[used, :3].astype(np.float64)
