@@ -118,6 +118,33 @@ def test_a_light_with_a_ray_is_never_left_out(pipeline):
         np.testing.assert_array_equal(masks[li], got[False][1][li])
 
 
+@pytest.mark.parametrize("settings", [
+    Settings(mode="raytrace", hard=True, interlace=True),
+    Settings(mode="raytrace", accumulate=True, frame_samples=4, samples=16),
+    Settings(mode="raytrace", interlace=True, accumulate=True, frame_samples=4, samples=16)])
+def test_interlaced_and_accumulated_frames_are_the_same(pipeline, settings):
+    """The viewport's frames, one after another from a reset: the same masks in every frame."""
+    scene = cull_scene(LIGHTS)
+    pipeline.set_scene(scene)
+    rp = pipeline.shadow_pass("raytrace")
+    seqs = {}
+    try:
+        for on in (True, False):
+            rp.cull_lights = on
+            pipeline.reset_history()
+            rp._phase = 0  # (interlacing's phase runs on across resets: start both at the same one)
+            seqs[on] = []
+            for _ in range(5):
+                f = pipeline.render(scene, settings, W, H)
+                seqs[on].append(({li: f.mask_array(li) for li in f.lights}, list(rp.culled)))
+    finally:
+        rp.cull_lights = True
+    for (got, culled), (ref, _) in zip(seqs[True], seqs[False]):
+        assert {scene.lights[li].name for li in culled} >= {"spot up", "spot aside", "area up"}
+        for li in ref:
+            np.testing.assert_array_equal(got[li], ref[li], err_msg=scene.lights[li].name)
+
+
 def test_max_distance_and_an_empty_view(pipeline):
     scene = cull_scene(LIGHTS)
     pipeline.set_scene(scene)

@@ -41,10 +41,11 @@ half of the samples apart (``u_split``), the masks of the two halves are filtere
 half the samples and compared (NOISE), and a light estimated above the target gives its partial
 pixels as many samples again.
 
-At ``high``, ``medium`` and ``low`` (not interlacing or accumulating) a light that reaches no
-visible surface (a spot whose cone holds none, :mod:`.light_cull`) takes no pass of rays; its
-mask, bit-identical, is the answers without rays (``HS_NO_RAYS``), one for all such lights of
-the frame.
+A light that reaches no visible surface (a spot whose cone holds none, :mod:`.light_cull`)
+takes no pass of rays, at every quality, interlaced and accumulating too (not ``upsample=
+'nearest'``'s coarse masks); its mask, bit-identical, is the answers without rays
+(``HS_NO_RAYS``), one for all such lights of the frame. It keeps no history: whether a light is
+left out depends on the G-buffer alone, and every change of it resets the history.
 
 ``stats``: ``rays_traced`` counts the pixels the trace shaded (occlusion queries; facing-away
 and map-decided pixels among them cost no traversal), ``pixels`` the pixels with geometry times
@@ -246,7 +247,7 @@ class RaytracePass(ShadowPass):
         origin = self.scene_textures.baked.origin
         # lights that reach no pixel get the answers without rays (one shared mask), no trace
         self.culled = []
-        cull = self.cull_lights and plan in ("full", "refine") and not settings.accumulate and any(
+        cull = self.cull_lights and plan != "coarse" and any(
             cull_candidate(scene.lights[li], settings.hard) for li in lights)
         if cull:
             self.cull.prepare(gbuffer, settings, gbuffer.camera.cam_pos - origin)
@@ -289,9 +290,9 @@ class RaytracePass(ShadowPass):
         """The mask of a light that no pixel needs a ray of: 1 on the background and beyond the
         max distance, 0 elsewhere (facing away, out of reach), as the trace writes it; one for
         all such lights of a frame (it depends on the G-buffer alone)."""
-        defines = {**self.defines(settings, local), "HS_NO_RAYS": 1}
+        defines = {**self.defines(settings.replace(interlace=False), local), "HS_NO_RAYS": 1}
         _, vao, _ = self._program(defines, light, light_vec, gbuffer, settings.replace(hard=True), 1, None)
-        out = self._target(("no rays",), *gbuffer.size)
+        out = self._targets.get(("no rays",), *gbuffer.size)  # (a scratch target: no history)
         draw_fullscreen(self.ctx, vao, out)
         return out.texture
 
