@@ -87,7 +87,9 @@ def _resolver():
         def find(fn):  # GL 1.1 functions are exports of opengl32, later ones come from the driver
             if hasattr(lib, fn):
                 return ctypes.cast(getattr(lib, fn), ctypes.c_void_p).value
-            return lib.wglGetProcAddress(fn.encode())
+            addr = lib.wglGetProcAddress(fn.encode())
+            # (some drivers answer 1, 2, 3 or -1 instead of NULL for a function they lack)
+            return None if addr in (None, 1, 2, 3, 2 ** 64 - 1, -1) else addr
         return find
     return None
 
