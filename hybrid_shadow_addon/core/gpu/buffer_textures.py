@@ -4,8 +4,8 @@ one linear array each, read in GLSL by ``texelFetch(samplerBuffer, i)``.
 moderngl has no buffer textures, so the few GL calls they need are made here through ctypes, on
 the context the caller made current. A record fetch from a buffer texture skips the 2D array's
 (x, y, layer) split and its mip, row and layer offsets: on llvmpipe a dependent fetch costs 1.5
-ns instead of 1.9-2.2 and the shadow walk's node step a quarter less (BENCHMARKS.md, "Record
-textures as buffer textures").
+ns instead of 1.9-2.2, and hard shadows take about a sixth less time (BENCHMARKS.md, "Buffer
+textures, lights that reach nothing").
 
 :func:`gl_functions` returns ``None`` where the entry points cannot be found (an unknown
 platform); :class:`~.scene_textures.SceneTextures` then keeps 2D array textures, which the
