@@ -38,7 +38,7 @@ INTERNAL_FORMATS = {
     ("f4", 4): 0x8814,  # GL_RGBA32F
 }
 
-_u, _i, _p = ctypes.c_uint, ctypes.c_int, ctypes.c_char_p
+_u, _i = ctypes.c_uint, ctypes.c_int
 _SIGNATURES = {
     "glGenTextures": (None, _i, ctypes.POINTER(_u)),
     "glDeleteTextures": (None, _i, ctypes.POINTER(_u)),
@@ -47,7 +47,6 @@ _SIGNATURES = {
     "glTexBuffer": (None, _u, _u, _u),
     "glGetIntegerv": (None, _u, ctypes.POINTER(_i)),
     "glGetError": (_u,),
-    "glGetUniformLocation": (_i, _u, _p),
     "glProgramUniform1i": (None, _u, _i, _i),
 }
 _loaded: dict | None = None
@@ -162,7 +161,7 @@ class BufferTexture:
         gl = self.gl
         gl["glActiveTexture"](GL_TEXTURE0 + unit)
         gl["glBindTexture"](GL_TEXTURE_BUFFER, self.glo)
-        gl["glProgramUniform1i"](prog.glo, gl["glGetUniformLocation"](prog.glo, sampler.encode()), unit)
+        gl["glProgramUniform1i"](prog.glo, prog[sampler].location, unit)
 
     def release(self) -> None:
         if self.glo:

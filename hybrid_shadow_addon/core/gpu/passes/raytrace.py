@@ -261,7 +261,7 @@ class RaytracePass(ShadowPass):
             local, vec = light_ray_uniforms(scene.lights[li], origin)
             if cull and not self.cull.reaches(scene.lights[li], vec if local else None, settings.hard):
                 if no_rays is None:
-                    no_rays = self._no_rays(li, scene.lights[li], vec, local, gbuffer, settings)
+                    no_rays = self._no_rays(scene.lights[li], vec, local, gbuffer, settings)
                 masks[li] = no_rays
                 self.culled.append(li)
                 continue
@@ -286,7 +286,7 @@ class RaytracePass(ShadowPass):
             self._phase = (self._phase + 1) % 4
         return masks
 
-    def _no_rays(self, li, light, light_vec, local, gbuffer, settings):
+    def _no_rays(self, light, light_vec, local, gbuffer, settings):
         """The mask of a light that no pixel needs a ray of: 1 on the background and beyond the
         max distance, 0 elsewhere (facing away, out of reach), as the trace writes it; one for
         all such lights of a frame (it depends on the G-buffer alone)."""
@@ -409,7 +409,7 @@ class RaytracePass(ShadowPass):
             traced.texture.use(0)
             hist.texture.use(1)
             set_uniforms(mprog, {"u_traced": 0, "u_history": 1, "u_phase": self._phase,
-                                 "u_valid_phases": self._valid_phases, "u_offset": off})
+                                 "u_valid_phases": self._valid_phases})
             draw_fullscreen(ctx, mvao, out)
             dst = hist
             if self._valid_phases | (1 << self._phase) == 15:
