@@ -75,6 +75,7 @@ flat in int v_matid;
 flat in vec3 v_plane_point;
 #ifndef SPHERE
 uniform sampler2D u_face_normals;  // model space unit face normal of triangle i at (i % 4096, i / 4096)
+uniform int u_prim_base;           // the index of the draw's first triangle (a chunk's start)
 #endif
 flat in vec4 v_color;
 flat in vec3 v_material;
@@ -134,7 +135,8 @@ void main() {
 #else
     // the face normal by the triangle's index (the model is drawn indexed: shared corners carry
     // no per-triangle attribute), into the world by the instance's normal matrix
-    vec3 fn = texelFetch(u_face_normals, ivec2(gl_PrimitiveID & 4095, gl_PrimitiveID >> 12), 0).xyz;
+    int prim = gl_PrimitiveID + u_prim_base;
+    vec3 fn = texelFetch(u_face_normals, ivec2(prim & 4095, prim >> 12), 0).xyz;
     n = vec3(dot(v_n0, fn), dot(v_n1, fn), dot(v_n2, fn));
     float denom = dot(n, rd);
     p = v_rel;

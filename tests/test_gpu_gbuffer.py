@@ -212,3 +212,90 @@ def test_face_normals_past_the_first_texture_row(gpass):
         assert ok.mean() > 0.97 and ok[late].mean() > 0.97, (target, ok.mean(), ok[late].mean())
     p = gb.read("position")[..., :3][sel].astype(np.float64)
     assert (np.abs(p - (o + t[..., None] * d)[sel]).max(-1) < 1e-5).mean() > 0.97
+
+
+def _bumpy_grid(n, size, seed, uv=False):
+    from hybrid_shadow_addon.core.scene import Model
+
+    rng = np.random.default_rng(seed)
+    xy = np.stack(np.meshgrid(np.linspace(-size, size, n), np.linspace(-size, size, n), indexing="ij"), -1).reshape(-1, 2)
+    verts = np.concatenate([xy, 0.2 * rng.random((len(xy), 1))], 1).astype(np.float32)
+    quads = [(i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1) for i in range(n - 1) for j in range(n - 1)]
+    tris = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], np.uint32)
+    normals = rng.normal(size=(len(verts), 3)).astype(np.float32)[tris]
+    normals[..., 2] = np.abs(normals[..., 2]) + 2.0
+    uvs = (xy.astype(np.float32)[tris] * 0.1) if uv else None
+    return Model("terrain", verts, tris, normals=normals, uvs=uvs)
+
+
+def test_big_models_are_drawn_by_chunks_in_view(gpass, monkeypatch):
+    """A model of many triangles is drawn by chunks of nearby triangles, those outside the view
+    left out: the G-buffer is bit-identical to the whole model drawn in its own triangle order,
+    with fewer triangles drawn; each pixel's face normal is its ray's triangle's (the chunk's
+    first triangle index reaches gl_PrimitiveID's lookup)."""
+    from hybrid_shadow_addon.core.gpu import geometry
+    from hybrid_shadow_addon.core.scene import Instances, Scene
+
+    base = basic_scene()
+    terrain = _bumpy_grid(97, 30.0, 7)  # 18432 triangles: 9 chunks
+    assert geometry.chunk_order(terrain) is not None and geometry.chunk_order(basic_scene().models[0]) is None
+    mats = [trs((0.0, 0.0, -0.3)), trs((35.0, 20.0, -0.5), rot_z=0.7, scale=(0.6, 0.8, 1.0)),
+            trs((0.0, 0.0, 500.0))]  # under the camera, to its side, far above it (out of view)
+    scene = Scene(models=[terrain, base.models[1]],
+                  instances=Instances.concatenate([
+                      Instances(names=["t0", "t1", "t2"], model_ids=[0, 0, 0], matrices=np.array(mats),
+                                base_color=[(0.6, 0.6, 0.6, 1)] * 3),
+                      Instances(names=["cube"], model_ids=[1], matrices=trs((0, 0, 1))[None],
+                                base_color=[(0.8, 0.2, 0.1, 1)])]),
+                  lights=base.lights, camera=base.camera, world_color=base.world_color, resolution=(W, H))
+    names = ("position", "normal", "shading_normal", "albedo", "material", "depth")
+    gp = gpass.gbuffer_pass
+    got = {}
+    for key, chunked, minimum in (("chunks", True, geometry.CHUNK_MIN), ("whole", False, geometry.CHUNK_MIN),
+                                  ("own order", True, 10 ** 9)):
+        monkeypatch.setattr(geometry, "CHUNK_MIN", minimum)
+        monkeypatch.setattr(gp, "chunked", chunked)
+        gpass.gpu.models.prune([])
+        gb = gpass.gbuffer(scene, W, H)
+        got[key] = ({k: gb.read(k).copy() for k in names}, gp.triangles, gp.draw_calls)
+    (img, tris, draws), (whole, whole_tris, _), (own, own_tris, own_draws) = got["chunks"], got["whole"], got["own order"]
+    assert own_tris == whole_tris == 2 * terrain.triangle_count + 12 and own_draws == 2
+    assert tris < 0.75 * whole_tris and draws > own_draws
+    for k in names:
+        assert np.array_equal(img[k], whole[k]), k
+        assert np.array_equal(img[k], own[k]), k
+    # the normals are those of the terrain's quad under each pixel's position (a wrong first
+    # index would read faces elsewhere): either of its two triangles (a pixel centre on the
+    # diagonal may fall to either)
+    sel = (img["material"][..., 2].round() == 0) & (img["position"][..., 3] > 0.5)
+    assert sel.sum() > 0.3 * W * H
+    p = img["position"][..., :3][sel].astype(np.float64) - mats[0][:3, 3]
+    n = 97
+    step = 60.0 / (n - 1)
+    ij = np.clip(np.floor((p[:, :2] + 30.0) / step).astype(int), 0, n - 2)
+    first = 2 * (ij[:, 0] * (n - 1) + ij[:, 1])
+    tri = terrain.vertices.astype(np.float64)[terrain.triangles.astype(np.int64)]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+    fn *= np.sign(fn[:, 2:])  # (the camera looks down on the terrain)
+    got = img["normal"][..., :3][sel]
+    ok = np.minimum(np.abs(got - fn[first]).max(-1), np.abs(got - fn[first + 1]).max(-1)) < 1e-5
+    assert ok.mean() > 0.99, ok.mean()
+
+
+def test_chunk_order_bounds_its_chunks():
+    """Chunks are a permutation of the triangles, cut every CHUNK_TRIS; each chunk's sphere holds
+    all its corners, and Morton order keeps chunks compact (far smaller than the model)."""
+    from hybrid_shadow_addon.core.gpu.geometry import CHUNK_TRIS, chunk_order
+
+    m = _bumpy_grid(129, 1000.0, 3)  # 32768 triangles, flat and wide, far from 0 in z after a shift
+    m.vertices[:, 2] += 4.0e4
+    order, starts, centres, radii = chunk_order(m)
+    assert np.array_equal(np.sort(order), np.arange(m.triangle_count))
+    assert np.array_equal(starts, np.arange(0, m.triangle_count, CHUNK_TRIS))
+    v = m.vertices.astype(np.float64)
+    bounds = np.append(starts, m.triangle_count)
+    for k in range(len(starts)):
+        pts = v[m.triangles[order[bounds[k]:bounds[k + 1]]].ravel()]
+        assert (np.linalg.norm(pts - centres[k], axis=1) <= radii[k]).all()
+    assert radii.max() < 0.4 * m.sphere_radius

@@ -28,25 +28,34 @@ INDEXED_FORMAT_NO_UV = "3f 3f 8x"
 FACE_TEX_WIDTH = 4096  # face normal texel of triangle i: (i % 4096, i // 4096)
 
 
-def face_normals(model) -> np.ndarray:
-    """(T, 3) float32 unit face normals (zero on a degenerate triangle), computed in float64."""
+def face_normals(model, order=None) -> np.ndarray:
+    """(T, 3) float32 unit face normals (zero on a degenerate triangle), computed in float64;
+    ``order``: the triangles in that order (:func:`chunk_order`)."""
     v = model.vertices.astype(np.float64)
-    tri = v[model.triangles.astype(np.int64)]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    tris = model.triangles if order is None else np.take(model.triangles, order, axis=0)
+    a = np.take(v, tris[:, 0], axis=0)
+    e1 = np.take(v, tris[:, 1], axis=0) - a
+    e2 = np.take(v, tris[:, 2], axis=0) - a
+    n = np.empty_like(a)
+    n[:, 0] = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
+    n[:, 1] = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
+    n[:, 2] = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    ln = np.sqrt(np.einsum("ij,ij->i", n, n))[:, None]
     return np.where(ln > 0, n / np.where(ln > 0, ln, 1), 0.0).astype(np.float32)
 
 
-def indexed_vertex_data(model):
+def indexed_vertex_data(model, order=None):
     """``(vertices (V', 8) float32, indices (3T,) uint32)``: the model's corners in
     :data:`INDEXED_FORMAT` (a flat model's normals are zeros: the G-buffer then shades with the
     face normal), shared where they are equal, and each triangle's three corners in order (its
-    last corner, GL's provoking vertex, gives the G-buffer its plane point).
+    last corner, GL's provoking vertex, gives the G-buffer its plane point); ``order``: the
+    triangles in that order (:func:`chunk_order`), else the model's.
 
     The model's own vertices carry each vertex's normal and UV; a corner whose normal or UV
     differs from its vertex's (a sharp edge, a UV seam) gets a vertex of its own (equal such
     corners one together). Linear in the corners: no sort of the whole mesh."""
-    tri = model.triangles.astype(np.int64).ravel()
+    tris = model.triangles if order is None else model.triangles[order]
+    tri = tris.astype(np.int64).ravel()
     nv = len(model.vertices)
     verts = np.zeros((nv, 8), np.float32)
     verts[:, :3] = model.vertices
@@ -54,9 +63,9 @@ def indexed_vertex_data(model):
         return verts, tri.astype(np.uint32)
     attrs = np.zeros((len(tri), 5), np.float32)
     if model.normals is not None:
-        attrs[:, :3] = model.normals.reshape(-1, 3)
+        attrs[:, :3] = (model.normals if order is None else model.normals[order]).reshape(-1, 3)
     if model.uvs is not None:
-        attrs[:, 3:] = model.uvs.reshape(-1, 2)
+        attrs[:, 3:] = (model.uvs if order is None else model.uvs[order]).reshape(-1, 2)
     per_vertex = np.zeros((nv, 5), np.float32)
     per_vertex[tri] = attrs
     bits = attrs.view(np.int32)
@@ -74,6 +83,54 @@ def indexed_vertex_data(model):
     return np.ascontiguousarray(verts, np.float32), idx.astype(np.uint32)
 
 
+#: models of at least CHUNK_MIN triangles are drawn in chunks of CHUNK_TRIS spatially close
+#: triangles, each left out where its bounding sphere misses the view (a terrain seen from
+#: within: llvmpipe shades vertices and sets up triangles on one thread, culled or not)
+CHUNK_TRIS = 2048
+CHUNK_MIN = 4 * CHUNK_TRIS
+
+
+def _spread_bits(x: np.ndarray) -> np.ndarray:
+    """The 10 low bits of ``x`` (int64) spread to every third bit (a 30-bit Morton code's axis)."""
+    x = x & 0x3FF
+    x = (x | (x << 16)) & 0x030000FF
+    x = (x | (x << 8)) & 0x0300F00F
+    x = (x | (x << 4)) & 0x030C30C3
+    return (x | (x << 2)) & 0x09249249
+
+
+def chunk_order(model, chunk: int | None = None, minimum: int | None = None):
+    """``(order, starts, centres, radii)``: the model's triangles in Morton order of their
+    centroids on a grid of cubic cells (a permutation, stable for equal codes), cut into chunks
+    of ``chunk`` triangles starting at ``starts`` (the last one shorter), with each chunk's
+    model-space bounding sphere (float64: its box's circumscribed sphere, rounded up). ``None``
+    for a model of fewer than ``minimum`` triangles: it is drawn whole, in its own order
+    (defaults: CHUNK_TRIS, CHUNK_MIN)."""
+    chunk = CHUNK_TRIS if chunk is None else chunk
+    minimum = CHUNK_MIN if minimum is None else minimum
+    n = model.triangle_count
+    if n < max(int(minimum), 2):
+        return None
+    v = model.vertices  # (float32: the order needs no more, the boxes are exact)
+    tri = model.triangles
+    cen = np.take(v, tri[:, 0], axis=0) + np.take(v, tri[:, 1], axis=0) + np.take(v, tri[:, 2], axis=0)
+    # (3 x the centroids: only the order counts)
+    lo = cen.min(axis=0)
+    ext = float((cen.max(axis=0) - lo).max())
+    scale = np.float32(1023.0 / ext) if ext > 0 else np.float32(0.0)
+    q = np.minimum(((cen - lo) * scale).astype(np.int64), 1023)  # (cubic cells: compact chunks)
+    code = _spread_bits(q[:, 0]) | (_spread_bits(q[:, 1]) << 1) | (_spread_bits(q[:, 2]) << 2)
+    order = np.argsort(code, kind="stable")
+    starts = np.arange(0, n, int(chunk))
+    pts = np.take(v, np.take(tri, order, axis=0).ravel(), axis=0)  # the corners in chunk order, 3 rows each
+    bmin = np.minimum.reduceat(pts, 3 * starts).astype(np.float64)  # (exact)
+    bmax = np.maximum.reduceat(pts, 3 * starts).astype(np.float64)
+    centres = 0.5 * (bmin + bmax)
+    # the box's circumscribed sphere (float64 of exact float32 corners: a relative 1e-9 covers it)
+    radii = 0.5 * np.linalg.norm(bmax - bmin, axis=1) * (1.0 + 1e-9) + 1e-12 * np.abs(centres).max(axis=1) + 1e-30
+    return order, starts, centres, radii
+
+
 class ModelBufferCache:
     """The indexed buffers of each model (:meth:`indexed`), shared by the passes that rasterise
     the scene. Keyed by model identity; :meth:`prune` drops the buffers of models no longer in
@@ -81,31 +138,48 @@ class ModelBufferCache:
 
     def __init__(self, ctx):
         self.ctx = ctx
-        self._indexed: dict = {}  # id(model) -> (model, key, vbo, ibo, index count, face texture)
+        self._indexed: dict = {}  # id(model) -> (model, key, vbo, ibo, index count, face texture, chunks)
 
     def indexed(self, model):
         """``(vbo, ibo, index_count, face_texture)`` of :func:`indexed_vertex_data` and
-        :func:`face_normals` (an RGBA32F texture :data:`FACE_TEX_WIDTH` wide); ``vbo`` is None
-        for a model without triangles."""
+        :func:`face_normals` (an RGBA32F texture :data:`FACE_TEX_WIDTH` wide), the triangles in
+        :func:`chunk_order` where the model is chunked (:meth:`chunks`); ``vbo`` is None for a
+        model without triangles."""
+        return self._entry(model)[2:6]
+
+    def chunks(self, model):
+        """``(starts, counts, centres, radii)`` of the chunks of ``model``'s index buffer (in
+        triangles; model-space bounding spheres), or ``None``: drawn whole."""
+        return self._entry(model)[6]
+
+    def _entry(self, model):
         key = (id(model.vertices), id(model.triangles), id(model.normals), id(model.uvs), len(model.triangles))
         e = self._indexed.get(id(model))
         if e is None or e[0] is not model or e[1] != key:
             if e is not None:
                 self._release_indexed(e)
-            verts, idx = indexed_vertex_data(model)
+            chunked = chunk_order(model)
+            order = None
+            chunks = None
+            if chunked is not None:
+                order, starts, centres, radii = chunked
+                counts = np.diff(np.append(starts, model.triangle_count))
+                chunks = (starts, counts, centres, radii)
+            verts, idx = indexed_vertex_data(model, order)
             if not len(idx):
-                e = (model, key, None, None, 0, None)
+                e = (model, key, None, None, 0, None, None)
             else:
-                fn = face_normals(model)
+                fn = face_normals(model, order)
                 width = min(len(fn), FACE_TEX_WIDTH)
                 rows = -(-len(fn) // width)
                 data = np.zeros((rows * width, 4), np.float32)
                 data[:len(fn), :3] = fn
                 tex = self.ctx.texture((width, rows), 4, data.tobytes(), dtype="f4")
                 tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-                e = (model, key, self.ctx.buffer(verts.tobytes()), self.ctx.buffer(idx.tobytes()), len(idx), tex)
+                e = (model, key, self.ctx.buffer(verts.tobytes()), self.ctx.buffer(idx.tobytes()), len(idx), tex,
+                     chunks)
             self._indexed[id(model)] = e
-        return e[2], e[3], e[4], e[5]
+        return e
 
     @staticmethod
     def _release_indexed(e) -> None:

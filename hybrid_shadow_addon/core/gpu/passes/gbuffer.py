@@ -6,7 +6,12 @@ shading normal, UV) with an index buffer, its face normals in a texture read by
 a vertex once per index of a de-indexed buffer, three times per triangle, which cost the
 G-buffer half its time on a 131k-triangle terrain), and a per-model instance buffer
 (camera-relative world matrix rows, normal matrix, colour, specular/roughness/index)
-re-uploaded each render. Instances whose bounding sphere misses the view are not drawn.
+re-uploaded each render. Instances whose bounding sphere misses the view are not drawn, nor
+are the chunks of a big model (:func:`~..geometry.chunk_order`: its triangles in runs of
+spatially close ones, each with a bounding sphere) that miss it: a terrain seen from within
+draws the third of it in view (llvmpipe shades vertices and sets up triangles on one thread,
+in view or not). A chunk's draw starts at its first triangle, which ``u_prim_base`` adds to
+``gl_PrimitiveID`` for the face normal.
 Sphere primitives (``Instances.sphere``) are drawn as their model's bounding sphere
 (ray/ellipsoid per fragment). Models with UVs shown with a textured material draw with the
 ``TEXTURED`` variant: the UVs of the indexed buffer, the material per instance, the colour image's texel (mip
@@ -26,6 +31,7 @@ from ..context import check_render_size
 from ..frame import GBUFFER_TARGETS, CameraUniforms, GBuffer
 from ..geometry import (INDEXED_ATTRS, INDEXED_FORMAT, INDEXED_FORMAT_NO_UV, PROXY_ATTRS, PROXY_FORMAT,
                         InstanceBatch, ProxyMesh, unit_cube)
+from ...scene import max_scale
 from ..targets import create_texture
 from .base import Pass
 
@@ -37,24 +43,66 @@ TEXTURED_ATTRS = INSTANCE_ATTRS + ("in_matid",)
 SPHERE_ATTRS = INSTANCE_ATTRS + ("in_i0", "in_i1", "in_i2", "in_sphere")
 
 
+def frustum_planes(clip_from_rel: np.ndarray) -> np.ndarray:
+    """(6, 4) unit planes (normal, offset) of the view frustum of ``clip_from_rel``
+    (camera-relative; Gribb & Hartmann): a point p is inside where ``planes[:, :3] @ p +
+    planes[:, 3] >= 0`` for all six."""
+    m = np.asarray(clip_from_rel, np.float64)
+    planes = np.stack([m[3] + m[0], m[3] - m[0], m[3] + m[1], m[3] - m[1], m[3] + m[2], m[3] - m[2]])
+    norm = np.linalg.norm(planes[:, :3], axis=1)
+    return planes / np.where(norm > 0, norm, 1.0)[:, None]
+
+
+def spheres_visible(planes: np.ndarray, rel: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """(...) bool: the spheres of camera-relative centres ``rel`` (..., 3) and radii ``r`` (...)
+    may reach the frustum of ``planes`` (:func:`frustum_planes`). Conservative: widened by 1e-4
+    of the radius and 1e-6 of the distance for the float rounding of the rasteriser's clip test."""
+    dist = rel @ planes[:, :3].T + planes[:, 3]
+    slack = r * (1.0 + 1e-4) + 1e-6 * np.linalg.norm(rel, axis=-1)
+    return ~np.isfinite(dist).all(axis=-1) | (dist >= -slack[..., None]).all(axis=-1)
+
+
 def frustum_visible(scene, clip_from_rel: np.ndarray, cam_pos: np.ndarray) -> np.ndarray:
-    """(N,) bool per instance: its world bounding sphere may reach the view frustum (the six
-    planes of ``clip_from_rel``, camera-relative; Gribb & Hartmann). Conservative: the sphere
-    bounds every triangle and a sphere primitive's proxy box is drawn only where the sphere
-    is, so an instance left out draws no fragment; the spheres are widened by 1e-4 of their
-    radius and 1e-6 of their distance for the float rounding of the rasteriser's clip test."""
+    """(N,) bool per instance: its world bounding sphere may reach the view frustum
+    (:func:`spheres_visible`). Conservative: the sphere bounds every triangle and a sphere
+    primitive's proxy box is drawn only where the sphere is, so an instance left out draws no
+    fragment."""
     inst = scene.instances
     if not len(inst):
         return np.zeros(0, bool)
     c, r = scene.instance_spheres()
-    rel = c - cam_pos
-    m = np.asarray(clip_from_rel, np.float64)
-    planes = np.stack([m[3] + m[0], m[3] - m[0], m[3] + m[1], m[3] - m[1], m[3] + m[2], m[3] - m[2]])
-    norm = np.linalg.norm(planes[:, :3], axis=1)
-    planes = planes / np.where(norm > 0, norm, 1.0)[:, None]
-    dist = rel @ planes[:, :3].T + planes[:, 3]
-    slack = r * (1.0 + 1e-4) + 1e-6 * np.linalg.norm(rel, axis=1)
-    return ~np.isfinite(dist).all(axis=1) | (dist >= -slack[:, None]).all(axis=1)
+    return spheres_visible(frustum_planes(clip_from_rel), c - cam_pos, r)
+
+
+def chunks_visible(scene, rows: np.ndarray, chunks, clip_from_rel: np.ndarray, cam_pos: np.ndarray) -> np.ndarray:
+    """(len(rows), K) bool: chunk k of instance ``rows[i]`` (:meth:`~..geometry.ModelBufferCache.chunks`,
+    model-space spheres moved by the instance's matrix, the radius by its largest scale) may
+    reach the view frustum."""
+    _, _, centres, radii = chunks
+    m = scene.instances.matrices[rows]
+    wc = np.einsum("nij,kj->nki", m[:, :3, :3], centres) + m[:, None, :3, 3]
+    r = radii[None, :] * max_scale(m)[:, None]
+    return spheres_visible(frustum_planes(clip_from_rel), wc - cam_pos, r)
+
+
+def chunk_runs(vis: np.ndarray) -> list:
+    """``[(row mask, [(first chunk, chunk count), ...]), ...]``: the chunks of ``vis``
+    (:func:`chunks_visible`) grouped by the instances that see them, each group's chunks as runs
+    of consecutive ones (one draw each)."""
+    seen = vis.any(axis=0)
+    if not seen.any():
+        return []
+    cols = np.ascontiguousarray(vis.T[seen])
+    keys = np.packbits(cols, axis=1)
+    _, first, inv = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    idx = np.nonzero(seen)[0]
+    out = []
+    for g in np.argsort(first):
+        ks = idx[inv.ravel() == g]
+        breaks = np.nonzero(np.diff(ks) != 1)[0] + 1
+        runs = [(int(a[0]), int(len(a))) for a in np.split(ks, breaks)]
+        out.append((cols[first[g]], runs))
+    return out
 
 
 def log_depth_scale(camera) -> float:
@@ -79,6 +127,8 @@ class GBufferPass(Pass):
         self._cube = ProxyMesh(self.ctx, unit_cube)
         self.draw_calls = 0
         self.culled = 0  # instances of the last render outside the view frustum (not drawn)
+        self.chunked = True  # draw big models by chunks, leaving out those outside the view (tests compare)
+        self.triangles = 0  # triangles drawn by the last render (instances x triangles of each draw)
 
     # -- targets -------------------------------------------------------------------------------
     def _targets(self, width, height) -> GBuffer:
@@ -119,6 +169,18 @@ class GBufferPass(Pass):
             cols += [inv[:, 0, :], inv[:, 1, :], inv[:, 2, :], sph.reshape(-1, 4)]
         return np.ascontiguousarray(np.concatenate(cols, axis=1), dtype=np.float32)
 
+    def _model_vao(self, key, scene, model, rows, cam_pos, prog, tprog, vbo, ibo):
+        """``(vao, program)`` drawing instances ``rows`` of ``model`` (textured where shown so)."""
+        inst = scene.instances
+        data = self.instance_data(scene, rows, cam_pos)
+        if tprog is not None and model.uvs is not None and (inst.material_ids[rows] >= 0).any():
+            data = np.ascontiguousarray(np.concatenate(
+                [data, inst.material_ids[rows].astype(np.float32)[:, None]], axis=1))
+            return self._batch(key).upload(data, tprog, vbo, INDEXED_FORMAT, INDEXED_ATTRS, TEXTURED_FORMAT,
+                                           TEXTURED_ATTRS, index_buffer=ibo), tprog
+        return self._batch(key).upload(data, prog, vbo, INDEXED_FORMAT_NO_UV, INDEXED_ATTRS[:2],
+                                       INSTANCE_FORMAT, INSTANCE_ATTRS, index_buffer=ibo), prog
+
     # -- render ----------------------------------------------------------------------------------
     def render(self, job) -> GBuffer:
         scene = job.scene
@@ -136,6 +198,7 @@ class GBufferPass(Pass):
         ctx.enable_only(moderngl.DEPTH_TEST)
         ctx.depth_func = "<"
         self.draw_calls = 0
+        self.triangles = 0
         self.models.prune(scene.models)
         inst = scene.instances
         visible = frustum_visible(scene, cam.clip_from_rel, cam.cam_pos)
@@ -161,18 +224,25 @@ class GBufferPass(Pass):
                 if not len(rows) or not model.triangle_count:
                     continue
                 vbo, ibo, nidx, faces = self.models.indexed(model)
+                chunks = self.models.chunks(model) if self.chunked else None
                 faces.use(face_unit)
-                data = self.instance_data(scene, rows, cam.cam_pos)
-                if tprog is not None and model.uvs is not None and (inst.material_ids[rows] >= 0).any():
-                    data = np.ascontiguousarray(np.concatenate(
-                        [data, inst.material_ids[rows].astype(np.float32)[:, None]], axis=1))
-                    vao = self._batch(mi).upload(data, tprog, vbo, INDEXED_FORMAT, INDEXED_ATTRS, TEXTURED_FORMAT,
-                                                 TEXTURED_ATTRS, index_buffer=ibo)
+                if chunks is None:
+                    groups = [(np.ones(len(rows), bool), [(0, None)])]
                 else:
-                    vao = self._batch(mi).upload(data, prog, vbo, INDEXED_FORMAT_NO_UV, INDEXED_ATTRS[:2],
-                                                 INSTANCE_FORMAT, INSTANCE_ATTRS, index_buffer=ibo)
-                vao.render(moderngl.TRIANGLES, vertices=nidx, instances=len(rows))
-                self.draw_calls += 1
+                    groups = chunk_runs(chunks_visible(scene, rows, chunks, cam.clip_from_rel, cam.cam_pos))
+                for g, (sel, runs) in enumerate(groups):
+                    vao, p = self._model_vao((mi, g), scene, model, rows[sel], cam.cam_pos, prog, tprog, vbo, ibo)
+                    for first, count in runs:
+                        if count is None:
+                            start, n = 0, nidx // 3
+                        else:
+                            starts, counts = chunks[0], chunks[1]
+                            start = int(starts[first])
+                            n = int(counts[first:first + count].sum())
+                        p["u_prim_base"].value = start
+                        vao.render(moderngl.TRIANGLES, vertices=3 * n, first=3 * start, instances=int(sel.sum()))
+                        self.draw_calls += 1
+                        self.triangles += n * int(sel.sum())
             sph_rows = np.nonzero(inst.sphere & visible)[0]
             if len(sph_rows):
                 prog = self.programs.get("gbuffer", {"SPHERE": 1})
