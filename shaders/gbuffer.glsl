@@ -20,6 +20,9 @@ uniform float u_log_depth_scale;   // 1 / log2(clip_end / clip_start)
 #ifdef VERTEX_SHADER
 layout(location = 0) in vec3 in_pos;          // model space (a triangle's last corner: its plane point)
 layout(location = 2) in vec3 in_shading_normal;  // model space: smooth corner normal (zero: flat)
+#ifndef SPHERE
+in vec3 in_face_normal;        // model space unit face normal (read from the provoking corner)
+#endif
 // per instance
 in vec4 in_m0; in vec4 in_m1; in vec4 in_m2;  // rows of the camera-relative world matrix
 in vec3 in_n0; in vec3 in_n1; in vec3 in_n2;  // rows of the normal matrix (inverse transpose)
@@ -41,7 +44,11 @@ flat out vec4 v_sphere;
 flat out vec3 v_plane_point;   // a point of the triangle (the provoking vertex), camera-relative
 flat out vec4 v_color;
 flat out vec3 v_material;
+#ifdef SPHERE
 flat out vec3 v_n0; flat out vec3 v_n1; flat out vec3 v_n2;
+#else
+flat out vec3 v_face;          // the triangle's face normal in the world (unnormalised)
+#endif
 out vec3 v_rel;                // interpolated camera-relative position (fallback)
 out vec3 v_shading;            // interpolated world shading normal (unnormalised)
 
@@ -55,7 +62,11 @@ void main() {
     v_rel = rel;
     v_plane_point = rel;
     v_shading = vec3(dot(in_n0, in_shading_normal), dot(in_n1, in_shading_normal), dot(in_n2, in_shading_normal));
+#ifdef SPHERE
     v_n0 = in_n0; v_n1 = in_n1; v_n2 = in_n2;
+#else
+    v_face = vec3(dot(in_n0, in_face_normal), dot(in_n1, in_face_normal), dot(in_n2, in_face_normal));
+#endif
     v_color = in_color;
     v_material = in_material;
 #ifdef TEXTURED
@@ -73,13 +84,13 @@ in vec2 v_uv;
 flat in int v_matid;
 #endif
 flat in vec3 v_plane_point;
-#ifndef SPHERE
-uniform sampler2D u_face_normals;  // model space unit face normal of triangle i at (i % 4096, i / 4096)
-uniform int u_prim_base;           // the index of the draw's first triangle (a chunk's start)
-#endif
 flat in vec4 v_color;
 flat in vec3 v_material;
+#ifdef SPHERE
 flat in vec3 v_n0; flat in vec3 v_n1; flat in vec3 v_n2;
+#else
+flat in vec3 v_face;
+#endif
 in vec3 v_rel;
 in vec3 v_shading;
 #ifdef SPHERE
@@ -133,11 +144,8 @@ void main() {
     float zndc = clip.z / clip.w;
     if (zndc < -1.0 || zndc > 1.0) discard;
 #else
-    // the face normal by the triangle's index (the model is drawn indexed: shared corners carry
-    // no per-triangle attribute), into the world by the instance's normal matrix
-    int prim = gl_PrimitiveID + u_prim_base;
-    vec3 fn = texelFetch(u_face_normals, ivec2(prim & 4095, prim >> 12), 0).xyz;
-    n = vec3(dot(v_n0, fn), dot(v_n1, fn), dot(v_n2, fn));
+    // the face normal, from the provoking corner (geometry.indexed_vertex_data), in the world
+    n = v_face;
     float denom = dot(n, rd);
     p = v_rel;
     if (abs(denom) > 1e-12 * length(n) * length(rd)) {

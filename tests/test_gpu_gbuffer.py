@@ -144,7 +144,8 @@ def test_instances_outside_the_view_are_not_drawn_and_change_nothing(gpass, monk
 
 def test_indexed_layout_keeps_every_corner_and_face():
     """The indexed buffers give back each triangle's corners (position, normal, UV) in order,
-    share the corners that are equal, and keep the face normals in triangle order."""
+    share the corners that are equal, and give each triangle's last (provoking) corner its own
+    face normal, shared only by triangles with the same one."""
     from hybrid_shadow_addon.core.gpu.geometry import face_normals, indexed_vertex_data
     from hybrid_shadow_addon.core.scene import Model
 
@@ -152,6 +153,8 @@ def test_indexed_layout_keeps_every_corner_and_face():
     n = 9
     g = np.stack(np.meshgrid(np.arange(n), np.arange(n), indexing="ij"), -1).reshape(-1, 2).astype(np.float32)
     verts = np.concatenate([g, rng.random((len(g), 1), np.float32)], 1)
+    flat = verts.copy()
+    flat[:, 2] = 0.0  # a flat grid: one face normal for all
     quads = [(i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1) for i in range(n - 1) for j in range(n - 1)]
     tris = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], np.uint32)
     smooth = rng.normal(size=(len(verts), 3)).astype(np.float32)
@@ -159,27 +162,39 @@ def test_indexed_layout_keeps_every_corner_and_face():
     sharp[:10, 0] = sharp[10:20, 1] = (0.0, 0.0, 1.0)  # a sharp edge: vertices with two normals
     seam = verts[tris][..., :2] * 0.1
     seam[5:9, 2] = -1.0  # a UV seam
-    for normals, uvs, extra in ((None, None, 0), (smooth[tris], None, 0), (smooth[tris], verts[tris][..., :2] * 0.1, 0),
-                                (sharp, seam, None)):
-        m = Model("grid", verts, tris, normals=normals, uvs=uvs)
-        vb, idx = indexed_vertex_data(m)
-        corners = vb[idx].reshape(-1, 3, 8)
-        assert np.array_equal(corners[..., :3], m.vertices[m.triangles])
-        assert np.array_equal(corners[..., 3:6], np.zeros_like(corners[..., 3:6]) if normals is None else m.normals)
-        assert np.array_equal(corners[..., 6:], np.zeros_like(corners[..., 6:]) if uvs is None else m.uvs)
-        # corners equal in position, normal and UV are one vertex; others are not merged
-        distinct = len(np.unique(corners.reshape(-1, 8), axis=0))
-        assert len(np.unique(vb[idx], axis=0)) == distinct and len(np.unique(idx)) == distinct
-        if extra == 0:
-            assert len(vb) == len(verts)
-        tri = verts.astype(np.float64)[tris.astype(np.int64)]
-        fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        assert np.allclose(face_normals(m), fn / np.linalg.norm(fn, axis=1, keepdims=True), atol=1e-7)
+    for vv, normals, uvs in ((verts, None, None), (verts, smooth[tris], None), (verts, smooth[tris], verts[tris][..., :2] * 0.1),
+                             (verts, sharp, seam), (flat, None, None)):
+        m = Model("grid", vv, tris, normals=normals, uvs=uvs)
+        for order in (None, np.random.default_rng(1).permutation(len(tris))):
+            t_ = tris if order is None else tris[order]
+            vb, idx = indexed_vertex_data(m, order)
+            corners = vb[idx].reshape(-1, 3, 11)
+            assert np.array_equal(corners[..., :3], m.vertices[t_])
+            ref_n = np.zeros_like(corners[..., 3:6]) if normals is None else (m.normals if order is None else m.normals[order])
+            ref_uv = np.zeros_like(corners[..., 6:8]) if uvs is None else (m.uvs if order is None else m.uvs[order])
+            assert np.array_equal(corners[..., 3:6], ref_n) and np.array_equal(corners[..., 6:8], ref_uv)
+            fn = face_normals(m, order)
+            assert np.array_equal(corners[:, 2, 8:], fn)  # the provoking corner's face normal
+            # a last corner shared by two triangles carries one face normal for both
+            last = idx[2::3]
+            key = np.concatenate([corners[:, 2, :8], fn], 1)
+            u, inv = np.unique(last, return_inverse=True)
+            for k in range(len(u)):
+                assert len(np.unique(key[inv.ravel() == k], axis=0)) == 1
+            # no more vertices than the distinct corners plus the distinct (last corner, face normal) pairs
+            distinct = len(np.unique(corners[..., :8].reshape(-1, 8), axis=0))
+            assert len(vb) <= distinct + len(np.unique(key, axis=0))
+            if vv is flat and normals is None:
+                assert len(vb) == len(verts)  # one face normal: nothing copied
+        tri = m.vertices.astype(np.float64)[tris.astype(np.int64)]
+        fnr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        assert np.allclose(face_normals(m), fnr / np.linalg.norm(fnr, axis=1, keepdims=True), atol=1e-7)
 
 
-def test_face_normals_past_the_first_texture_row(gpass):
-    """A bumpy 48 x 48-quad grid (4608 triangles: the face texture's second row is read by
-    gl_PrimitiveID >= 4096): every pixel's normal is its hit triangle's, the position the ray's."""
+def test_face_normals_of_a_bumpy_grid(gpass):
+    """A bumpy 48 x 48-quad grid (4608 triangles, each of whose provoking corners carries its
+    face normal, many of them copies): every pixel's normal is its hit triangle's, the position
+    the ray's."""
     from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 
     n = 49
@@ -231,8 +246,7 @@ def _bumpy_grid(n, size, seed, uv=False):
 def test_big_models_are_drawn_by_chunks_in_view(gpass, monkeypatch):
     """A model of many triangles is drawn by chunks of nearby triangles, those outside the view
     left out: the G-buffer is bit-identical to the whole model drawn in its own triangle order,
-    with fewer triangles drawn; each pixel's face normal is its ray's triangle's (the chunk's
-    first triangle index reaches gl_PrimitiveID's lookup)."""
+    with fewer triangles drawn; each pixel's face normal is that of the triangle under it."""
     from hybrid_shadow_addon.core.gpu import geometry
     from hybrid_shadow_addon.core.scene import Instances, Scene
 
@@ -256,17 +270,20 @@ def test_big_models_are_drawn_by_chunks_in_view(gpass, monkeypatch):
         monkeypatch.setattr(geometry, "CHUNK_MIN", minimum)
         monkeypatch.setattr(gp, "chunked", chunked)
         gpass.gpu.models.prune([])
+        # (a model's first frame draws it whole, in its own order: its chunks come from the next on)
+        gb = gpass.gbuffer(scene, W, H)
+        first = gp.triangles
         gb = gpass.gbuffer(scene, W, H)
         got[key] = ({k: gb.read(k).copy() for k in names}, gp.triangles, gp.draw_calls)
+        assert first == 2 * terrain.triangle_count + 12
     (img, tris, draws), (whole, whole_tris, _), (own, own_tris, own_draws) = got["chunks"], got["whole"], got["own order"]
     assert own_tris == whole_tris == 2 * terrain.triangle_count + 12 and own_draws == 2
     assert tris < 0.75 * whole_tris and draws > own_draws
     for k in names:
         assert np.array_equal(img[k], whole[k]), k
         assert np.array_equal(img[k], own[k]), k
-    # the normals are those of the terrain's quad under each pixel's position (a wrong first
-    # index would read faces elsewhere): either of its two triangles (a pixel centre on the
-    # diagonal may fall to either)
+    # the normals are those of the terrain's quad under each pixel's position: either of its two
+    # triangles (a pixel centre on the diagonal may fall to either)
     sel = (img["material"][..., 2].round() == 0) & (img["position"][..., 3] > 0.5)
     assert sel.sum() > 0.3 * W * H
     p = img["position"][..., :3][sel].astype(np.float64) - mats[0][:3, 3]

@@ -20,12 +20,15 @@ PROXY_ATTRS = ("in_pos",)
 
 
 # The G-buffer's indexed layout: the model's distinct corners (position, smooth corner normal
-# or zeros on a flat model, UV or zeros), an index buffer, and the face normals in a texture
-# read by gl_PrimitiveID (a shared vertex cannot carry a per-triangle attribute).
-INDEXED_FORMAT = "3f 3f 2f"
-INDEXED_ATTRS = ("in_pos", "in_shading_normal", "in_uv")
-INDEXED_FORMAT_NO_UV = "3f 3f 8x"
-FACE_TEX_WIDTH = 4096  # face normal texel of triangle i: (i % 4096, i // 4096)
+# or zeros on a flat model, UV or zeros, face normal), an index buffer. The face normal is a flat
+# attribute of each triangle's provoking (last) corner, which is a vertex of that triangle alone
+# or of triangles with the same face normal (indexed_vertex_data): read by gl_PrimitiveID from a
+# texture instead, it cost llvmpipe's G-buffer a third of its time.
+INDEXED_FORMAT = "3f 3f 2f 3f"
+INDEXED_ATTRS = ("in_pos", "in_shading_normal", "in_uv", "in_face_normal")
+INDEXED_FORMAT_NO_UV = "3f 3f 8x 3f"
+INDEXED_ATTRS_NO_UV = ("in_pos", "in_shading_normal", "in_face_normal")
+INDEXED_STRIDE = 44
 
 
 def face_normals(model, order=None) -> np.ndarray:
@@ -45,42 +48,60 @@ def face_normals(model, order=None) -> np.ndarray:
 
 
 def indexed_vertex_data(model, order=None):
-    """``(vertices (V', 8) float32, indices (3T,) uint32)``: the model's corners in
+    """``(vertices (V', 11) float32, indices (3T,) uint32)``: the model's corners in
     :data:`INDEXED_FORMAT` (a flat model's normals are zeros: the G-buffer then shades with the
     face normal), shared where they are equal, and each triangle's three corners in order (its
-    last corner, GL's provoking vertex, gives the G-buffer its plane point); ``order``: the
-    triangles in that order (:func:`chunk_order`), else the model's.
+    last corner, GL's provoking vertex, gives the G-buffer its plane point and its face normal);
+    ``order``: the triangles in that order (:func:`chunk_order`), else the model's.
 
     The model's own vertices carry each vertex's normal and UV; a corner whose normal or UV
     differs from its vertex's (a sharp edge, a UV seam) gets a vertex of its own (equal such
-    corners one together). Linear in the corners: no sort of the whole mesh."""
+    corners one together). A triangle's last corner carries its face normal (:func:`face_normals`):
+    the first triangle ending on a vertex claims it, later ones share it where their face normal
+    is the same bits (a flat stretch) and get a copy of it otherwise. Linear in the corners: no
+    sort of the whole mesh."""
     tris = model.triangles if order is None else model.triangles[order]
     tri = tris.astype(np.int64).ravel()
     nv = len(model.vertices)
     verts = np.zeros((nv, 8), np.float32)
     verts[:, :3] = model.vertices
-    if model.normals is None and model.uvs is None:
-        return verts, tri.astype(np.uint32)
-    attrs = np.zeros((len(tri), 5), np.float32)
-    if model.normals is not None:
-        attrs[:, :3] = (model.normals if order is None else model.normals[order]).reshape(-1, 3)
-    if model.uvs is not None:
-        attrs[:, 3:] = (model.uvs if order is None else model.uvs[order]).reshape(-1, 2)
-    per_vertex = np.zeros((nv, 5), np.float32)
-    per_vertex[tri] = attrs
-    bits = attrs.view(np.int32)
-    own = (per_vertex[tri].view(np.int32) != bits).any(axis=1)  # (bitwise: -0.0 and NaN kept as given)
-    verts[:, 3:] = per_vertex
     idx = tri.copy()
-    if own.any():
-        keys = np.concatenate([tri[own, None].astype(np.int32), bits[own]], axis=1)
-        keys = np.ascontiguousarray(keys).view(np.dtype((np.void, 24))).ravel()
-        _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-        rows = np.nonzero(own)[0][first]
-        extra = np.concatenate([model.vertices[tri[rows]], attrs[rows]], axis=1)
-        verts = np.concatenate([verts, extra])
-        idx[own] = nv + inverse.ravel()
-    return np.ascontiguousarray(verts, np.float32), idx.astype(np.uint32)
+    if model.normals is not None or model.uvs is not None:
+        attrs = np.zeros((len(tri), 5), np.float32)
+        if model.normals is not None:
+            attrs[:, :3] = (model.normals if order is None else model.normals[order]).reshape(-1, 3)
+        if model.uvs is not None:
+            attrs[:, 3:] = (model.uvs if order is None else model.uvs[order]).reshape(-1, 2)
+        per_vertex = np.zeros((nv, 5), np.float32)
+        per_vertex[tri] = attrs
+        bits = attrs.view(np.int32)
+        own = (per_vertex[tri].view(np.int32) != bits).any(axis=1)  # (bitwise: -0.0 and NaN kept as given)
+        verts[:, 3:] = per_vertex
+        if own.any():
+            keys = np.concatenate([tri[own, None].astype(np.int32), bits[own]], axis=1)
+            keys = np.ascontiguousarray(keys).view(np.dtype((np.void, 24))).ravel()
+            _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+            rows = np.nonzero(own)[0][first]
+            extra = np.concatenate([model.vertices[tri[rows]], attrs[rows]], axis=1)
+            verts = np.concatenate([verts, extra])
+            idx[own] = nv + inverse.ravel()
+    # the face normals on the provoking corners
+    fn = face_normals(model, order)
+    t = len(fn)
+    nv = len(verts)
+    last = idx[2::3]
+    claim = np.full(nv, -1, np.int64)
+    claim[last[::-1]] = np.arange(t - 1, -1, -1)  # the first triangle ending on each vertex
+    fbits = fn.view(np.int32)
+    mine = (fbits[claim[last]] == fbits).all(axis=1)  # (its own claim, or the same face normal)
+    copies = np.nonzero(~mine)[0]
+    out = np.zeros((nv + len(copies), 11), np.float32)
+    out[:nv, :8] = verts
+    out[last[mine], 8:] = fn[mine]
+    out[nv:, :8] = verts[last[copies]]
+    out[nv:, 8:] = fn[copies]
+    idx[3 * copies + 2] = nv + np.arange(len(copies))
+    return out, idx.astype(np.uint32)
 
 
 #: models of at least CHUNK_MIN triangles are drawn in chunks of CHUNK_TRIS spatially close
@@ -131,6 +152,18 @@ def chunk_order(model, chunk: int | None = None, minimum: int | None = None):
     return order, starts, centres, radii
 
 
+class _Indexed:
+    """A model's indexed buffers (:class:`ModelBufferCache`)."""
+
+    def __init__(self, model, key):
+        self.model, self.key = model, key
+        self.vbo = self.ibo = None
+        self.count = 0
+        self.idx = None  # the indices in the model's order, until the chunk order is settled
+        self.chunks = None  # None: not settled yet; False: drawn whole; else (starts, counts, centres, radii)
+        self.frames = 0  # frames that drew the model (chunks() calls)
+
+
 class ModelBufferCache:
     """The indexed buffers of each model (:meth:`indexed`), shared by the passes that rasterise
     the scene. Keyed by model identity; :meth:`prune` drops the buffers of models no longer in
@@ -138,52 +171,55 @@ class ModelBufferCache:
 
     def __init__(self, ctx):
         self.ctx = ctx
-        self._indexed: dict = {}  # id(model) -> (model, key, vbo, ibo, index count, face texture, chunks)
+        self._indexed: dict = {}  # id(model) -> _Indexed
+        #: a big model's index buffer is put in chunk order (:meth:`chunks`) from the frame after
+        #: its first on: a single render does not pay for the order (tests set 0)
+        self.chunk_after = 1
 
     def indexed(self, model):
-        """``(vbo, ibo, index_count, face_texture)`` of :func:`indexed_vertex_data` and
-        :func:`face_normals` (an RGBA32F texture :data:`FACE_TEX_WIDTH` wide), the triangles in
-        :func:`chunk_order` where the model is chunked (:meth:`chunks`); ``vbo`` is None for a
+        """``(vbo, ibo, index_count)`` of :func:`indexed_vertex_data`, the triangles in
+        :func:`chunk_order` once :meth:`chunks` gave the model's chunks; ``vbo`` is None for a
         model without triangles."""
-        return self._entry(model)[2:6]
+        e = self._entry(model)
+        return e.vbo, e.ibo, e.count
 
     def chunks(self, model):
         """``(starts, counts, centres, radii)`` of the chunks of ``model``'s index buffer (in
-        triangles; model-space bounding spheres), or ``None``: drawn whole."""
-        return self._entry(model)[6]
+        triangles; model-space bounding spheres), or ``None``: drawn whole. Called once per
+        frame that draws the model: after :attr:`chunk_after` such frames a model of
+        CHUNK_MIN triangles or more has its index buffer's triangles put in chunk order (the
+        same triangles and corners, in another order: the vertex buffer is unchanged)."""
+        e = self._entry(model)
+        if e.chunks is None and e.vbo is not None and e.frames >= self.chunk_after:
+            got = chunk_order(model)
+            if got is None:
+                e.chunks = False
+            else:
+                order, starts, centres, radii = got
+                e.ibo.write(np.ascontiguousarray(np.take(e.idx.reshape(-1, 3), order, axis=0)).tobytes())
+                e.chunks = (starts, np.diff(np.append(starts, model.triangle_count)), centres, radii)
+            e.idx = None
+        e.frames += 1
+        return e.chunks or None
 
     def _entry(self, model):
         key = (id(model.vertices), id(model.triangles), id(model.normals), id(model.uvs), len(model.triangles))
         e = self._indexed.get(id(model))
-        if e is None or e[0] is not model or e[1] != key:
+        if e is None or e.model is not model or e.key != key:
             if e is not None:
                 self._release_indexed(e)
-            chunked = chunk_order(model)
-            order = None
-            chunks = None
-            if chunked is not None:
-                order, starts, centres, radii = chunked
-                counts = np.diff(np.append(starts, model.triangle_count))
-                chunks = (starts, counts, centres, radii)
-            verts, idx = indexed_vertex_data(model, order)
-            if not len(idx):
-                e = (model, key, None, None, 0, None, None)
-            else:
-                fn = face_normals(model, order)
-                width = min(len(fn), FACE_TEX_WIDTH)
-                rows = -(-len(fn) // width)
-                data = np.zeros((rows * width, 4), np.float32)
-                data[:len(fn), :3] = fn
-                tex = self.ctx.texture((width, rows), 4, data.tobytes(), dtype="f4")
-                tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-                e = (model, key, self.ctx.buffer(verts.tobytes()), self.ctx.buffer(idx.tobytes()), len(idx), tex,
-                     chunks)
+            e = _Indexed(model, key)
+            if model.triangle_count:
+                verts, e.idx = indexed_vertex_data(model)
+                e.vbo = self.ctx.buffer(verts.tobytes())
+                e.ibo = self.ctx.buffer(e.idx.tobytes())
+                e.count = len(e.idx)
             self._indexed[id(model)] = e
         return e
 
     @staticmethod
     def _release_indexed(e) -> None:
-        for o in e[2:4] + e[5:6]:
+        for o in (e.vbo, e.ibo):
             if o is not None:
                 o.release()
 
@@ -193,7 +229,7 @@ class ModelBufferCache:
             self._release_indexed(self._indexed.pop(k))
 
     def buffer_ids(self) -> dict:
-        return {k: id(e[2]) for k, e in self._indexed.items()}
+        return {k: id(e.vbo) for k, e in self._indexed.items()}
 
     def release(self) -> None:
         self.prune(())
@@ -336,7 +372,7 @@ class CasterDraws:
             if not model.triangle_count:
                 continue
             sel = rows[(~sph) & (mids == mi)]
-            vbo, ibo, nidx, _ = self.models.indexed(model)
+            vbo, ibo, nidx = self.models.indexed(model)
             draws.append((self._upload(("m", int(mi)), inst.matrices[sel], origin, prog, vbo, index_buffer=ibo),
                           nidx, len(sel)))
         srows = rows[sph]
@@ -358,7 +394,7 @@ class CasterDraws:
             if not model.triangle_count:
                 continue
             sel = rows[mids == mi]
-            vbo, ibo, nidx, _ = self.models.indexed(model)
+            vbo, ibo, nidx = self.models.indexed(model)
             mat = inst.material_ids[sel].astype(np.float32)[:, None]
             draws.append((self._upload(("a", int(mi)), inst.matrices[sel], origin, prog, vbo, mat,
                                        index_buffer=ibo), nidx, len(sel)))
@@ -380,7 +416,7 @@ class CasterDraws:
             b = self._batches[key] = InstanceBatch(self.ctx)
         if index_buffer is None:
             return b.upload(data, prog, vbo, PROXY_FORMAT, PROXY_ATTRS, fmt, attrs)
-        vfmt, vattrs = ("3f 12x 2f", ("in_pos", "in_uv")) if more is not None else ("3f 20x", ("in_pos",))
+        vfmt, vattrs = ("3f 12x 2f 12x", ("in_pos", "in_uv")) if more is not None else ("3f 32x", ("in_pos",))
         return b.upload(data, prog, vbo, vfmt, vattrs, fmt, attrs, index_buffer=index_buffer)
 
     def release(self) -> None:

@@ -1,17 +1,17 @@
 """The G-buffer pass, rasterised with Blender's camera.
 
 One instanced, indexed draw call per model: the model's distinct corners (position, smooth
-shading normal, UV) with an index buffer, its face normals in a texture read by
-``gl_PrimitiveID`` (:meth:`~..geometry.ModelBufferCache.indexed`: a software rasteriser shades
-a vertex once per index of a de-indexed buffer, three times per triangle, which cost the
-G-buffer half its time on a 131k-triangle terrain), and a per-model instance buffer
+shading normal, UV, and on each triangle's provoking corner its face normal) with an index
+buffer (:meth:`~..geometry.ModelBufferCache.indexed`: a software rasteriser shades a vertex once
+per index of a de-indexed buffer, three times per triangle, which cost the G-buffer half its
+time on a 131k-triangle terrain; reading the face normal by ``gl_PrimitiveID`` from a texture
+instead cost it a third), and a per-model instance buffer
 (camera-relative world matrix rows, normal matrix, colour, specular/roughness/index)
 re-uploaded each render. Instances whose bounding sphere misses the view are not drawn, nor
 are the chunks of a big model (:func:`~..geometry.chunk_order`: its triangles in runs of
 spatially close ones, each with a bounding sphere) that miss it: a terrain seen from within
 draws the third of it in view (llvmpipe shades vertices and sets up triangles on one thread,
-in view or not). A chunk's draw starts at its first triangle, which ``u_prim_base`` adds to
-``gl_PrimitiveID`` for the face normal.
+in view or not).
 Sphere primitives (``Instances.sphere``) are drawn as their model's bounding sphere
 (ray/ellipsoid per fragment). Models with UVs shown with a textured material draw with the
 ``TEXTURED`` variant: the UVs of the indexed buffer, the material per instance, the colour image's texel (mip
@@ -29,7 +29,8 @@ import numpy as np
 from ...errors import SceneError
 from ..context import check_render_size
 from ..frame import GBUFFER_TARGETS, CameraUniforms, GBuffer
-from ..geometry import (INDEXED_ATTRS, INDEXED_FORMAT, INDEXED_FORMAT_NO_UV, PROXY_ATTRS, PROXY_FORMAT,
+from ..geometry import (INDEXED_ATTRS, INDEXED_ATTRS_NO_UV, INDEXED_FORMAT, INDEXED_FORMAT_NO_UV, PROXY_ATTRS,
+                        PROXY_FORMAT,
                         InstanceBatch, ProxyMesh, unit_cube)
 from ...scene import max_scale
 from ..targets import create_texture
@@ -178,7 +179,7 @@ class GBufferPass(Pass):
                 [data, inst.material_ids[rows].astype(np.float32)[:, None]], axis=1))
             return self._batch(key).upload(data, tprog, vbo, INDEXED_FORMAT, INDEXED_ATTRS, TEXTURED_FORMAT,
                                            TEXTURED_ATTRS, index_buffer=ibo), tprog
-        return self._batch(key).upload(data, prog, vbo, INDEXED_FORMAT_NO_UV, INDEXED_ATTRS[:2],
+        return self._batch(key).upload(data, prog, vbo, INDEXED_FORMAT_NO_UV, INDEXED_ATTRS_NO_UV,
                                        INSTANCE_FORMAT, INSTANCE_ATTRS, index_buffer=ibo), prog
 
     # -- render ----------------------------------------------------------------------------------
@@ -215,17 +216,14 @@ class GBufferPass(Pass):
                 tprog = self.programs.get("gbuffer", {"TEXTURED": 1})
                 cam.apply(tprog)
                 tprog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
-            face_unit = self.gpu.bind_materials(tprog, scene) if tprog is not None else 0
-            for p in (prog, tprog):
-                if p is not None and "u_face_normals" in p:
-                    p["u_face_normals"].value = face_unit
+            if tprog is not None:
+                self.gpu.bind_materials(tprog, scene)
             for mi, model in enumerate(scene.models):
                 rows = tri_rows[bounds[mi]:bounds[mi + 1]]
                 if not len(rows) or not model.triangle_count:
                     continue
-                vbo, ibo, nidx, faces = self.models.indexed(model)
+                vbo, ibo, nidx = self.models.indexed(model)
                 chunks = self.models.chunks(model) if self.chunked else None
-                faces.use(face_unit)
                 if chunks is None:
                     groups = [(np.ones(len(rows), bool), [(0, None)])]
                 else:
@@ -239,7 +237,6 @@ class GBufferPass(Pass):
                             starts, counts = chunks[0], chunks[1]
                             start = int(starts[first])
                             n = int(counts[first:first + count].sum())
-                        p["u_prim_base"].value = start
                         vao.render(moderngl.TRIANGLES, vertices=3 * n, first=3 * start, instances=int(sel.sum()))
                         self.draw_calls += 1
                         self.triangles += n * int(sel.sum())
