@@ -61,7 +61,7 @@ def render_both(pipeline, scene, settings):
         for on in (True, False):
             rp.cull_lights = on
             f = pipeline.render(scene, settings, W, H)
-            out[on] = (f, {li: f.mask_array(li) for li in f.lights}, list(rp.culled))
+            out[on] = (f, {li: f.mask_array(li) for li in f.lights}, list(rp.culled), pipeline.lighting.lights_drawn)
     finally:
         rp.cull_lights = True
     return out
@@ -72,11 +72,14 @@ def test_left_out_lights_give_the_traced_masks(pipeline, hard, quality):
     scene = cull_scene(LIGHTS)
     pipeline.set_scene(scene)
     got = render_both(pipeline, scene, Settings(mode="raytrace", hard=hard, quality=quality))
-    frame, masks, culled = got[True]
-    _, ref, none = got[False]
+    frame, masks, culled, drawn = got[True]
+    ref_frame, ref, none, ref_drawn = got[False]
     assert none == []
     for li in ref:
         np.testing.assert_array_equal(masks[li], ref[li], err_msg=scene.lights[li].name)
+    # the lighting leaves the left-out lights out (they add 0 at every pixel): the same image
+    assert ref_drawn == len(scene.lights) and drawn == len(scene.lights) - len(culled)
+    np.testing.assert_allclose(frame.image, ref_frame.image, rtol=1e-6, atol=1e-7)
     names = {scene.lights[li].name for li in culled}
     # (with hard lights the sized area light is a hard one too, and the edge spot's cone misses)
     want = {"spot up", "spot aside", "area up"} | ({"spot edge", "area sized"} if hard else set())
@@ -109,7 +112,7 @@ def test_a_light_with_a_ray_is_never_left_out(pipeline):
     scene = cull_scene(lights)
     pipeline.set_scene(scene)
     got = render_both(pipeline, scene, Settings(mode="raytrace", hard=True))
-    frame, masks, culled = got[True]
+    frame, masks, culled, _ = got[True]
     rays = {li: needs_rays(frame, scene, li, pipeline.baked.origin) for li in frame.lights}
     assert all(rays[li] == 0 for li in culled)
     assert sum(r == 0 for r in rays.values()) > len(culled) // 2 >= 1  # some left out, not all misses
@@ -151,10 +154,13 @@ def test_max_distance_and_an_empty_view(pipeline):
     got = render_both(pipeline, scene, Settings(mode="raytrace", hard=True, max_distance=11.5))
     for li in got[False][1]:
         np.testing.assert_array_equal(got[True][1][li], got[False][1][li])
+    # (beyond the max distance a left-out light's mask is 1: the lighting keeps it)
+    assert got[True][2] and got[True][3] == len(scene.lights)
+    np.testing.assert_array_equal(got[True][0].image, got[False][0].image)
     # the camera looking at the sky: no pixel needs a ray of any light
     scene.camera = Camera(matrix=look_at((0.0, -9.0, 9.0), (0, -20, 30)), lens=30.0)
     got = render_both(pipeline, scene, Settings(mode="raytrace", hard=True))
-    frame, masks, culled = got[True]
+    frame, masks, culled, _ = got[True]
     assert not frame.gbuffer.coverage().any()
     assert sorted(culled) == sorted(frame.lights)
     for li in masks:

@@ -125,7 +125,9 @@ class FrameJob:
     pass's product in the field the pass :attr:`~.passes.base.Pass.produces`: ``gbuffer``, then
     ``masks`` (``{light index: R32F texture}``, 1 lit, 0 shadowed; lights without an entry are
     unshadowed), then ``image`` (the RGBA32F lighting texture). ``on_light(index)`` is called
-    by the shadow passes before each light (progress and cancel)."""
+    by the shadow passes before each light (progress and cancel). ``dark``: lights a shadow pass
+    found to light no pixel (their reach holds no visible surface, their mask is 0 on every
+    one): the lighting leaves them out, as it would add nothing of theirs."""
 
     scene: object
     settings: object
@@ -137,6 +139,7 @@ class FrameJob:
     masks: dict = field(default_factory=dict)
     image: Optional[moderngl.Texture] = None
     on_light: Optional[Callable[[int], None]] = None
+    dark: set = field(default_factory=set)
 
     @property
     def size(self) -> tuple:

@@ -2,8 +2,9 @@
 
 The lighting model (units in :mod:`..lights`, BRDF in ``shaders/common/lights.glsl``) has a
 numpy mirror in ``core/oracle/lighting.py``. Lights with a mask are multiplied by it; the others
-are unshadowed. The light table is a texture (``LIGHT_TEXELS`` RGBA32F texels per light); the
-program is the variant of the kinds of light in it (:func:`..lights.lighting_defines`).
+are unshadowed; those the shadow pass found to light no pixel (``job.dark``) are left out. The
+light table is a texture (``LIGHT_TEXELS`` RGBA32F texels per light); the program is the variant
+of the kinds of light in it (:func:`..lights.lighting_defines`).
 """
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ class LightingPass(Pass):
         self._out = TargetCache(self.ctx, components=4, what="image")
         self._lights = TargetCache(self.ctx, components=4, what="light table")
         self.batches = 0
+        self.lights_drawn = 0  # lights the last render lit (all but the dark ones)
 
     def _light_texture(self, table: np.ndarray):
         n = max(len(table), 1)
@@ -43,9 +45,11 @@ class LightingPass(Pass):
         ctx = self.ctx
         scene, gbuffer, settings = job.scene, job.gbuffer, job.settings
         masks = {int(k): v for k, v in (job.masks or {}).items() if 0 <= int(k) < len(scene.lights)}
+        dark = set(getattr(job, "dark", ()) or ()) & set(masks)  # (they would add 0 at every pixel)
         unmasked = [i for i in range(len(scene.lights)) if i not in masks]
-        masked = sorted(masks)
+        masked = sorted(set(masks) - dark)
         order = unmasked + masked
+        self.lights_drawn = len(order)
         table = light_table([scene.lights[i] for i in order]) if order else np.zeros((0, LIGHT_TEXELS, 4))
         lights_tex = self._light_texture(table)
         out = self._out.get("image", *gbuffer.size)

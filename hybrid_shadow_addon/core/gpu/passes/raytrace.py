@@ -284,6 +284,8 @@ class RaytracePass(ShadowPass):
         if plan == "interlace":
             self._valid_phases |= 1 << self._phase
             self._phase = (self._phase + 1) % 4
+        if not settings.max_distance > 0:  # (beyond it the no-rays mask is 1: the light may shine there)
+            job.dark = set(self.culled)
         return masks
 
     def _no_rays(self, light, light_vec, local, gbuffer, settings):
