@@ -1,5 +1,6 @@
 // Pass 3: deferred lighting. Batch 0 writes ambient (albedo x world colour), every unmasked
 // light and up to 8 masked lights; further batches add 8 masked lights each (additive blend).
+// HS_MASKS: the masked lights of the batch (a program per count).
 #include "common/camera.glsl"
 #include "common/gbuffer.glsl"
 #include "common/lights.glsl"
@@ -12,7 +13,6 @@
 #define MAX_MASKS 8
 uniform int u_unmasked_begin;
 uniform int u_unmasked_end;
-uniform int u_masked_count;
 uniform int u_masked_rows[MAX_MASKS];
 uniform sampler2D u_masks[MAX_MASKS];
 uniform vec3 u_world_color;
@@ -47,9 +47,14 @@ void main() {
             c += light_contribution(r, p, n, v, albedo, mat.x, mat.y, u_specular);
         }
     }
-    for (int k = 0; k < MAX_MASKS; ++k) {
-        if (k >= u_masked_count) break;
-        float m = mask_at(k, pix);
+    // this batch's HS_MASKS masks, read with constant indices (a software rasteriser indexes a
+    // sampler array by a variable through every sampler of it), then its lights in one loop
+    // (one copy of the lighting code, whose iterations past the batch are not run)
+    float mv[MAX_MASKS];
+#define HS_MASK_AT(K) mv[K] = (K < HS_MASKS) ? mask_at(K, pix) : 0.0;
+    HS_MASK_AT(0) HS_MASK_AT(1) HS_MASK_AT(2) HS_MASK_AT(3) HS_MASK_AT(4) HS_MASK_AT(5) HS_MASK_AT(6) HS_MASK_AT(7)
+    for (int k = 0; k < HS_MASKS; ++k) {
+        float m = mv[k];
         if (m <= 0.0) continue;
         c += m * light_contribution(u_masked_rows[k], p, n, v, albedo, mat.x, mat.y, u_specular);
     }

@@ -55,28 +55,28 @@ class LightingPass(Pass):
         out = self._out.get("image", *gbuffer.size)
         out.use(ctx)
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-        prog, vao = self.programs.fullscreen("lighting", lighting_defines(table))
-        unit = gbuffer.bind(prog)
-        lights_tex.use(unit)
-        set_uniforms(prog, {"u_lights": unit})  # (a scene without lights compiles none of it out)
-        unit += 1
-        mask_units = list(range(unit, unit + MAX_MASKS))
-        set_uniforms(prog, {"u_masks": mask_units})
+        defines = lighting_defines(table)
         use_spec = 1 if (settings is None or settings.specular) else 0
         common = {"u_world_color": tuple(float(c) for c in scene.world_color), "u_specular": use_spec,
                   "u_transparent": int(bool(job.film_transparent)),
                   "u_unmasked_begin": 0, "u_unmasked_end": len(unmasked)}
-        set_uniforms(prog, common)
         nb = max(1, -(-len(masked) // MAX_MASKS))
         self.batches = nb
         for b in range(nb):
             rows = list(range(len(unmasked) + b * MAX_MASKS, min(len(order), len(unmasked) + (b + 1) * MAX_MASKS)))
+            prog, vao = self.programs.fullscreen("lighting", {**defines, "HS_MASKS": len(rows)})
+            unit = gbuffer.bind(prog)
+            lights_tex.use(unit)
+            set_uniforms(prog, {"u_lights": unit})  # (a scene without lights compiles none of it out)
+            unit += 1
             for k, row in enumerate(rows):
-                masks[order[row]].use(mask_units[k])
-            for k in range(len(rows), MAX_MASKS):  # keep unused samplers on a valid texture
-                lights_tex.use(mask_units[k])
-            set_uniforms(prog, {"u_masked_count": len(rows), "u_masked_rows": rows + [0] * (MAX_MASKS - len(rows)),
-                                "u_first_batch": int(b == 0)})
+                masks[order[row]].use(unit + k)
+            set_uniforms(prog, {**common, "u_first_batch": int(b == 0)})
+            for name, values in (("u_masks", list(range(unit, unit + MAX_MASKS))),
+                                 ("u_masked_rows", rows + [0] * (MAX_MASKS - len(rows)))):
+                if name in prog:  # (the compiler keeps the array up to its last element in use)
+                    n = prog[name].array_length
+                    prog[name].value = values[:n] if n > 1 else values[0]
             if b == 1:
                 ctx.enable(moderngl.BLEND)
                 ctx.blend_equation = moderngl.FUNC_ADD
