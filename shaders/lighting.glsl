@@ -1,6 +1,8 @@
 // Pass 3: deferred lighting. Batch 0 writes ambient (albedo x world colour), every unmasked
 // light and up to 8 masked lights; further batches add 8 masked lights each (additive blend).
-// HS_MASKS: the masked lights of the batch (a program per count).
+// HS_MASKS: the masked lights of the batch (a program per count); HS_FIRST_BATCH, and with it
+// HS_UNMASKED where there are unmasked lights (llvmpipe runs the body of a loop whose range is
+// empty once, masked: an empty loop of area lights cost a light).
 #include "common/camera.glsl"
 #include "common/gbuffer.glsl"
 #include "common/lights.glsl"
@@ -41,12 +43,14 @@ void main() {
     vec2 mat = texelFetch(u_gb_material, pix, 0).xy;
     vec3 v = view_vector(p);
     vec3 c = vec3(0.0);
-    if (u_first_batch == 1) {
-        c = albedo * u_world_color;
-        for (int r = u_unmasked_begin; r < u_unmasked_end; ++r) {
-            c += light_contribution(r, p, n, v, albedo, mat.x, mat.y, u_specular);
-        }
+#ifdef HS_FIRST_BATCH
+    c = albedo * u_world_color;
+#ifdef HS_UNMASKED
+    for (int r = u_unmasked_begin; r < u_unmasked_end; ++r) {
+        c += light_contribution(r, p, n, v, albedo, mat.x, mat.y, u_specular);
     }
+#endif
+#endif
     // this batch's HS_MASKS masks, read with constant indices (a software rasteriser indexes a
     // sampler array by a variable through every sampler of it), then its lights in one loop
     // (one copy of the lighting code, whose iterations past the batch are not run)

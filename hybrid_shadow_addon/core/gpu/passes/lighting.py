@@ -64,7 +64,12 @@ class LightingPass(Pass):
         self.batches = nb
         for b in range(nb):
             rows = list(range(len(unmasked) + b * MAX_MASKS, min(len(order), len(unmasked) + (b + 1) * MAX_MASKS)))
-            prog, vao = self.programs.fullscreen("lighting", {**defines, "HS_MASKS": len(rows)})
+            variant = {**defines, "HS_MASKS": len(rows)}
+            if b == 0:
+                variant["HS_FIRST_BATCH"] = 1
+                if unmasked:
+                    variant["HS_UNMASKED"] = 1
+            prog, vao = self.programs.fullscreen("lighting", variant)
             unit = gbuffer.bind(prog)
             lights_tex.use(unit)
             set_uniforms(prog, {"u_lights": unit})  # (a scene without lights compiles none of it out)
