@@ -49,8 +49,8 @@
 
 vec3 hs_pk_d[HS_PACKET];    // the rays (bake space), set by the caller
 float hs_pk_t[HS_PACKET];
-vec3 hs_pk_u[HS_PACKET];    // their unit directions (bake space)
-float hs_pk_l[HS_PACKET];   // and lengths
+vec4 hs_pk_ul[HS_PACKET];   // their unit directions (bake space) and lengths (one array: llvmpipe
+                            // pays each access by a variable index in proportion to the array)
 int hs_pk_cnt;              // rays in the packet
 #ifdef HS_HAS_ALPHA
 float hs_pk_vis[HS_PACKET]; // the light each ray keeps (the result, with the blocked bits)
@@ -181,12 +181,13 @@ uvec2 hs_pk_tri(vec3 om, uvec2 need, vec3 v0, vec3 v1, vec3 v2, int ti)
     for (int k4 = klo & ~3; k4 < nk; k4 += 4) {   // (4 rays an iteration: llvmpipe's loop budget, above)
         for (int q = 0; q < 4; ++q) {
             int k = k4 + q;
-            vec3 d = hs_pk_u[k];
+            vec4 ul = hs_pk_ul[k];
+            vec3 d = ul.xyz;
             precise float e0 = (d.x * pbc.x + d.y * pbc.y) + d.z * pbc.z;
             precise float e1 = (d.x * pca.x + d.y * pca.y) + d.z * pca.z;
             precise float e2 = (d.x * pab.x + d.y * pab.y) + d.z * pab.z;
             precise float det = (e0 + e1) + e2;
-            bool h = min(min(e0, e1), e2) >= 0.0 && aT > fl * det && aT < hs_pk_l[k] * det;
+            bool h = min(min(e0, e1), e2) >= 0.0 && aT > fl * det && aT < ul.w * det;
 #ifdef HS_HAS_ALPHA
             if (h && hs_pk_cuts && hs_has(need, k)) {
                 hs_pk_vis[k] *= hs_cut_tri(hs_pk_cut, hs_pk_at, ti, vec3(e0, e1, e2) / det);
@@ -228,20 +229,21 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
         bool on = hs_has(live, k) && l > 0.0 && hs_pk_t[k] > 0.0;
         if (!on) live &= ~hs_bit(k);
         vec3 u = on ? hs_pk_d[k] / l : vec3(0.0);
-        hs_pk_u[k] = u;
-        hs_pk_l[k] = on ? min(l * min(hs_pk_t[k], HS_FLT_BIG), 1.0e30) : 0.0;
+        float lk = on ? min(l * min(hs_pk_t[k], HS_FLT_BIG), 1.0e30) : 0.0;
+        hs_pk_ul[k] = vec4(u, lk);
 #ifdef HS_HAS_ALPHA
         hs_pk_vis[k] = 1.0;
 #endif
         s += u;
-        len = max(len, hs_pk_l[k]);
+        len = max(len, lk);
     }
     vec3 ax = normalize(s);
     float cmin = 1.0, smax = 0.0;
     for (int k = 0; k < cnt; ++k) {
         if (hs_has(live, k)) {
-            cmin = min(cmin, dot(hs_pk_u[k], ax));
-            smax = max(smax, length(cross(hs_pk_u[k], ax)));
+            vec3 u = hs_pk_ul[k].xyz;
+            cmin = min(cmin, dot(u, ax));
+            smax = max(smax, length(cross(u, ax)));
         }
     }
     uvec2 occ = uvec2(0u);
@@ -322,9 +324,10 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
 #ifdef HS_HAS_SPHERES
                 if (is_sphere) {
                     for (int k = 0; k < cnt; ++k) {
-                        vec3 u = hs_pk_u[k];
+                        vec4 ul = hs_pk_ul[k];
+                        vec3 u = ul.xyz;
                         vec3 md = vec3(dot(x0.xyz, u), dot(x1.xyz, u), dot(x2.xyz, u));
-                        if (hs_has(live, k) && hs_sphere_hit(m_o, md, x4.xyz, x4.w, hs_pk_l[k])) occ |= hs_bit(k);
+                        if (hs_has(live, k) && hs_sphere_hit(m_o, md, x4.xyz, x4.w, ul.w)) occ |= hs_bit(k);
                     }
                     if (all(equal(occ & live, live))) next = hs_tlas_end;   // (all blocked: the walk ends)
                 }
