@@ -167,7 +167,7 @@ def test_indexed_layout_keeps_every_corner_and_face():
         m = Model("grid", vv, tris, normals=normals, uvs=uvs)
         for order in (None, np.random.default_rng(1).permutation(len(tris))):
             t_ = tris if order is None else tris[order]
-            vb, idx = indexed_vertex_data(m, order)
+            vb, idx, source = indexed_vertex_data(m, order)
             corners = vb[idx].reshape(-1, 3, 11)
             assert np.array_equal(corners[..., :3], m.vertices[t_])
             ref_n = np.zeros_like(corners[..., 3:6]) if normals is None else (m.normals if order is None else m.normals[order])
@@ -175,6 +175,10 @@ def test_indexed_layout_keeps_every_corner_and_face():
             assert np.array_equal(corners[..., 3:6], ref_n) and np.array_equal(corners[..., 6:8], ref_uv)
             fn = face_normals(m, order)
             assert np.array_equal(corners[:, 2, 8:], fn)  # the provoking corner's face normal
+            # without the copies (position-only passes): the same corners, fewer vertices
+            shared = source[idx]
+            assert np.array_equal(vb[shared][:, :8], vb[idx][:, :8])
+            assert len(np.unique(shared)) == len(np.unique(vb[idx][:, :8], axis=0)) <= len(np.unique(idx))
             # a last corner shared by two triangles carries one face normal for both
             last = idx[2::3]
             key = np.concatenate([corners[:, 2, :8], fn], 1)

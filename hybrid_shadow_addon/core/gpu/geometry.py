@@ -48,7 +48,7 @@ def face_normals(model, order=None) -> np.ndarray:
 
 
 def indexed_vertex_data(model, order=None):
-    """``(vertices (V', 11) float32, indices (3T,) uint32)``: the model's corners in
+    """``(vertices (V', 11) float32, indices (3T,) uint32, source (V',) int64)``: the model's corners in
     :data:`INDEXED_FORMAT` (a flat model's normals are zeros: the G-buffer then shades with the
     face normal), shared where they are equal, and each triangle's three corners in order (its
     last corner, GL's provoking vertex, gives the G-buffer its plane point and its face normal);
@@ -58,8 +58,10 @@ def indexed_vertex_data(model, order=None):
     differs from its vertex's (a sharp edge, a UV seam) gets a vertex of its own (equal such
     corners one together). A triangle's last corner carries its face normal (:func:`face_normals`):
     the first triangle ending on a vertex claims it, later ones share it where their face normal
-    is the same bits (a flat stretch) and get a copy of it otherwise. Linear in the corners: no
-    sort of the whole mesh."""
+    is the same bits (a flat stretch) and get a copy of it otherwise; ``source`` maps each vertex
+    to the one it copies (itself if none), so ``source[indices]`` draws the same corners without
+    the copies (passes that need no face normal). Linear in the corners: no sort of the whole
+    mesh."""
     tris = model.triangles if order is None else model.triangles[order]
     tri = tris.astype(np.int64).ravel()
     nv = len(model.vertices)
@@ -100,8 +102,9 @@ def indexed_vertex_data(model, order=None):
     out[last[mine], 8:] = fn[mine]
     out[nv:, :8] = verts[last[copies]]
     out[nv:, 8:] = fn[copies]
+    source = np.concatenate([np.arange(nv), last[copies]])
     idx[3 * copies + 2] = nv + np.arange(len(copies))
-    return out, idx.astype(np.uint32)
+    return out, idx.astype(np.uint32), source
 
 
 #: models of at least CHUNK_MIN triangles are drawn in chunks of CHUNK_TRIS spatially close
@@ -157,7 +160,7 @@ class _Indexed:
 
     def __init__(self, model, key):
         self.model, self.key = model, key
-        self.vbo = self.ibo = None
+        self.vbo = self.ibo = self.shared_ibo = None
         self.count = 0
         self.idx = None  # the indices in the model's order, until the chunk order is settled
         self.chunks = None  # None: not settled yet; False: drawn whole; else (starts, counts, centres, radii)
@@ -182,6 +185,13 @@ class ModelBufferCache:
         model without triangles."""
         e = self._entry(model)
         return e.vbo, e.ibo, e.count
+
+    def shared(self, model):
+        """``(vbo, ibo, index_count)``: :meth:`indexed`'s corners without the face normals' copies
+        (each copy's index turned back to its source vertex: fewer vertices to shade), for passes
+        that read positions and UVs only; the triangles in the model's order."""
+        e = self._entry(model)
+        return e.vbo, e.shared_ibo, e.count
 
     def chunks(self, model):
         """``(starts, counts, centres, radii)`` of the chunks of ``model``'s index buffer (in
@@ -210,16 +220,17 @@ class ModelBufferCache:
                 self._release_indexed(e)
             e = _Indexed(model, key)
             if model.triangle_count:
-                verts, e.idx = indexed_vertex_data(model)
+                verts, e.idx, source = indexed_vertex_data(model)
                 e.vbo = self.ctx.buffer(verts.tobytes())
                 e.ibo = self.ctx.buffer(e.idx.tobytes())
+                e.shared_ibo = self.ctx.buffer(source[e.idx].astype(np.uint32).tobytes())
                 e.count = len(e.idx)
             self._indexed[id(model)] = e
         return e
 
     @staticmethod
     def _release_indexed(e) -> None:
-        for o in (e.vbo, e.ibo):
+        for o in (e.vbo, e.ibo, e.shared_ibo):
             if o is not None:
                 o.release()
 
@@ -372,7 +383,7 @@ class CasterDraws:
             if not model.triangle_count:
                 continue
             sel = rows[(~sph) & (mids == mi)]
-            vbo, ibo, nidx = self.models.indexed(model)
+            vbo, ibo, nidx = self.models.shared(model)
             draws.append((self._upload(("m", int(mi)), inst.matrices[sel], origin, prog, vbo, index_buffer=ibo),
                           nidx, len(sel)))
         srows = rows[sph]
@@ -394,7 +405,7 @@ class CasterDraws:
             if not model.triangle_count:
                 continue
             sel = rows[mids == mi]
-            vbo, ibo, nidx = self.models.indexed(model)
+            vbo, ibo, nidx = self.models.shared(model)
             mat = inst.material_ids[sel].astype(np.float32)[:, None]
             draws.append((self._upload(("a", int(mi)), inst.matrices[sel], origin, prog, vbo, mat,
                                        index_buffer=ibo), nidx, len(sel)))
