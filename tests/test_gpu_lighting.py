@@ -194,3 +194,37 @@ def test_settings_validation():
         Settings.from_dict({"modes": "none"})
     with pytest.raises(Exception):
         s.mode = "none"  # frozen
+
+
+def test_light_table_in_a_uniform_block_or_a_texture(rig, monkeypatch):
+    """The light table in a uniform block (where it fits) and in a texture light bit-identically,
+    with every kind of light, masked and unmasked; a table too big for the driver's block takes
+    the texture."""
+    lights = all_lights()[:3] + [k[0] for k in _area_kinds()]
+    lights += [Light(f"p{i}", "POINT", power=30.0 + i, matrix=np.eye(4)) for i in range(10)]
+    for i, light in enumerate(lights[-10:]):
+        light.matrix[:3, 3] = (np.cos(i), np.sin(i), 3.0 + 0.1 * i)
+    scene = basic_scene(lights=lights)
+    gb = rig.gbuffer(scene, W, H)
+    rng = np.random.default_rng(2)
+    masks = {}
+    for i in range(0, len(lights), 2):  # every other light masked: unmasked ones in the first batch
+        t = create_mask_texture(rig.ctx, W, H)
+        t.write(rng.random((H, W)).astype(np.float32).tobytes())
+        masks[i] = t
+    got = {}
+    for on in (True, False):
+        monkeypatch.setattr(rig.lighting, "uniform_block", on)
+        rig.light(scene, gb, masks)
+        got[on] = rig.image().copy()
+        assert (rig.lighting._light_block(light_table(lights)) is not None) == on
+    assert np.array_equal(got[True], got[False])
+    assert got[True][..., :3].max() > 0.05
+    # a driver whose blocks are too small for the table: the texture, the same image
+    monkeypatch.setattr(rig.lighting, "uniform_block", True)
+    monkeypatch.setitem(rig.ctx.info, "GL_MAX_UNIFORM_BLOCK_SIZE", 16 * 5 * 8)
+    assert rig.lighting._light_block(light_table(lights)) is None
+    rig.light(scene, gb, masks)
+    assert np.array_equal(rig.image(), got[False])
+    for t in masks.values():
+        t.release()

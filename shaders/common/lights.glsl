@@ -1,6 +1,7 @@
 // Blender lights, evaluated as Cycles/EEVEE emit them (units: core/gpu/lights.py; numpy mirror:
 // core/oracle/lighting.py).
-// Light table: an RGBA32F texture, HS_LIGHT_TEXELS texels per light (row r at x = 5r .. 5r+4):
+// Light table: HS_LIGHT_TEXELS RGBA32F texels per light (row r at 5r .. 5r+4), in a uniform block
+// of HS_LIGHT_ROWS texels where it fits, else a texture:
 //   t0: world position xyz, type (0 sun, 1 point, 2 spot, 3 area)
 //   t1: direction the light shines towards (unit), cos(spot_size / 2)
 //   t2: radiometric colour: sun irradiance S*colour (W/m^2); point/spot intensity
@@ -37,9 +38,16 @@
 #else
 #define HS_POLY_MAX 4
 #endif
+#ifdef HS_LIGHT_ROWS
+// the table in a uniform block where it fits (passes/lighting.py): a light's row is the same for
+// every pixel, and llvmpipe reads a uniform block at such an index once for all of a pass's lanes,
+// a texture once per lane
+layout(std140) uniform HsLights { vec4 hs_light_rows[HS_LIGHT_ROWS]; };
+vec4 light_texel(int row, int k) { return hs_light_rows[HS_LIGHT_TEXELS * row + k]; }
+#else
 uniform sampler2D u_lights;
-
 vec4 light_texel(int row, int k) { return texelFetch(u_lights, ivec2(HS_LIGHT_TEXELS * row + k, 0), 0); }
+#endif
 
 float smoothstep01(float x) {
     x = clamp(x, 0.0, 1.0);
