@@ -28,7 +28,6 @@ INDEXED_FORMAT = "3f 3f 2f 3f"
 INDEXED_ATTRS = ("in_pos", "in_shading_normal", "in_uv", "in_face_normal")
 INDEXED_FORMAT_NO_UV = "3f 3f 8x 3f"
 INDEXED_ATTRS_NO_UV = ("in_pos", "in_shading_normal", "in_face_normal")
-INDEXED_STRIDE = 44
 
 
 def face_normals(model, order=None) -> np.ndarray:
@@ -176,7 +175,7 @@ class ModelBufferCache:
         self.ctx = ctx
         self._indexed: dict = {}  # id(model) -> _Indexed
         #: a big model's index buffer is put in chunk order (:meth:`chunks`) from the frame after
-        #: its first on: a single render does not pay for the order (tests set 0)
+        #: its first on: a single render does not pay for the order
         self.chunk_after = 1
 
     def indexed(self, model):
