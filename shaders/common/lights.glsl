@@ -40,8 +40,8 @@
 #endif
 #ifdef HS_LIGHT_ROWS
 // the table in a uniform block where it fits (passes/lighting.py): a light's row is the same for
-// every pixel, and llvmpipe reads a uniform block at such an index once for all of a pass's lanes,
-// a texture once per lane
+// every pixel, and llvmpipe reads a uniform block at such an index once for a lane group, a
+// texture once per lane
 layout(std140) uniform HsLights { vec4 hs_light_rows[HS_LIGHT_ROWS]; };
 vec4 light_texel(int row, int k) { return hs_light_rows[HS_LIGHT_TEXELS * row + k]; }
 #else
