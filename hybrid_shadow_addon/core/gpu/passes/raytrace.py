@@ -236,7 +236,8 @@ class RaytracePass(ShadowPass):
                 off = (self._phase & 1, self._phase >> 1)
                 grid = (max(1, -(-(full[0] - off[0]) // 2)), max(1, -(-(full[1] - off[1]) // 2)))
                 self.refiner.count_valid(gbuffer, grid, 2, "coarse", off)
-                self.refiner.prepare(gbuffer, 2, off, True)
+                # (a still view classifies nothing: _light merges the history alone)
+                self.refiner.prepare(gbuffer, 2, off, True, geometry=self._valid_phases | (1 << self._phase) != 15)
         sun_maps = settings.conservative in ("sun", "all")
         local_maps = settings.conservative == "all"
         if sun_maps and lights and (local_maps or any(

@@ -81,10 +81,11 @@ class Refiner:
             vao.render(moderngl.TRIANGLES, vertices=3)
 
     # -- per frame ----------------------------------------------------------------------------
-    def prepare(self, gbuffer, scale: int, offset, interlace: bool) -> None:
+    def prepare(self, gbuffer, scale: int, offset, interlace: bool, geometry: bool = True) -> None:
         """Once per frame: the grid of coarse samples (spacing ``scale``, sample (0, 0) at pixel
         ``offset``; ``interlace``: samples read from the full-resolution interlaced trace) and
-        which samples can stand for each pixel (``shaders/refine_geometry.glsl``)."""
+        which samples can stand for each pixel (``shaders/refine_geometry.glsl``; not drawn
+        when ``geometry`` is False: a frame that classifies nothing)."""
         ox, oy = (int(v) for v in offset)
         w, h = gbuffer.size
         if interlace:
@@ -92,6 +93,8 @@ class Refiner:
         else:
             cells = (max(1, -(-w // scale)), max(1, -(-h // scale)))
         self._grid = dict(scale=int(scale), offset=(ox, oy), interlace=bool(interlace), cells=cells)
+        if not geometry:
+            return
         prog, vao = self.programs.fullscreen("refine_geometry", self._grid_defines())
         unit = gbuffer.bind(prog)
         set_uniforms(prog, {**self._grid_uniforms(gbuffer), "u_plane_tol": float(self.rules["plane_tol"]),
