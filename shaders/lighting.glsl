@@ -18,7 +18,6 @@ uniform int u_unmasked_end;
 uniform int u_masked_rows[MAX_MASKS];
 uniform sampler2D u_masks[MAX_MASKS];
 uniform vec3 u_world_color;
-uniform int u_first_batch;
 uniform int u_specular;
 uniform int u_transparent;
 layout(location = 0) out vec4 o_color;
@@ -34,7 +33,11 @@ void main() {
     ivec2 pix = ivec2(gl_FragCoord.xy);
     vec4 pos = texelFetch(u_gb_position, pix, 0);
     if (pos.w < 0.5) {
-        o_color = (u_first_batch == 1 && u_transparent == 0) ? vec4(u_world_color, 1.0) : vec4(0.0);
+#ifdef HS_FIRST_BATCH
+        o_color = u_transparent == 0 ? vec4(u_world_color, 1.0) : vec4(0.0);
+#else
+        o_color = vec4(0.0);
+#endif
         return;
     }
     vec3 p = pos.xyz;
@@ -62,6 +65,10 @@ void main() {
         if (m <= 0.0) continue;
         c += m * light_contribution(u_masked_rows[k], p, n, v, albedo, mat.x, mat.y, u_specular);
     }
-    o_color = vec4(c, u_first_batch == 1 ? 1.0 : 0.0);
+#ifdef HS_FIRST_BATCH
+    o_color = vec4(c, 1.0);
+#else
+    o_color = vec4(c, 0.0);
+#endif
 }
 #endif

@@ -74,21 +74,22 @@ def frustum_visible(scene, clip_from_rel: np.ndarray, cam_pos: np.ndarray) -> np
     return spheres_visible(frustum_planes(clip_from_rel), c - cam_pos, r)
 
 
-def chunks_visible(scene, rows: np.ndarray, chunks, clip_from_rel: np.ndarray, cam_pos: np.ndarray) -> np.ndarray:
+def chunks_visible(scene, rows: np.ndarray, chunks, planes: np.ndarray, cam_pos: np.ndarray) -> np.ndarray:
     """(len(rows), K) bool: chunk k of instance ``rows[i]`` (:meth:`~..geometry.ModelBufferCache.chunks`,
     model-space spheres moved by the instance's matrix, the radius by its largest scale) may
-    reach the view frustum."""
+    reach the frustum of ``planes`` (:func:`frustum_planes`)."""
     _, _, centres, radii = chunks
     m = scene.instances.matrices[rows]
     wc = np.einsum("nij,kj->nki", m[:, :3, :3], centres) + m[:, None, :3, 3]
     r = radii[None, :] * max_scale(m)[:, None]
-    return spheres_visible(frustum_planes(clip_from_rel), wc - cam_pos, r)
+    return spheres_visible(planes, wc - cam_pos, r)
 
 
-def chunk_runs(vis: np.ndarray) -> list:
-    """``[(row mask, [(first chunk, chunk count), ...]), ...]``: the chunks of ``vis``
+def chunk_runs(vis: np.ndarray, chunks) -> list:
+    """``[(row mask, [(first triangle, triangle count), ...]), ...]``: the chunks of ``vis``
     (:func:`chunks_visible`) grouped by the instances that see them, each group's chunks as runs
     of consecutive ones (one draw each)."""
+    starts, counts = chunks[0], chunks[1]
     seen = vis.any(axis=0)
     if not seen.any():
         return []
@@ -99,9 +100,8 @@ def chunk_runs(vis: np.ndarray) -> list:
     out = []
     for g in np.argsort(first):
         ks = idx[inv.ravel() == g]
-        breaks = np.nonzero(np.diff(ks) != 1)[0] + 1
-        runs = [(int(a[0]), int(len(a))) for a in np.split(ks, breaks)]
-        out.append((cols[first[g]], runs))
+        runs = np.split(ks, np.nonzero(np.diff(ks) != 1)[0] + 1)
+        out.append((cols[first[g]], [(int(starts[a[0]]), int(counts[a].sum())) for a in runs]))
     return out
 
 
@@ -170,16 +170,16 @@ class GBufferPass(Pass):
         return np.ascontiguousarray(np.concatenate(cols, axis=1), dtype=np.float32)
 
     def _model_vao(self, key, scene, model, rows, cam_pos, prog, tprog, vbo, ibo):
-        """``(vao, program)`` drawing instances ``rows`` of ``model`` (textured where shown so)."""
+        """The vao drawing instances ``rows`` of ``model`` (textured where shown so)."""
         inst = scene.instances
         data = self.instance_data(scene, rows, cam_pos)
         if tprog is not None and model.uvs is not None and (inst.material_ids[rows] >= 0).any():
             data = np.ascontiguousarray(np.concatenate(
                 [data, inst.material_ids[rows].astype(np.float32)[:, None]], axis=1))
             return self._batch(key).upload(data, tprog, vbo, INDEXED_FORMAT, INDEXED_ATTRS, TEXTURED_FORMAT,
-                                           TEXTURED_ATTRS, index_buffer=ibo), tprog
+                                           TEXTURED_ATTRS, index_buffer=ibo)
         return self._batch(key).upload(data, prog, vbo, INDEXED_FORMAT_NO_UV, INDEXED_ATTRS_NO_UV,
-                                       INSTANCE_FORMAT, INSTANCE_ATTRS, index_buffer=ibo), prog
+                                       INSTANCE_FORMAT, INSTANCE_ATTRS, index_buffer=ibo)
 
     # -- render ----------------------------------------------------------------------------------
     def render(self, job) -> GBuffer:
@@ -201,6 +201,7 @@ class GBufferPass(Pass):
         self.triangles = 0
         self.models.prune(scene.models)
         inst = scene.instances
+        planes = frustum_planes(cam.clip_from_rel)
         visible = frustum_visible(scene, cam.clip_from_rel, cam.cam_pos)
         self.culled = int(len(visible) - np.count_nonzero(visible))
         if visible.any():
@@ -224,18 +225,12 @@ class GBufferPass(Pass):
                 vbo, ibo, nidx = self.models.indexed(model)
                 chunks = self.models.chunks(model) if self.chunked else None
                 if chunks is None:
-                    groups = [(np.ones(len(rows), bool), [(0, None)])]
+                    groups = [(np.ones(len(rows), bool), [(0, nidx // 3)])]
                 else:
-                    groups = chunk_runs(chunks_visible(scene, rows, chunks, cam.clip_from_rel, cam.cam_pos))
+                    groups = chunk_runs(chunks_visible(scene, rows, chunks, planes, cam.cam_pos), chunks)
                 for g, (sel, runs) in enumerate(groups):
-                    vao, p = self._model_vao((mi, g), scene, model, rows[sel], cam.cam_pos, prog, tprog, vbo, ibo)
-                    for first, count in runs:
-                        if count is None:
-                            start, n = 0, nidx // 3
-                        else:
-                            starts, counts = chunks[0], chunks[1]
-                            start = int(starts[first])
-                            n = int(counts[first:first + count].sum())
+                    vao = self._model_vao((mi, g), scene, model, rows[sel], cam.cam_pos, prog, tprog, vbo, ibo)
+                    for start, n in runs:
                         vao.render(moderngl.TRIANGLES, vertices=3 * n, first=3 * start, instances=int(sel.sum()))
                         self.draw_calls += 1
                         self.triangles += n * int(sel.sum())

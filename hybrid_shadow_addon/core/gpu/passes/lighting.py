@@ -110,7 +110,7 @@ class LightingPass(Pass):
                 unit += 1
             for k, row in enumerate(rows):
                 masks[order[row]].use(unit + k)
-            set_uniforms(prog, {**common, "u_first_batch": int(b == 0)})
+            set_uniforms(prog, common)
             for name, values in (("u_masks", list(range(unit, unit + MAX_MASKS))),
                                  ("u_masked_rows", rows + [0] * (MAX_MASKS - len(rows)))):
                 if name in prog:  # (the compiler keeps the array up to its last element in use)

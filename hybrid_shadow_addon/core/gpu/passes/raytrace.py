@@ -237,7 +237,7 @@ class RaytracePass(ShadowPass):
                 grid = (max(1, -(-(full[0] - off[0]) // 2)), max(1, -(-(full[1] - off[1]) // 2)))
                 self.refiner.count_valid(gbuffer, grid, 2, "coarse", off)
                 # (a still view classifies nothing: _light merges the history alone)
-                self.refiner.prepare(gbuffer, 2, off, True, geometry=self._valid_phases | (1 << self._phase) != 15)
+                self.refiner.prepare(gbuffer, 2, off, True, geometry=not self._still())
         sun_maps = settings.conservative in ("sun", "all")
         local_maps = settings.conservative == "all"
         if sun_maps and lights and (local_maps or any(
@@ -288,6 +288,10 @@ class RaytracePass(ShadowPass):
         if not settings.max_distance > 0:  # (beyond it the no-rays mask is 1: the light may shine there)
             job.dark = set(self.culled)
         return masks
+
+    def _still(self) -> bool:
+        """Interlacing: every other phase's history is up to date (a still view)."""
+        return self._valid_phases | (1 << self._phase) == 15
 
     def _no_rays(self, light, light_vec, local, gbuffer, settings):
         """The mask of a light that no pixel needs a ray of: 1 on the background and beyond the
@@ -415,7 +419,7 @@ class RaytracePass(ShadowPass):
                                  "u_valid_phases": self._valid_phases})
             draw_fullscreen(ctx, mvao, out)
             dst = hist
-            if self._valid_phases | (1 << self._phase) == 15:
+            if self._still():
                 # a still view: every pixel has this frame's ray or an up-to-date history, so
                 # nothing to classify or refine (what classify would write is the merge itself)
                 ctx.copy_framebuffer(hist.fbo, out.fbo)
