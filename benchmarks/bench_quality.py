@@ -8,7 +8,9 @@ per-light visibility (% of valid pixels, all lights together, and the worst ligh
 
 Scenes under ``stiff/`` render at their own size (200x150); the others at ``--size``. Cycles
 references are cached on disk (``tools/reference.py``: ``$XDG_CACHE_HOME/hybrid_shadows``).
-A variant is a quality, optionally with ``+key=value`` settings (``medium+conservative=all``).
+A variant is a quality, optionally with ``+key=value`` settings (``medium+conservative=all``);
+``+method=compact`` (or ``depth``, the default) picks how the refinement traces its marked pixels
+(``passes/refine.py``).
 """
 from __future__ import annotations
 
@@ -80,14 +82,23 @@ def run_scene(arg: str, size, variants, repeats: int, ctx, refs_only: bool = Fal
     pipe = Pipeline(ctx)
     try:
         pipe.set_scene(scene)
-        settings = {v: Settings(**parse_variant(v)) for v in variants}
+        parsed = {v: parse_variant(v) for v in variants}
+        methods = {v: parsed[v].pop("method", None) for v in variants}
+        settings = {v: Settings(**parsed[v]) for v in variants}
+        refiner = pipe.shadow_pass("raytrace").refiner
+        default_method = refiner.method
+
+        def render(v):
+            refiner.method = methods[v] or default_method
+            return pipe.render(scene, settings[v], W, H)
+
         times = {v: [] for v in variants}
         for v in variants:  # warm-up (shader compilation)
-            pipe.render(scene, settings[v], W, H)
+            render(v)
         errors, stats = {}, {}
         for rep in range(repeats):
             for v in variants:
-                f = pipe.render(scene, settings[v], W, H)
+                f = render(v)
                 times[v].append(f.timings["shadow_ms"])
                 if rep == repeats - 1:  # (a frame's masks are valid until the next render)
                     errors[v] = {scene.lights[li].name: mask_error(ref[scene.lights[li].name], f.mask_array(li))

@@ -79,25 +79,33 @@ def _capture_marks(pipeline):
 
     def light(li, *a, **k):
         out = orig(li, *a, **k)
-        if rp.refiner.method == "compact" and a[-2] in ("refine", "interlace"):
-            marks[li] = read_texture(rp.refiner._work.get("need", *out.size).texture) > 0.5
+        if a[-2] in ("refine", "interlace"):
+            marks[li] = rp.refiner.marked()
+            if rp.refiner.method == "compact":  # (the list's marks are the depth buffer's)
+                need = read_texture(rp.refiner._work.get("need", *out.size).texture) > 0.5
+                np.testing.assert_array_equal(need, marks[li])
         return out
     rp._light = light
     return rp, marks, orig
 
 
-@pytest.mark.parametrize("name", ["forest", "clusters", "stiff/cards", "stiff/spot_touching", "stiff/thin"])
+# (the compacted list on two scenes; test_compact_and_depth_methods_agree compares it on clusters)
+@pytest.mark.parametrize("name,method", [(n, "depth") for n in ("forest", "clusters", "stiff/cards", "stiff/spot_touching",
+                                                                "stiff/thin")] + [("forest", "compact"), ("stiff/thin", "compact")])
 @pytest.mark.parametrize("quality", ["medium", "low"])
-def test_refined_pixels_equal_high(name, quality, pipeline, loaded):
+def test_refined_pixels_equal_high(name, method, quality, pipeline, loaded):
     scene = loaded(name)
     pipeline.set_scene(scene)
     w, h = size_of(name, scene)
     _, high = masks(pipeline, scene, Settings(hard=True, quality="high"), w, h)
     rp, marks, orig = _capture_marks(pipeline)
+    kept = rp.refiner.method
+    rp.refiner.method = method
     try:
         frame, got = masks(pipeline, scene, Settings(hard=True, quality=quality), w, h)
     finally:
         rp._light = orig
+        rp.refiner.method = kept
     assert set(marks) == set(got) - set(rp.culled)  # (lights that reach no pixel take no pass)
     for li in rp.culled:
         np.testing.assert_array_equal(got[li], high[li])
@@ -133,6 +141,7 @@ def test_compact_and_depth_methods_agree(pipeline, loaded):
     scene = loaded("clusters")
     pipeline.set_scene(scene)
     rp = pipeline.shadow_pass("raytrace")
+    assert rp.refiner.method == "depth"  # (the default: BENCHMARKS.md, "The refinement under the depth test")
     out = {}
     try:
         for method in ("compact", "depth"):
@@ -140,7 +149,7 @@ def test_compact_and_depth_methods_agree(pipeline, loaded):
             f, m = masks(pipeline, scene, Settings(hard=True, quality="medium"), W, H)
             out[method] = (m, f.stats["rays_traced"])
     finally:
-        rp.refiner.method = "compact"
+        rp.refiner.method = "depth"
     assert out["compact"][1] == out["depth"][1]
     for li in out["compact"][0]:
         np.testing.assert_array_equal(out["compact"][0][li], out["depth"][0][li])

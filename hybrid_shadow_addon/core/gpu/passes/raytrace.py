@@ -4,7 +4,8 @@
 - ``high``: one ray per pixel and shadowed light.
 - ``medium`` / ``low``: coarse rays every 2nd / 4th pixel, then refinement (:mod:`.refine`):
   pixels whose coarse neighbourhood agrees and stands for them take its answer, the others get
-  their own ray, the very ray ``high`` traces, as a compacted list. ``Settings.upsample ==
+  their own ray, the very ray ``high`` traces, under the depth test (or from a compacted list,
+  ``Refiner.method``). ``Settings.upsample ==
   'nearest'`` skips the refinement and leaves the coarse mask to the upsample pass (the thesis'
   blocky look, for comparisons).
 - ``interlace`` (any quality; thesis 3.5.2): one pixel of every 2x2 block per frame, traced

@@ -8,16 +8,21 @@ the coarse answer, or a mark that the pixel needs its own ray, which is exactly 
 traces for it). The marks go to a depth buffer (0: ray, 1: done) and, for ``compact``, also to
 level 0 of a histogram pyramid. Two ways to trace only the marked pixels:
 
-- ``compact`` (default): the pyramid (``shaders/compact_reduce.glsl``, ``common/compact.glsl``)
-  turns the marks into a dense list; ``shaders/raytrace.glsl`` with ``HS_COMPACT`` traces it
-  (texel k -> k-th marked pixel, in quadtree order) over just the texels the list fills (its
-  length is read back, one texel per light), and ``shaders/compact_scatter.glsl`` copies each
-  result to its pixel under the depth test;
-- ``depth``: the full-resolution trace runs under the depth test.
+- ``depth`` (default): the full-resolution trace runs under the depth test;
+- ``compact``: the pyramid (``shaders/compact_reduce.glsl``, ``common/compact.glsl``) turns the
+  marks into a dense list; ``shaders/raytrace.glsl`` with ``HS_COMPACT`` traces it (texel k ->
+  k-th marked pixel, in quadtree order) over just the texels the list fills (its length is read
+  back, one texel per light), and ``shaders/compact_scatter.glsl`` copies each result to its
+  pixel under the depth test.
 
 Both draw at window depth 0.5 with depth function ``>`` and no depth writes, so unmarked pixels
-are rejected before shading (early depth test). Occlusion queries count the pixels with
-geometry and the rays traced, without reading masks.
+are rejected before shading (early depth test). The list keeps a SIMD group's lanes busy, but
+each listed ray pays a walk down the pyramid and each result a walk up it in the scatter
+(about 27 fetches each), a read-back per light and ~10 more draws: on llvmpipe, where a ray
+of the two-level BVH costs a few dozen fetches, that costs more than the idle lanes of the
+masked trace (``BENCHMARKS.md``, "The refinement under the depth test"), so ``depth`` is the
+default. Occlusion queries count the pixels with geometry and the rays traced, without reading
+masks.
 """
 from __future__ import annotations
 
@@ -35,7 +40,7 @@ class Refiner:
     #: default refinement rules (see the shaders named in the module docstring)
     RULES = dict(plane_tol=0.02, normal_cos=0.9, grazing=0.05, ring=1)
 
-    def __init__(self, gpu, method: str = "compact", **rules):
+    def __init__(self, gpu, method: str = "depth", **rules):
         if method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, not {method!r}")
         self.ctx = gpu.ctx
@@ -138,6 +143,15 @@ class Refiner:
         set_uniforms(prog, {**uniforms, **self._grid_uniforms(gbuffer), "u_coarse": unit, "u_cells": unit + 1,
                             "u_geometry": unit + 2, "u_grazing": float(self.rules["grazing"])})
         self._draw_marks(self._fbo(key, target, with_need=self.method == "compact"), target, vao)
+
+    def marked(self) -> np.ndarray:
+        """The pixels the last :meth:`classify` (or :meth:`mark`) marked for a ray: (H, W) bool,
+        row 0 the top row (read from the depth buffer, which the refine draws do not write)."""
+        if self._depth is None:
+            raise ValueError("nothing was classified")
+        w, h = self._depth.size
+        d = np.frombuffer(self._depth.read(), np.float32).reshape(h, w)[::-1]
+        return d < 0.5
 
     def refine(self, key, target, vao) -> None:
         """``depth``: draw the (already set up) full-resolution trace ``vao`` into ``target``
