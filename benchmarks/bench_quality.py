@@ -10,7 +10,7 @@ Scenes under ``stiff/`` render at their own size (200x150); the others at ``--si
 references are cached on disk (``tools/reference.py``: ``$XDG_CACHE_HOME/hybrid_shadows``).
 A variant is a quality, optionally with ``+key=value`` settings (``medium+conservative=all``);
 ``+method=compact`` (or ``depth``, the default) picks how the refinement traces its marked pixels
-(``passes/refine.py``).
+and ``+view_cos=0.3`` (any key of ``Refiner.RULES``) sets a refinement rule (``passes/refine.py``).
 """
 from __future__ import annotations
 
@@ -82,14 +82,16 @@ def run_scene(arg: str, size, variants, repeats: int, ctx, refs_only: bool = Fal
     pipe = Pipeline(ctx)
     try:
         pipe.set_scene(scene)
+        refiner = pipe.shadow_pass("raytrace").refiner
+        default_method, default_rules = refiner.method, dict(refiner.rules)
         parsed = {v: parse_variant(v) for v in variants}
         methods = {v: parsed[v].pop("method", None) for v in variants}
+        rules = {v: {k: float(parsed[v].pop(k)) for k in list(parsed[v]) if k in default_rules} for v in variants}
         settings = {v: Settings(**parsed[v]) for v in variants}
-        refiner = pipe.shadow_pass("raytrace").refiner
-        default_method = refiner.method
 
         def render(v):
             refiner.method = methods[v] or default_method
+            refiner.rules = {**default_rules, **rules[v]}
             return pipe.render(scene, settings[v], W, H)
 
         times = {v: [] for v in variants}

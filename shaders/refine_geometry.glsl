@@ -3,16 +3,22 @@
 // (1,1)): the sample lies in the image, on the same instance, with its normal within
 // u_normal_cos of the pixel's and within u_plane_tol x view depth x spacing of the pixel's
 // tangent plane (so depth and crease edges, thin receivers and silhouettes get their own rays).
+// None can where the camera sees the surface at a grazing angle (|cos| below u_view_cos): the
+// samples' spacing on the surface is stretched there by 1/|cos| along the view, and a shadow's
+// edge or a thin shadow a pixel high (distant terrain, a ground seen low) falls between sample
+// rows without any sample seeing it.
 
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
 #endif
 
 #ifdef FRAGMENT_SHADER
+#include "common/camera.glsl"
 #include "common/gbuffer.glsl"
 #include "common/refine_grid.glsl"
 
 uniform float u_plane_tol;
+uniform float u_view_cos;
 uniform float u_normal_cos;
 out float o_bits;
 
@@ -22,6 +28,7 @@ void main()
     vec4 pos = texelFetch(u_gb_position, px, 0);
     if (pos.w == 0.0) { o_bits = 0.0; return; }
     vec3 n = texelFetch(u_gb_normal, px, 0).xyz;
+    if (abs(dot(n, view_vector(pos.xyz))) < u_view_cos) { o_bits = 0.0; return; }
     float inst = texelFetch(u_gb_material, px, 0).z;
     float tol = u_plane_tol * texelFetch(u_gb_depth, px, 0).r * float(u_scale);
     ivec2 grid = sample_grid();

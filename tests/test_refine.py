@@ -4,11 +4,12 @@ coarse answer cannot stand for a pixel, traced as a compacted list (or under a d
 1. On every test scene and every stiff scene, medium and low differ from high's masks on at most
    0.1% of the valid pixels (all shadowed lights together). One documented exception:
    ``stiff/thin`` (shadows thinner than a pixel, from poles, wires and leaf blades): a shadow that
-   falls between the coarse samples, nowhere near one that sees it, is missed (about 0.5% of
-   the pixels); high holds 0.1% against Cycles there. ``stiff/crowd`` at low (every 4th pixel):
-   many small instances, about 0.16%.
+   falls between the coarse samples, nowhere near one that sees it, is missed (0.12% of the
+   pixels at medium, 0.19% at low); high holds 0.1% against Cycles there.
 2. Every pixel that got its own ray equals high's (the same ray); pixels decided without a ray
-   by the facing/reach tests equal high's too.
+   by the facing/reach tests equal high's too; a pixel the camera sees at a grazing angle gets
+   its own ray (its samples' spacing on the surface is stretched: without the rule `forest`'s
+   distant terrain loses shadow streaks a pixel high).
 3. Stats: ``rays_traced`` and ``pixels``; the compact and depth-mask methods give the same masks;
    the ``nearest`` option still gives the blocky coarse masks; interlacing converges to high and
    its first frame after a change is refined, not blocky.
@@ -27,8 +28,7 @@ REPO = Path(__file__).resolve().parents[1]
 W, H = 160, 120
 LIMIT_PCT = 0.1
 STIFF = sorted(p.stem for p in (REPO / "test_scenes" / "stiff").glob("*.py") if not p.stem.startswith("_"))
-EXCEPTIONS = {("stiff/thin", "medium"): 0.8, ("stiff/thin", "low"): 0.8,  # (see the module docstring)
-              ("stiff/crowd", "low"): 0.25}
+EXCEPTIONS = {("stiff/thin", "medium"): 0.25, ("stiff/thin", "low"): 0.3}  # (see the module docstring)
 
 
 def masks(pipeline, scene, settings, w, h):
@@ -118,6 +118,44 @@ def test_refined_pixels_equal_high(name, method, quality, pipeline, loaded):
         assert not (wrong & m).any()
     assert total > 0
     assert frame.stats["rays_traced"] >= total
+
+
+def test_grazing_view_pixels_get_their_own_rays(pipeline, loaded):
+    """Refiner.RULES['view_cos']: every pixel that needs a ray and that the camera sees at
+    |cos| < 0.5 to its normal is refined (marked), for every light; without the rule some are not."""
+    from hybrid_shadow_addon.core.oracle.rays import shadow_rays
+
+    scene = loaded("forest")
+    pipeline.set_scene(scene)
+    rp, marks, orig = _capture_marks(pipeline)
+    assert rp.refiner.rules["view_cos"] == 0.5
+    unmarked = {}
+    try:
+        for view_cos in (0.5, 0.0):
+            rp.refiner.rules["view_cos"] = view_cos
+            marks.clear()
+            frame, got = masks(pipeline, scene, Settings(hard=True, quality="medium"), W, H)
+            gb = frame.gbuffer
+            pos = gb.read("position")
+            n = gb.read("normal")[..., :3]
+            v = gb.camera.cam_pos[None, None, :] - pos[..., :3].astype(np.float64)
+            c = np.abs((n * v).sum(axis=2)) / np.linalg.norm(v, axis=2)
+            valid = pos[..., 3] > 0
+            graze = valid & (c < 0.5 - 1e-3)
+            sample = np.zeros((H, W), bool)
+            sample[H - 2::-2, 1::2] = True  # (pixels 2q + 1 from the bottom-left: the coarse samples)
+            rows, cols = np.nonzero(graze & ~sample)
+            left = 0
+            for li, m in marks.items():
+                facing = shadow_rays(gb, (rows, cols), scene.lights[li], rp.scene_textures.baked.origin)[3]
+                left += int((~m[rows[facing], cols[facing]]).sum())
+            unmarked[view_cos] = (left, len(rows))
+    finally:
+        rp._light = orig
+        rp.refiner.rules["view_cos"] = 0.5
+    assert unmarked[0.5][1] > 500, unmarked  # (forest's distant terrain)
+    assert unmarked[0.5][0] == 0, unmarked
+    assert unmarked[0.0][0] > 0, unmarked
 
 
 def test_stats_count_pixels_and_rays(pipeline, loaded):

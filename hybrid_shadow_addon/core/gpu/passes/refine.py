@@ -38,7 +38,7 @@ class Refiner:
     """Classify, compaction and refine draws for the ray-traced pass, and their ray counts."""
 
     #: default refinement rules (see the shaders named in the module docstring)
-    RULES = dict(plane_tol=0.02, normal_cos=0.9, grazing=0.05, ring=1)
+    RULES = dict(plane_tol=0.02, normal_cos=0.9, grazing=0.05, ring=1, view_cos=0.5)
 
     def __init__(self, gpu, method: str = "depth", **rules):
         if method not in METHODS:
@@ -103,7 +103,7 @@ class Refiner:
         prog, vao = self.programs.fullscreen("refine_geometry", self._grid_defines())
         unit = gbuffer.bind(prog)
         set_uniforms(prog, {**self._grid_uniforms(gbuffer), "u_plane_tol": float(self.rules["plane_tol"]),
-                            "u_normal_cos": float(self.rules["normal_cos"])})
+                            "u_normal_cos": float(self.rules["normal_cos"]), "u_view_cos": float(self.rules["view_cos"])})
         if not interlace:  # (sample_grid() reads the coarse mask's size: a texture of that size)
             self._work.get("cells", *cells).texture.use(unit)
             set_uniforms(prog, {"u_coarse": unit})
