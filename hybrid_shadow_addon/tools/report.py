@@ -10,6 +10,8 @@ import html
 import json
 from pathlib import Path
 
+import numpy as np
+
 
 #: the error axis of the plot is logarithmic: mismatches below this (% of pixels) sit on it
 ERROR_FLOOR_PCT = 1e-3
@@ -52,12 +54,19 @@ def plot_error_vs_time(m: dict, path) -> None:
     primary = m.get("error_metric", panels[0][0])  # the metric the Pareto front weighs
     for ax, (key, ylabel, floor) in zip(axes, panels):
         # (log axis: a variant without error is drawn on the floor)
-        for i, r in enumerate(sorted(rows, key=lambda r: r["total_ms"])):
+        level, last = 0, None
+        for r in sorted(rows, key=lambda r: r["total_ms"]):
             t, e = r["total_ms"], max(r["overall"][key], floor)
             ax.scatter([t], [e], s=46, color=colours.get(r["settings"]["mode"], "k"), zorder=3,
                        edgecolors="k" if r.get("pareto") else "none", linewidths=1.2)
-            ax.annotate(r["label"], (t, e), textcoords="offset points", xytext=(6, 4 if i % 2 == 0 else -11),
-                        fontsize=8)
+            # (a point close to the one before it gets its label at the next of four heights, so
+            # that points of equal error and close times, e.g. every exact ray-traced variant on
+            # the floor, stay readable)
+            close = last is not None and abs(np.log10(t / last[0])) < 0.35 and abs(np.log10(e / last[1])) < 0.3
+            level = level + 1 if close else 0
+            last = (t, e)
+            ax.annotate(r["label"], (t, e), textcoords="offset points", xytext=(6, (4, -11, 16, 28)[level % 4]),
+                        fontsize=8, arrowprops=dict(arrowstyle="-", lw=0.5, color="0.4") if level % 4 else None)
         front = sorted((r for r in rows if r.get("pareto")), key=lambda r: r["total_ms"])
         if len(front) > 1 and key == primary:
             xs = [r["total_ms"] for r in front]
