@@ -1,5 +1,5 @@
 """Refinement (``quality`` medium/low): coarse rays, classification, full-resolution rays where the
-coarse answer cannot stand for a pixel, traced as a compacted list (or under a depth mask).
+coarse answer cannot stand for a pixel, traced under a depth mask (or as a compacted list).
 
 1. On every test scene and every stiff scene, medium and low differ from high's masks on at most
    0.1% of the valid pixels (all shadowed lights together). One documented exception:
@@ -8,7 +8,7 @@ coarse answer cannot stand for a pixel, traced as a compacted list (or under a d
    pixels at medium, 0.19% at low); high holds 0.1% against Cycles there.
 2. Every pixel that got its own ray equals high's (the same ray); pixels decided without a ray
    by the facing/reach tests equal high's too; a pixel the camera sees at a grazing angle gets
-   its own ray (its samples' spacing on the surface is stretched: without the rule `forest`'s
+   its own ray (its samples' spacing on the surface is stretched: without the rule ``forest``'s
    distant terrain loses shadow streaks a pixel high).
 3. Stats: ``rays_traced`` and ``pixels``; the compact and depth-mask methods give the same masks;
    the ``nearest`` option still gives the blocky coarse masks; interlacing converges to high and

@@ -2,7 +2,8 @@
 
 A coarse set of rays (every 2nd or 4th pixel, or this frame's interlaced phase) is classified
 per full-resolution pixel: ``shaders/refine_geometry.glsl`` (once per frame: which surrounding
-samples lie on the pixel's surface), ``shaders/refine_cells.glsl`` (per light, at the coarse
+samples lie on the pixel's surface; none where the camera sees it at a grazing angle, ``RULES``
+``view_cos``), ``shaders/refine_cells.glsl`` (per light, at the coarse
 resolution: do the samples around a cell agree) and ``shaders/refine_classify.glsl`` (per light:
 the coarse answer, or a mark that the pixel needs its own ray, which is exactly the ray ``high``
 traces for it). The marks go to a depth buffer (0: ray, 1: done) and, for ``compact``, also to
