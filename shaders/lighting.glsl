@@ -1,8 +1,11 @@
 // Pass 3: deferred lighting. Batch 0 writes ambient (albedo x world colour), every unmasked
 // light and up to 8 masked lights; further batches add 8 masked lights each (additive blend).
-// HS_MASKS: the masked lights of the batch (a program per count); HS_FIRST_BATCH, and with it
-// HS_UNMASKED where there are unmasked lights (llvmpipe runs the body of a loop whose range is
-// empty once, masked: an empty loop of area lights cost a light).
+// HS_MASKS: the masked lights of the batch (a program per count), the first HS_MASKS_POINT of
+// them lights other than sized area lights; HS_FIRST_BATCH, and with it HS_UNMASKED_POINT and
+// HS_UNMASKED_AREA where there are such unmasked lights (rows [u_unmasked_begin,
+// u_unmasked_split) and [u_unmasked_split, u_unmasked_end)). Each kind has a loop of its own,
+// present only where the kind is (llvmpipe runs the body of a loop whose range is empty once,
+// masked, and both sides of a branch on the kind: an area light's polygon cost every light).
 #include "common/camera.glsl"
 #include "common/gbuffer.glsl"
 #include "common/lights.glsl"
@@ -14,6 +17,7 @@
 #ifdef FRAGMENT_SHADER
 #define MAX_MASKS 8
 uniform int u_unmasked_begin;
+uniform int u_unmasked_split;
 uniform int u_unmasked_end;
 uniform int u_masked_rows[MAX_MASKS];
 uniform sampler2D u_masks[MAX_MASKS];
@@ -48,9 +52,14 @@ void main() {
     vec3 c = vec3(0.0);
 #ifdef HS_FIRST_BATCH
     c = albedo * u_world_color;
-#ifdef HS_UNMASKED
-    for (int r = u_unmasked_begin; r < u_unmasked_end; ++r) {
-        c += light_contribution(r, p, n, v, albedo, mat.x, mat.y, u_specular);
+#ifdef HS_UNMASKED_POINT
+    for (int r = u_unmasked_begin; r < u_unmasked_split; ++r) {
+        c += point_contribution(r, p, n, v, albedo, mat.x, mat.y, u_specular);
+    }
+#endif
+#ifdef HS_UNMASKED_AREA
+    for (int r = u_unmasked_split; r < u_unmasked_end; ++r) {
+        c += area_contribution(r, p, n, v, albedo, mat.x, mat.y, u_specular);
     }
 #endif
 #endif
@@ -60,11 +69,20 @@ void main() {
     float mv[MAX_MASKS];
 #define HS_MASK_AT(K) mv[K] = (K < HS_MASKS) ? mask_at(K, pix) : 0.0;
     HS_MASK_AT(0) HS_MASK_AT(1) HS_MASK_AT(2) HS_MASK_AT(3) HS_MASK_AT(4) HS_MASK_AT(5) HS_MASK_AT(6) HS_MASK_AT(7)
-    for (int k = 0; k < HS_MASKS; ++k) {
+#if HS_MASKS_POINT > 0
+    for (int k = 0; k < HS_MASKS_POINT; ++k) {
         float m = mv[k];
         if (m <= 0.0) continue;
-        c += m * light_contribution(u_masked_rows[k], p, n, v, albedo, mat.x, mat.y, u_specular);
+        c += m * point_contribution(u_masked_rows[k], p, n, v, albedo, mat.x, mat.y, u_specular);
     }
+#endif
+#if HS_MASKS > HS_MASKS_POINT
+    for (int k = HS_MASKS_POINT; k < HS_MASKS; ++k) {
+        float m = mv[k];
+        if (m <= 0.0) continue;
+        c += m * area_contribution(u_masked_rows[k], p, n, v, albedo, mat.x, mat.y, u_specular);
+    }
+#endif
 #ifdef HS_FIRST_BATCH
     o_color = vec4(c, 1.0);
 #else

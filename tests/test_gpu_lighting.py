@@ -131,6 +131,41 @@ def test_more_masked_lights_than_one_batch(rig):
         t.release()
 
 
+def test_each_kind_in_a_loop_of_its_own(rig):
+    """Sized area lights and the other lights are lit in loops of their own (masked and unmasked,
+    over batches that hold both kinds): lights interleaved in the scene's order match the numpy
+    oracle, whatever batch and loop they land in."""
+    areas = [k[0] for k in _area_kinds()]
+    points = [Light(f"p{i}", "POINT", power=30.0 + i, matrix=np.eye(4)) for i in range(9)]
+    for i, light in enumerate(points):
+        light.matrix[:3, 3] = (np.cos(i), np.sin(i), 3.0 + 0.1 * i)
+    lights = []
+    for i, light in enumerate(all_lights()[:3] + points):  # an area light after every third other light
+        lights.append(light)
+        if i % 3 == 2 and areas:
+            lights.append(areas.pop(0))
+    lights += areas
+    scene = basic_scene(lights=lights)
+    gb = rig.gbuffer(scene, W, H)
+    rng = np.random.default_rng(3)
+    unmasked = {1, 3, 7}  # (a sized area light among them, and others)
+    assert any(lights[i].type == "AREA" and lights[i].size > 0 for i in unmasked)
+    mask_arrays = {i: rng.random((H, W)).astype(np.float32) for i in range(len(lights)) if i not in unmasked}
+    masks = {}
+    for i, a in mask_arrays.items():
+        t = create_mask_texture(rig.ctx, W, H)
+        t.write(np.ascontiguousarray(a[::-1]).tobytes())
+        masks[i] = t
+    rig.light(scene, gb, masks)
+    assert rig.lighting.batches == 2
+    img = rig.image()
+    # (a spread is integrated by 8 x 8 Gauss-Legendre nodes on the GPU, 16 x 16 by the oracle)
+    assert_close(img, lighting_reference.shade(scene, gbuffer_arrays(gb), mask_arrays), 1e-2)
+    assert img[..., :3].max() > 0.05
+    for t in masks.values():
+        t.release()
+
+
 def test_srgb_and_png(tmp_path):
     x = np.array([[[0.0, 0.0031308, 0.5, 1.0], [2.0, -1.0, np.nan, 0.5]]], np.float32)
     out = to_srgb8(x)

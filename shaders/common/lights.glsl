@@ -244,27 +244,31 @@ vec3 area_irradiance(int row, vec3 p, vec3 n) {
 }
 #endif
 
-// Outgoing radiance at p from light `row`, before its shadow mask.
-vec3 light_contribution(int row, vec3 p, vec3 n, vec3 v, vec3 albedo, float specular, float roughness,
-                        int use_specular) {
-    int type = int(light_texel(row, 0).w + 0.5);
+// Outgoing radiance at p from light `row`, before its shadow mask: a sized area light
+// (area_contribution) or any other (point_contribution). The lighting pass keeps the two kinds
+// in loops of their own (lighting.glsl): on a software rasteriser a branch on the light's kind
+// costs every light the polygon's code, whatever its kind.
 #ifdef HS_LIT_AREA_SIZED
-    if (type == LIGHT_AREA && light_texel(row, 4).w > 0.0) {
-        // diffuse: the exact irradiance of the polygon; specular: its far field from the centre
-        vec3 c = albedo * (1.0 / HS_PI) * area_irradiance(row, p, n);
-        if (use_specular == 1) {
-            vec3 l;
-            vec3 d = light_texel(row, 0).xyz - p;
-            float r2 = max(dot(d, d), 1e-12);
-            l = d * inversesqrt(r2);
-            vec4 t3 = light_texel(row, 3);
-            float area = 4.0 * light_texel(row, 4).w * t3.y * (t3.z < 0.5 ? 1.0 : HS_PI / 4.0);
-            float t = max(dot(-l, light_texel(row, 1).xyz), 0.0);
-            c += light_texel(row, 2).rgb * (area * t / r2) * specular_cos(n, l, v, specular, roughness);
-        }
-        return c;
+vec3 area_contribution(int row, vec3 p, vec3 n, vec3 v, vec3 albedo, float specular, float roughness,
+                       int use_specular) {
+    // diffuse: the exact irradiance of the polygon; specular: its far field from the centre
+    vec3 c = albedo * (1.0 / HS_PI) * area_irradiance(row, p, n);
+    if (use_specular == 1) {
+        vec3 l;
+        vec3 d = light_texel(row, 0).xyz - p;
+        float r2 = max(dot(d, d), 1e-12);
+        l = d * inversesqrt(r2);
+        vec4 t3 = light_texel(row, 3);
+        float area = 4.0 * light_texel(row, 4).w * t3.y * (t3.z < 0.5 ? 1.0 : HS_PI / 4.0);
+        float t = max(dot(-l, light_texel(row, 1).xyz), 0.0);
+        c += light_texel(row, 2).rgb * (area * t / r2) * specular_cos(n, l, v, specular, roughness);
     }
+    return c;
+}
 #endif
+
+vec3 point_contribution(int row, vec3 p, vec3 n, vec3 v, vec3 albedo, float specular, float roughness,
+                        int use_specular) {
     vec3 l;
     vec3 e = light_incident(row, p, l);
     return e * brdf_cos(n, l, v, albedo, specular, roughness, use_specular);

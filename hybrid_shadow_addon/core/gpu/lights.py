@@ -90,6 +90,15 @@ def light_table(lights) -> np.ndarray:
     return out
 
 
+def sized_area(table: np.ndarray) -> np.ndarray:
+    """Which rows of a light table are sized area lights (``area_contribution`` in
+    ``shaders/common/lights.glsl``; the others take ``point_contribution``), with the shader's
+    own tests on the float32 table."""
+    t = np.asarray(table, np.float32).reshape(-1, LIGHT_TEXELS, 4)
+    code = (t[:, 0, 3] + np.float32(0.5)).astype(np.int64)
+    return (code == LIGHT_CODES["AREA"]) & (t[:, 4, 3] > 0)
+
+
 def lighting_defines(table: np.ndarray) -> dict:
     """The kinds of light in a light table, as the defines of ``shaders/common/lights.glsl``
     (the kinds absent are compiled out of the lighting pass). Read from the table as the GPU
@@ -98,7 +107,7 @@ def lighting_defines(table: np.ndarray) -> dict:
     t = np.asarray(table, np.float32).reshape(-1, LIGHT_TEXELS, 4)
     code = (t[:, 0, 3] + np.float32(0.5)).astype(np.int64)
     area = code == LIGHT_CODES["AREA"]
-    sized = area & (t[:, 4, 3] > 0)
+    sized = sized_area(t)
     spread = sized & (t[:, 3, 3] >= 0)
     poly = sized & ~spread
     kinds = {"HS_LIT_SUN": code == LIGHT_CODES["SUN"], "HS_LIT_POINT": code == LIGHT_CODES["POINT"],
