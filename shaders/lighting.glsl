@@ -1,11 +1,11 @@
 // Pass 3: deferred lighting. Batch 0 writes ambient (albedo x world colour), every unmasked
 // light and up to 8 masked lights; further batches add 8 masked lights each (additive blend).
-// Each kind of light (lights.glsl HS_KIND_*) is lit in a loop of its own, compiled only where the
-// batch has that kind (llvmpipe runs the body of a loop whose range is empty once, masked, and
-// both sides of a branch on the kind: one loop for all cost every light an area light's code).
-// HS_MASKS: the masked lights of the batch (a program per count), kind by kind: kind 0 up to
-// HS_MB1, kind 1 up to HS_MB2, kind 2 up to HS_MB3, kind 3 up to HS_MASKS. HS_FIRST_BATCH, and with
-// it HS_UNMASKED_K0..3 for the kinds the unmasked lights have (kind k: rows [u_ubk, u_ubk+1)).
+// HS_MASKS: the masked lights of the batch (a program per count), the first HS_MASKS_POINT of
+// them lights other than sized area lights; HS_FIRST_BATCH, and with it HS_UNMASKED_POINT and
+// HS_UNMASKED_AREA where there are such unmasked lights (rows [u_unmasked_begin,
+// u_unmasked_split) and [u_unmasked_split, u_unmasked_end)). Each kind has a loop of its own,
+// present only where the kind is (llvmpipe runs the body of a loop whose range is empty once,
+// masked, and both sides of a branch on the kind: an area light's polygon cost every light).
 #include "common/camera.glsl"
 #include "common/gbuffer.glsl"
 #include "common/lights.glsl"
@@ -16,7 +16,9 @@
 
 #ifdef FRAGMENT_SHADER
 #define MAX_MASKS 8
-uniform int u_ub0, u_ub1, u_ub2, u_ub3, u_ub4;
+uniform int u_unmasked_begin;
+uniform int u_unmasked_split;
+uniform int u_unmasked_end;
 uniform int u_masked_rows[MAX_MASKS];
 uniform sampler2D u_masks[MAX_MASKS];
 uniform vec3 u_world_color;
@@ -50,39 +52,36 @@ void main() {
     vec3 c = vec3(0.0);
 #ifdef HS_FIRST_BATCH
     c = albedo * u_world_color;
-    // (one line each: #version 410 has no line continuation)
-#define HS_LIGHTS_UNMASKED(B, E, KIND) for (int r = B; r < E; ++r) c += light_contribution(r, p, n, v, albedo, mat.x, mat.y, u_specular, KIND);
-#ifdef HS_UNMASKED_K0
-    HS_LIGHTS_UNMASKED(u_ub0, u_ub1, 0)
+#ifdef HS_UNMASKED_POINT
+    for (int r = u_unmasked_begin; r < u_unmasked_split; ++r) {
+        c += point_contribution(r, p, n, v, albedo, mat.x, mat.y, u_specular);
+    }
 #endif
-#ifdef HS_UNMASKED_K1
-    HS_LIGHTS_UNMASKED(u_ub1, u_ub2, 1)
-#endif
-#ifdef HS_UNMASKED_K2
-    HS_LIGHTS_UNMASKED(u_ub2, u_ub3, 2)
-#endif
-#ifdef HS_UNMASKED_K3
-    HS_LIGHTS_UNMASKED(u_ub3, u_ub4, 3)
+#ifdef HS_UNMASKED_AREA
+    for (int r = u_unmasked_split; r < u_unmasked_end; ++r) {
+        c += area_contribution(r, p, n, v, albedo, mat.x, mat.y, u_specular);
+    }
 #endif
 #endif
     // this batch's HS_MASKS masks, read with constant indices (a software rasteriser indexes a
-    // sampler array by a variable through every sampler of it), then its lights kind by kind
-    // (one copy of each kind's code, whose iterations past the batch are not run)
+    // sampler array by a variable through every sampler of it), then its lights in one loop
+    // (one copy of the lighting code, whose iterations past the batch are not run)
     float mv[MAX_MASKS];
 #define HS_MASK_AT(K) mv[K] = (K < HS_MASKS) ? mask_at(K, pix) : 0.0;
     HS_MASK_AT(0) HS_MASK_AT(1) HS_MASK_AT(2) HS_MASK_AT(3) HS_MASK_AT(4) HS_MASK_AT(5) HS_MASK_AT(6) HS_MASK_AT(7)
-#define HS_LIGHTS_MASKED(B, E, KIND) for (int k = B; k < E; ++k) { float m = mv[k]; if (!(m <= 0.0)) c += m * light_contribution(u_masked_rows[k], p, n, v, albedo, mat.x, mat.y, u_specular, KIND); }
-#if HS_MB1 > 0
-    HS_LIGHTS_MASKED(0, HS_MB1, 0)
+#if HS_MASKS_POINT > 0
+    for (int k = 0; k < HS_MASKS_POINT; ++k) {
+        float m = mv[k];
+        if (m <= 0.0) continue;
+        c += m * point_contribution(u_masked_rows[k], p, n, v, albedo, mat.x, mat.y, u_specular);
+    }
 #endif
-#if HS_MB2 > HS_MB1
-    HS_LIGHTS_MASKED(HS_MB1, HS_MB2, 1)
-#endif
-#if HS_MB3 > HS_MB2
-    HS_LIGHTS_MASKED(HS_MB2, HS_MB3, 2)
-#endif
-#if HS_MASKS > HS_MB3
-    HS_LIGHTS_MASKED(HS_MB3, HS_MASKS, 3)
+#if HS_MASKS > HS_MASKS_POINT
+    for (int k = HS_MASKS_POINT; k < HS_MASKS; ++k) {
+        float m = mv[k];
+        if (m <= 0.0) continue;
+        c += m * area_contribution(u_masked_rows[k], p, n, v, albedo, mat.x, mat.y, u_specular);
+    }
 #endif
 #ifdef HS_FIRST_BATCH
     o_color = vec4(c, 1.0);

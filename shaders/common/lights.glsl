@@ -22,12 +22,6 @@
 #define LIGHT_SPOT 2
 #define LIGHT_AREA 3
 #define HS_LIGHT_TEXELS 5
-// the kinds the lighting pass loops over apart (core/gpu/lights.py light_kinds): every light but
-// a sized area light, and sized area lights by shape
-#define HS_KIND_POINT 0
-#define HS_KIND_RECT 1
-#define HS_KIND_ELLIPSE 2
-#define HS_KIND_SPREAD 3
 #define HS_PI 3.14159265358979
 #define HS_ELLIPSE_SIDES 24
 #if defined(HS_LIT_POINT) || defined(HS_LIT_SPOT) || defined(HS_LIT_AREA_POINT)
@@ -205,11 +199,10 @@ float spread_irradiance(vec3 c, vec3 axis, vec3 ex, vec3 ey, bool ellipse, vec2 
 }
 #endif
 
-// Irradiance at p (normal n) from area light `row` of `kind` (HS_KIND_RECT, HS_KIND_ELLIPSE: an
-// equal-area 24-gon, HS_KIND_SPREAD), 0 behind its emitting side. The callers pass the kind as a
-// literal, so the compiler keeps that kind's code alone.
+// Irradiance at p (normal n) from area light `row` (rectangle or equal-area 24-gon ellipse), 0
+// behind its emitting side.
 #ifdef HS_LIT_AREA_SIZED
-vec3 area_irradiance(int row, vec3 p, vec3 n, int kind) {
+vec3 area_irradiance(int row, vec3 p, vec3 n) {
     vec4 t0 = light_texel(row, 0);
     vec4 t1 = light_texel(row, 1);
     vec4 t3 = light_texel(row, 3);
@@ -220,7 +213,7 @@ vec3 area_irradiance(int row, vec3 p, vec3 n, int kind) {
     vec3 ex = t4.xyz * t4.w;
     vec3 ey = normalize(cross(axis, t4.xyz)) * t3.y;
 #ifdef HS_LIT_AREA_SPREAD
-    if (kind == HS_KIND_SPREAD)
+    if (t3.w >= 0.0)
         return light_texel(row, 2).rgb * spread_irradiance(c, axis, ex, ey, t3.z >= 0.5,
                                                            vec2(t3.w, light_texel(row, 2).w), p, n);
 #endif
@@ -228,13 +221,13 @@ vec3 area_irradiance(int row, vec3 p, vec3 n, int kind) {
     vec3 verts[HS_POLY_MAX];
     int count = 4;
 #ifdef HS_LIT_AREA_RECT
-    if (kind == HS_KIND_RECT) {
+    if (t3.z < 0.5) {
         verts[0] = c - ex - ey; verts[1] = c + ex - ey; verts[2] = c + ex + ey; verts[3] = c - ex + ey;
         count = 4;
     }
 #endif
 #ifdef HS_LIT_AREA_ELLIPSE
-    if (kind == HS_KIND_ELLIPSE) {
+    if (t3.z >= 0.5) {
         // equal area: an inscribed N-gon of radius k covers (N/2) sin(2 pi/N) k^2 = pi
         const float k = 1.00574;   // sqrt(2 pi / (N sin(2 pi / N))), N = 24
         for (int i = 0; i < HS_ELLIPSE_SIDES; ++i) {
@@ -251,15 +244,15 @@ vec3 area_irradiance(int row, vec3 p, vec3 n, int kind) {
 }
 #endif
 
-// Outgoing radiance at p from light `row` of `kind`, before its shadow mask. The lighting pass
-// keeps each kind in a loop of its own (lighting.glsl) and passes the kind as a literal: on a
-// software rasteriser a branch on the light's kind would cost every light every kind's code (an
-// area light's polygon, a spread's 64 nodes), whatever its own kind.
+// Outgoing radiance at p from light `row`, before its shadow mask: a sized area light
+// (area_contribution) or any other (point_contribution). The lighting pass keeps the two kinds
+// in loops of their own (lighting.glsl): on a software rasteriser a branch on the light's kind
+// costs every light the polygon's code, whatever its kind.
 #ifdef HS_LIT_AREA_SIZED
 vec3 area_contribution(int row, vec3 p, vec3 n, vec3 v, vec3 albedo, float specular, float roughness,
-                       int use_specular, int kind) {
+                       int use_specular) {
     // diffuse: the exact irradiance of the polygon; specular: its far field from the centre
-    vec3 c = albedo * (1.0 / HS_PI) * area_irradiance(row, p, n, kind);
+    vec3 c = albedo * (1.0 / HS_PI) * area_irradiance(row, p, n);
     if (use_specular == 1) {
         vec3 l;
         vec3 d = light_texel(row, 0).xyz - p;
@@ -274,11 +267,8 @@ vec3 area_contribution(int row, vec3 p, vec3 n, vec3 v, vec3 albedo, float specu
 }
 #endif
 
-vec3 light_contribution(int row, vec3 p, vec3 n, vec3 v, vec3 albedo, float specular, float roughness,
-                        int use_specular, int kind) {
-#ifdef HS_LIT_AREA_SIZED
-    if (kind != HS_KIND_POINT) return area_contribution(row, p, n, v, albedo, specular, roughness, use_specular, kind);
-#endif
+vec3 point_contribution(int row, vec3 p, vec3 n, vec3 v, vec3 albedo, float specular, float roughness,
+                        int use_specular) {
     vec3 l;
     vec3 e = light_incident(row, p, l);
     return e * brdf_cos(n, l, v, albedo, specular, roughness, use_specular);

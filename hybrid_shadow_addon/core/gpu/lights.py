@@ -90,26 +90,13 @@ def light_table(lights) -> np.ndarray:
     return out
 
 
-#: the kinds the lighting pass lights in loops of their own (``HS_KIND_*`` of
-#: ``shaders/common/lights.glsl``): every light but a sized area light, then sized area lights
-#: by shape
-KIND_POINT, KIND_RECT, KIND_ELLIPSE, KIND_SPREAD = range(4)
-
-
-def light_kinds(table: np.ndarray) -> np.ndarray:
-    """The kind (``KIND_*``) of each row of a light table, with the shader's own tests on the
-    float32 table: type code, half width > 0 (a sized area light), tan of the half spread >= 0
-    (a spread), shape >= 0.5 (an ellipse)."""
+def sized_area(table: np.ndarray) -> np.ndarray:
+    """Which rows of a light table are sized area lights (``area_contribution`` in
+    ``shaders/common/lights.glsl``; the others take ``point_contribution``), with the shader's
+    own tests on the float32 table."""
     t = np.asarray(table, np.float32).reshape(-1, LIGHT_TEXELS, 4)
     code = (t[:, 0, 3] + np.float32(0.5)).astype(np.int64)
-    sized = (code == LIGHT_CODES["AREA"]) & (t[:, 4, 3] > 0)
-    spread = sized & (t[:, 3, 3] >= 0)
-    ellipse = sized & ~spread & (t[:, 3, 2] >= 0.5)
-    kinds = np.full(len(t), KIND_POINT, np.int64)
-    kinds[sized] = KIND_RECT
-    kinds[ellipse] = KIND_ELLIPSE
-    kinds[spread] = KIND_SPREAD
-    return kinds
+    return (code == LIGHT_CODES["AREA"]) & (t[:, 4, 3] > 0)
 
 
 def lighting_defines(table: np.ndarray) -> dict:
@@ -120,7 +107,7 @@ def lighting_defines(table: np.ndarray) -> dict:
     t = np.asarray(table, np.float32).reshape(-1, LIGHT_TEXELS, 4)
     code = (t[:, 0, 3] + np.float32(0.5)).astype(np.int64)
     area = code == LIGHT_CODES["AREA"]
-    sized = light_kinds(t) != KIND_POINT
+    sized = sized_area(t)
     spread = sized & (t[:, 3, 3] >= 0)
     poly = sized & ~spread
     kinds = {"HS_LIT_SUN": code == LIGHT_CODES["SUN"], "HS_LIT_POINT": code == LIGHT_CODES["POINT"],

@@ -7,18 +7,18 @@ light table (``LIGHT_TEXELS`` RGBA32F texels per light) is a uniform block where
 driver's block size (a light's row is the same for every pixel: llvmpipe then reads a uniform
 block once for a lane group, a texture once per lane; city's lighting 46 -> 43 ms), else a
 texture; the program is the variant of the kinds of light in it
-(:func:`..lights.lighting_defines`). Each kind of light (:func:`..lights.light_kinds`: sized
-area lights by shape, and the others) is lit in a loop of its own (the table is ordered so: the
-unmasked lights kind by kind, then the masked ones likewise in batches): llvmpipe runs both
-sides of a branch on a light's kind, so one loop for all cost every light an area light's
-polygon (``clusters``' lighting 2.09x faster, same run).
+(:func:`..lights.lighting_defines`). Sized area lights are lit in loops of their own, after the
+others (the table is ordered so: unmasked lights, then the masked ones in batches, each group
+with its sized area lights last): llvmpipe runs both sides of a branch on a light's kind, so one
+loop for all cost every light the area light's polygon (``clusters``' lighting 36 -> 20 ms, same
+run).
 """
 from __future__ import annotations
 
 import moderngl
 import numpy as np
 
-from ..lights import LIGHT_TEXELS, light_kinds, light_table, lighting_defines
+from ..lights import LIGHT_TEXELS, light_table, lighting_defines, sized_area
 from ..targets import TargetCache, set_uniforms
 from .base import Pass
 
@@ -77,13 +77,13 @@ class LightingPass(Pass):
         masks = {int(k): v for k, v in (job.masks or {}).items() if 0 <= int(k) < len(scene.lights)}
         dark = set(getattr(job, "dark", ()) or ()) & set(masks)  # (they would add 0 at every pixel)
         full = light_table(list(scene.lights)) if scene.lights else np.zeros((0, LIGHT_TEXELS, 4))
-        kind = light_kinds(full)
-        # each kind in a loop of its own (shaders/lighting.glsl): the unmasked lights kind by
-        # kind, then the masked ones likewise, cut into batches of MAX_MASKS
-        unmasked = sorted((i for i in range(len(scene.lights)) if i not in masks), key=lambda i: (kind[i], i))
-        masked = sorted(set(masks) - dark, key=lambda i: (kind[i], i))
+        area = sized_area(full)
+        # each kind in a loop of its own (shaders/lighting.glsl): the unmasked lights other than
+        # sized area lights, then those; the masked ones likewise, cut into batches of MAX_MASKS
+        unmasked = sorted((i for i in range(len(scene.lights)) if i not in masks), key=lambda i: bool(area[i]))
+        masked = sorted(set(masks) - dark, key=lambda i: (bool(area[i]), i))
         order = unmasked + masked
-        bounds = np.searchsorted(kind[unmasked], np.arange(5)) if unmasked else np.zeros(5, np.int64)
+        split = sum(1 for i in unmasked if not area[i])
         self.lights_drawn = len(order)
         table = full[order] if order else np.zeros((0, LIGHT_TEXELS, 4))
         block = self._light_block(table)
@@ -98,19 +98,18 @@ class LightingPass(Pass):
         use_spec = 1 if (settings is None or settings.specular) else 0
         common = {"u_world_color": tuple(float(c) for c in scene.world_color), "u_specular": use_spec,
                   "u_transparent": int(bool(job.film_transparent)),
-                  **{f"u_ub{k}": int(bounds[k]) for k in range(5)}}
+                  "u_unmasked_begin": 0, "u_unmasked_split": split, "u_unmasked_end": len(unmasked)}
         nb = max(1, -(-len(masked) // MAX_MASKS))
         self.batches = nb
         for b in range(nb):
             rows = list(range(len(unmasked) + b * MAX_MASKS, min(len(order), len(unmasked) + (b + 1) * MAX_MASKS)))
-            rk = kind[[order[r] for r in rows]] if rows else np.zeros(0, np.int64)
-            variant = {**defines, "HS_MASKS": len(rows),
-                       **{f"HS_MB{k}": int(np.searchsorted(rk, k)) for k in (1, 2, 3)}}
+            variant = {**defines, "HS_MASKS": len(rows), "HS_MASKS_POINT": sum(1 for r in rows if not area[order[r]])}
             if b == 0:
                 variant["HS_FIRST_BATCH"] = 1
-                for k in range(4):
-                    if bounds[k + 1] > bounds[k]:
-                        variant[f"HS_UNMASKED_K{k}"] = 1
+                if split:
+                    variant["HS_UNMASKED_POINT"] = 1
+                if split < len(unmasked):
+                    variant["HS_UNMASKED_AREA"] = 1
             prog, vao = self.programs.fullscreen("lighting", variant)
             unit = gbuffer.bind(prog)
             if block is not None:
