@@ -148,22 +148,23 @@ def test_each_kind_in_a_loop_of_its_own(rig):
     scene = basic_scene(lights=lights)
     gb = rig.gbuffer(scene, W, H)
     rng = np.random.default_rng(3)
-    unmasked = {1, 3, 7}  # (a sized area light among them, and others)
-    assert any(lights[i].type == "AREA" and lights[i].size > 0 for i in unmasked)
-    mask_arrays = {i: rng.random((H, W)).astype(np.float32) for i in range(len(lights)) if i not in unmasked}
-    masks = {}
-    for i, a in mask_arrays.items():
-        t = create_mask_texture(rig.ctx, W, H)
-        t.write(np.ascontiguousarray(a[::-1]).tobytes())
-        masks[i] = t
-    rig.light(scene, gb, masks)
-    assert rig.lighting.batches == 2
-    img = rig.image()
-    # (a spread is integrated by 8 x 8 Gauss-Legendre nodes on the GPU, 16 x 16 by the oracle)
-    assert_close(img, lighting_reference.shade(scene, gbuffer_arrays(gb), mask_arrays), 1e-2)
-    assert img[..., :3].max() > 0.05
-    for t in masks.values():
-        t.release()
+    # unmasked: a rectangle and an ellipse among other lights (the masked batches: other lights and
+    # a spread); then an area light of size 0 and a spot (the second batch: every kind)
+    for unmasked in ({1, 3, 7}, {2, 15}):
+        mask_arrays = {i: rng.random((H, W)).astype(np.float32) for i in range(len(lights)) if i not in unmasked}
+        masks = {}
+        for i, a in mask_arrays.items():
+            t = create_mask_texture(rig.ctx, W, H)
+            t.write(np.ascontiguousarray(a[::-1]).tobytes())
+            masks[i] = t
+        rig.light(scene, gb, masks)
+        assert rig.lighting.batches == 2
+        img = rig.image()
+        # (a spread is integrated by 8 x 8 Gauss-Legendre nodes on the GPU, 16 x 16 by the oracle)
+        assert_close(img, lighting_reference.shade(scene, gbuffer_arrays(gb), mask_arrays), 1e-2)
+        assert img[..., :3].max() > 0.05
+        for t in masks.values():
+            t.release()
 
 
 def test_srgb_and_png(tmp_path):
