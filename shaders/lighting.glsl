@@ -2,8 +2,8 @@
 // light and up to 8 masked lights; further batches add 8 masked lights each (additive blend).
 // HS_MASKS: the masked lights of the batch (a program per count), the first HS_MASKS_POINT of
 // them lights other than sized area lights; HS_FIRST_BATCH, and with it HS_UNMASKED_POINT and
-// HS_UNMASKED_AREA where there are such unmasked lights (rows [u_unmasked_begin,
-// u_unmasked_split) and [u_unmasked_split, u_unmasked_end)). Each kind has a loop of its own,
+// HS_UNMASKED_AREA where there are such unmasked lights (rows [0, u_unmasked_split) and
+// [u_unmasked_split, u_unmasked_end)). Each kind has a loop of its own,
 // present only where the kind is (llvmpipe runs the body of a loop whose range is empty once,
 // masked, and both sides of a branch on the kind: an area light's polygon cost every light).
 #include "common/camera.glsl"
@@ -16,7 +16,6 @@
 
 #ifdef FRAGMENT_SHADER
 #define MAX_MASKS 8
-uniform int u_unmasked_begin;
 uniform int u_unmasked_split;
 uniform int u_unmasked_end;
 uniform int u_masked_rows[MAX_MASKS];
@@ -53,7 +52,7 @@ void main() {
 #ifdef HS_FIRST_BATCH
     c = albedo * u_world_color;
 #ifdef HS_UNMASKED_POINT
-    for (int r = u_unmasked_begin; r < u_unmasked_split; ++r) {
+    for (int r = 0; r < u_unmasked_split; ++r) {
         c += point_contribution(r, p, n, v, albedo, mat.x, mat.y, u_specular);
     }
 #endif

@@ -30,11 +30,10 @@ INDEXED_FORMAT_NO_UV = "3f 3f 8x 3f"
 INDEXED_ATTRS_NO_UV = ("in_pos", "in_shading_normal", "in_face_normal")
 
 
-def face_normals(model, order=None) -> np.ndarray:
-    """(T, 3) float32 unit face normals (zero on a degenerate triangle), computed in float64;
-    ``order``: the triangles in that order (:func:`chunk_order`)."""
+def face_normals(model) -> np.ndarray:
+    """(T, 3) float32 unit face normals (zero on a degenerate triangle), computed in float64."""
     v = model.vertices.astype(np.float64)
-    tris = model.triangles if order is None else np.take(model.triangles, order, axis=0)
+    tris = model.triangles
     a = np.take(v, tris[:, 0], axis=0)
     e1 = np.take(v, tris[:, 1], axis=0) - a
     e2 = np.take(v, tris[:, 2], axis=0) - a
@@ -46,12 +45,13 @@ def face_normals(model, order=None) -> np.ndarray:
     return np.where(ln > 0, n / np.where(ln > 0, ln, 1), 0.0).astype(np.float32)
 
 
-def indexed_vertex_data(model, order=None):
+def indexed_vertex_data(model):
     """``(vertices (V', 11) float32, indices (3T,) uint32, source (V',) int64)``: the model's corners in
     :data:`INDEXED_FORMAT` (a flat model's normals are zeros: the G-buffer then shades with the
     face normal), shared where they are equal, and each triangle's three corners in order (its
-    last corner, GL's provoking vertex, gives the G-buffer its plane point and its face normal);
-    ``order``: the triangles in that order (:func:`chunk_order`), else the model's.
+    last corner, GL's provoking vertex, gives the G-buffer its plane point and its face normal).
+    (:meth:`ModelBufferCache.chunks` later puts the triangles in :func:`chunk_order`: each keeps
+    its corners, so the vertices stay valid.)
 
     The model's own vertices carry each vertex's normal and UV; a corner whose normal or UV
     differs from its vertex's (a sharp edge, a UV seam) gets a vertex of its own (equal such
@@ -61,8 +61,7 @@ def indexed_vertex_data(model, order=None):
     to the one it copies (itself if none), so ``source[indices]`` draws the same corners without
     the copies (passes that need no face normal). Linear in the corners: no sort of the whole
     mesh."""
-    tris = model.triangles if order is None else model.triangles[order]
-    tri = tris.astype(np.int64).ravel()
+    tri = model.triangles.astype(np.int64).ravel()
     nv = len(model.vertices)
     verts = np.zeros((nv, 8), np.float32)
     verts[:, :3] = model.vertices
@@ -70,9 +69,9 @@ def indexed_vertex_data(model, order=None):
     if model.normals is not None or model.uvs is not None:
         attrs = np.zeros((len(tri), 5), np.float32)
         if model.normals is not None:
-            attrs[:, :3] = (model.normals if order is None else model.normals[order]).reshape(-1, 3)
+            attrs[:, :3] = model.normals.reshape(-1, 3)
         if model.uvs is not None:
-            attrs[:, 3:] = (model.uvs if order is None else model.uvs[order]).reshape(-1, 2)
+            attrs[:, 3:] = model.uvs.reshape(-1, 2)
         per_vertex = np.zeros((nv, 5), np.float32)
         per_vertex[tri] = attrs
         bits = attrs.view(np.int32)
@@ -87,7 +86,7 @@ def indexed_vertex_data(model, order=None):
             verts = np.concatenate([verts, extra])
             idx[own] = nv + inverse.ravel()
     # the face normals on the provoking corners
-    fn = face_normals(model, order)
+    fn = face_normals(model)
     t = len(fn)
     nv = len(verts)
     last = idx[2::3]

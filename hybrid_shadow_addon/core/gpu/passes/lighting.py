@@ -98,7 +98,7 @@ class LightingPass(Pass):
         use_spec = 1 if (settings is None or settings.specular) else 0
         common = {"u_world_color": tuple(float(c) for c in scene.world_color), "u_specular": use_spec,
                   "u_transparent": int(bool(job.film_transparent)),
-                  "u_unmasked_begin": 0, "u_unmasked_split": split, "u_unmasked_end": len(unmasked)}
+                  "u_unmasked_split": split, "u_unmasked_end": len(unmasked)}
         nb = max(1, -(-len(masked) // MAX_MASKS))
         self.batches = nb
         for b in range(nb):
