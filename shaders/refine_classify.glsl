@@ -8,12 +8,22 @@
 // it does not graze the light (cosine to the light at least u_grazing). Otherwise it gets its
 // own ray: gl_FragDepth 0 (the refine draws then run only there, under the depth test) and, with
 // HS_COMPACT, o_need 1 (level 0 of the pyramid of a compacted list, common/compact.glsl).
+// HS_GROUP_VOTE (passes/refine.py, rule group): every pixel of a SIMD group that holds a
+// marked pixel is marked too, unless a ray would only repeat what it knows (decided by the
+// prelude, a coarse sample, an interlaced ray or history). Where the group is a fixed block
+// of pixels in both draws (llvmpipe's 4x2), the trace pays each group its slowest lane
+// anyway, and the group's other pixels get their exact answer for no extra time. (Mesa 22.3's
+// vote returns each lane's own value in about 1 % of the groups: fewer marks there, never a
+// wrong answer; a marked pixel is traced, an unmarked one keeps what it had without the vote.)
 
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
 #endif
 
 #ifdef FRAGMENT_SHADER
+#ifdef HS_GROUP_VOTE
+#extension GL_ARB_shader_group_vote : require
+#endif
 #include "common/camera.glsl"
 #include "common/gbuffer.glsl"
 #include "common/shadow_ray.glsl"
@@ -42,6 +52,7 @@ void main()
         if (sample_pixel(own) == pix) value = texelFetch(u_coarse, own, 0).r;
 #endif
     }
+    bool known = value >= 0.0;
     if (value < 0.0) {
         ivec2 cell = sample_cell(pix);
         bool inside = all(greaterThanEqual(cell, ivec2(0))) && all(lessThan(cell, textureSize(u_cells, 0)));
@@ -50,6 +61,9 @@ void main()
         if (stands && dot(n, normalize(to_light)) >= u_grazing) value = v;
     }
     bool need = value < 0.0;
+#ifdef HS_GROUP_VOTE
+    need = anyInvocationARB(need) && !known;   // (uniform control flow: every lane votes)
+#endif
     o_mask = need ? 1.0 : value;
 #ifdef HS_COMPACT
     o_need = need ? 1.0 : 0.0;

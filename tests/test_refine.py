@@ -3,13 +3,15 @@ coarse answer cannot stand for a pixel, traced under a depth mask (or as a compa
 
 1. On every test scene and every stiff scene, medium and low differ from high's masks on at most
    0.1% of the valid pixels (all shadowed lights together). One documented exception:
-   ``stiff/thin`` (shadows thinner than a pixel, from poles, wires and leaf blades): a shadow that
-   falls between the coarse samples, nowhere near one that sees it, is missed (0.12% of the
-   pixels at medium, 0.19% at low); high holds 0.1% against Cycles there.
+   ``stiff/thin`` at low (shadows thinner than a pixel, from poles, wires and leaf blades): a
+   shadow that falls between the coarse samples, nowhere near one that sees it, is missed (0.14%
+   of the pixels; medium 0.04%, since a marked pixel's SIMD group is traced whole: the ``group``
+   rule); high holds 0.1% against Cycles there.
 2. Every pixel that got its own ray equals high's (the same ray); pixels decided without a ray
    by the facing/reach tests equal high's too; a pixel the camera sees at a grazing angle gets
    its own ray (its samples' spacing on the surface is stretched: without the rule ``forest``'s
-   distant terrain loses shadow streaks a pixel high).
+   distant terrain loses shadow streaks a pixel high); on llvmpipe every pixel of a 4x2 block
+   that holds a marked pixel gets its own ray unless it is known without one (``group``).
 3. Stats: ``rays_traced`` and ``pixels``; the compact and depth-mask methods give the same masks;
    the ``nearest`` option still gives the blocky coarse masks; interlacing converges to high and
    its first frame after a change is refined, not blocky.
@@ -28,7 +30,7 @@ REPO = Path(__file__).resolve().parents[1]
 W, H = 160, 120
 LIMIT_PCT = 0.1
 STIFF = sorted(p.stem for p in (REPO / "test_scenes" / "stiff").glob("*.py") if not p.stem.startswith("_"))
-EXCEPTIONS = {("stiff/thin", "medium"): 0.25, ("stiff/thin", "low"): 0.3}  # (see the module docstring)
+EXCEPTIONS = {("stiff/thin", "low"): 0.2}  # (see the module docstring)
 
 
 def masks(pipeline, scene, settings, w, h):
@@ -156,6 +158,78 @@ def test_grazing_view_pixels_get_their_own_rays(pipeline, loaded):
     assert unmarked[0.5][1] > 500, unmarked  # (forest's distant terrain)
     assert unmarked[0.5][0] == 0, unmarked
     assert unmarked[0.0][0] > 0, unmarked
+
+
+def _blocks_any(m):
+    """Each pixel: does its 4x2 block (llvmpipe's SIMD group: 4 columns, 2 rows from the bottom
+    of the image) hold a True pixel."""
+    h, w = m.shape
+    gl = np.zeros((-(-h // 2) * 2, -(-w // 4) * 4), bool)
+    gl[:h, :w] = m[::-1]
+    b = gl.reshape(gl.shape[0] // 2, 2, gl.shape[1] // 4, 4).any(axis=(1, 3))
+    return np.repeat(np.repeat(b, 2, 0), 4, 1)[:h, :w][::-1]
+
+
+def test_group_rule_traces_a_marked_pixels_block_whole(pipeline, loaded):
+    """Refiner.RULES['group'] (on by default on llvmpipe): the marks grow to the 4x2 blocks that
+    hold one, except the pixels known without a ray (coarse samples, pixels the facing/reach
+    tests decide); the extra rays are exact, and on ``stiff/thin`` they take medium from 0.12%
+    to within 0.1% of high."""
+    from hybrid_shadow_addon.core.gpu.passes.refine import Refiner
+    from hybrid_shadow_addon.core.oracle.rays import shadow_rays
+
+    scene = loaded("stiff/thin")
+    pipeline.set_scene(scene)
+    w, h = size_of("stiff/thin", scene)
+    _, high = masks(pipeline, scene, Settings(hard=True, quality="high"), w, h)
+    rp, marks, orig = _capture_marks(pipeline)
+    assert "llvmpipe" in rp.ctx.info["GL_RENDERER"].lower()
+    assert Refiner.group_default(rp.ctx) and rp.refiner.rules["group"]
+    got, pct = {}, {}
+    try:
+        for group in (0.0, 1.0):
+            rp.refiner.rules["group"] = group
+            marks.clear()
+            frame, m = masks(pipeline, scene, Settings(hard=True, quality="medium"), w, h)
+            got[group] = (dict(marks), m, frame.gbuffer)
+            pct[group] = mismatch_pct(m, high)[0]
+    finally:
+        rp._light = orig
+        rp.refiner.rules["group"] = True
+    sample = np.zeros((h, w), bool)
+    sample[h - 2::-2, 1::2] = True  # (pixels 2q + 1 from the bottom-left: the coarse samples)
+    off, on = got[0.0][0], got[1.0][0]
+    assert set(off) == set(on)
+    grown = missed = 0
+    for li in on:
+        assert not (off[li] & ~on[li]).any(), "a mark was lost"
+        blocks = _blocks_any(off[li])
+        assert not (on[li] & ~blocks).any(), "a mark outside a marked block"
+        rows, cols = np.nonzero(blocks & ~on[li] & ~sample & np.isfinite(high[li]))
+        facing = shadow_rays(got[1.0][2], (rows, cols), scene.lights[li], rp.scene_textures.baked.origin)[3]
+        missed += int(facing.sum())
+        np.testing.assert_array_equal(got[1.0][1][li][on[li]], high[li][on[li]])
+        grown += int(on[li].sum() - off[li].sum())
+    assert grown > 1000, grown
+    # (llvmpipe's vote covers the whole 4x2 block in nearly every group, not in every one: in a
+    # few groups it returns each lane's own value; Mesa 22.3 misses 26 such pixels here)
+    assert missed < 0.01 * grown, (missed, grown)
+    assert pct[0.0] > 0.1 >= pct[1.0], pct
+
+
+def test_refinement_rules_are_checked(pipeline):
+    from hybrid_shadow_addon.core.gpu.passes.refine import Refiner
+
+    rp = pipeline.shadow_pass("raytrace")
+    with pytest.raises(ValueError, match="unknown refinement rule"):
+        Refiner(rp.gpu, view_angle=0.5)
+    kept = rp.refiner.can_vote
+    rp.refiner.can_vote = False
+    try:
+        with pytest.raises(ValueError, match="GL_ARB_shader_group_vote"):
+            rp.refiner.defines()
+    finally:
+        rp.refiner.can_vote = kept
 
 
 def test_stats_count_pixels_and_rays(pipeline, loaded):

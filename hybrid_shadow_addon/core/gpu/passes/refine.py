@@ -6,8 +6,10 @@ samples lie on the pixel's surface; none where the camera sees it at a grazing a
 ``view_cos``), ``shaders/refine_cells.glsl`` (per light, at the coarse
 resolution: do the samples around a cell agree) and ``shaders/refine_classify.glsl`` (per light:
 the coarse answer, or a mark that the pixel needs its own ray, which is exactly the ray ``high``
-traces for it). The marks go to a depth buffer (0: ray, 1: done) and, for ``compact``, also to
-level 0 of a histogram pyramid. Two ways to trace only the marked pixels:
+traces for it; with the ``group`` rule, on llvmpipe, so does every pixel of a SIMD group that
+holds such a pixel, unless it is known without a ray: the trace under the depth test pays the
+group its slowest lane anyway). The marks go to a depth buffer (0: ray, 1: done) and, for
+``compact``, also to level 0 of a histogram pyramid. Two ways to trace only the marked pixels:
 
 - ``depth`` (default): the full-resolution trace runs under the depth test;
 - ``compact``: the pyramid (``shaders/compact_reduce.glsl``, ``common/compact.glsl``) turns the
@@ -38,16 +40,24 @@ METHODS = ("compact", "depth")
 class Refiner:
     """Classify, compaction and refine draws for the ray-traced pass, and their ray counts."""
 
-    #: default refinement rules (see the shaders named in the module docstring)
-    RULES = dict(plane_tol=0.02, normal_cos=0.9, grazing=0.05, ring=1, view_cos=0.5)
+    #: default refinement rules (see the shaders named in the module docstring); ``group``
+    #: None: :meth:`group_default` for the context
+    RULES = dict(plane_tol=0.02, normal_cos=0.9, grazing=0.05, ring=1, view_cos=0.5, group=None)
 
     def __init__(self, gpu, method: str = "depth", **rules):
         if method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, not {method!r}")
+        unknown = sorted(set(rules) - set(self.RULES))
+        if unknown:
+            raise ValueError(f"unknown refinement rule(s) {', '.join(unknown)}; the rules are {', '.join(self.RULES)}")
         self.ctx = gpu.ctx
         self.programs = gpu.programs
         self.method = method
         self.rules = {**self.RULES, **rules}
+        self.can_vote = "GL_ARB_shader_group_vote" in self.ctx.extensions
+        if self.rules["group"] is None:
+            self.rules["group"] = self.group_default(self.ctx)
+        self.defines()  # (checks the rules: group needs the vote)
         self._work = TargetCache(self.ctx, what="refinement target")  # role -> target
         self._depth = None
         self._fbos: dict = {}  # key -> (attachments, framebuffer with the depth buffer)
@@ -119,9 +129,27 @@ class Refiner:
         g = self._grid
         return {"u_scale": g["scale"], "u_offset": g["offset"], "u_full_size": gbuffer.size}
 
+    @staticmethod
+    def group_default(ctx) -> bool:
+        """The ``group`` rule's default: on where the renderer is Mesa's llvmpipe with
+        ``GL_ARB_shader_group_vote``. There a fragment shader runs a fixed 4x2 block of pixels
+        in lock-step, the same block in the classify and the trace draws, and the trace under
+        the depth test costs each block its slowest marked lane: the block's other rays are
+        traced at no extra cost (``BENCHMARKS.md``, "A marked pixel's SIMD group traces
+        whole"). On a GPU the early depth test packs the surviving pixels into the trace's
+        groups, so the extra rays would cost; off there."""
+        return ("GL_ARB_shader_group_vote" in ctx.extensions
+                and "llvmpipe" in str(ctx.info.get("GL_RENDERER", "")).lower())
+
     def defines(self) -> dict:
-        """Extra defines of the classify program for this method."""
-        return {"HS_COMPACT": 1} if self.method == "compact" else {}
+        """Extra defines of the classify program for this method and rules."""
+        out = {"HS_COMPACT": 1} if self.method == "compact" else {}
+        if self.rules["group"]:
+            if not self.can_vote:
+                raise ValueError("the refinement rule group needs GL_ARB_shader_group_vote, which this "
+                                 f"renderer ({self.ctx.info.get('GL_RENDERER', '?')}) does not offer")
+            out["HS_GROUP_VOTE"] = 1
+        return out
 
     # -- per light ----------------------------------------------------------------------------
     def classify(self, key, target, gbuffer, coarse, defines: dict, uniforms: dict) -> None:
