@@ -13,8 +13,8 @@
 // prelude, a coarse sample, an interlaced ray or history). Where the group is a fixed block
 // of pixels in both draws (llvmpipe's 4x2), the trace pays each group its slowest lane
 // anyway, and the group's other pixels get their exact answer for no extra time. (Mesa 22.3's
-// vote returns each lane's own value in about 1 % of the groups: fewer marks there, never a
-// wrong answer; a marked pixel is traced, an unmarked one keeps what it had without the vote.)
+// vote gives about 1 % of the pixels of voting groups their own value instead: fewer marks
+// there, never a wrong answer; an unmarked pixel keeps what it had without the vote.)
 
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"

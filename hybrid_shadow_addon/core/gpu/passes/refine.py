@@ -137,7 +137,8 @@ class Refiner:
         the depth test costs each block its slowest marked lane: the block's other rays are
         traced at no extra cost (``BENCHMARKS.md``, "A marked pixel's SIMD group traces
         whole"). On a GPU the early depth test packs the surviving pixels into the trace's
-        groups, so the extra rays would cost; off there."""
+        groups, so the extra rays would cost; off there. (The rule applies to the ``compact``
+        method too, whose list then holds the extra rays as lanes of their own.)"""
         return ("GL_ARB_shader_group_vote" in ctx.extensions
                 and "llvmpipe" in str(ctx.info.get("GL_RENDERER", "")).lower())
 
