@@ -314,27 +314,3 @@ def test_thin_scene_high_matches_cycles(gl_ctx):
         assert m["valid"] > 1000, (light, m)
         assert m["mismatch_pct"] <= 0.1, f"thin/{light}: {m['mismatch_pct']:.3f}%"
 
-
-def test_refinement_profile_cost_model():
-    """benchmarks/profile_refinement.py's lock-step model (BENCHMARKS.md's bound on what the
-    refinement can save): a 4x2 block costs its slowest traced lane; a list costs 8 rays at a
-    time in llvmpipe's shading order."""
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    import profile_refinement as pr
-
-    steps = np.arange(1, 33, dtype=np.int64).reshape(4, 8)  # row 0 the top row
-    everything = np.ones_like(steps, bool)
-    # GL rows 0-1 are the image's rows 3 and 2: blocks (cols 0-3, 4-7) cost 28 and 32, then 12 and 16
-    assert pr.block_cost(steps, everything) == 28 + 32 + 12 + 16
-    one = np.zeros_like(everything)
-    one[0, 5] = True  # a single marked lane: its block costs that lane's steps
-    assert pr.block_cost(steps, one) == 6
-    assert pr.list_cost(steps, one) == 6
-    # a list of 9 rays: two groups of 8, each its slowest
-    nine = np.zeros_like(everything)
-    nine[3, :] = True
-    nine[2, 0] = True
-    got = pr.list_cost(steps, nine)
-    lanes = sorted(steps[nine])
-    assert lanes[-1] <= got <= lanes[-1] + lanes[-2]
-    assert pr.list_cost(steps, np.zeros_like(everything)) == 0
