@@ -5,7 +5,8 @@ tests/test_addon_viewport.py OUT``):
   ``depsgraph.updates`` ``view_update`` receives) picks the least work, and incremental updates
   give the same masks as a fresh bake;
 - ``viewport_camera`` reproduces a camera from its view and window matrices;
-- the refine logic of ``view_draw`` (fast pass, then full quality; four frames with interlacing),
+- the refine logic of ``view_draw`` (fast pass, then full quality; four frames with interlacing;
+  the automatic navigation quality, one frame on this software rasteriser),
   rendered inline (the synchronous debugging mode) and by the worker thread; two engines of one
   scene share one worker and bake and apply the same depsgraph updates once; worker errors
   reach the engine once; freeing the last engine and unregistering stop the thread;
@@ -180,6 +181,13 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
 
         worker_mod.SYNCHRONOUS = True
         scene.hybrid_shadows.use_soft_shadows = False  # (hard lights: the fast-then-full state machine)
+        # the automatic navigation quality (the default): on this software rasteriser the fast
+        # pass keeps the viewport quality, so a change of a hard-lit view is a single frame
+        r["navigation_default"] = scene.hybrid_shadows.navigation_quality
+        eng = stand()
+        r["auto"] = {"stats": run(eng, 3), "redraws": eng.redraws}
+        vpe.free(eng)
+        scene.hybrid_shadows.navigation_quality = "LOW"  # (the state machine below: fast, then full)
         eng = stand()
         r["inline_worker_thread"] = vpe.shared(eng).worker._thread is not None
         seq = run(eng, 3)
@@ -378,6 +386,13 @@ def test_refine_after_fast_pass(report):
     assert "16/20 soft samples" in soft["stats"][1] and "refining" in soft["stats"][1]
     assert "20/20 soft samples" in soft["stats"][2] and "refining" not in soft["stats"][2]
     assert soft["stats"][3] is None and soft["redraws"] == 2
+
+
+def test_automatic_navigation_is_one_frame_on_a_software_rasteriser(report):
+    assert report["navigation_default"] == "AUTO"
+    auto = report["auto"]
+    assert "Ray traced high" in auto["stats"][0] and "refining" not in auto["stats"][0], auto
+    assert auto["stats"][1] is None and auto["stats"][2] is None and auto["redraws"] == 0, auto
 
 
 def test_refine_runs_inline_in_the_synchronous_mode(report):

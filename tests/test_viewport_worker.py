@@ -5,6 +5,7 @@ once and the worker goes on; ``close`` is prompt and an interpreter exits with a
 views sharing one bake keep their own history; snapshots are copy-on-write; the registry and
 the update rounds share and de-duplicate."""
 import copy
+import dataclasses
 import threading
 import time
 
@@ -12,8 +13,10 @@ import numpy as np
 import pytest
 
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.gpu.context import software_renderer
 from hybrid_shadow_addon.core.gpu.worker import (RenderRequest, RenderWorker, SharedRegistry, SharedViewport,
-                                                 UpdateRounds, refine_frames, snapshot, writable_matrices)
+                                                 UpdateRounds, fast_settings, refine_frames, snapshot,
+                                                 writable_matrices)
 from hybrid_shadow_addon.core.settings import Settings
 from hybrid_shadow_addon.blender import gl  # bpy-free: the context hygiene of Blender's threads
 
@@ -94,6 +97,32 @@ def test_refinement_runs_in_the_worker(worker, direct, base):
     for _ in range(4):
         want = direct.render(base, inter, W, H)
     np.testing.assert_array_equal(last.image, want.image)
+
+
+def test_automatic_navigation_quality_follows_the_renderer(worker, base, direct):
+    """``fast_auto``: on a software rasteriser (this one) the fast pass keeps the full pass's
+    quality, so a hard-lit change is one frame; on a GPU it is the request's fast settings; soft
+    lights keep the fast pass's fewer samples either way."""
+    assert software_renderer("llvmpipe (LLVM 15.0.6, 256 bits)") and software_renderer("Apple Software Renderer")
+    assert not software_renderer("NVIDIA H200/PCIe/SSE2") and not software_renderer("AMD Radeon Pro 5500M")
+    auto = RenderRequest(view="x", scene=None, fast=FAST, full=FULL, width=W, height=H, fast_auto=True)
+    assert fast_settings(auto, "llvmpipe (LLVM 15.0.6, 256 bits)") == FULL
+    assert fast_settings(auto, "NVIDIA H200/PCIe/SSE2") == FAST
+    assert fast_settings(dataclasses.replace(auto, fast_auto=False), "llvmpipe") == FAST
+    soft_full = Settings(mode="raytrace", quality="high", hard=False, accumulate=True, samples=20, frame_samples=4)
+    soft_fast = soft_full.replace(quality="low", samples=4)
+    soft = dataclasses.replace(auto, fast=soft_fast, full=soft_full)
+    assert fast_settings(soft, "llvmpipe") == soft_full.replace(samples=4)
+    # the worker, on this machine's renderer (llvmpipe here and in CI)
+    cpu = software_renderer(direct.ctx.info["GL_RENDERER"])
+    worker.set_scene(base)
+    n = len(worker.log)
+    req = request("auto", base, fast=FAST, full=FULL)
+    seq = worker.render(dataclasses.replace(req, fast_auto=True))
+    got = finish(worker, "auto")
+    steps = [(s, q, left) for v, sq, s, q, left in worker.log[n:] if v == "auto" and sq == seq]
+    assert steps == ([(0, "high", 0)] if cpu else [(0, "low", 1), (1, "high", 0)])
+    assert got.settings == FULL
 
 
 def test_soft_shadows_accumulate_until_the_samples(worker, base):

@@ -23,10 +23,17 @@ MODE_ITEMS = (
     ("NONE", "None", "No shadows: every light reaches every surface", "LIGHT", 2),
 )
 QUALITY_ITEMS = (
-    ("HIGH", "High", "Shadow masks at full resolution", 0),
-    ("MEDIUM", "Medium", "Shadow masks at half resolution per side, upsampled edge-aware", 1),
-    ("LOW", "Low", "Shadow masks at a quarter resolution per side, upsampled edge-aware", 2),
+    ("HIGH", "High", "One shadow ray per pixel and light", 0),
+    ("MEDIUM", "Medium", "Ray-traced: rays at every 2nd pixel per side, and a ray of its own for each pixel they "
+                         "cannot stand for (shadow edges, creases, thin or grazing surfaces): nearly High's masks. "
+                         "On a software rasteriser it costs more than High. Shadow maps: half-resolution masks", 1),
+    ("LOW", "Low", "Ray-traced: rays at every 4th pixel per side, refined as Medium. On a software rasteriser it "
+                   "costs more than High. Shadow maps: quarter-resolution masks", 2),
 )
+NAVIGATION_ITEMS = (
+    ("AUTO", "Automatic", "Low on a GPU; on a software rasteriser (such as Mesa's llvmpipe), where Medium and Low "
+                          "cost more than High, the viewport quality", 3),
+) + QUALITY_ITEMS
 SHADOWMAP_SIZE_ITEMS = tuple(
     (str(s), f"{s} px", f"Shadow maps of {s}x{s} texels (per cube face for point lights)", i)
     for i, s in enumerate((512, 1024, 2048, 4096, 8192))
@@ -88,7 +95,7 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
     viewport_quality: EnumProperty(name="Viewport Quality", items=QUALITY_ITEMS, default="HIGH",
                                    description="Resolution of the ray-traced shadow masks in the viewport once "
                                                "the view is still", update=_tag_viewport)
-    navigation_quality: EnumProperty(name="While Navigating", items=QUALITY_ITEMS, default="LOW",
+    navigation_quality: EnumProperty(name="While Navigating", items=NAVIGATION_ITEMS, default="AUTO",
                                      description="Resolution of the ray-traced shadow masks in the viewport "
                                                  "while the view or the scene changes (refined when still)",
                                      update=_tag_viewport)
@@ -169,11 +176,13 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
         the fast pass while the view or scene changes)."""
         if viewport:
             quality = self.navigation_quality if navigating else self.viewport_quality
+            if quality == "AUTO":  # (the render worker keeps the viewport quality on a software rasteriser)
+                quality = "LOW"
             limit = self.viewport_max_shadowed_lights
             interlace = bool(self.use_interlace)
             samples, frame_samples = int(self.viewport_samples), int(self.viewport_frame_samples)
-            if navigating:  # the fast pass: a few rays, no probe pass (its accumulation starts after)
-                samples = frame_samples
+            if navigating and self.use_soft_shadows:  # the fast pass: a few rays, no probe pass
+                samples = frame_samples                  # (its accumulation starts after)
         else:
             quality, limit, interlace = self.quality, self.max_shadowed_lights, False
             samples, frame_samples = int(self.samples), 4

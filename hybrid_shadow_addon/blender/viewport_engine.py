@@ -182,7 +182,8 @@ def _debug(view: str, light_name, frame, scene, pipeline):
 def view_render(engine, scene, rv3d, width, height) -> None:
     """Queue a render of the engine's view when the view, the settings or the scene changed
     (the worker renders the navigation quality first, then full viewport quality: four frames
-    with interlacing, more while soft shadows accumulate), then show the newest finished frame.
+    with interlacing, more while soft shadows accumulate; the automatic navigation quality is
+    the viewport quality on a software rasteriser), then show the newest finished frame.
     Redraws are tagged until the last one is shown."""
     state = shared(engine)
     if state is None or state.sync.scene is None:
@@ -203,7 +204,8 @@ def view_render(engine, scene, rv3d, width, height) -> None:
                                    camera=viewport_camera(rv3d.view_matrix, rv3d.window_matrix, width, height))
         post = None if props.debug_view == "NONE" else functools.partial(_debug, props.debug_view, light)
         engine._vp_sent = worker.render(RenderRequest(view=engine._vp_user, scene=core, fast=fast, full=full,
-                                                      width=width, height=height, film_transparent=film, post=post))
+                                                      width=width, height=height, film_transparent=film, post=post,
+                                                      fast_auto=props.navigation_quality == "AUTO"))
         engine._vp_refining = True
     worker.pump()  # (inline mode only: one frame now)
     show_result(engine, worker)

@@ -127,6 +127,19 @@ def gpu_limits(ctx: moderngl.Context) -> dict:
     }
 
 
+#: names in ``GL_RENDERER`` of rasterisers that run on the CPU (Mesa's llvmpipe, softpipe and
+#: swrast, SwiftShader, Apple's software renderer)
+SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast", "swiftshader", "software renderer")
+
+
+def software_renderer(renderer: str) -> bool:
+    """Whether ``renderer`` (a ``GL_RENDERER`` string) rasterises on the CPU. There the ray-traced
+    ``medium`` and ``low`` cost more than ``high`` (``BENCHMARKS.md``, "Where the refinement's
+    rays go"), which the viewport's automatic navigation quality follows."""
+    name = str(renderer).lower()
+    return any(k in name for k in SOFTWARE_RENDERERS)
+
+
 def check_render_size(ctx: moderngl.Context, width: int, height: int, what: str = "render") -> None:
     """GPUError when a ``width`` x ``height`` target exceeds the GPU's limits."""
     lim = gpu_limits(ctx)

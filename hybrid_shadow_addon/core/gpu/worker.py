@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .context import software_renderer
+
 #: run the workers' steps inline on the caller's thread (debugging only): the environment
 #: variable ``HYBRID_SHADOWS_VIEWPORT_SYNC=1``, or set this before workers are made
 SYNCHRONOUS = os.environ.get("HYBRID_SHADOWS_VIEWPORT_SYNC", "").strip() not in ("", "0")
@@ -64,6 +66,17 @@ def writable_matrices(instances) -> None:
         instances.inverse = instances.inverse.copy()
 
 
+def fast_settings(request, renderer: str):
+    """The settings of a request's fast pass on ``renderer`` (its ``GL_RENDERER``). With
+    ``request.fast_auto`` (the viewport's automatic navigation quality) the fast pass takes the
+    full pass's quality on a software rasteriser, where a lower quality costs more, not less
+    (its other differences stay: fewer soft samples, no probe pass); elsewhere ``request.fast``."""
+    fast = request.fast
+    if getattr(request, "fast_auto", False) and software_renderer(renderer) and fast.quality != request.full.quality:
+        fast = fast.replace(quality=request.full.quality)
+    return fast
+
+
 def refine_frames(fast, full) -> int:
     """Full-quality frames after the fast pass of a change: four with interlacing (one per ray
     phase), one when the fast pass differs from full quality, else none."""
@@ -84,6 +97,7 @@ class RenderRequest:
     film_transparent: bool = False
     post: object = None
     seq: int = 0
+    fast_auto: bool = False  # the fast pass's quality follows the renderer (fast_settings)
 
 
 @dataclass
@@ -362,6 +376,12 @@ class RenderWorker:
         for vp in self._views.values():  # (bake changes reach the views anyway: Pipeline.view)
             vp.reset_history()
 
+    @staticmethod
+    def _renderer(pipe) -> str:
+        """The pipeline's ``GL_RENDERER`` ('' when it has no context to ask)."""
+        info = getattr(getattr(pipe, "ctx", None), "info", None) or {}
+        return str(info.get("GL_RENDERER", ""))
+
     def _render_step(self, pipe, job: _Job) -> None:
         req = job.request
         vp = self._views.get(req.view)
@@ -369,8 +389,8 @@ class RenderWorker:
             vp = self._views[req.view] = pipe.view()
         if job.step == 0:
             vp.reset_history()
-            settings = req.fast
-            job.refine = refine_frames(req.fast, req.full)
+            settings = fast_settings(req, self._renderer(pipe))
+            job.refine = refine_frames(settings, req.full)
         else:
             settings = req.full
             job.refine -= 1
