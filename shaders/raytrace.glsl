@@ -20,6 +20,8 @@
 // HS_NO_RAYS: the prelude's answers alone, for a light that reaches no pixel (light_cull.py).
 // HS_SOFT_PACKET: a pixel's samples walk the scene together (common/scene_packet.glsl);
 // HS_SOFT_FULL: a refined pixel never stops early; HS_LOOP_CHECK (tests): see below.
+// HS_SUN_GRID: a hard sun's rays look up its light-space grid (common/scene_sungrid.glsl)
+// instead of walking the two-level BVH.
 // HS_SOFT_ACCUM (the viewport's running sums, soft_accumulate.glsl) writes the same sums of its
 // u_samples rays; a pixel none of whose rays had a weight writes its highest point's answer with
 // a weight of HS_ACCUM_TOP_WEIGHT, which decides only where no frame saw any weight, as a final
@@ -34,6 +36,9 @@
 #include "common/gbuffer.glsl"
 #include "common/scene_data.glsl"
 #include "common/shadow_ray.glsl"
+#ifdef HS_SUN_GRID
+#include "common/scene_sungrid.glsl"
+#endif
 #ifdef HS_COMPACT
 #include "common/compact.glsl"
 #endif
@@ -276,7 +281,11 @@ void trace_main()
         }
     }
 #endif
+#ifdef HS_SUN_GRID
+    o_mask = hs_sg_visibility(o, d, tmax);     // a hard sun: its light-space grid
+#else
     o_mask = hs_visibility(o, d, tmax);
+#endif
 }
 
 void main()

@@ -55,6 +55,9 @@ class RENDER_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         col.prop(props, "upsample")
         col.prop(props, "conservative_maps")
         col.prop(props, "structure")
+        sub = col.column()
+        sub.active = props.structure == "BVH"
+        sub.prop(props, "use_sun_grid")
         col = layout.column()
         col.active = props.mode == "RAYTRACE"
         col.prop(props, "use_soft_shadows")

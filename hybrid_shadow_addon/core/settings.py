@@ -45,6 +45,11 @@ class Settings:
       trees under a binned-SAH tree over the instances, quantised one-texel nodes; the default:
       its shadow rays are 3-6x faster, see BENCHMARKS.md). The masks are the same; changing it
       re-bakes the scene.
+    - ``sun_grid``: on the two-level BVH, a hard sun's shadow rays (every ray of it parallel)
+      look up a light-space grid of the casters built for its direction (``core/bake/sungrid.py``)
+      instead of walking the tree: one lookup and a short list per ray (BENCHMARKS.md). The
+      grid is rebuilt when the sun turns or the scene changes. Scenes with alpha-cut casters
+      keep the tree.
     - ``samples``: shadow rays per pixel towards a light with a size (a sun's angle, a point or
       spot light's radius, an area light), well spread over it: the mask is the share of the
       light the pixel sees (soft shadows). A probe pass traces 1 of them per pixel first; only
@@ -80,6 +85,7 @@ class Settings:
     specular: bool = True
     conservative: str = "off"
     structure: str = "bvh"
+    sun_grid: bool = True
     samples: int = 64
     noise_target: float = 0.003
     hard: bool = False
@@ -130,6 +136,8 @@ class Settings:
             _integer(self.max_shadowed_lights, "max_shadowed_lights (or None for all)", low=0)
         if not isinstance(self.interlace, bool):
             raise ValueError(f"interlace must be True or False, not {self.interlace!r}")
+        if not isinstance(self.sun_grid, bool):
+            raise ValueError(f"sun_grid must be True or False, not {self.sun_grid!r}")
         if not isinstance(self.hard, bool):
             raise ValueError(f"hard must be True or False, not {self.hard!r}")
         _integer(self.samples, "samples", low=1, high=4096)

@@ -31,6 +31,7 @@ class SceneTextures:
         #: True = always (a GPUError where they are not available)
         self.buffers = buffers
         self.using_buffers = False
+        self.generation = 0  # counts the uploads and updates (what is built from the bake follows it)
 
     @property
     def defines(self) -> dict:
@@ -65,6 +66,7 @@ class SceneTextures:
     def upload(self, baked) -> None:
         buffers = self._fit_buffers(baked)  # (its error leaves the textures as they were)
         self.release()
+        self.generation += 1
         self.using_buffers = buffers
         self.baked = baked
         try:
@@ -80,6 +82,7 @@ class SceneTextures:
 
     def apply(self, baked, report) -> int:
         """Re-upload what ``report`` (an ``UpdateReport``) changed; returns bytes written."""
+        self.generation += 1
         if self.baked is not baked or (report.resized and self.using_buffers != self._fit_buffers(baked)):
             self.upload(baked)  # (a texture outgrew the buffer textures' limit: 2D arrays from now on)
             return sum(t.nbytes for t in baked.textures.values())

@@ -674,3 +674,103 @@ def visibility_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21) ->
             uv = np.einsum("pc,pcj->pj", bary[k], uvs[tt[k]])
             np.multiply.at(vis, rays[rr[k]], transmittance(scene, mid, uv))
     return vis
+
+
+# ------------------------------------------------------------------------------------------
+# a hard sun's light-space grid (core/bake/sungrid.py, shaders/common/scene_sungrid.glsl)
+# ------------------------------------------------------------------------------------------
+def _dot32(a, b) -> np.ndarray:
+    a = a.astype(F)
+    b = np.asarray(b, F)
+    return (a[:, 0] * b[0] + a[:, 1] * b[1]) + a[:, 2] * b[2]
+
+
+def sun_grid_cells(grid, o) -> np.ndarray:
+    """The linear cell index of each bake-space origin ``o`` (float32, as the shader computes
+    it), -1 outside the grid."""
+    u = grid.uniforms
+    inv = F(u["hs_sg_inv_cell"])
+    gx = (_dot32(o, u["hs_sg_ux"]) - F(u["hs_sg_base"][0])) * inv
+    gy = (_dot32(o, u["hs_sg_uy"]) - F(u["hs_sg_base"][1])) * inv
+    nx, ny = (int(v) for v in u["hs_sg_dims"])
+    inside = (gx >= 0) & (gy >= 0) & (gx < F(nx)) & (gy < F(ny))
+    cx = np.where(inside, gx, 0).astype(np.int64)
+    cy = np.where(inside, gy, 0).astype(np.int64)
+    cell = (((cy >> 3) * int(u["hs_sg_tiles_x"]) + (cx >> 3)) << 6) + ((cy & 7) << 3) + (cx & 7)
+    return np.where(inside, cell, -1)
+
+
+def trace_sun_grid(grid, scene, origin, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
+    """Occlusion of bake-space rays ``origins`` along the sun's direction ``dirs`` (the shader's
+    ``u_light_vec``) through a :class:`~..bake.sungrid.SunGrid`, as ``hs_sg_visibility`` walks
+    it: the origin's cell, its list while the keys lie above the origin's depth, the same float32
+    triangle test as the BVH (``floor``) and the sphere test in model space. ``scene`` and
+    ``origin`` give the sphere instances' records. ``stats``: ``tests`` (list entries tested,
+    up to and including the first hit), ``rays``."""
+    o = np.asarray(origins, np.float64).reshape(-1, 3).astype(F)
+    d = np.asarray(dirs, np.float64).reshape(-1, 3).astype(F)
+    n = len(o)
+    tm = np.broadcast_to(np.asarray(tmax, np.float64), (n,)).astype(np.float64)
+    tm = np.minimum(tm, FLT_BIG).astype(F)
+    occ = np.zeros(n, bool)
+    cell = sun_grid_cells(grid, o)
+    live = np.nonzero((cell >= 0) & (tm > 0))[0]
+    cells = grid.textures["sg_cell"].linear()
+    entries = grid.textures["sg_entry"].linear()
+    tri = grid.textures["sg_tri"].linear()
+    so = _dot32(o, grid.uniforms["hs_sg_dz"])
+    st, cnt = cells[cell[live], 0].astype(np.int64), cells[cell[live], 1].astype(np.int64)
+    own, ent = _ragged(st, cnt)
+    ray = live[own]
+    code = entries[ent, 0]
+    key = entries[ent, 1].view(F)
+    above = key > so[ray]
+    # the list stops at the first key at or below the origin (keys descend): those above it
+    # form a prefix, the entries a walk may test
+    pos = np.arange(len(ent)) - np.repeat(np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt)
+    first_below = np.full(len(live), np.iinfo(np.int64).max)
+    np.minimum.at(first_below, own[~above], pos[~above])
+    keep = pos < first_below[own]
+    ray, code, own, pos, ent = ray[keep], code[keep], own[keep], pos[keep], ent[keep]
+    # the entry's box within the cell: a ray outside it skips the caster
+    u = grid.uniforms
+    inv = F(u["hs_sg_inv_cell"])
+    gx = (_dot32(o, u["hs_sg_ux"]) - F(u["hs_sg_base"][0])) * inv
+    gy = (_dot32(o, u["hs_sg_uy"]) - F(u["hs_sg_base"][1])) * inv
+    fx = ((gx - np.floor(gx)) * F(255.0)).astype(F)[ray]
+    fy = ((gy - np.floor(gy)) * F(255.0)).astype(F)[ray]
+    sub = entries[ent, 2]
+    b = [((sub >> np.uint32(8 * j)) & np.uint32(255)).astype(F) for j in range(4)]
+    inside = ~((fx < b[0]) | (fx > b[1]) | (fy < b[2]) | (fy > b[3]))
+    hit = np.zeros(len(ray), bool)
+    sph = ((code & SPHERE_FLAG) != 0) & inside
+    t_idx = np.nonzero(((code & SPHERE_FLAG) == 0) & inside)[0]
+    if len(t_idx):
+        k = code[t_idx].astype(np.int64) * 3
+        r = ray[t_idx]
+        setup = woop_setup(d[r])
+        hit[t_idx] = woop_hit(o[r], setup, tri[k, :3], tri[k + 1, :3], tri[k + 2, :3], tm[r], floor=True)
+    s_idx = np.nonzero(sph)[0]
+    if len(s_idx):
+        inst = scene.instances
+        i = (code[s_idx] & ~SPHERE_FLAG).astype(np.int64)
+        inv = inst.inverse[i, :3, :].copy()
+        inv[:, :, 3] += inv[:, :, :3] @ np.asarray(origin, np.float64)
+        inv = inv.astype(F)
+        r = ray[s_idx]
+        m_o = (((inv[:, :, 0] * o[r][:, 0:1] + inv[:, :, 1] * o[r][:, 1:2]) + inv[:, :, 2] * o[r][:, 2:3])
+               + inv[:, :, 3]).astype(F)
+        m_d = ((inv[:, :, 0] * d[r][:, 0:1] + inv[:, :, 1] * d[r][:, 1:2]) + inv[:, :, 2] * d[r][:, 2:3]).astype(F)
+        mid = inst.model_ids[i]
+        c = np.array([scene.models[m].sphere_center for m in mid.tolist()], F).reshape(-1, 3)
+        rad = f32_up(np.array([scene.models[m].sphere_radius for m in mid.tolist()], np.float64)).astype(F)
+        hit[s_idx] = sphere_hit(m_o, m_d, c, rad, tm[r])
+    occ[ray[hit]] = True
+    if stats is not None:
+        first_hit = np.full(len(live), np.iinfo(np.int64).max)
+        np.minimum.at(first_hit, own[hit], pos[hit])
+        n_tested = np.bincount(own, minlength=len(live))
+        tests = np.where(first_hit < np.iinfo(np.int64).max, first_hit + 1, n_tested)
+        stats["tests"] = stats.get("tests", 0) + int(tests.sum())
+        stats["rays"] = stats.get("rays", 0) + n
+    return occ
