@@ -49,9 +49,11 @@ def mask_metrics(reference: np.ndarray, ours: np.ndarray) -> dict:
 
 
 def evaluate_case(name: str, modes=("raytrace-high",), *, ctx=None, params: str = "", repeats: int = 3,
-                  keep_masks: bool = False) -> dict:
+                  keep_masks: bool = False, eager_grids: bool = False) -> dict:
     """Load ``stiff/<name>``, render the Cycles reference at the scene's resolution and each mode
-    with one pipeline; ``{mode: {light: metrics + shadow_ms}}`` plus ``'_scene'`` and ``'_ref'``."""
+    with one pipeline; ``{mode: {light: metrics + shadow_ms}}`` plus ``'_scene'`` and ``'_ref'``.
+    ``eager_grids``: the hard lights' grids from the first frame on (``passes/light_grid.py``),
+    not only once they pay back."""
     import bpy
 
     from hybrid_shadow_addon.blender.export import export_depsgraph
@@ -68,6 +70,7 @@ def evaluate_case(name: str, modes=("raytrace-high",), *, ctx=None, params: str 
     ref = render_reference(bscene, resolution=(W, H))
     out = {"_scene": scene, "_ref": ref, "_cycles_s": time.perf_counter() - t0}
     pipe = Pipeline(ctx)
+    pipe.shadow_pass("raytrace").light_grids.eager = eager_grids
     try:
         bake_ms = pipe.set_scene(scene)
         out["_bake_ms"] = bake_ms

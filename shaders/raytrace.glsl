@@ -20,7 +20,7 @@
 // HS_NO_RAYS: the prelude's answers alone, for a light that reaches no pixel (light_cull.py).
 // HS_SOFT_PACKET: a pixel's samples walk the scene together (common/scene_packet.glsl);
 // HS_SOFT_FULL: a refined pixel never stops early; HS_LOOP_CHECK (tests): see below.
-// HS_SUN_GRID: a hard sun's rays look up its light-space grid (common/scene_sungrid.glsl)
+// HS_LIGHT_GRID: a hard light's rays look up its light-space grid (common/scene_lightgrid.glsl)
 // instead of walking the two-level BVH.
 // HS_SOFT_ACCUM (the viewport's running sums, soft_accumulate.glsl) writes the same sums of its
 // u_samples rays; a pixel none of whose rays had a weight writes its highest point's answer with
@@ -36,8 +36,8 @@
 #include "common/gbuffer.glsl"
 #include "common/scene_data.glsl"
 #include "common/shadow_ray.glsl"
-#ifdef HS_SUN_GRID
-#include "common/scene_sungrid.glsl"
+#ifdef HS_LIGHT_GRID
+#include "common/scene_lightgrid.glsl"
 #endif
 #ifdef HS_COMPACT
 #include "common/compact.glsl"
@@ -281,8 +281,8 @@ void trace_main()
         }
     }
 #endif
-#ifdef HS_SUN_GRID
-    o_mask = hs_sg_visibility(o, d, tmax);     // a hard sun: its light-space grid
+#ifdef HS_LIGHT_GRID
+    o_mask = hs_lg_visibility(o, d, tmax);     // a hard light: its light-space grid
 #else
     o_mask = hs_visibility(o, d, tmax);
 #endif

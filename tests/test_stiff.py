@@ -10,6 +10,9 @@ adversarial rays.
      offset leaves coincident copies unshadowed. Those instances are compared separately (all
      their mismatches must be that one kind: we lit, Cycles shadowed), the rest at 0.1%.
 
+   The hard lights trace their light grids (built at once, ``eager_grids``), whose masks
+   ``tests/test_light_grid.py`` shows equal to the two-level BVH's.
+
    ``far_away`` (100 km out) holds the 0.1% like the rest: the tracer works in bake space (world
    minus a round origin near the scene) and rebuilds each surface point camera-relative from the
    G-buffer's depth, so float32 keeps millimetre precision there.
@@ -46,7 +49,8 @@ _cache = {}
 
 def case(name, gl_ctx):
     if name not in _cache:
-        _cache[name] = stiff_table.evaluate_case(name, ("raytrace-high",), ctx=gl_ctx, repeats=1, keep_masks=True)
+        _cache[name] = stiff_table.evaluate_case(name, ("raytrace-high",), ctx=gl_ctx, repeats=1, keep_masks=True,
+                                                 eager_grids=True)
     return _cache[name]
 
 

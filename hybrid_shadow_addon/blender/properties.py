@@ -135,11 +135,12 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
                                     description="Ray traced: skip or shorten shadow rays with conservative "
                                                 "light-space occupancy maps; exact, it only changes the work",
                                     update=_tag_viewport)
-    use_sun_grid: BoolProperty(name="Sun Grid", default=True,
-                               description="Ray traced, BVH: a hard sun's shadow rays look up a grid laid "
-                                           "across the sun instead of walking the tree (faster; rebuilt when "
-                                           "the sun turns; scenes with alpha-cut casters keep the tree)",
-                               update=_tag_viewport)
+    use_light_grid: BoolProperty(name="Light Grids", default=True,
+                                 description="Ray traced, BVH: a hard light's shadow rays look up a grid of the "
+                                             "casters laid out around that light instead of walking the tree "
+                                             "(faster; rebuilt when the light moves; scenes with alpha-cut "
+                                             "casters keep the tree)",
+                                 update=_tag_viewport)
     structure: EnumProperty(name="Structure", items=STRUCTURE_ITEMS, default="BVH",
                             description="Ray traced: acceleration structure the shadow rays walk (the masks "
                                         "are the same; changing it re-bakes the scene)",
@@ -199,7 +200,7 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
             slope_bias=float(self.slope_bias), normal_offset=float(self.normal_offset),
             upsample=self.upsample.lower(), specular=bool(self.use_specular),
             conservative=self.conservative_maps.lower(), structure=self.structure.lower(),
-            sun_grid=bool(self.use_sun_grid), samples=samples, hard=not self.use_soft_shadows, pcss_samples=int(self.pcss_samples), accumulate=viewport, frame_samples=frame_samples,
+            light_grid=bool(self.use_light_grid), samples=samples, hard=not self.use_soft_shadows, pcss_samples=int(self.pcss_samples), accumulate=viewport, frame_samples=frame_samples,
         )
 
 

@@ -57,7 +57,7 @@ class RENDER_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         col.prop(props, "structure")
         sub = col.column()
         sub.active = props.structure == "BVH"
-        sub.prop(props, "use_sun_grid")
+        sub.prop(props, "use_light_grid")
         col = layout.column()
         col.active = props.mode == "RAYTRACE"
         col.prop(props, "use_soft_shadows")

@@ -45,11 +45,13 @@ class Settings:
       trees under a binned-SAH tree over the instances, quantised one-texel nodes; the default:
       its shadow rays are 3-6x faster, see BENCHMARKS.md). The masks are the same; changing it
       re-bakes the scene.
-    - ``sun_grid``: on the two-level BVH, a hard sun's shadow rays (every ray of it parallel)
-      look up a light-space grid of the casters built for its direction (``core/bake/sungrid.py``)
-      instead of walking the tree: one lookup and a short list per ray (BENCHMARKS.md). The
-      grid is rebuilt when the sun turns or the scene changes. Scenes with alpha-cut casters
-      keep the tree.
+    - ``light_grid``: on the two-level BVH, a hard light's shadow rays (all on lines through
+      the light: a sun's parallel, a point, spot or hard area light's meeting at its centre) look
+      up a light-space grid of the casters built for that light (``core/bake/lightgrid.py``: a
+      plane across a sun, a cube of directions around a local light) instead of walking the
+      tree: one lookup and a short list per ray (BENCHMARKS.md). A light's grid is rebuilt when
+      it moves or turns, all of them when the scene changes. Scenes with alpha-cut casters keep
+      the tree.
     - ``samples``: shadow rays per pixel towards a light with a size (a sun's angle, a point or
       spot light's radius, an area light), well spread over it: the mask is the share of the
       light the pixel sees (soft shadows). A probe pass traces 1 of them per pixel first; only
@@ -85,7 +87,7 @@ class Settings:
     specular: bool = True
     conservative: str = "off"
     structure: str = "bvh"
-    sun_grid: bool = True
+    light_grid: bool = True
     samples: int = 64
     noise_target: float = 0.003
     hard: bool = False
@@ -136,8 +138,8 @@ class Settings:
             _integer(self.max_shadowed_lights, "max_shadowed_lights (or None for all)", low=0)
         if not isinstance(self.interlace, bool):
             raise ValueError(f"interlace must be True or False, not {self.interlace!r}")
-        if not isinstance(self.sun_grid, bool):
-            raise ValueError(f"sun_grid must be True or False, not {self.sun_grid!r}")
+        if not isinstance(self.light_grid, bool):
+            raise ValueError(f"light_grid must be True or False, not {self.light_grid!r}")
         if not isinstance(self.hard, bool):
             raise ValueError(f"hard must be True or False, not {self.hard!r}")
         _integer(self.samples, "samples", low=1, high=4096)

@@ -677,7 +677,7 @@ def visibility_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21) ->
 
 
 # ------------------------------------------------------------------------------------------
-# a hard sun's light-space grid (core/bake/sungrid.py, shaders/common/scene_sungrid.glsl)
+# a hard light's light-space grid (core/bake/lightgrid.py, shaders/common/scene_lightgrid.glsl)
 # ------------------------------------------------------------------------------------------
 def _dot32(a, b) -> np.ndarray:
     a = a.astype(F)
@@ -685,72 +685,86 @@ def _dot32(a, b) -> np.ndarray:
     return (a[:, 0] * b[0] + a[:, 1] * b[1]) + a[:, 2] * b[2]
 
 
-def sun_grid_cells(grid, o) -> np.ndarray:
-    """The linear cell index of each bake-space origin ``o`` (float32, as the shader computes
-    it), -1 outside the grid."""
+def light_grid_place(grid, o, d):
+    """``(g (N, 2) float32 grid position in cells, s (N,) float32 ray key, inside (N,))`` of
+    bake-space rays ``o + t d`` through a light's grid, as ``hs_lg_place`` computes them."""
     u = grid.uniforms
-    inv = F(u["hs_sg_inv_cell"])
-    gx = (_dot32(o, u["hs_sg_ux"]) - F(u["hs_sg_base"][0])) * inv
-    gy = (_dot32(o, u["hs_sg_uy"]) - F(u["hs_sg_base"][1])) * inv
-    nx, ny = (int(v) for v in u["hs_sg_dims"])
+    inv = F(u["hs_lg_inv_cell"])
+    o = o.astype(F)
+    d = d.astype(F)
+    if "HS_LG_LOCAL" in grid.defines:
+        w = -d
+        a = np.abs(w)
+        fx = (a[:, 0] >= a[:, 1]) & (a[:, 0] >= a[:, 2])
+        fy = ~fx & (a[:, 1] >= a[:, 2])
+        z = np.where(fx, a[:, 0], np.where(fy, a[:, 1], a[:, 2]))
+        uu = np.where(fx, w[:, 1], np.where(fy, w[:, 2], w[:, 0]))
+        vv = np.where(fx, w[:, 2], np.where(fy, w[:, 0], w[:, 1]))
+        face = np.where(fx, np.where(w[:, 0] > 0, 0, 1), np.where(fy, np.where(w[:, 1] > 0, 2, 3),
+                                                                   np.where(w[:, 2] > 0, 4, 5))).astype(F)
+        inside = z > 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uu = np.clip(uu / z, F(-1), F(1)) + F(1)
+            vv = np.clip(vv / z, F(-1), F(1)) + F(1)
+        r = F(int(u["hs_lg_dims"][0]))
+        g = np.stack([np.minimum(uu * inv, r - F(1.0 / 256.0)), np.minimum(vv * inv, r - F(1.0 / 256.0)) + face * r], axis=1)
+        return np.where(inside[:, None], g, 0).astype(F), (-z).astype(F), inside
+    gx = (_dot32(o, u["hs_lg_ux"]) - F(u["hs_lg_base"][0])) * inv
+    gy = (_dot32(o, u["hs_lg_uy"]) - F(u["hs_lg_base"][1])) * inv
+    nx, ny = (int(v) for v in u["hs_lg_dims"])
     inside = (gx >= 0) & (gy >= 0) & (gx < F(nx)) & (gy < F(ny))
-    cx = np.where(inside, gx, 0).astype(np.int64)
-    cy = np.where(inside, gy, 0).astype(np.int64)
-    cell = (((cy >> 3) * int(u["hs_sg_tiles_x"]) + (cx >> 3)) << 6) + ((cy & 7) << 3) + (cx & 7)
-    return np.where(inside, cell, -1)
+    g = np.stack([np.where(inside, gx, 0), np.where(inside, gy, 0)], axis=1).astype(F)
+    return g, _dot32(o, u["hs_lg_dz"]), inside
 
 
-def trace_sun_grid(grid, scene, origin, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
-    """Occlusion of bake-space rays ``origins`` along the sun's direction ``dirs`` (the shader's
-    ``u_light_vec``) through a :class:`~..bake.sungrid.SunGrid`, as ``hs_sg_visibility`` walks
-    it: the origin's cell, its list while the keys lie above the origin's depth, the same float32
-    triangle test as the BVH (``floor``) and the sphere test in model space. ``scene`` and
-    ``origin`` give the sphere instances' records. ``stats``: ``tests`` (list entries tested,
-    up to and including the first hit), ``rays``."""
+def trace_light_grid(grid, tris, scene, origin, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
+    """Occlusion of bake-space rays ``origins + t dirs`` (the trace's rays towards the light:
+    a sun's ``u_light_vec``, or ``light - origin`` with tmax 1) through a
+    :class:`~..bake.lightgrid.LightGrid`, as ``hs_lg_visibility`` walks it: the ray's cell, its
+    list while the keys lie above the ray's own and the entry's box holds the ray, the same
+    float32 triangle test as the BVH (``floor``) and the sphere test in model space. ``tris``:
+    the world casters' triangles (``WorldCasters.tris``); ``scene`` and ``origin`` give the sphere
+    instances' records. ``stats``: ``entries`` (list entries walked, up to and including the first
+    hit), ``tests`` (casters tested), ``rays``."""
     o = np.asarray(origins, np.float64).reshape(-1, 3).astype(F)
     d = np.asarray(dirs, np.float64).reshape(-1, 3).astype(F)
     n = len(o)
-    tm = np.broadcast_to(np.asarray(tmax, np.float64), (n,)).astype(np.float64)
-    tm = np.minimum(tm, FLT_BIG).astype(F)
+    tm = np.minimum(np.broadcast_to(np.asarray(tmax, np.float64), (n,)), FLT_BIG).astype(F)
     occ = np.zeros(n, bool)
-    cell = sun_grid_cells(grid, o)
-    live = np.nonzero((cell >= 0) & (tm > 0))[0]
-    cells = grid.textures["sg_cell"].linear()
-    entries = grid.textures["sg_entry"].linear()
-    tri = grid.textures["sg_tri"].linear()
-    so = _dot32(o, grid.uniforms["hs_sg_dz"])
-    st, cnt = cells[cell[live], 0].astype(np.int64), cells[cell[live], 1].astype(np.int64)
+    g, s, inside = light_grid_place(grid, o, d)
+    live = np.nonzero(inside & (tm > 0))[0]
+    c = g[live].astype(np.int64)
+    tiles = int(grid.uniforms["hs_lg_tiles_x"])
+    cell = (((c[:, 1] >> 3) * tiles + (c[:, 0] >> 3)) << 6) + ((c[:, 1] & 7) << 3) + (c[:, 0] & 7)
+    cells = grid.textures["lg_cell"].linear()
+    entries = grid.textures["lg_entry"].linear()
+    st, cnt = cells[cell, 0].astype(np.int64), cells[cell, 1].astype(np.int64)
     own, ent = _ragged(st, cnt)
     ray = live[own]
-    code = entries[ent, 0]
     key = entries[ent, 1].view(F)
-    above = key > so[ray]
-    # the list stops at the first key at or below the origin (keys descend): those above it
-    # form a prefix, the entries a walk may test
-    pos = np.arange(len(ent)) - np.repeat(np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt)
+    above = key > s[ray]
+    # the walk stops at the first key at or below the ray's (keys descend): those above it form
+    # a prefix, the entries it walks
+    pos = np.arange(len(ent)) - np.repeat(np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt).astype(np.int64)
     first_below = np.full(len(live), np.iinfo(np.int64).max)
     np.minimum.at(first_below, own[~above], pos[~above])
     keep = pos < first_below[own]
-    ray, code, own, pos, ent = ray[keep], code[keep], own[keep], pos[keep], ent[keep]
+    ray, own, pos, ent = ray[keep], own[keep], pos[keep], ent[keep]
+    code = entries[ent, 0]
     # the entry's box within the cell: a ray outside it skips the caster
-    u = grid.uniforms
-    inv = F(u["hs_sg_inv_cell"])
-    gx = (_dot32(o, u["hs_sg_ux"]) - F(u["hs_sg_base"][0])) * inv
-    gy = (_dot32(o, u["hs_sg_uy"]) - F(u["hs_sg_base"][1])) * inv
-    fx = ((gx - np.floor(gx)) * F(255.0)).astype(F)[ray]
-    fy = ((gy - np.floor(gy)) * F(255.0)).astype(F)[ray]
+    f = ((g[ray] - np.floor(g[ray])) * F(255.0)).astype(F)
     sub = entries[ent, 2]
     b = [((sub >> np.uint32(8 * j)) & np.uint32(255)).astype(F) for j in range(4)]
-    inside = ~((fx < b[0]) | (fx > b[1]) | (fy < b[2]) | (fy > b[3]))
+    boxed = ~((f[:, 0] < b[0]) | (f[:, 0] > b[1]) | (f[:, 1] < b[2]) | (f[:, 1] > b[3]))
     hit = np.zeros(len(ray), bool)
-    sph = ((code & SPHERE_FLAG) != 0) & inside
-    t_idx = np.nonzero(((code & SPHERE_FLAG) == 0) & inside)[0]
+    is_sph = (code & SPHERE_FLAG) != 0
+    t_idx = np.nonzero(~is_sph & boxed)[0]
     if len(t_idx):
-        k = code[t_idx].astype(np.int64) * 3
+        k = code[t_idx].astype(np.int64)
         r = ray[t_idx]
-        setup = woop_setup(d[r])
-        hit[t_idx] = woop_hit(o[r], setup, tri[k, :3], tri[k + 1, :3], tri[k + 2, :3], tm[r], floor=True)
-    s_idx = np.nonzero(sph)[0]
+        tv = np.asarray(tris, F)[k]
+        hit[t_idx] = woop_hit(o[r], woop_setup(d[r]), tv[:, 0], tv[:, 1], tv[:, 2], tm[r], floor=True)
+    s_idx = np.nonzero(is_sph & boxed)[0]
     if len(s_idx):
         inst = scene.instances
         i = (code[s_idx] & ~SPHERE_FLAG).astype(np.int64)
@@ -762,15 +776,17 @@ def trace_sun_grid(grid, scene, origin, origins, dirs, tmax=np.inf, stats: dict 
                + inv[:, :, 3]).astype(F)
         m_d = ((inv[:, :, 0] * d[r][:, 0:1] + inv[:, :, 1] * d[r][:, 1:2]) + inv[:, :, 2] * d[r][:, 2:3]).astype(F)
         mid = inst.model_ids[i]
-        c = np.array([scene.models[m].sphere_center for m in mid.tolist()], F).reshape(-1, 3)
+        cen = np.array([scene.models[m].sphere_center for m in mid.tolist()], F).reshape(-1, 3)
         rad = f32_up(np.array([scene.models[m].sphere_radius for m in mid.tolist()], np.float64)).astype(F)
-        hit[s_idx] = sphere_hit(m_o, m_d, c, rad, tm[r])
+        hit[s_idx] = sphere_hit(m_o, m_d, cen, rad, tm[r])
     occ[ray[hit]] = True
     if stats is not None:
-        first_hit = np.full(len(live), np.iinfo(np.int64).max)
+        big = np.iinfo(np.int64).max
+        first_hit = np.full(len(live), big)
         np.minimum.at(first_hit, own[hit], pos[hit])
-        n_tested = np.bincount(own, minlength=len(live))
-        tests = np.where(first_hit < np.iinfo(np.int64).max, first_hit + 1, n_tested)
-        stats["tests"] = stats.get("tests", 0) + int(tests.sum())
+        walked = np.where(first_hit < big, first_hit + 1, np.bincount(own, minlength=len(live)))
+        tested = (boxed & (pos <= first_hit[own])).sum()
+        stats["entries"] = stats.get("entries", 0) + int(walked.sum())
+        stats["tests"] = stats.get("tests", 0) + int(tested)
         stats["rays"] = stats.get("rays", 0) + n
     return occ

@@ -67,7 +67,7 @@ from .base import ShadowPass
 from .conservative import ConservativeMaps
 from .light_cull import LightCull, cull_candidate
 from .refine import Refiner
-from .sun_grid import SunGrids
+from .light_grid import LightGrids
 
 
 SOFT_PROBES = 1  # HS_PROBES of shaders/common/soft_probe.glsl
@@ -141,8 +141,8 @@ class RaytracePass(ShadowPass):
         super().__init__(gpu)
         self.scene_textures = gpu.scene_textures
         self.maps = ConservativeMaps(gpu)
-        self.sun_grids = SunGrids(gpu)
-        self._grid = None  # the sun grid (textures, grid) bound by the programs of the current light
+        self.light_grids = LightGrids(gpu)
+        self._grid = None  # the light grid (textures, grid) bound by the programs of the current light
         self.last_map_ms = 0.0  # time spent building the maps in the last render (incl. finish)
         self._targets = TargetCache(self.ctx, fill=1.0, what="mask")  # (light, role) -> target
         self._phase = 0
@@ -229,8 +229,8 @@ class RaytracePass(ShadowPass):
         self.last_defines = {}
         self.last_map_ms = 0.0
         self.refiner.begin_frame()
-        self.sun_grids.begin_frame()
-        grids = SunGrids.usable(self.scene_textures.baked, settings)
+        self.light_grids.begin_frame()
+        grids = LightGrids.usable(self.scene_textures.baked, settings)
         masks = {}
         if lights:  # pixels with geometry (full resolution, and the coarse samples' pixels)
             self.refiner.count_valid(gbuffer, full, 1, "valid")
@@ -287,15 +287,23 @@ class RaytracePass(ShadowPass):
             if cmap is not None:
                 defines["HS_CONSERVATIVE"] = 1
             self._grid = None
-            if grids and soft is None and not local:
-                self._grid = self.sun_grids.get(scene, scene.lights[li], vec)
+            if grids and soft is None:
+                self._grid = self.light_grids.get(scene, scene.lights[li], local, vec)
                 if self._grid is not None:
                     defines.update(self._grid[1].defines)
             self.last_defines.update(defines)
+            timed = grids and soft is None and self._grid is None and not self.light_grids.eager
+            if timed:  # (the light's BVH time: what a grid would have to pay back)
+                ctx.finish()
+                t0 = time.perf_counter()
             try:
                 masks[li] = self._light(li, scene.lights[li], vec, defines, gbuffer, settings, plan, cmap)
             finally:
                 self._grid = None
+            if timed:
+                ctx.finish()
+                self.light_grids.note_bvh(local, vec, (time.perf_counter() - t0) * 1e3)
+        self.light_grids.end_frame()
         if plan == "interlace":
             self._valid_phases |= 1 << self._phase
             self._phase = (self._phase + 1) % 4
@@ -322,8 +330,8 @@ class RaytracePass(ShadowPass):
         prog, vao = self.programs.fullscreen("raytrace", defines)
         unit = gbuffer.bind(prog)
         unit = self.scene_textures.bind(prog, unit)
-        if "HS_SUN_GRID" in defines:
-            unit = self._grid[0].bind(prog, unit)
+        if "HS_LIGHT_GRID" in defines:
+            unit = self.light_grids.bind(prog, unit, self._grid)
         if cmap is not None:
             unit = self._bind_map(prog, unit, *cmap, self.scene_textures.baked.origin)
         set_uniforms(prog, {"u_scale": int(scale), "u_full_size": (gbuffer.width, gbuffer.height)})
@@ -664,7 +672,7 @@ class RaytracePass(ShadowPass):
         return unit + 1
 
     def release(self) -> None:
-        self.sun_grids.release()
+        self.light_grids.release()
         self.cull.release()
         self.refiner.release()
         self.maps.release()

@@ -1,0 +1,149 @@
+"""The hard lights' light-space grids on the GPU (``Settings.light_grid``; bake:
+:mod:`...bake.lightgrid`, shader: ``shaders/common/scene_lightgrid.glsl``).
+
+A grid costs a bake (numpy: about 3 us per caster and light, 2-3 s for each of `forest`'s lights)
+and saves part of every later frame's rays, so it is built only where it pays back: a light is
+traced through the two-level BVH the first time a frame sees it as it is (after any change of
+the bake, or of the light's direction or position), its time measured; when a later frame sees
+it unchanged, its grid is built if the estimated build time is at most :data:`PAYBACK_FRAMES`
+times that BVH time (the estimate: this machine's last build's time per caster, or
+:data:`BUILD_US_PER_CASTER`). A one-frame render then never builds one; a still scene in the
+viewport, or an animation of the camera, builds them from the second frame on where the rays are
+costly enough. ``eager`` (benchmarks, tests) builds at first sight. A grid is kept while the bake
+and its light stay; the world casters, and their triangle texture shared by all grids, once per
+bake (any upload or update of the scene textures). A light whose grid does not fit
+(:func:`...bake.lightgrid.build_sun_grid` / ``build_local_grid`` return None) keeps the BVH.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...bake.lightgrid import build_local_grid, build_sun_grid, tri_texture, world_casters
+from ...errors import GPUError
+from ..scene_textures import SceneTextures
+
+KEEP_EXTRA = 4  # grids kept beyond those of the last frame's lights (recent places of a moving light)
+PAYBACK_FRAMES = 40  # a grid is built when it costs at most this many frames of the light's BVH rays
+BUILD_US_PER_CASTER = 3.5  # the build's time per caster before this process has measured one
+
+
+@dataclass
+class _TexSet:
+    textures: dict
+    samplers: dict
+    uniforms: dict = field(default_factory=dict)
+
+
+class LightGrids:
+    def __init__(self, gpu):
+        self.ctx = gpu.ctx
+        self.scene_textures = gpu.scene_textures
+        self._generation = None
+        self._casters = None
+        self._tri = None  # SceneTextures of the shared triangle texture
+        self._grids: dict = {}  # (kind, light vector bytes) -> (SceneTextures or None, LightGrid or None)
+        self._used: set = set()  # keys the current frame used
+        self.last_build_ms = 0.0  # time spent building grids (and casters) in the last frame
+        self.eager = False  # build at a light's first sight (benchmarks, tests), not once it pays
+        self._seen: dict = {}  # key -> ms of the light's last BVH trace in this bake
+        self._us_per_caster = BUILD_US_PER_CASTER
+        self.last: dict = {}  # light name -> {"cells", "entries", "max_cell", "build_ms", "bytes"}
+
+    @staticmethod
+    def usable(baked, settings) -> bool:
+        """Whether the hard lights of this bake and settings trace grids: the two-level BVH (its
+        triangle test and instance records), no alpha-cut casters (their transmittance needs the
+        materials and UVs of the tree's leaves)."""
+        return bool(settings.light_grid) and baked is not None and baked.structure == "bvh" and not baked.has_alpha
+
+    def begin_frame(self) -> None:
+        self.last_build_ms = 0.0
+        self.last = {}
+        self._used = set()
+
+    def end_frame(self) -> None:
+        """Forget the grids the frame did not use, beyond the KEEP_EXTRA most recent."""
+        stale = [k for k in self._grids if k not in self._used]
+        for k in stale[: max(0, len(stale) - KEEP_EXTRA)]:
+            tex = self._grids.pop(k)[0]
+            if tex is not None:
+                tex.release()
+
+    @staticmethod
+    def key(local: bool, light_vec) -> tuple:
+        return (bool(local), np.asarray(light_vec, np.float32).tobytes())
+
+    def note_bvh(self, local: bool, light_vec, ms: float) -> None:
+        """A light was traced through the BVH in ``ms``: the measure its grid must pay back."""
+        self._seen[self.key(local, light_vec)] = float(ms)
+
+    def get(self, scene, light, local: bool, light_vec):
+        """``(textures, grid)`` of a hard light (``light_vec``: the shader's ``u_light_vec``), or
+        None: no grid (yet: see the module's docstring; or it does not fit)."""
+        st = self.scene_textures
+        if self._generation != st.generation:
+            self.release()
+            self._generation = st.generation
+        key = self.key(local, light_vec)
+        self._used.add(key)
+        hit = self._grids.pop(key, None)
+        if hit is None:
+            if not self.eager:
+                if self._casters is not None:
+                    n = self._casters.count
+                else:
+                    inst = scene.instances
+                    n = sum(scene.models[m].triangle_count for m in inst.model_ids[inst.casts_shadow].tolist())
+                seen = self._seen.get(key)
+                if seen is None or n * self._us_per_caster * 1e-3 > PAYBACK_FRAMES * seen:
+                    return None
+            t0 = time.perf_counter()
+            width = st.baked.config.tex_width
+            if self._casters is None:
+                self._casters = world_casters(scene, st.baked.origin)
+            build = build_local_grid if local else build_sun_grid
+            grid = build(self._casters, light_vec, width)
+            tex = None
+            try:
+                if grid is not None and self._tri is None:
+                    self._tri = SceneTextures(self.ctx, buffers=st.using_buffers)
+                    self._tri.upload(_TexSet({"lg_tri": tri_texture(self._casters, width)},
+                                             {"lg_tri": "hs_lg_tri_tex"}))
+                if grid is not None:
+                    tex = SceneTextures(self.ctx, buffers=st.using_buffers)
+                    tex.upload(grid)
+            except GPUError:  # (larger than this GPU's textures: the tree, as for a grid that does not fit)
+                if tex is not None:
+                    tex.release()
+                tex = grid = None
+            hit = (tex, grid)
+            ms = (time.perf_counter() - t0) * 1e3
+            self.last_build_ms += ms
+            if grid is not None and self._casters.count:
+                self._us_per_caster = grid.build_ms * 1e3 / self._casters.count
+        self._grids[key] = hit  # (most recently used last)
+        tex, grid = hit
+        if grid is not None:
+            self.last[light.name] = {"cells": list(grid.cells), "entries": grid.entries,
+                                     "max_cell": grid.max_cell, "build_ms": round(grid.build_ms, 1),
+                                     "bytes": grid.nbytes}
+        return None if grid is None else hit
+
+    def bind(self, prog, unit: int, hit) -> int:
+        """Bind a light's grid (and the shared triangles) to ``prog`` from ``unit`` on."""
+        unit = self._tri.bind(prog, unit)
+        return hit[0].bind(prog, unit)
+
+    def release(self) -> None:
+        for tex, _ in self._grids.values():
+            if tex is not None:
+                tex.release()
+        self._grids.clear()
+        self._seen.clear()
+        if self._tri is not None:
+            self._tri.release()
+            self._tri = None
+        self._casters = None
