@@ -112,7 +112,7 @@ def cmd_render(args) -> int:
         settings = Settings(mode=args.mode, quality=args.quality, max_shadowed_lights=args.max_shadowed_lights,
                         max_distance=args.max_distance, interlace=False,
                         conservative=args.conservative_maps, structure=args.structure or Settings.structure,
-                        samples=args.samples if args.samples is not None else Settings.samples, hard=args.hard,
+                        light_grid=not args.no_light_grids, samples=args.samples if args.samples is not None else Settings.samples, hard=args.hard,
                         noise_target=args.noise_target if args.noise_target is not None else Settings.noise_target)
     except ValueError as e:
         raise SceneError(str(e)) from None
@@ -270,6 +270,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="shadows only within M metres of the camera (default 0: no limit)")
     pr.add_argument("--conservative-maps", choices=("off", "sun", "all"), default="off",
                     help="raytrace: conservative occupancy maps skip or shorten rays (exact; default off)")
+    pr.add_argument("--no-light-grids", action="store_true",
+                    help="raytrace, bvh: hard lights always walk the tree, never a light grid (by default an "
+                         "animation's hard lights build grids where they pay back)")
     pr.add_argument("--structure", choices=("grid", "bvh"), default=None,
                     help="raytrace: acceleration structure, hierarchical grid or two-level BVH (default: Settings')")
     pr.add_argument("--samples", type=int, default=None, metavar="N",

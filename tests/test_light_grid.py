@@ -369,10 +369,16 @@ def test_grids_are_built_once_they_pay_back(monkeypatch, pipeline, loaded):
     pipeline.render(scene, s, W, H)
     assert not gridded(pipeline)  # (too costly for what it saves)
     monkeypatch.setattr(light_grid, "PAYBACK_FRAMES", 1e9)
-    fr = pipeline.render(scene, s, W, H)
+    fr = pipeline.render(scene, s, W, H)  # (the builds start in the background: this frame the tree)
+    assert not gridded(pipeline)
+    grids.wait()
+    ref = pipeline.render(scene, s.replace(light_grid=False), W, H)
+    fr = pipeline.render(scene, s, W, H)  # (uploads and uses them)
     culled = {scene.lights[li].name for li in pipeline.shadow_pass("raytrace").culled}
     assert gridded(pipeline) == {scene.lights[li].name for li in fr.lights} - culled
     assert grids.last_build_ms > 0
+    for k in range(len(fr.lights)):
+        np.testing.assert_array_equal(fr.mask_array(k), ref.mask_array(k))
     pipeline.render(scene, s, W, H)
     assert grids.last_build_ms == 0  # (kept)
     pipeline.set_scene(scene, "bvh")  # a new bake: the first frame traces the tree again

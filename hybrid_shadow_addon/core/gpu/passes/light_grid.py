@@ -9,7 +9,10 @@ it unchanged, its grid is built if the estimated build time is at most :data:`PA
 times that BVH time (the estimate: this machine's last build's time per caster, or
 :data:`BUILD_US_PER_CASTER`). A one-frame render then never builds one; a still scene in the
 viewport, or an animation of the camera, builds them from the second frame on where the rays are
-costly enough. ``eager`` (benchmarks, tests) builds at first sight. A grid is kept while the bake
+costly enough. Such a build runs in a background thread (numpy, which leaves the interpreter
+to the render thread for most of its work): the frames meanwhile trace the tree, and the first
+frame after it is done uploads and uses the grid, so a viewport never stalls for one.
+``eager`` (benchmarks, tests) builds at first sight, in the frame. A grid is kept while the bake
 and its light stay; the world casters, and their triangle texture shared by all grids, once per
 bake (any upload or update of the scene textures). A light whose grid does not fit
 (:func:`...bake.lightgrid.build_sun_grid` / ``build_local_grid`` return None) keeps the BVH.
@@ -17,6 +20,7 @@ bake (any upload or update of the scene textures). A light whose grid does not f
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,6 +53,8 @@ class LightGrids:
         self.last_build_ms = 0.0  # time spent building grids (and casters) in the last frame
         self.eager = False  # build at a light's first sight (benchmarks, tests), not once it pays
         self._seen: dict = {}  # key -> ms of the light's last BVH trace in this bake
+        self._pending: dict = {}  # key -> Future of a grid being built in the background
+        self._pool = None
         self._us_per_caster = BUILD_US_PER_CASTER
         self.last: dict = {}  # light name -> {"cells", "entries", "max_cell", "build_ms", "bytes"}
 
@@ -65,7 +71,9 @@ class LightGrids:
         self._used = set()
 
     def end_frame(self) -> None:
-        """Forget the grids the frame did not use, beyond the KEEP_EXTRA most recent."""
+        """Forget the grids the frame did not use, beyond the KEEP_EXTRA most recent. (Builds
+        start only for a light seen unchanged in two frames, so a light being dragged starts
+        none.)"""
         stale = [k for k in self._grids if k not in self._used]
         for k in stale[: max(0, len(stale) - KEEP_EXTRA)]:
             tex = self._grids.pop(k)[0]
@@ -91,39 +99,37 @@ class LightGrids:
         self._used.add(key)
         hit = self._grids.pop(key, None)
         if hit is None:
-            if not self.eager:
-                if self._casters is not None:
-                    n = self._casters.count
-                else:
-                    inst = scene.instances
-                    n = sum(scene.models[m].triangle_count for m in inst.model_ids[inst.casts_shadow].tolist())
-                seen = self._seen.get(key)
-                if seen is None or n * self._us_per_caster * 1e-3 > PAYBACK_FRAMES * seen:
+            fut = self._pending.get(key)
+            if fut is not None:  # a build in the background: its grid once it is done
+                if not fut.done():
                     return None
-            t0 = time.perf_counter()
-            width = st.baked.config.tex_width
-            if self._casters is None:
-                self._casters = world_casters(scene, st.baked.origin)
-            build = build_local_grid if local else build_sun_grid
-            grid = build(self._casters, light_vec, width)
-            tex = None
-            try:
-                if grid is not None and self._tri is None:
-                    self._tri = SceneTextures(self.ctx, buffers=st.using_buffers)
-                    self._tri.upload(_TexSet({"lg_tri": tri_texture(self._casters, width)},
-                                             {"lg_tri": "hs_lg_tri_tex"}))
-                if grid is not None:
-                    tex = SceneTextures(self.ctx, buffers=st.using_buffers)
-                    tex.upload(grid)
-            except GPUError:  # (larger than this GPU's textures: the tree, as for a grid that does not fit)
-                if tex is not None:
-                    tex.release()
-                tex = grid = None
-            hit = (tex, grid)
-            ms = (time.perf_counter() - t0) * 1e3
-            self.last_build_ms += ms
-            if grid is not None and self._casters.count:
-                self._us_per_caster = grid.build_ms * 1e3 / self._casters.count
+                del self._pending[key]
+                t0 = time.perf_counter()
+                hit = self._upload(fut.result())
+                self.last_build_ms += (time.perf_counter() - t0) * 1e3
+            else:
+                if not self.eager:
+                    if self._casters is not None:
+                        n = self._casters.count
+                    else:
+                        inst = scene.instances
+                        n = sum(scene.models[m].triangle_count for m in inst.model_ids[inst.casts_shadow].tolist())
+                    seen = self._seen.get(key)
+                    if seen is None or n * self._us_per_caster * 1e-3 > PAYBACK_FRAMES * seen:
+                        return None
+                t0 = time.perf_counter()
+                if self._casters is None:
+                    self._casters = world_casters(scene, st.baked.origin)
+                build = build_local_grid if local else build_sun_grid
+                args = (self._casters, light_vec, st.baked.config.tex_width)
+                if not self.eager:  # (the frames go on through the tree meanwhile)
+                    if self._pool is None:
+                        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="light-grid")
+                    self._pending[key] = self._pool.submit(build, *args)
+                    self.last_build_ms += (time.perf_counter() - t0) * 1e3
+                    return None
+                hit = self._upload(build(*args))
+                self.last_build_ms += (time.perf_counter() - t0) * 1e3
         self._grids[key] = hit  # (most recently used last)
         tex, grid = hit
         if grid is not None:
@@ -131,6 +137,31 @@ class LightGrids:
                                      "max_cell": grid.max_cell, "build_ms": round(grid.build_ms, 1),
                                      "bytes": grid.nbytes}
         return None if grid is None else hit
+
+    def _upload(self, grid) -> tuple:
+        """(textures, grid) of a built grid (None: (None, None)), the shared triangles too."""
+        st = self.scene_textures
+        tex = None
+        try:
+            if grid is not None and self._tri is None:
+                self._tri = SceneTextures(self.ctx, buffers=st.using_buffers)
+                self._tri.upload(_TexSet({"lg_tri": tri_texture(self._casters, st.baked.config.tex_width)},
+                                         {"lg_tri": "hs_lg_tri_tex"}))
+            if grid is not None:
+                tex = SceneTextures(self.ctx, buffers=st.using_buffers)
+                tex.upload(grid)
+        except GPUError:  # (larger than this GPU's textures: the tree, as for a grid that does not fit)
+            if tex is not None:
+                tex.release()
+            tex = grid = None
+        if grid is not None and self._casters.count:
+            self._us_per_caster = grid.build_ms * 1e3 / self._casters.count
+        return tex, grid
+
+    def wait(self) -> None:
+        """Until the builds in the background are done (tests, benchmarks)."""
+        for fut in list(self._pending.values()):
+            fut.exception()
 
     def bind(self, prog, unit: int, hit) -> int:
         """Bind a light's grid (and the shared triangles) to ``prog`` from ``unit`` on."""
@@ -143,7 +174,15 @@ class LightGrids:
                 tex.release()
         self._grids.clear()
         self._seen.clear()
+        self._pending.clear()  # (a build still running finishes unseen: its bake is gone)
         if self._tri is not None:
             self._tri.release()
             self._tri = None
         self._casters = None
+
+    def close(self) -> None:
+        """Release everything and stop the background thread (the pass is going away)."""
+        self.release()
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None

@@ -672,7 +672,7 @@ class RaytracePass(ShadowPass):
         return unit + 1
 
     def release(self) -> None:
-        self.light_grids.release()
+        self.light_grids.close()
         self.cull.release()
         self.refiner.release()
         self.maps.release()
