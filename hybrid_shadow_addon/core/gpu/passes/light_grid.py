@@ -14,7 +14,8 @@ to the render thread for most of its work): the frames meanwhile trace the tree,
 frame after it is done uploads and uses the grid, so a viewport never stalls for one.
 ``eager`` (benchmarks, tests) builds at first sight, in the frame. A grid is kept while the bake
 and its light stay; the world casters, and their triangle texture shared by all grids, once per
-bake (any upload or update of the scene textures). A light whose grid does not fit
+bake (any upload or update of the scene textures). Once the grids kept hold MAX_BYTES, no more
+are built. A light whose grid does not fit
 (:func:`...bake.lightgrid.build_sun_grid` / ``build_local_grid`` return None) keeps the BVH.
 """
 from __future__ import annotations
@@ -32,6 +33,9 @@ from ..scene_textures import SceneTextures
 KEEP_EXTRA = 4  # grids kept beyond those of the last frame's lights (recent places of a moving light)
 PAYBACK_FRAMES = 40  # a grid is built when it costs at most this many frames of the light's BVH rays
 BUILD_US_PER_CASTER = 3.5  # the build's time per caster before this process has measured one
+#: the grids' textures kept at most (bytes): past it no new grid is built (those lights keep the
+#: tree), so that many lights over a big scene cannot exhaust the GPU's memory
+MAX_BYTES = 1 << 30
 
 
 @dataclass
@@ -108,6 +112,8 @@ class LightGrids:
                 hit = self._upload(fut.result())
                 self.last_build_ms += (time.perf_counter() - t0) * 1e3
             else:
+                if sum(g.nbytes for _, g in self._grids.values() if g is not None) >= MAX_BYTES:
+                    return None
                 if not self.eager:
                     if self._casters is not None:
                         n = self._casters.count
