@@ -31,7 +31,7 @@ from ...errors import GPUError
 from ..scene_textures import SceneTextures
 
 KEEP_EXTRA = 4  # grids kept beyond those of the last frame's lights (recent places of a moving light)
-PAYBACK_FRAMES = 40  # a grid is built when it costs at most this many frames of the light's BVH rays
+PAYBACK_FRAMES = 100  # a grid is built when it costs at most this many frames of the light's BVH rays
 BUILD_US_PER_CASTER = 3.5  # the build's time per caster before this process has measured one
 #: the grids' textures kept at most (bytes): past it no new grid is built (those lights keep the
 #: tree), so that many lights over a big scene cannot exhaust the GPU's memory
