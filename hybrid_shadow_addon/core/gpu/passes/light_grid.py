@@ -56,6 +56,7 @@ class LightGrids:
         self._used: set = set()  # keys the current frame used
         self.last_build_ms = 0.0  # time spent building grids (and casters) in the last frame
         self.eager = False  # build at a light's first sight (benchmarks, tests), not once it pays
+        self.total_build_ms = 0.0  # all builds and uploads so far (compare reports it)
         self._seen: dict = {}  # key -> ms of the light's last BVH trace in this bake
         self._pending: dict = {}  # key -> Future of a grid being built in the background
         self._pool = None
@@ -70,6 +71,7 @@ class LightGrids:
         return bool(settings.light_grid) and baked is not None and baked.structure == "bvh" and not baked.has_alpha
 
     def begin_frame(self) -> None:
+        self.total_build_ms += self.last_build_ms
         self.last_build_ms = 0.0
         self.last = {}
         self._used = set()
