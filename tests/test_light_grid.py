@@ -291,6 +291,23 @@ def test_grid_that_does_not_fit_keeps_the_bvh(monkeypatch, pipeline, loaded):
         np.testing.assert_array_equal(got[li], plain[li])
 
 
+def test_a_build_out_of_memory_keeps_the_bvh(monkeypatch, pipeline, loaded):
+    from hybrid_shadow_addon.core.gpu.passes import light_grid
+
+    def no_memory(*args):
+        raise MemoryError
+
+    scene = loaded("cube_on_plane")
+    pipeline.set_scene(scene, "bvh")
+    ref = pipeline.render(scene, Settings(hard=True, light_grid=False), W, H)
+    monkeypatch.setattr(light_grid, "build_sun_grid", no_memory)
+    pipeline.set_scene(scene, "bvh")
+    fr = pipeline.render(scene, Settings(hard=True), W, H)
+    assert not gridded(pipeline)
+    for k in range(len(fr.lights)):
+        np.testing.assert_array_equal(fr.mask_array(k), ref.mask_array(k))
+
+
 def test_grids_stop_at_the_memory_budget(monkeypatch, pipeline, loaded):
     """Once the grids kept hold MAX_BYTES, the other lights keep the tree (same masks)."""
     from hybrid_shadow_addon.core.gpu.passes import light_grid

@@ -38,6 +38,14 @@ BUILD_US_PER_CASTER = 3.5  # the build's time per caster before this process has
 MAX_BYTES = 1 << 30
 
 
+def _result(fn, *args):
+    """``fn(*args)``, or None where it ran out of memory: the light keeps the tree."""
+    try:
+        return fn(*args)
+    except MemoryError:
+        return None
+
+
 @dataclass
 class _TexSet:
     textures: dict
@@ -111,7 +119,7 @@ class LightGrids:
                     return None
                 del self._pending[key]
                 t0 = time.perf_counter()
-                hit = self._upload(fut.result())
+                hit = self._upload(_result(fut.result))
                 self.last_build_ms += (time.perf_counter() - t0) * 1e3
             else:
                 if sum(g.nbytes for _, g in self._grids.values() if g is not None) >= MAX_BYTES:
@@ -133,10 +141,10 @@ class LightGrids:
                 if not self.eager:  # (the frames go on through the tree meanwhile)
                     if self._pool is None:
                         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="light-grid")
-                    self._pending[key] = self._pool.submit(build, *args)
+                    self._pending[key] = self._pool.submit(_result, build, *args)
                     self.last_build_ms += (time.perf_counter() - t0) * 1e3
                     return None
-                hit = self._upload(build(*args))
+                hit = self._upload(_result(build, *args))
                 self.last_build_ms += (time.perf_counter() - t0) * 1e3
         self._grids[key] = hit  # (most recently used last)
         tex, grid = hit
