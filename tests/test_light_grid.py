@@ -17,7 +17,6 @@ import pytest
 
 from hybrid_shadow_addon.core.bake import lightgrid
 from hybrid_shadow_addon.core.bake.baked import choose_origin
-from hybrid_shadow_addon.core.bake.textures import f32_up
 from hybrid_shadow_addon.core.oracle import tracer
 from hybrid_shadow_addon.core.oracle.rays import shadow_rays
 from hybrid_shadow_addon.core.settings import Settings
@@ -45,16 +44,8 @@ def brute(wc, scene, origin, o, d, tmax):
             hit = tracer.woop_hit(o[ray], tracer.woop_setup(d[ray]), wc.tris[t, 0], wc.tris[t, 1], wc.tris[t, 2],
                                   tm[ray], floor=True)
             occ[r] |= np.bincount(ray[hit] - r0, minlength=len(r))[: len(r)] > 0
-    inst = scene.instances
     for i in wc.sphere_inst.tolist():
-        inv = inst.inverse[i, :3, :].copy()
-        inv[:, 3] += inv[:, :3] @ np.asarray(origin, np.float64)
-        inv = inv.astype(np.float32)
-        m_o = ((o[:, 0:1] * inv[:, 0] + o[:, 1:2] * inv[:, 1]) + o[:, 2:3] * inv[:, 2] + inv[:, 3]).astype(np.float32)
-        m_d = ((d[:, 0:1] * inv[:, 0] + d[:, 1:2] * inv[:, 1]) + d[:, 2:3] * inv[:, 2]).astype(np.float32)
-        model = scene.models[inst.model_ids[i]]
-        c = np.broadcast_to(np.asarray(model.sphere_center, np.float32), (n, 3))
-        occ |= tracer.sphere_hit(m_o, m_d, c, np.float32(f32_up(model.sphere_radius)), tm)
+        occ |= tracer.instance_sphere_hit(scene, origin, np.full(n, i), o, d, tm)
     return occ
 
 

@@ -197,6 +197,15 @@ vec3 hs_affine(vec4 r0, vec4 r1, vec4 r2, vec3 p)
     return q;
 }
 
+// The direction d moved by the linear part of the same map
+vec3 hs_linear(vec4 r0, vec4 r1, vec4 r2, vec3 d)
+{
+    precise vec3 q = vec3((r0.x * d.x + r0.y * d.y) + r0.z * d.z,
+                          (r1.x * d.x + r1.y * d.y) + r1.z * d.z,
+                          (r2.x * d.x + r2.y * d.y) + r2.z * d.z);
+    return q;
+}
+
 // Nodes from i on, until a leaf whose box the ray hits (true: w is its word, i the node after
 // it) or the end of the tree (i >= limit). (A flag, not a nested break: llvmpipe miscompiled the
 // break out of this inner loop, lanes lost their node index.) Its body is the walk's cost on a
@@ -266,9 +275,7 @@ HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax)
         hs_leaf_record(at, x0, x1, x2, u3, x3, x4, x5, x6, x7, x8);
         if (ret < 0) {
             vec3 m_o = hs_affine(x0, x1, x2, o);
-            precise vec3 m_d = vec3((x0.x * d.x + x0.y * d.y) + x0.z * d.z,
-                                    (x1.x * d.x + x1.y * d.y) + x1.z * d.z,
-                                    (x2.x * d.x + x2.y * d.y) + x2.z * d.z);
+            vec3 m_d = hs_linear(x0, x1, x2, d);
             bool is_sphere = (u3.z & HS_SPHERE_FLAG) != 0u;
 #ifdef HS_HAS_SPHERES
             if (is_sphere && hs_sphere_hit(m_o, m_d, x4.xyz, x4.w, tmax)) return HS_BLOCKED;

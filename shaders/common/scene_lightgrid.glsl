@@ -83,11 +83,7 @@ float hs_lg_visibility(vec3 o, vec3 d, float tmax)
             vec4 x1 = uintBitsToFloat(HS_FETCH(hs_leaf_tex, at + 1));
             vec4 x2 = uintBitsToFloat(HS_FETCH(hs_leaf_tex, at + 2));
             vec4 x4 = uintBitsToFloat(HS_FETCH(hs_leaf_tex, at + 4));
-            vec3 m_o = hs_affine(x0, x1, x2, o);
-            precise vec3 m_d = vec3((x0.x * d.x + x0.y * d.y) + x0.z * d.z,
-                                    (x1.x * d.x + x1.y * d.y) + x1.z * d.z,
-                                    (x2.x * d.x + x2.y * d.y) + x2.z * d.z);
-            blocked = hs_sphere_hit(m_o, m_d, x4.xyz, x4.w, tmax);
+            blocked = hs_sphere_hit(hs_affine(x0, x1, x2, o), hs_linear(x0, x1, x2, d), x4.xyz, x4.w, tmax);
         } else
 #endif
         {

@@ -40,7 +40,7 @@ casters (:func:`world_casters`, once per bake); one that would be too large or t
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -205,14 +205,16 @@ class _Items:
     margin: np.ndarray   # (N,) the widening, for the edge test
     normals: np.ndarray  # (N, 3, 2) edge planes (zero: no edge test)
     offsets: np.ndarray  # (N, 3)
-    row_lo: np.ndarray | None = None  # (N,) a cube face's first row (in face units), or None
-    row_hi: np.ndarray | None = None
+    face: np.ndarray | None = None  # (N,) a cube's face the item lies on (rows 2 face .. 2 face + 2)
 
 
-def _file(it: _Items, g0, ext, n_casters: int, n_tri: int, sphere_codes, cells_per_caster, cube: bool):
+def _file(it: _Items, g0, ext, n_casters: int, n_tri: int, sphere_codes, cells_per_caster):
     """Cells, entries of the items; ``None`` where they do not fit. Grid units: a sun's
-    light-space plane; a cube: faces 2 units square one above the other (x = u + 1,
-    y = v + 1 + 2 face)."""
+    light-space plane; a cube (items with a ``face``): faces 2 units square one above the other
+    (x = u + 1, y = v + 1 + 2 face)."""
+    cube = it.face is not None
+    if cells_per_caster is None:
+        cells_per_caster = CELLS_PER_CASTER
     target = max(MIN_CELLS, cells_per_caster * max(n_casters, 1))
     if cube:  # R x R per face, R a multiple of the tile
         r = int(np.clip(np.sqrt(target / 6.0), TILE, MAX_SIDE // 6))
@@ -228,9 +230,9 @@ def _file(it: _Items, g0, ext, n_casters: int, n_tri: int, sphere_codes, cells_p
         i1 = np.floor((it.hi - g0) * inv).astype(np.int64)
         i0[:, 0] = np.clip(i0[:, 0], 0, nx - 1)
         i1[:, 0] = np.clip(i1[:, 0], 0, nx - 1)
-        if cube:  # (an item stays on its face)
-            f0 = np.round(it.row_lo * inv).astype(np.int64)
-            f1 = np.round(it.row_hi * inv).astype(np.int64) - 1
+        if cube:  # (an item stays on its face: R rows each)
+            f0 = it.face * int(round(2.0 * inv))
+            f1 = f0 + int(round(2.0 * inv)) - 1
             i0[:, 1] = np.clip(i0[:, 1], f0, f1)
             i1[:, 1] = np.clip(i1[:, 1], f0, f1)
         else:
@@ -365,8 +367,7 @@ def build_sun_grid(wc: WorldCasters, direction, tex_width: int = 4096,
         normals, offsets = np.zeros((0, 3, 2)), np.zeros((0, 3))
         g0, ext = np.zeros(2), np.ones(2)
     items = _Items(np.arange(n), lo[:, :2], hi[:, :2], hi[:, 2], np.full(n, margin), normals, offsets)
-    filed = _file(items, g0, ext, n, len(wc.tris), wc.sphere_inst,
-                  CELLS_PER_CASTER if cells_per_caster is None else cells_per_caster, cube=False)
+    filed = _file(items, g0, ext, n, len(wc.tris), wc.sphere_inst, cells_per_caster)
     b32 = basis.astype(np.float32)
     uniforms = {"hs_lg_ux": b32[0], "hs_lg_uy": b32[1], "hs_lg_dz": b32[2], "hs_lg_base": g0.astype(np.float32)}
     return _grid(wc, filed, tex_width, uniforms, {}, t0)
@@ -375,21 +376,30 @@ def build_sun_grid(wc: WorldCasters, direction, tex_width: int = 4096,
 # ------------------------------------------------------------------------------------------
 # a local light: a cube of directions
 # ------------------------------------------------------------------------------------------
-def _face_items(q, dist, margin_face, everywhere, triangles: bool, f: int):
-    """Items of casters on cube face ``f``: ``q`` (N, K, 3) caster points relative to the light
-    (a triangle's vertices, K = 3; a sphere's box corners, K = 8), ``dist`` their distances (a
-    lower bound). Returns (indices into q, lo, hi, key, edge normals, offsets).
+def _on_face(f: int, ulo, uhi, vlo, vhi, everywhere):
+    """Boxes (lo, hi) in the cube's grid units of face ``f`` from face coordinates (clamped to
+    the face; the whole face where ``everywhere``)."""
+    lo = np.stack([np.clip(ulo, -1.0, 1.0) + 1.0, np.clip(vlo, -1.0, 1.0) + 1.0 + 2.0 * f], axis=1)
+    hi = np.stack([np.clip(uhi, -1.0, 1.0) + 1.0, np.clip(vhi, -1.0, 1.0) + 1.0 + 2.0 * f], axis=1)
+    lo[everywhere] = (0.0, 2.0 * f)
+    hi[everywhere] = (2.0, 2.0 * f + 2.0)
+    return lo, hi
+
+
+def _face_items(q, dist, margin_face, everywhere, f: int):
+    """Items of triangles on cube face ``f``: ``q`` (N, 3, 3) their vertices relative to the
+    light, ``dist`` their distances (a lower bound). Returns (indices into q, lo, hi, key, edge
+    normals, offsets).
 
     A triangle is clipped to depth >= dist / 2 along the face's axis first (no point of it in
     the face's pyramid lies nearer: those would be within sqrt(3) dist / 2 of the light), so it
     projects to a bounded polygon: the box of its points' projections (vertices beyond the
-    plane, and the edges' crossings of it), clamped to the face. A sphere's box reaching that
-    near takes the whole face."""
+    plane, and the edges' crossings of it), clamped to the face."""
     axis, sign, ua, va = FACES[f]
     z = sign * q[:, :, axis]
     b, c = q[:, :, ua], q[:, :, va]
-    delta = (0.5 * dist)[:, None]
-    inside = z >= delta
+    delta = 0.5 * dist
+    inside = z >= delta[:, None]
     big = np.inf
     zs = np.where(inside, z, 1.0)
     pu, pv = b / zs, c / zs
@@ -400,47 +410,36 @@ def _face_items(q, dist, margin_face, everywhere, triangles: bool, f: int):
     zmin = np.where(inside, z, big).min(axis=1)
     some = inside.any(axis=1)
     clipped = some & ~inside.all(axis=1)
-    if triangles:
-        for i, j in ((0, 1), (1, 2), (2, 0)):  # edges crossing the plane z = delta
-            cross = inside[:, i] != inside[:, j]
-            if not cross.any():
-                continue
-            dz = z[:, j] - z[:, i]
-            s_ = np.where(cross, (delta[:, 0] - z[:, i]) / np.where(cross, dz, 1.0), 0.0)
-            d0 = np.where(cross & (delta[:, 0] > 0), delta[:, 0], 1.0)  # (dist 0: filed everywhere)
-            cu = (b[:, i] + s_ * (b[:, j] - b[:, i])) / d0
-            cv = (c[:, i] + s_ * (c[:, j] - c[:, i])) / d0
-            ulo = np.where(cross, np.minimum(ulo, cu), ulo)
-            uhi = np.where(cross, np.maximum(uhi, cu), uhi)
-            vlo = np.where(cross, np.minimum(vlo, cv), vlo)
-            vhi = np.where(cross, np.maximum(vhi, cv), vhi)
-        zmin = np.where(clipped, np.minimum(zmin, delta[:, 0]), zmin)
-    else:
-        ulo = np.where(clipped, -big, ulo)
-        uhi = np.where(clipped, big, uhi)
-        vlo = np.where(clipped, -big, vlo)
-        vhi = np.where(clipped, big, vhi)
-        zmin = np.where(clipped, delta[:, 0], zmin)
+    for i, j in ((0, 1), (1, 2), (2, 0)):  # edges crossing the plane z = delta
+        cross = inside[:, i] != inside[:, j]
+        if not cross.any():
+            continue
+        dz = z[:, j] - z[:, i]
+        s_ = np.where(cross, (delta - z[:, i]) / np.where(cross, dz, 1.0), 0.0)
+        d0 = np.where(cross & (delta > 0), delta, 1.0)  # (dist 0: filed everywhere)
+        cu = (b[:, i] + s_ * (b[:, j] - b[:, i])) / d0
+        cv = (c[:, i] + s_ * (c[:, j] - c[:, i])) / d0
+        ulo = np.where(cross, np.minimum(ulo, cu), ulo)
+        uhi = np.where(cross, np.maximum(uhi, cu), uhi)
+        vlo = np.where(cross, np.minimum(vlo, cv), vlo)
+        vhi = np.where(cross, np.maximum(vhi, cv), vhi)
+    zmin = np.where(clipped, np.minimum(zmin, delta), zmin)
     m = margin_face
     ulo, uhi, vlo, vhi = ulo - m, uhi + m, vlo - m, vhi + m
     on = (some & (ulo <= 1.0) & (uhi >= -1.0) & (vlo <= 1.0) & (vhi >= -1.0)) | everywhere
     idx = np.nonzero(on)[0]
     ev = everywhere[idx]
-    lo = np.stack([np.clip(ulo[idx], -1.0, 1.0) + 1.0, np.clip(vlo[idx], -1.0, 1.0) + 1.0 + 2.0 * f], axis=1)
-    hi = np.stack([np.clip(uhi[idx], -1.0, 1.0) + 1.0, np.clip(vhi[idx], -1.0, 1.0) + 1.0 + 2.0 * f], axis=1)
-    lo[ev] = (0.0, 2.0 * f)
-    hi[ev] = (2.0, 2.0 * f + 2.0)
+    lo, hi = _on_face(f, ulo[idx], uhi[idx], vlo[idx], vhi[idx], ev)
     key = -np.where(ev, 0.0, zmin[idx])
     normals = np.zeros((len(idx), 3, 2))
     offsets = np.zeros((len(idx), 3))
-    if triangles:
-        tri = ~ev & ~clipped[idx]
-        if tri.any():
-            j = idx[tri]
-            qu, qv = pu[j] + 1.0, pv[j] + 1.0 + 2.0 * f
-            normals[tri], offsets[tri] = edge_planes(np.stack([qu[:, 0], qv[:, 0]], 1),
-                                                     np.stack([qu[:, 1], qv[:, 1]], 1),
-                                                     np.stack([qu[:, 2], qv[:, 2]], 1))
+    tri = ~ev & ~clipped[idx]
+    if tri.any():
+        j = idx[tri]
+        qu, qv = pu[j] + 1.0, pv[j] + 1.0 + 2.0 * f
+        normals[tri], offsets[tri] = edge_planes(np.stack([qu[:, 0], qv[:, 0]], 1),
+                                                 np.stack([qu[:, 1], qv[:, 1]], 1),
+                                                 np.stack([qu[:, 2], qv[:, 2]], 1))
     return idx, lo, hi, key, normals, offsets
 
 
@@ -463,11 +462,7 @@ def _face_spheres(c, r, dist, margin_face, everywhere, f: int):
     (ulo, uhi), (vlo, vhi) = rng
     on &= ((ulo <= 1.0) & (uhi >= -1.0) & (vlo <= 1.0) & (vhi >= -1.0)) | everywhere
     idx = np.nonzero(on)[0]
-    ev = everywhere[idx] | crossing[idx]
-    lo = np.stack([np.clip(ulo[idx], -1.0, 1.0) + 1.0, np.clip(vlo[idx], -1.0, 1.0) + 1.0 + 2.0 * f], axis=1)
-    hi = np.stack([np.clip(uhi[idx], -1.0, 1.0) + 1.0, np.clip(vhi[idx], -1.0, 1.0) + 1.0 + 2.0 * f], axis=1)
-    lo[ev] = (0.0, 2.0 * f)
-    hi[ev] = (2.0, 2.0 * f + 2.0)
+    lo, hi = _on_face(f, ulo[idx], uhi[idx], vlo[idx], vhi[idx], everywhere[idx] | crossing[idx])
     # (points in the face's pyramid lie at depth >= their distance / sqrt(3) >= dist / sqrt(3))
     zmin = np.maximum(cz[idx] - r[idx], dist[idx] * (1.0 - 1e-9) / np.sqrt(3.0))
     key = -np.where(everywhere[idx], 0.0, zmin)
@@ -512,20 +507,16 @@ def build_local_grid(wc: WorldCasters, position, tex_width: int = 4096,
         found = []
         if n_tri:
             sel = np.nonzero((home == f) | (home < 0))[0]
-            idx, lo, hi, key, nn, oo = _face_items(q_t[sel], dist[sel], margin_face[sel], everywhere[sel], True, f)
+            idx, lo, hi, key, nn, oo = _face_items(q_t[sel], dist[sel], margin_face[sel], everywhere[sel], f)
             found.append((0, ts, (sel[idx], lo, hi, key, nn, oo)))
         if len(s_c):
             found.append((n_tri, ss, _face_spheres(s_c, s_r, dist[ss], margin_face[ss], everywhere[ss], f)))
         for base, sl, (idx, lo, hi, key, nn, oo) in found:
-            parts.append((idx + base, lo, hi, key + zpad, margin_face[sl][idx], nn, oo,
-                          np.full(len(idx), 2.0 * f), np.full(len(idx), 2.0 * f + 2.0)))
-    if parts:
-        cat = [np.concatenate([p[j] for p in parts]) for j in range(9)]
-    else:
-        cat = [np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0),
-               np.zeros((0, 3, 2)), np.zeros((0, 3)), np.zeros(0), np.zeros(0)]
-    items = _Items(cat[0], cat[1], cat[2], cat[3], cat[4], cat[5], cat[6], cat[7], cat[8])
-    filed = _file(items, np.zeros(2), np.array([2.0, 12.0]), wc.count, n_tri, wc.sphere_inst,
-                  CELLS_PER_CASTER if cells_per_caster is None else cells_per_caster, cube=True)
+            parts.append(_Items(idx + base, lo, hi, key + zpad, margin_face[sl][idx], nn, oo,
+                                np.full(len(idx), f, np.int64)))
+    items = _Items(*(np.concatenate([getattr(p, k.name) for p in parts]) for k in fields(_Items))) if parts \
+        else _Items(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0),
+                    np.zeros((0, 3, 2)), np.zeros((0, 3)), np.zeros(0, np.int64))
+    filed = _file(items, np.zeros(2), np.array([2.0, 12.0]), wc.count, n_tri, wc.sphere_inst, cells_per_caster)
     uniforms = {"hs_lg_pos": L.astype(np.float32)}
     return _grid(wc, filed, tex_width, uniforms, {"HS_LG_LOCAL": 1}, t0)

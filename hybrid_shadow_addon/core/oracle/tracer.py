@@ -717,6 +717,19 @@ def light_grid_place(grid, o, d):
     return g, _dot32(o, u["hs_lg_dz"]), inside
 
 
+def instance_sphere_hit(scene, origin, inst, o, d, tmax) -> np.ndarray:
+    """The analytic sphere instances ``inst`` (one per ray) against bake-space rays, in model
+    space through each instance's bake-space inverse rows (float32), as its [leaf] record holds
+    them and ``hs_lg_visibility`` reads them."""
+    inv = scene.instances.inverse[inst, :3, :].copy()
+    inv[:, :, 3] += inv[:, :, :3] @ np.asarray(origin, np.float64)
+    om, dm = transform_rays(inv.astype(F).reshape(-1, 12), o, d)
+    mid = scene.instances.model_ids[inst].tolist()
+    cen = np.array([scene.models[m].sphere_center for m in mid], F).reshape(-1, 3)
+    rad = f32_up(np.array([scene.models[m].sphere_radius for m in mid], np.float64)).astype(F)
+    return sphere_hit(om, dm, cen, rad, tmax)
+
+
 def trace_light_grid(grid, tris, scene, origin, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
     """Occlusion of bake-space rays ``origins + t dirs`` (the trace's rays towards the light:
     a sun's ``u_light_vec``, or ``light - origin`` with tmax 1) through a
@@ -726,13 +739,11 @@ def trace_light_grid(grid, tris, scene, origin, origins, dirs, tmax=np.inf, stat
     the world casters' triangles (``WorldCasters.tris``); ``scene`` and ``origin`` give the sphere
     instances' records. ``stats``: ``entries`` (list entries walked, up to and including the first
     hit), ``tests`` (casters tested), ``rays``."""
-    o = np.asarray(origins, np.float64).reshape(-1, 3).astype(F)
-    d = np.asarray(dirs, np.float64).reshape(-1, 3).astype(F)
+    o, d, tm, valid = prepare_rays(origins, dirs, tmax)
     n = len(o)
-    tm = np.minimum(np.broadcast_to(np.asarray(tmax, np.float64), (n,)), FLT_BIG).astype(F)
     occ = np.zeros(n, bool)
     g, s, inside = light_grid_place(grid, o, d)
-    live = np.nonzero(inside & (tm > 0))[0]
+    live = np.nonzero(inside & valid)[0]
     c = g[live].astype(np.int64)
     tiles = int(grid.uniforms["hs_lg_tiles_x"])
     cell = (((c[:, 1] >> 3) * tiles + (c[:, 0] >> 3)) << 6) + ((c[:, 1] & 7) << 3) + (c[:, 0] & 7)
@@ -766,19 +777,9 @@ def trace_light_grid(grid, tris, scene, origin, origins, dirs, tmax=np.inf, stat
         hit[t_idx] = woop_hit(o[r], woop_setup(d[r]), tv[:, 0], tv[:, 1], tv[:, 2], tm[r], floor=True)
     s_idx = np.nonzero(is_sph & boxed)[0]
     if len(s_idx):
-        inst = scene.instances
-        i = (code[s_idx] & ~SPHERE_FLAG).astype(np.int64)
-        inv = inst.inverse[i, :3, :].copy()
-        inv[:, :, 3] += inv[:, :, :3] @ np.asarray(origin, np.float64)
-        inv = inv.astype(F)
         r = ray[s_idx]
-        m_o = (((inv[:, :, 0] * o[r][:, 0:1] + inv[:, :, 1] * o[r][:, 1:2]) + inv[:, :, 2] * o[r][:, 2:3])
-               + inv[:, :, 3]).astype(F)
-        m_d = ((inv[:, :, 0] * d[r][:, 0:1] + inv[:, :, 1] * d[r][:, 1:2]) + inv[:, :, 2] * d[r][:, 2:3]).astype(F)
-        mid = inst.model_ids[i]
-        cen = np.array([scene.models[m].sphere_center for m in mid.tolist()], F).reshape(-1, 3)
-        rad = f32_up(np.array([scene.models[m].sphere_radius for m in mid.tolist()], np.float64)).astype(F)
-        hit[s_idx] = sphere_hit(m_o, m_d, cen, rad, tm[r])
+        hit[s_idx] = instance_sphere_hit(scene, origin, (code[s_idx] & ~SPHERE_FLAG).astype(np.int64),
+                                         o[r], d[r], tm[r])
     occ[ray[hit]] = True
     if stats is not None:
         big = np.iinfo(np.int64).max

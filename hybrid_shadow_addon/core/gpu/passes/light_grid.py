@@ -79,7 +79,6 @@ class LightGrids:
         return bool(settings.light_grid) and baked is not None and baked.structure == "bvh" and not baked.has_alpha
 
     def begin_frame(self) -> None:
-        self.total_build_ms += self.last_build_ms
         self.last_build_ms = 0.0
         self.last = {}
         self._used = set()
@@ -120,7 +119,7 @@ class LightGrids:
                 del self._pending[key]
                 t0 = time.perf_counter()
                 hit = self._upload(_result(fut.result))
-                self.last_build_ms += (time.perf_counter() - t0) * 1e3
+                self._spent(t0)
             else:
                 if sum(g.nbytes for _, g in self._grids.values() if g is not None) >= MAX_BYTES:
                     return None
@@ -142,10 +141,10 @@ class LightGrids:
                     if self._pool is None:
                         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="light-grid")
                     self._pending[key] = self._pool.submit(_result, build, *args)
-                    self.last_build_ms += (time.perf_counter() - t0) * 1e3
+                    self._spent(t0)
                     return None
                 hit = self._upload(_result(build, *args))
-                self.last_build_ms += (time.perf_counter() - t0) * 1e3
+                self._spent(t0)
         self._grids[key] = hit  # (most recently used last)
         tex, grid = hit
         if grid is not None:
@@ -153,6 +152,11 @@ class LightGrids:
                                      "max_cell": grid.max_cell, "build_ms": round(grid.build_ms, 1),
                                      "bytes": grid.nbytes}
         return None if grid is None else hit
+
+    def _spent(self, t0: float) -> None:
+        ms = (time.perf_counter() - t0) * 1e3
+        self.last_build_ms += ms
+        self.total_build_ms += ms
 
     def _upload(self, grid) -> tuple:
         """(textures, grid) of a built grid (None: (None, None)), the shared triangles too."""

@@ -66,8 +66,8 @@ from ..targets import TargetCache, draw_fullscreen, read_texture, set_uniforms
 from .base import ShadowPass
 from .conservative import ConservativeMaps
 from .light_cull import LightCull, cull_candidate
-from .refine import Refiner
 from .light_grid import LightGrids
+from .refine import Refiner
 
 
 SOFT_PROBES = 1  # HS_PROBES of shaders/common/soft_probe.glsl
