@@ -11,6 +11,9 @@ the alternations and ``peer / this``.
     .venv/bin/python benchmarks/bench_frame.py --peer /tmp/framepeer [--scenes forest clusters city]
         [--size 320x180] [--soft] [--frames 7] [--alternations 2]
 
+A scene may also be a core ``Scene`` pickled with gzip (``NAME.pkl.gz``, an absolute path), for a
+machine without Blender: ``tools/pickle_scenes.py`` writes them.
+
 Lights are hard (as the hard Cycles reference renders them) unless ``--soft``; mode ``raytrace``,
 quality ``high``. ``--mode shadowmap`` or ``none`` measures those instead. ``--interlace``: the
 shadow pass with interlacing, the first frame after a change and a still view.
@@ -30,13 +33,18 @@ PASSES = ("gbuffer_ms", "shadow_ms", "lighting_ms", "total_ms")
 CHILD = r"""
 import json, os, statistics, sys
 root = sys.argv[1]; sys.path.insert(0, root); os.chdir(root)
-from hybrid_shadow_addon.blender.load import load_scene
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.settings import Settings
 scene_arg, size, soft, mode, frames = sys.argv[2], sys.argv[3], sys.argv[4] == "1", sys.argv[5], int(sys.argv[6])
 interlace = sys.argv[7] == "1"
 W, H = (int(v) for v in size.split("x"))
-scene = load_scene(scene_arg)
+if scene_arg.endswith(".pkl.gz"):  # a core Scene pickled where Blender is (a machine without bpy)
+    import gzip, pickle
+    with gzip.open(scene_arg, "rb") as fh:
+        scene = pickle.load(fh)
+else:
+    from hybrid_shadow_addon.blender.load import load_scene
+    scene = load_scene(scene_arg)
 pipe = Pipeline()
 pipe.set_scene(scene)
 settings = Settings(mode=mode, quality="high", hard=not soft)

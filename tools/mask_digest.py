@@ -9,7 +9,8 @@ comparing the two files: every mask and image must be bit-identical.
 Each scene is rendered at a small size under a list of settings variants (every shadow mode and
 quality, both acceleration structures, light grids on and off, hard and soft lights, interlacing
 and accumulation over several frames); the SHA-256 of each mask (``Frame.mask_array``) and of the
-lit image is recorded per frame.
+lit image is recorded per frame. ``--tree DIR`` renders with another checkout's code (a peer commit)
+and a scene may be a pickled core scene (``tools/pickle_scenes.py``), for a machine without Blender.
 """
 from __future__ import annotations
 
@@ -20,8 +21,9 @@ import sys
 import time
 from pathlib import Path
 
+from pickle_scenes import load_pickled
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
 
 SCENES = [
     "cube_on_plane", "forest", "clusters", "city:blocks=4", "scaling:triangles=20000,instances=200",
@@ -90,9 +92,17 @@ def main(argv=None) -> int:
     ap.add_argument("--scenes", help="comma-separated scene arguments (default: every built-in scene)")
     ap.add_argument("--variants", help="comma-separated variant names (default: all)")
     ap.add_argument("--resolution", default="96x64")
+    ap.add_argument("--tree", type=Path, default=REPO, help="the checkout whose code renders (default: this one)")
     a = ap.parse_args(argv)
-    from hybrid_shadow_addon.blender.load import load_scene
+    sys.path.insert(0, str(a.tree.resolve()))
     from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+
+    def load_scene(spec):
+        if spec.endswith(".pkl.gz"):
+            return load_pickled(spec)
+        from hybrid_shadow_addon.blender.load import load_scene as load_blender
+
+        return load_blender(spec)
 
     size = tuple(int(v) for v in a.resolution.split("x"))
     scenes = a.scenes.split(";") if a.scenes else SCENES
