@@ -15,8 +15,8 @@ echo "## hard lights, $size"
 $py benchmarks/bench_frame.py --peer "$peer" --scenes "${bench[@]}" --size "$size" --frames 7 --alternations 2 \
     | sed "s#$scenes/##g; s#.pkl.gz##g" | tee "$out/frame_hard.md"
 echo "## soft lights, $size"
-$py benchmarks/bench_frame.py --peer "$peer" --scenes "$scenes/soft_lights.pkl.gz" "$scenes/forest.pkl.gz" \
-    --size "$size" --soft --frames 5 --alternations 2 | sed "s#$scenes/##g; s#.pkl.gz##g" | tee "$out/frame_soft.md"
+$py benchmarks/bench_frame.py --peer "$peer" --scenes "$scenes/soft_lights.pkl.gz" \
+    --size "$size" --soft --frames 4 --alternations 1 | sed "s#$scenes/##g; s#.pkl.gz##g" | tee "$out/frame_soft.md"
 all=$(ls "$scenes"/*.pkl.gz | paste -sd ';')
 $py tools/mask_digest.py --tree "$peer" --scenes "$all" --resolution 320x180 --output "$out/digest_peer.json" >/dev/null
 $py tools/mask_digest.py --scenes "$all" --resolution 320x180 --output "$out/digest_this.json" \
