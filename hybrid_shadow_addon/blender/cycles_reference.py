@@ -21,9 +21,9 @@ Objects flagged as analytic sphere primitives (``hybrid_sphere``) are rendered a
 trace for them, not as their mesh: for the reference each gets, for a moment, a fine UV sphere
 (:data:`SPHERE_SEGMENTS`, one per mesh) over its mesh's bounding sphere (the centre of its box, the radius to
 its furthest vertex, as :class:`~hybrid_shadow_addon.core.scene.Model` derives it), modifiers
-off. The comparison then measures the shadows, not the flag's stand-in: a 24 x 12 UV sphere's
-facets lie up to 0.9 % of the radius inside the sphere through its vertices, and on ``clusters``
-that alone put 0.3-0.6 % of the pixels off by more than 0.1 (BENCHMARKS.md).
+off. The comparison then measures the shadows, not the flag's stand-in: a coarse UV sphere's
+facets lie inside the sphere through its vertices by enough to show as mismatched pixels
+(BENCHMARKS.md).
 ``mesh_spheres=True`` renders them as their meshes (what Cycles shows the artist).
 
 Transparent bounces are raised to :data:`TRANSPARENT_BOUNCES` so that shadow rays cross stacks
@@ -56,7 +56,7 @@ UNSHADOWED_EDGE = 0.01
 TRANSPARENT_BOUNCES = 64
 #: segments and rings of the UV sphere that stands in for a sphere primitive in the reference: its
 #: facets lie within 0.03 % of the radius of the sphere through its vertices (objects that share a
-#: mesh share the stand-in, so that Cycles instances it as before)
+#: mesh share the stand-in, so that Cycles still instances it)
 SPHERE_SEGMENTS = (128, 64)
 RECIPE_VERSION = 4  # bump when the reference recipe changes: invalidates the cached references
 

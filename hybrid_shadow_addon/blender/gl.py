@@ -71,7 +71,7 @@ def create_pipeline():
 def gl_scope(pipeline):
     """Make ``pipeline``'s context current meanwhile; restore the previous one after.
     (moderngl's ``with ctx`` alone leaves *no* context current on exit, which breaks Blender's
-    drawing afterwards: measured with bpy 4.5 on EGL.)"""
+    drawing afterwards.)"""
     with _EGLCurrent(), pipeline.ctx:
         yield pipeline
 

@@ -22,8 +22,8 @@ PROXY_ATTRS = ("in_pos",)
 # The G-buffer's indexed layout: the model's distinct corners (position, smooth corner normal
 # or zeros on a flat model, UV or zeros, face normal), an index buffer. The face normal is a flat
 # attribute of each triangle's provoking (last) corner, which is a vertex of that triangle alone
-# or of triangles with the same face normal (indexed_vertex_data): read by gl_PrimitiveID from a
-# texture instead, it cost llvmpipe's G-buffer a third of its time.
+# or of triangles with the same face normal (indexed_vertex_data), cheaper than a texture read by
+# gl_PrimitiveID on a software rasteriser.
 INDEXED_FORMAT = "3f 3f 2f 3f"
 INDEXED_ATTRS = ("in_pos", "in_shading_normal", "in_uv", "in_face_normal")
 INDEXED_FORMAT_NO_UV = "3f 3f 8x 3f"
@@ -107,7 +107,7 @@ def indexed_vertex_data(model):
 
 #: models of at least CHUNK_MIN triangles are drawn in chunks of CHUNK_TRIS spatially close
 #: triangles, each left out where its bounding sphere misses the view (a terrain seen from
-#: within: llvmpipe shades vertices and sets up triangles on one thread, culled or not)
+#: within: a software rasteriser shades vertices and sets up triangles on one thread, culled or not)
 CHUNK_TRIS = 2048
 CHUNK_MIN = 4 * CHUNK_TRIS
 

@@ -8,8 +8,8 @@
   (copy-on-write, no array copied), so the main thread may go on editing its own. Commands run in order; render requests for the
   same view coalesce (only the newest pending one runs). A render request carries the fast and
   the full settings: the worker renders the fast pass, then the full-quality frames (four with
-  interlacing, more while soft shadows accumulate) as long as nothing newer arrives, exactly as
-  the draw callback used to, one frame per step. Each view renders through its own
+  interlacing, more while soft shadows accumulate) as long as nothing newer arrives, one frame
+  per step. Each view renders through its own
   :meth:`Pipeline.view` (own targets and history, the worker's bake). Errors are kept for the
   caller's :meth:`RenderWorker.poll`. ``synchronous=True`` (or :data:`SYNCHRONOUS`) runs the
   same steps inline, one render step per :meth:`RenderWorker.pump`, for debugging.
@@ -268,7 +268,7 @@ class RenderWorker:
 
     def pump(self) -> None:
         """Inline mode: run the queued commands and at most one render step (the draw callback
-        calls it; one frame per redraw, as before the worker). Does nothing with a thread."""
+        calls it; one frame per redraw). Does nothing with a thread."""
         if not self.synchronous:
             return
         while True:

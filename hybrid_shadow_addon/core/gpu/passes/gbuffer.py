@@ -3,15 +3,14 @@
 One instanced, indexed draw call per model: the model's distinct corners (position, smooth
 shading normal, UV, and on each triangle's provoking corner its face normal) with an index
 buffer (:meth:`~..geometry.ModelBufferCache.indexed`: a software rasteriser shades a vertex once
-per index of a de-indexed buffer, three times per triangle, which cost the G-buffer half its
-time on a 131k-triangle terrain; reading the face normal by ``gl_PrimitiveID`` from a texture
-instead cost it a third), and a per-model instance buffer
+per index of a de-indexed buffer, three times per triangle), the face normal a flat attribute
+rather than a texture read by ``gl_PrimitiveID``, and a per-model instance buffer
 (camera-relative world matrix rows, normal matrix, colour, specular/roughness/index)
 re-uploaded each render. Instances whose bounding sphere misses the view are not drawn, nor
 are the chunks of a big model (:func:`~..geometry.chunk_order`: its triangles in runs of
 spatially close ones, each with a bounding sphere) that miss it: a terrain seen from within
-draws the third of it in view (llvmpipe shades vertices and sets up triangles on one thread,
-in view or not).
+draws only the part in view (a software rasteriser shades vertices and sets up triangles on one
+thread, in view or not).
 Sphere primitives (``Instances.sphere``) are drawn as their model's bounding sphere
 (ray/ellipsoid per fragment). Models with UVs shown with a textured material draw with the
 ``TEXTURED`` variant: the UVs of the indexed buffer, the material per instance, the colour image's texel (mip

@@ -4,14 +4,13 @@ The lighting model (units in :mod:`..lights`, BRDF in ``shaders/common/lights.gl
 numpy mirror in ``core/oracle/lighting.py``. Lights with a mask are multiplied by it; the others
 are unshadowed; those the shadow pass found to light no pixel (``job.dark``) are left out. The
 light table (``LIGHT_TEXELS`` RGBA32F texels per light) is a uniform block where it fits the
-driver's block size (a light's row is the same for every pixel: llvmpipe then reads a uniform
-block once for a lane group, a texture once per lane; city's lighting 46 -> 43 ms), else a
-texture; the program is the variant of the kinds of light in it
-(:func:`..lights.lighting_defines`). Sized area lights are lit in loops of their own, after the
-others (the table is ordered so: unmasked lights, then the masked ones in batches, each group
-with its sized area lights last): llvmpipe runs both sides of a branch on a light's kind, so one
-loop for all cost every light the area light's polygon (``clusters``' lighting 2.09x faster, same
-run).
+driver's block size (a light's row is the same for every pixel, and a uniform block is read
+once per lane group where a texture is read once per lane), else a texture; the program is the
+variant of the kinds of light in it (:func:`..lights.lighting_defines`). Sized area lights are
+lit in loops of their own, after the others (the table is ordered so: unmasked lights, then the
+masked ones in batches, each group with its sized area lights last): a SIMD rasteriser runs both
+sides of a branch on a light's kind, so one loop for all would cost every light the area light's
+polygon (BENCHMARKS.md, "The frame around the rays").
 """
 from __future__ import annotations
 
