@@ -134,7 +134,7 @@ def test_geometry_nodes_instances_share_one_model(scene, as_instance):
 def test_vectorised_and_iterated_geometry_nodes_instances_agree(monkeypatch):
     open_scene("scaling:triangles=3000,instances=150,models=3")
     fast = _export()
-    monkeypatch.setattr(export._Exporter, "_vectorise", lambda self, ob: False)
+    monkeypatch.setattr(export.SceneExporter, "_vectorise", lambda self, ob: False)
     slow = _export()
     assert len(fast.instances) == len(slow.instances) == 151
     assert sorted(m.triangle_count for m in fast.models) == sorted(m.triangle_count for m in slow.models)

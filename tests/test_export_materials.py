@@ -187,7 +187,7 @@ def test_vectorised_and_iterated_instances_agree_on_materials(monkeypatch):
         return sorted((s.models[m].name, -1 if k < 0 else s.materials[k].name, tuple(np.round(c, 5)))
                       for m, k, c in zip(s.instances.model_ids, s.instances.material_ids, s.instances.base_color))
     fast = load_scene("alpha_cards")
-    monkeypatch.setattr(export._Exporter, "_vectorise", lambda self, ob: False)
+    monkeypatch.setattr(export.SceneExporter, "_vectorise", lambda self, ob: False)
     slow = load_scene("alpha_cards")
     assert summary(fast) == summary(slow)
     assert [m.name for m in slow.models if m.uvs is not None] == [m.name for m in fast.models if m.uvs is not None]

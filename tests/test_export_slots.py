@@ -323,7 +323,7 @@ def test_converted_objects_split_by_slot(scene):
         spline.points[1].co = (2, k, 0, 1)
         spline.material_index = k
     ob = _add("Crv", curve).evaluated_get(bpy.context.evaluated_depsgraph_get())
-    ex = export._Exporter(bpy.context.evaluated_depsgraph_get())
+    ex = export.SceneExporter(bpy.context.evaluated_depsgraph_get())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", export.ExportWarning)  # the bevel has UVs only when asked
         for name in ("A", "B"):
@@ -393,7 +393,7 @@ def test_geometry_nodes_instances_split_by_slot(scene, monkeypatch, as_instance)
     bark_colors = {tuple(np.round(c.astype(np.float64), 4)) for c in fast.instances.base_color[bark]}
     assert bark_colors == {(1, 0, 0, 1)} if as_instance else len(bark_colors) == 1
     # the iterator agrees (names aside: it does not number the instances)
-    monkeypatch.setattr(export._Exporter, "_vectorise", lambda self, ob: False)
+    monkeypatch.setattr(export.SceneExporter, "_vectorise", lambda self, ob: False)
     slow = _export()
     assert _summary(slow) == _summary(fast)
     assert sum(n.endswith(" [slot 1]") for n in slow.instances.names) == 40
@@ -432,7 +432,7 @@ def test_single_slot_scenes_export_as_without_the_split(monkeypatch, arg):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ours = export_depsgraph(bpy.context.evaluated_depsgraph_get())
-        monkeypatch.setattr(export, "slot_triangles", lambda mesh, n_slots: None)
+        monkeypatch.setattr(export.meshes, "slot_triangles", lambda mesh, n_slots: None)
         before = export_depsgraph(bpy.context.evaluated_depsgraph_get())
     assert _content(ours) == _content(before)
     assert not any(" [slot " in n for n in ours.instances.names + [m.name for m in ours.models])
