@@ -21,7 +21,7 @@ demo: setup
 
 # the tests that run a second time on bpy 5.x (CPython 3.13, numpy 2): export, pipeline, add-on
 BPY5 := .venv-bpy5/bin/python
-BPY5_TESTS := tests/test_export.py tests/test_export_materials.py tests/test_scenes.py tests/test_pipeline.py tests/test_addon_engine.py \
+BPY5_TESTS := tests/test_export_objects.py tests/test_export_meshes.py tests/test_export_materials.py tests/test_export_slots.py tests/test_export_lights.py tests/test_export_camera_world.py tests/test_export_load.py tests/test_scenes.py tests/test_pipeline.py tests/test_addon_engine.py \
 	tests/test_addon_panels.py tests/test_addon_viewport.py tests/test_addon_border.py tests/test_bad_input.py
 
 test: setup

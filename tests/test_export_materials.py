@@ -1,5 +1,6 @@
-"""The export of textured and alpha-cut-out materials: images, UVs, Mapping nodes, alpha modes,
-fallbacks with warnings, on the alpha_cards scene and on small scenes built here with bpy."""
+"""The export of materials: Principled colours, textured and alpha-cut-out materials (images,
+UVs, Mapping nodes, alpha modes, fallbacks with warnings), on the alpha_cards scene and on small
+scenes built here with bpy."""
 import math
 import warnings
 from types import SimpleNamespace
@@ -11,29 +12,17 @@ import pytest
 from hybrid_shadow_addon.blender import export
 from hybrid_shadow_addon.blender.export import ExportWarning, blend_settings, export_depsgraph
 from hybrid_shadow_addon.blender.load import load_scene, open_scene
-from hybrid_shadow_addon.core.scene import Scene
+from tests.helpers.export_scenes import add_object as _add
+from tests.helpers.export_scenes import cube_mesh as _cube_mesh
+from tests.helpers.export_scenes import empty_scene
+from tests.helpers.export_scenes import export_scene as _export
+from tests.helpers.export_scenes import row as _row
 
 
-# --------------------------------------------------------------------------------------------
-# helpers
-# --------------------------------------------------------------------------------------------
 @pytest.fixture
 def scene():
     """An empty scene with a camera."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    sc = bpy.context.scene
-    cam = _add("Cam", bpy.data.cameras.new("Cam"), location=(0, -10, 2))
-    sc.camera = cam
-    return sc
-
-
-def _add(name, data, location=(0, 0, 0)):
-    ob = bpy.data.objects.new(name, data)
-    bpy.context.scene.collection.objects.link(ob)
-    ob.location = location
-    return ob
-
-
+    return empty_scene()
 def _quad(name, uvs=((0, 0), (1, 0), (1, 1), (0, 1)), layers=("UVMap",)):
     """A unit quad with one UV layer per name in ``layers`` (the k-th layer's UVs are ``uvs``
     shifted by k in u)."""
@@ -68,14 +57,6 @@ def _textured(name, image, color=True, alpha="Alpha"):
     return mat, {"bsdf": bsdf, "tex": tex}
 
 
-def _export(**kw) -> Scene:
-    return export_depsgraph(bpy.context.evaluated_depsgraph_get(), **kw)
-
-
-def _row(s, name):
-    return s.instances.names.index(name)
-
-
 def _material_of(s, name):
     k = int(s.instances.material_ids[_row(s, name)])
     return None if k < 0 else s.materials[k]
@@ -94,6 +75,31 @@ def _export_warnings(fn):
         warnings.simplefilter("always")
         out = fn()
     return out, [str(w.message) for w in rec if issubclass(w.category, ExportWarning)]
+
+
+# --------------------------------------------------------------------------------------------
+# plain materials
+# --------------------------------------------------------------------------------------------
+def test_material_colours(scene):
+    me_red = _cube_mesh("red")
+    mat = bpy.data.materials.new("Red")
+    mat.use_nodes = True
+    bsdf = mat.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Base Color"].default_value = (0.9, 0.1, 0.05, 1)
+    bsdf.inputs["Specular IOR Level"].default_value = 0.25
+    bsdf.inputs["Roughness"].default_value = 0.7
+    me_red.materials.append(mat)
+    _add("Red", me_red)
+    plain = _cube_mesh("plain")
+    _add("Grey", plain)
+    _add("Tinted", plain).color = (0.1, 0.2, 0.3, 1)
+    s = _export()
+    rows = {n: i for i, n in enumerate(s.instances.names)}
+    inst = s.instances
+    np.testing.assert_allclose(inst.base_color[rows["Red"]], (0.9, 0.1, 0.05, 1), rtol=1e-6)
+    assert (inst.specular[rows["Red"]], inst.roughness[rows["Red"]]) == pytest.approx((0.25, 0.7))
+    np.testing.assert_allclose(inst.base_color[rows["Grey"]], (0.8, 0.8, 0.8, 1))
+    np.testing.assert_allclose(inst.base_color[rows["Tinted"]], (0.1, 0.2, 0.3, 1), rtol=1e-6)
 
 
 # --------------------------------------------------------------------------------------------
@@ -187,7 +193,7 @@ def test_vectorised_and_iterated_instances_agree_on_materials(monkeypatch):
         return sorted((s.models[m].name, -1 if k < 0 else s.materials[k].name, tuple(np.round(c, 5)))
                       for m, k, c in zip(s.instances.model_ids, s.instances.material_ids, s.instances.base_color))
     fast = load_scene("alpha_cards")
-    monkeypatch.setattr(export._Exporter, "_vectorise", lambda self, ob: False)
+    monkeypatch.setattr(export.SceneExporter, "_vectorise", lambda self, ob: False)
     slow = load_scene("alpha_cards")
     assert summary(fast) == summary(slow)
     assert [m.name for m in slow.models if m.uvs is not None] == [m.name for m in fast.models if m.uvs is not None]

@@ -1,6 +1,6 @@
 """Meshes with several material slots: one model per used slot, one instance per slot of every
 object showing them (iterated, collection and geometry-nodes instances), object- and
-data-linked slot materials; single-slot meshes export as before."""
+data-linked slot materials; single-slot meshes export as without the split."""
 import warnings
 
 import bpy
@@ -10,6 +10,9 @@ import pytest
 from hybrid_shadow_addon.blender import export
 from hybrid_shadow_addon.blender.export import export_depsgraph, slot_name, slot_owner
 from hybrid_shadow_addon.blender.load import open_scene
+from tests.helpers.export_scenes import add_object as _add
+from tests.helpers.export_scenes import empty_scene, gn_instancer, object_info
+from tests.helpers.export_scenes import row as _row
 
 BARK = (0.3, 0.15, 0.05, 1.0)
 
@@ -20,17 +23,7 @@ BARK = (0.3, 0.15, 0.05, 1.0)
 @pytest.fixture
 def scene():
     """An empty scene with a camera."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    sc = bpy.context.scene
-    sc.camera = _add("Cam", bpy.data.cameras.new("Cam"), location=(0, -10, 2))
-    return sc
-
-
-def _add(name, data, collection=None, location=(0, 0, 0)):
-    ob = bpy.data.objects.new(name, data)
-    (collection or bpy.context.scene.collection).objects.link(ob)
-    ob.location = location
-    return ob
+    return empty_scene()
 
 
 def _export(**kw):
@@ -131,10 +124,6 @@ def _world_corners(s, row):
     c = m.vertices[m.triangles].astype(np.float64)
     M = s.instances.matrices[row]
     return c @ M[:3, :3].T + M[:3, 3]
-
-
-def _row(s, name):
-    return s.instances.names.index(name)
 
 
 def _material_name(s, row):
@@ -323,7 +312,7 @@ def test_converted_objects_split_by_slot(scene):
         spline.points[1].co = (2, k, 0, 1)
         spline.material_index = k
     ob = _add("Crv", curve).evaluated_get(bpy.context.evaluated_depsgraph_get())
-    ex = export._Exporter(bpy.context.evaluated_depsgraph_get())
+    ex = export.SceneExporter(bpy.context.evaluated_depsgraph_get())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", export.ExportWarning)  # the bevel has UVs only when asked
         for name in ("A", "B"):
@@ -337,23 +326,7 @@ def test_converted_objects_split_by_slot(scene):
 # instancers
 # --------------------------------------------------------------------------------------------
 def _gn_instancer(name, points, target, as_instance):
-    pts = bpy.data.meshes.new(name)
-    pts.vertices.add(len(points))
-    pts.vertices.foreach_set("co", np.asarray(points, np.float32).ravel())
-    tree = bpy.data.node_groups.new(name, "GeometryNodeTree")
-    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-    gin, gout = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
-    iop = tree.nodes.new("GeometryNodeInstanceOnPoints")
-    info = tree.nodes.new("GeometryNodeObjectInfo")
-    info.inputs["Object"].default_value = target
-    info.inputs["As Instance"].default_value = as_instance
-    tree.links.new(gin.outputs[0], iop.inputs["Points"])
-    tree.links.new(info.outputs["Geometry"], iop.inputs["Instance"])
-    tree.links.new(iop.outputs[0], gout.inputs[0])
-    ob = _add(name, pts)
-    ob.modifiers.new("GN", "NODES").node_group = tree
-    return ob
+    return gn_instancer(name, points, object_info(target, as_instance))
 
 
 def _summary(s):
@@ -393,7 +366,7 @@ def test_geometry_nodes_instances_split_by_slot(scene, monkeypatch, as_instance)
     bark_colors = {tuple(np.round(c.astype(np.float64), 4)) for c in fast.instances.base_color[bark]}
     assert bark_colors == {(1, 0, 0, 1)} if as_instance else len(bark_colors) == 1
     # the iterator agrees (names aside: it does not number the instances)
-    monkeypatch.setattr(export._Exporter, "_vectorise", lambda self, ob: False)
+    monkeypatch.setattr(export.SceneExporter, "_vectorise", lambda self, ob: False)
     slow = _export()
     assert _summary(slow) == _summary(fast)
     assert sum(n.endswith(" [slot 1]") for n in slow.instances.names) == 40
@@ -412,7 +385,7 @@ def test_collection_instances_split_by_slot(scene):
 
 
 # --------------------------------------------------------------------------------------------
-# single-slot scenes: as before
+# single-slot scenes: as without the split
 # --------------------------------------------------------------------------------------------
 def _content(s):
     i = s.instances
@@ -432,7 +405,7 @@ def test_single_slot_scenes_export_as_without_the_split(monkeypatch, arg):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ours = export_depsgraph(bpy.context.evaluated_depsgraph_get())
-        monkeypatch.setattr(export, "slot_triangles", lambda mesh, n_slots: None)
+        monkeypatch.setattr(export.meshes, "slot_triangles", lambda mesh, n_slots: None)
         before = export_depsgraph(bpy.context.evaluated_depsgraph_get())
     assert _content(ours) == _content(before)
     assert not any(" [slot " in n for n in ours.instances.names + [m.name for m in ours.models])

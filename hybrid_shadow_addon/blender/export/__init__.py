@@ -1,0 +1,54 @@
+"""Export an evaluated depsgraph to the bpy-free scene model.
+
+:func:`export_depsgraph` reads what Blender renders: modifiers applied, every instance (linked
+duplicates, collection instances, particles, geometry-nodes instances) placed as an instance of
+one shared :class:`~hybrid_shadow_addon.core.scene.Model` per evaluated mesh and material slot.
+
+Modules: :mod:`.objects` walks the depsgraph and its instances, :mod:`.meshes` reads mesh arrays,
+normals and UVs and splits meshes by slot, :mod:`.materials` reads node graphs, :mod:`.images`
+their images, :mod:`.shading` collects the per-instance attributes, :mod:`.lights`,
+:mod:`.camera` and :mod:`.world` the rest of the scene. The names below are the package's API.
+"""
+from __future__ import annotations
+
+from ...core.scene import Scene
+from .camera import export_camera, render_resolution
+from .common import (GEOMETRY_TYPES, SPHERE_PROPERTY, ExportWarning, is_sphere_primitive, to_matrices,
+                     to_matrix)
+from .images import image_pixels
+from .lights import export_light, export_lights, light_color, light_power
+from .materials import (MaterialReading, TextureLink, blend_settings, mapping_affine, material_surface,
+                        principled_node, read_material)
+from .meshes import (ModelTable, mesh_arrays, mesh_uv_layer, mesh_uvs, slot_name, slot_owner,
+                     slot_triangles, smooth_normals, used_slots)
+from .objects import SceneExporter
+from .shading import ShadingTable
+from .visibility import RenderVisibility
+from .world import world_background, world_color
+
+#: The viewport's name for :func:`to_matrix`.
+_matrix = to_matrix
+
+
+def export_depsgraph(depsgraph, *, resolution=None, render_visibility: bool | None = None) -> Scene:
+    """The scene of an evaluated depsgraph at its current frame.
+
+    ``render_visibility``: drop what is hidden from render (default: for a viewport depsgraph,
+    so that it exports what F12 renders); False keeps what the viewport shows, as Cycles' and
+    EEVEE's rendered viewports do.
+
+    ``resolution``: ``(width, height)`` overriding the render settings (default: resolution x/y
+    times the percentage). Raises :class:`SceneError` naming the object for a NaN or infinite
+    transform (``Scene.check_transforms``); the remaining checks are ``Scene.validate``'s.
+    """
+    return SceneExporter(depsgraph, render_visibility).run(resolution)
+
+
+__all__ = [
+    "GEOMETRY_TYPES", "SPHERE_PROPERTY", "ExportWarning", "MaterialReading", "ModelTable", "RenderVisibility",
+    "SceneExporter", "ShadingTable", "TextureLink", "blend_settings", "export_camera", "export_depsgraph",
+    "export_light", "export_lights", "image_pixels", "is_sphere_primitive", "light_color", "light_power",
+    "mapping_affine", "material_surface", "mesh_arrays", "mesh_uv_layer", "mesh_uvs", "principled_node",
+    "read_material", "render_resolution", "slot_name", "slot_owner", "slot_triangles", "smooth_normals",
+    "to_matrices", "to_matrix", "used_slots", "world_background", "world_color",
+]

@@ -1,0 +1,44 @@
+"""What every export module shares: the warning category, mathutils matrices as numpy arrays,
+and the object kinds and properties the export reads."""
+from __future__ import annotations
+
+import itertools
+import warnings
+
+import numpy as np
+
+#: Object types whose evaluated geometry can be a mesh.
+GEOMETRY_TYPES = frozenset({"MESH", "CURVE", "SURFACE", "FONT", "META"})
+#: Custom object property marking an analytic sphere primitive.
+SPHERE_PROPERTY = "hybrid_sphere"
+
+
+class ExportWarning(UserWarning):
+    """Part of the scene the export cannot read as Blender renders it (a material's node set-up,
+    an image without pixels, a textured mesh without UVs): it falls back and says so, once per
+    material, image or mesh."""
+
+
+def warn_export(message: str) -> None:
+    """Issue an :class:`ExportWarning` attributed to the caller of the function that warns."""
+    warnings.warn(message, ExportWarning, stacklevel=3)
+
+
+def to_matrix(m) -> np.ndarray:
+    """A mathutils 4x4 matrix as a float64 numpy array (rows as in Blender)."""
+    return np.array([tuple(row) for row in m], np.float64)
+
+
+def to_matrices(ms: list) -> np.ndarray:
+    """A list of mathutils 4x4 matrices as an (N, 4, 4) float64 array."""
+    flat = itertools.chain.from_iterable(itertools.chain.from_iterable(ms))
+    return np.fromiter(flat, np.float64, count=16 * len(ms)).reshape(-1, 4, 4)
+
+
+def is_sphere_primitive(ob) -> bool:
+    """The object's "Sphere Primitive" setting: the add-on's property when registered, else the
+    ``hybrid_sphere`` custom property (scene scripts set that one)."""
+    value = getattr(ob, SPHERE_PROPERTY, None)
+    if value is None:
+        value = ob.get(SPHERE_PROPERTY, False)
+    return bool(value)

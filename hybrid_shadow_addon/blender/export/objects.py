@@ -1,0 +1,255 @@
+"""Walking an evaluated depsgraph: every rendered object and instance placed as an instance of one
+shared model per evaluated mesh, with its slots' materials, plus the lights.
+
+Two paths feed the instances, and each instance goes through exactly one of them:
+
+- ``depsgraph.object_instances`` for everything, one Python step per instance;
+- geometry-nodes instances of a mesh object whose instance tree holds only meshes and objects
+  are read from its evaluated :class:`bpy.types.GeometrySet` with ``foreach_get``; that object's
+  duplis are then skipped in the iterator.
+
+Blender yields the evaluated mesh of curve, text, surface and metaball objects as a separate
+``MESH`` instance of the object, so only ``MESH`` instances carry geometry; ``to_mesh()`` is used
+only for a non-mesh object whose evaluated geometry has no mesh component.
+
+A ``RENDER`` depsgraph (a render engine's) holds exactly the renderable objects. A ``VIEWPORT``
+depsgraph also holds objects hidden from render, dropped here (:class:`RenderVisibility`, checked
+on top-level objects and instancers); objects hidden in the viewport are absent from it, and
+modifiers use their viewport settings.
+
+Each instance shows one model per used material slot (:mod:`.meshes` names them), with the
+evaluated object's ``material_slots[k].material`` (object- and data-linked slots both work; a
+realised geometry-nodes mesh: ``mesh.materials[k]``), the same matrix and shadow flag.
+"""
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+from ...core.scene import Instances, Scene, affine_inverse
+from .camera import export_camera, render_resolution
+from .common import GEOMETRY_TYPES, to_matrices, to_matrix
+from .lights import export_light
+from .meshes import ModelTable, slot_name
+from .shading import ShadingTable
+from .visibility import RenderVisibility
+from .world import world_color
+
+
+class SceneExporter:
+    """One export of a depsgraph: the instance rows found by the iterator, the vectorised
+    geometry-nodes parts, the lights, and the model and shading tables they index."""
+
+    def __init__(self, depsgraph, render_visibility: bool | None = None):
+        self.dg = depsgraph
+        self.renderable = RenderVisibility(depsgraph, render_visibility)
+        self.model_table = ModelTable()
+        self.models = self.model_table.models
+        self.shading = ShadingTable(self.model_table)
+        # one row per instance found by the iterator
+        self.names: list[str] = []
+        self.model_ids: list[int] = []
+        self.matrices: list = []
+        self.attr_ids: list[int] = []
+        self.parts: list[Instances] = []  # vectorised geometry-nodes instances
+        self.lights: list = []
+        self.keep: list = []  # GeometrySets own the meshes they reference: alive while exporting
+
+    def run(self, resolution) -> Scene:
+        scene = self.dg.scene_eval
+        self._walk()
+        instances = Instances.concatenate([self._iterated_instances()] + self.parts)
+        camera = export_camera(self.dg)
+        result = Scene(name=scene.name, models=self.models, instances=instances,
+                       lights=self.lights, camera=camera, world_color=world_color(scene.world),
+                       resolution=render_resolution(scene) if resolution is None else resolution,
+                       frame=scene.frame_current, materials=self.shading.materials,
+                       images=self.shading.images)
+        return result.check_transforms()
+
+    def _walk(self) -> None:
+        vectorised = set()  # evaluated instancers whose instances came from their GeometrySet
+        iterated = set()  # evaluated instancers with duplis taken from the iterator
+        for inst in self.dg.object_instances:
+            if inst.is_instance:
+                parent = inst.parent
+                pptr = parent.as_pointer()
+                if pptr in vectorised:
+                    continue
+                iterated.add(pptr)
+                ob = inst.object
+                if not self.renderable(parent.original):
+                    continue
+                name = ob.name if ob.name == parent.name else f"{parent.name}/{ob.name}"
+            else:
+                ob = inst.object
+                if not self.renderable(ob.original):
+                    continue
+                name = ob.name
+                if (ob.type == "MESH" and ob.as_pointer() not in iterated
+                        and any(m.type == "NODES" for m in ob.modifiers)
+                        and self._vectorise(ob)):
+                    vectorised.add(ob.as_pointer())
+            kind = ob.type
+            if kind == "MESH":
+                self._add_mesh_instance(ob, ob.data, ob.data.as_pointer(), inst.matrix_world, name)
+            elif kind == "LIGHT":
+                self.lights.append(export_light(ob, to_matrix(inst.matrix_world), name))
+            elif kind in GEOMETRY_TYPES and bpy.types.GeometrySet.from_evaluated_object(ob).mesh is None:
+                self._add_converted_instance(ob, inst.matrix_world, name)
+
+    # -- instances found by the iterator ------------------------------------------------------
+    @staticmethod
+    def _slot_material(slots, k: int):
+        """The material of slot ``k`` (a ``material_slots`` or ``materials`` collection), None
+        without slots."""
+        if not len(slots):
+            return None
+        m = slots[k]
+        return m.material if isinstance(m, bpy.types.MaterialSlot) else m
+
+    @staticmethod
+    def _model_name(ob, mesh) -> str:
+        """The mesh's name, or the object's when the mesh is a modifier or conversion result."""
+        return mesh.name if mesh.name == getattr(ob.original.data, "name", None) else ob.original.name
+
+    def _add_mesh_instance(self, ob, mesh, key, matrix, name) -> None:
+        slots = ob.material_slots
+        models = self.model_table.slot_models(key, mesh, self._model_name(ob, mesh), len(slots))
+        if models:
+            self._add_rows(ob, slots, models, matrix.copy(), name, mesh)
+
+    def _add_rows(self, ob, slots, models, matrix, name, mesh) -> None:
+        """One iterated instance per ``(slot, model id)`` of ``models`` (named as :mod:`.meshes`
+        says), each with its slot's material; ``mesh``: where UVs are read (None: they are read
+        already)."""
+        for j, (k, mid) in enumerate(models):
+            self.names.append(name if j == 0 else slot_name(name, k))
+            self.model_ids.append(mid)
+            self.matrices.append(matrix)
+            aid = self.shading.attributes(ob, self._slot_material(slots, k))
+            self.attr_ids.append(self.shading.checked(aid, mid, mesh, name))
+
+    def _add_converted_instance(self, ob, matrix, name) -> None:
+        """A non-mesh object without a mesh component: its ``to_mesh()`` triangles, if any."""
+        key = ("to_mesh", ob.original.as_pointer())
+        slots = ob.material_slots
+        models = self.model_table.models_of.get(key)
+        if models is None or any(
+                self.shading.needs_uvs(self.shading.attributes(ob, self._slot_material(slots, k)), mid)
+                for k, mid in models):
+            mesh = ob.to_mesh()
+            try:
+                models = self.model_table.slot_models(key, mesh, ob.original.name, len(slots))
+                self._add_rows(ob, slots, models, matrix.copy(), name, mesh)
+            finally:
+                ob.to_mesh_clear()
+        else:  # UVs already read (or found missing)
+            self._add_rows(ob, slots, models, matrix.copy(), name, None)
+
+    def _iterated_instances(self) -> Instances:
+        if not self.names:
+            return Instances()
+        attrs = [self.shading.attrs[i] for i in self.attr_ids]
+        return Instances(
+            names=self.names,
+            model_ids=np.array(self.model_ids, np.int32),
+            matrices=(m := to_matrices(self.matrices)),
+            inverse=affine_inverse(m),
+            casts_shadow=np.array([a[0] for a in attrs], bool),
+            sphere=np.array([a[1] for a in attrs], bool),
+            base_color=np.array([a[2] for a in attrs], np.float32),
+            specular=np.array([a[3] for a in attrs], np.float32),
+            roughness=np.array([a[4] for a in attrs], np.float32),
+            material_ids=np.array([a[5] for a in attrs], np.int32),
+        )
+
+    # -- geometry-nodes instances, vectorised -------------------------------------------------
+    def _vectorise(self, ob) -> bool:
+        """Read the geometry-nodes instances of mesh object ``ob`` from its GeometrySet into
+        ``self.parts``. False (nothing added) when its instance tree holds anything but meshes
+        and plain mesh objects (collections, curves, ...): the iterator then takes them."""
+        groups = flatten_instances(bpy.types.GeometrySet.from_evaluated_object(ob), self.dg, self.keep)
+        if groups is None:
+            return False
+        world = to_matrix(ob.matrix_world)
+        for source, mesh, label, local, index in groups:
+            matrices = np.matmul(world, local)
+            inverse = None
+            prefix = f"{ob.name}/{label}"
+            if source is None:  # realised geometry made by ob's node tree
+                owner, slots = ob, mesh.materials
+                models = self.model_table.slot_models(mesh.as_pointer(), mesh, prefix, len(slots))
+            else:  # an object instanced as a whole
+                owner, slots = source, source.material_slots
+                models = self.model_table.slot_models(mesh.as_pointer(), mesh, self._model_name(source, mesh),
+                                                      len(slots))
+            n = len(index)
+            for j, (k, mid) in enumerate(models):
+                aid = self.shading.attributes(owner, self._slot_material(slots, k))
+                aid = self.shading.checked(aid, mid, mesh, source.name if source is not None else prefix)
+                shadow, sphere, rgba, spec, rough, material_id, _ = self.shading.attrs[aid]
+                if inverse is None:
+                    inverse = affine_inverse(matrices)
+                suffix = "" if j == 0 else slot_name("", k)
+                self.parts.append(Instances(
+                    names=[f"{prefix}[{i}]{suffix}" for i in index.tolist()],
+                    model_ids=np.full(n, mid, np.int32),
+                    matrices=matrices,
+                    inverse=inverse,
+                    casts_shadow=np.full(n, shadow),
+                    sphere=np.full(n, sphere),
+                    base_color=np.tile(np.float32(rgba), (n, 1)),
+                    specular=np.full(n, spec, np.float32),
+                    roughness=np.full(n, rough, np.float32),
+                    material_ids=np.full(n, material_id, np.int32),
+                ))
+        return True
+
+
+def flatten_instances(gs, depsgraph, keep: list):
+    """The instances of a GeometrySet, flattened: a list of ``(source_object or None, mesh,
+    label, local matrices (k, 4, 4), top-level instance indices (k,))``, or None when the tree
+    holds something this path does not read (collections, non-mesh objects, instances of
+    objects that have instances themselves). The GeometrySets owning the meshes go to ``keep``."""
+    keep.append(gs)
+    pc = gs.instances_pointcloud()
+    if pc is None:
+        return []
+    attrs = pc.attributes
+    if "instance_transform" not in attrs or ".reference_index" not in attrs:
+        return None
+    n = len(pc.points)
+    raw = np.empty(n * 16, np.float32)
+    attrs["instance_transform"].data.foreach_get("value", raw)
+    local = raw.reshape(n, 4, 4).transpose(0, 2, 1).astype(np.float64)  # stored column-major
+    ref = np.empty(n, np.int32)
+    attrs[".reference_index"].data.foreach_get("value", ref)
+    refs = gs.instance_references()
+    order = np.argsort(ref, kind="stable")
+    bounds = np.searchsorted(ref[order], np.arange(len(refs) + 1))
+    out = []
+    for k, r in enumerate(refs):
+        index = order[bounds[k]:bounds[k + 1]]
+        if not len(index) or r is None:
+            continue
+        m = local[index]
+        if isinstance(r, bpy.types.Object):
+            ob = r if r.is_evaluated else r.evaluated_get(depsgraph)
+            if ob.type != "MESH" or bpy.types.GeometrySet.from_evaluated_object(ob).instances_pointcloud() is not None:
+                return None
+            out.append((ob, ob.data, ob.name, m, index))
+        elif isinstance(r, bpy.types.GeometrySet):
+            if r.curves is not None or r.pointcloud is not None or r.volume is not None or r.grease_pencil is not None:
+                return None
+            if r.mesh is not None:
+                out.append((None, r.mesh, r.name or r.mesh.name, m, index))
+            sub = flatten_instances(r, depsgraph, keep)
+            if sub is None:
+                return None
+            for source, mesh, label, sub_m, _ in sub:
+                placed = np.matmul(m[:, None], sub_m[None]).reshape(-1, 4, 4)
+                out.append((source, mesh, label, placed, np.repeat(index, len(sub_m))))
+        else:
+            return None
+    return out

@@ -1,0 +1,153 @@
+"""The shading of each exported instance: its shadow and sphere flags, colour, specular and
+roughness, and (textured or alpha materials) a scene material with its images, each material and
+image read once per export."""
+from __future__ import annotations
+
+from ...core.scene import Image, Material
+from .common import is_sphere_primitive, warn_export
+from .images import image_pixels
+from .materials import IDENTITY_UV, TextureLink, material_surface, read_material
+from .meshes import ModelTable, mesh_uv_layer, mesh_uvs
+
+
+class ShadingTable:
+    """Rows of per-instance attributes ``(casts_shadow, sphere, rgba, specular, roughness,
+    material id, fallback rgba)``, one per object and material, with the scene's materials and
+    images. A textured material gives the models it shows their UVs (from ``models``).
+
+    Plain materials stay ``material id = -1``, so an opaque scene has no materials, images or
+    UVs."""
+
+    def __init__(self, models: ModelTable):
+        self.model_table = models
+        self.attrs: list[tuple] = []
+        self.attr_of: dict = {}  # (object pointer, material pointer) -> attrs row
+        self.dropped_of: dict = {}  # attrs row -> the same row without its material
+        self.surface_of: dict = {}  # material pointer -> (rgba, specular, roughness, material id, fallback rgba)
+        self.materials: list[Material] = []
+        self.material_uv: list[str] = []  # UV map name of each material ("": active render)
+        self.images: list[Image] = []
+        self.image_of: dict = {}  # (image pointer, extension, interpolation) -> image id or -1
+        self.pixels_of: dict = {}  # image pointer -> image_pixels()
+        self.uv_of: dict = {}  # (model id, UV map name) -> bool (the model has those UVs)
+
+    def attributes(self, ob, material) -> int:
+        """Row in ``self.attrs`` for an (evaluated) object showing ``material``."""
+        key = (ob.original.as_pointer(), None if material is None else material.as_pointer())
+        aid = self.attr_of.get(key)
+        if aid is None:
+            skey = key[1]
+            surface = self.surface_of.get(skey) if skey is not None else None
+            if surface is None:
+                if material is None:
+                    rgba, spec, rough = material_surface(None, ob.color)
+                    surface = (rgba, spec, rough, -1, rgba)
+                else:
+                    surface = self._material(material)
+                    self.surface_of[skey] = surface
+            aid = len(self.attrs)
+            self.attrs.append((bool(ob.visible_shadow), is_sphere_primitive(ob)) + surface)
+            self.attr_of[key] = aid
+        return aid
+
+    def _material(self, material) -> tuple:
+        """``(rgba, specular, roughness, material id, fallback rgba)`` of a Blender material: a
+        new entry of ``self.materials`` when it is textured or its alpha is below 1 (id -1
+        otherwise); the fallback colour is the unlinked Base Color and Alpha (the material
+        without its textures). Warns once for what it reads as defaults."""
+        r = read_material(material)
+        problems = r.problems
+        fallback = tuple(r.rgba)
+        color_img = self._image_index(r.color, problems, "Base Color") if r.color is not None else -1
+        alpha_img = self._image_index(r.alpha_texture, problems, "Alpha") if r.alpha_texture is not None else -1
+        alpha = r.alpha if alpha_img >= 0 or r.alpha_texture is None else float(fallback[3])
+        if color_img >= 0 and alpha_img >= 0 and not r.color.same_mapping(r.alpha_texture):
+            problems.append("Base Color and Alpha use different UV maps or mappings; the colour image "
+                            "is dropped")
+            color_img = -1
+        link = r.alpha_texture if alpha_img >= 0 else r.color if color_img >= 0 else None
+        rgb = (1.0, 1.0, 1.0) if color_img >= 0 else tuple(fallback[:3])
+        if problems:
+            warn_export(f"material '{material.name}': {'; '.join(problems)}: the export uses the default "
+                        f"value{'s' if len(problems) > 1 else ''} instead")
+        mid = -1
+        if color_img >= 0 or alpha_img >= 0 or alpha < 1.0:
+            mid = len(self.materials)
+            self.materials.append(Material(
+                name=material.name, color_image=color_img, alpha=min(max(alpha, 0.0), 1.0), alpha_image=alpha_img,
+                alpha_channel="LUMA" if alpha_img >= 0 and r.alpha_texture.output == "Color" else "A",
+                uv_transform=(IDENTITY_UV if link is None else link.uv_affine)[:2],
+                alpha_mode=r.alpha_mode, alpha_threshold=r.alpha_threshold,
+                transparent_shadow=r.transparent_shadow))
+            self.material_uv.append("" if link is None else link.uv_map)
+        return rgb + (alpha,), r.specular, r.roughness, mid, fallback
+
+    def _image_index(self, link: TextureLink, problems: list, label: str) -> int:
+        """Index in ``self.images`` of the image an Image Texture node reads (one per image,
+        extension and interpolation; the pixels read once per image); -1 (with a problem) when
+        it has no pixels."""
+        node = link.node
+        image = node.image
+        interp = node.interpolation if node.interpolation in ("Linear", "Closest") else "Linear"
+        key = (image.as_pointer(), node.extension, interp)
+        idx = self.image_of.get(key)
+        if idx is None:
+            ptr = image.as_pointer()
+            if ptr not in self.pixels_of:
+                self.pixels_of[ptr] = image_pixels(image)
+            px = self.pixels_of[ptr]
+            idx = -1
+            if px is not None:
+                idx = len(self.images)
+                self.images.append(Image(name=image.name, pixels=px[0], srgb=px[1], extension=node.extension,
+                                         interpolation=interp))
+            self.image_of[key] = idx
+        if idx < 0:
+            problems.append(f"{label} reads the image '{image.name}', whose pixels cannot be read "
+                            f"(missing file?)")
+        return idx
+
+    def checked(self, aid: int, mid: int, mesh, name: str) -> int:
+        """``aid``, or the same attributes without the material when it is textured and the
+        model's mesh has no UVs for it (warned once per mesh and UV map). Gives the model its
+        UVs when a textured material shows it."""
+        k = self.attrs[aid][5]
+        if k < 0 or not self.materials[k].textured:
+            return aid
+        uv_map = self.material_uv[k]
+        key = (mid, uv_map)
+        ok = self.uv_of.get(key)
+        if ok is None:
+            model = self.model_table.models[mid]
+            layer = mesh_uv_layer(mesh, uv_map)
+            if layer is None:
+                ok = False
+                warn_export(f"object '{name}': its material '{self.materials[k].name}' is textured but its mesh "
+                            f"'{model.name}' has no UV map" + (f" named '{uv_map}'" if uv_map else "")
+                            + ": exported without the material")
+            elif model.uvs is None:
+                uvs = mesh_uvs(mesh, layer)
+                idx = self.model_table.model_tris.get(mid)
+                model.uvs = uvs if idx is None else uvs[idx]
+                self.uv_of[(mid, layer.name)] = ok = True
+            else:
+                ok = True
+                if (mid, layer.name) not in self.uv_of:
+                    warn_export(f"object '{name}': its material '{self.materials[k].name}' reads UV map "
+                                f"'{layer.name}' of mesh '{model.name}', which is already exported with "
+                                f"another UV map: using that one")
+            self.uv_of[key] = ok
+        if ok:
+            return aid
+        dropped = self.dropped_of.get(aid)
+        if dropped is None:
+            shadow, sphere, _, spec, rough, _, fallback = self.attrs[aid]
+            dropped = self.dropped_of[aid] = len(self.attrs)
+            self.attrs.append((shadow, sphere, fallback, spec, rough, -1, fallback))
+        return dropped
+
+    def needs_uvs(self, aid: int, mid: int) -> bool:
+        """Whether the material of attributes ``aid`` is textured and model ``mid``'s UVs for it
+        are not read (nor found missing) yet."""
+        k = self.attrs[aid][5]
+        return k >= 0 and self.materials[k].textured and (mid, self.material_uv[k]) not in self.uv_of

@@ -1,0 +1,233 @@
+"""The depsgraph walk: linked duplicates, collection and geometry-nodes instances (both paths),
+converted objects, render visibility, object flags and invalid transforms."""
+import bpy
+import numpy as np
+import pytest
+
+from hybrid_shadow_addon.blender import export
+from hybrid_shadow_addon.blender.load import open_scene
+from hybrid_shadow_addon.core.errors import SceneError
+from hybrid_shadow_addon.core.scene import Instances, Model, Scene, affine_inverse
+from tests.helpers.export_scenes import add_object as _add
+from tests.helpers.export_scenes import cube_mesh as _cube_mesh
+from tests.helpers.export_scenes import empty_scene
+from tests.helpers.export_scenes import export_scene as _export
+from tests.helpers.export_scenes import gn_instancer as _gn_instancer
+from tests.helpers.export_scenes import object_info as _object_info
+
+
+@pytest.fixture
+def scene():
+    """An empty scene with a camera."""
+    return empty_scene()
+def _reference_counts():
+    """Mesh instances and triangles in the depsgraph, minus those of hide_render objects."""
+    n = tris = 0
+    for inst in bpy.context.evaluated_depsgraph_get().object_instances:
+        owner = inst.parent if inst.is_instance else inst.object
+        if inst.object.type == "MESH" and not owner.original.hide_render:
+            n += bool(len(inst.object.data.loop_triangles))
+            tris += len(inst.object.data.loop_triangles)
+    return n, tris
+
+
+# --------------------------------------------------------------------------------------------
+# instancing
+# --------------------------------------------------------------------------------------------
+def test_linked_duplicates_share_one_model(scene):
+    me = _cube_mesh()
+    for i in range(5):
+        _add(f"C{i}", me, location=(3 * i, 0, 0))
+    s = _export()
+    assert len(s.instances) == 5 and len(s.models) == 1
+    assert s.triangle_count == 60 and s.unique_triangle_count == 12
+    np.testing.assert_allclose(sorted(s.instances.matrices[:, 0, 3]), [0, 3, 6, 9, 12])
+
+
+def test_collection_instances_share_one_model(scene):
+    coll = bpy.data.collections.new("Src")
+    _add("InColl", _cube_mesh(), coll, location=(1, 0, 0))
+    for i in range(3):
+        e = _add(f"E{i}", None, location=(0, 5 * i, 0))
+        e.instance_type, e.instance_collection = "COLLECTION", coll
+    s = _export()
+    assert len(s.instances) == 3 and len(s.models) == 1
+    np.testing.assert_allclose(sorted(s.instances.matrices[:, 1, 3]), [0, 5, 10])
+    np.testing.assert_allclose(s.instances.matrices[:, 0, 3], 1)
+
+
+@pytest.mark.parametrize("as_instance", [False, True])
+def test_geometry_nodes_instances_share_one_model(scene, as_instance):
+    src = _add("Src", _cube_mesh(), location=(0, 0, 50))
+    src.hide_render = True  # the source does not render; its instances do
+    points = np.random.default_rng(0).uniform(-20, 20, (200, 3))
+    gn = _gn_instancer("GN", points, _object_info(src, as_instance))
+    gn.location = (1, 2, 3)
+    s = _export()
+    assert len(s.instances) == 200 and len(s.models) == 1
+    assert s.triangle_count == 200 * 12
+    np.testing.assert_allclose(np.sort(s.instances.matrices[:, :3, 3], axis=0), np.sort(points + (1, 2, 3), axis=0),
+                               atol=1e-4)
+    ref = {tuple(np.round(np.array(i.matrix_world, np.float64)[:3, 3], 3))
+           for i in bpy.context.evaluated_depsgraph_get().object_instances if i.is_instance}
+    assert ref == {tuple(np.round(m[:3, 3], 3)) for m in s.instances.matrices}
+
+
+def test_vectorised_and_iterated_geometry_nodes_instances_agree(monkeypatch):
+    open_scene("scaling:triangles=3000,instances=150,models=3")
+    fast = _export()
+    monkeypatch.setattr(export.SceneExporter, "_vectorise", lambda self, ob: False)
+    slow = _export()
+    assert len(fast.instances) == len(slow.instances) == 151
+    assert sorted(m.triangle_count for m in fast.models) == sorted(m.triangle_count for m in slow.models)
+    order_f = np.lexsort(fast.instances.matrices.reshape(-1, 16).T)
+    order_s = np.lexsort(slow.instances.matrices.reshape(-1, 16).T)
+    np.testing.assert_allclose(fast.instances.matrices[order_f], slow.instances.matrices[order_s], atol=1e-4)
+    np.testing.assert_allclose(fast.instances.inverse[order_f], slow.instances.inverse[order_s], atol=1e-3)
+    np.testing.assert_array_equal(fast.instances.base_color[order_f], slow.instances.base_color[order_s])
+
+
+def test_nested_and_collection_geometry_nodes_instances(scene):
+    coll = bpy.data.collections.new("Pair")
+    me = _cube_mesh()
+    _add("P1", me, coll, location=(0, 0, 0))
+    _add("P2", me, coll, location=(0, 0, 3))
+
+    def collection_info(tree):
+        node = tree.nodes.new("GeometryNodeCollectionInfo")
+        node.inputs["Collection"].default_value = coll
+        return node.outputs[0]
+    inner = _gn_instancer("Inner", [(0, 0, 0), (5, 0, 0)], collection_info)
+    inner.hide_render = True
+    _gn_instancer("Outer", [(0, 0, 0), (0, 10, 0), (0, 20, 0)], _object_info(inner, True))
+    s = _export()
+    n, tris = _reference_counts()
+    assert (len(s.instances), s.triangle_count) == (n, tris) == (12, 144)
+    assert len(s.models) == 1
+
+
+def test_geometry_nodes_instancing_a_curve_counts_once(scene):
+    curve = bpy.data.curves.new("Crv", "CURVE")
+    curve.dimensions, curve.bevel_depth = "3D", 0.2
+    spline = curve.splines.new("POLY")
+    spline.points.add(1)
+    spline.points[1].co = (2, 0, 0, 1)
+    src = _add("Crv", curve)
+    src.hide_render = True
+    _gn_instancer("GN", [(0, 0, 0), (0, 5, 0)], _object_info(src, True))
+    s = _export()
+    n, tris = _reference_counts()
+    assert (len(s.instances), s.triangle_count) == (n, tris)
+    assert n == 2 and tris > 0
+
+
+def test_non_mesh_objects_are_triangulated_once(scene):
+    text = bpy.data.curves.new("Txt", "FONT")
+    text.body, text.extrude = "Hi", 0.1
+    _add("Text", text)
+    ball = bpy.data.metaballs.new("Meta")
+    ball.elements.new().radius = 1
+    _add("Meta", ball, location=(5, 0, 0))
+    s = _export()
+    dg = bpy.context.evaluated_depsgraph_get()
+    expected = 0
+    for name in ("Text", "Meta"):
+        ob = bpy.data.objects[name].evaluated_get(dg)
+        expected += len(ob.to_mesh().loop_triangles)
+        ob.to_mesh_clear()
+    assert len(s.instances) == 2
+    assert s.triangle_count == expected > 0
+
+
+# --------------------------------------------------------------------------------------------
+# visibility and flags
+# --------------------------------------------------------------------------------------------
+def test_hide_render_objects_and_collections_are_excluded(scene):
+    me = _cube_mesh()
+    _add("Shown", me)
+    _add("Hidden", me).hide_render = True
+    coll = bpy.data.collections.new("HiddenColl")
+    scene.collection.children.link(coll)
+    coll.hide_render = True
+    _add("InHidden", me, coll)
+    light = _add("HiddenLamp", bpy.data.lights.new("L", "POINT"))
+    light.hide_render = True
+    s = _export()
+    assert s.instances.names == ["Shown"]
+    assert s.lights == []
+
+
+def test_the_viewport_shows_objects_hidden_from_render(scene):
+    """As Cycles' and EEVEE's rendered viewports: hidden from render is still drawn there."""
+    from hybrid_shadow_addon.blender.viewport import ViewportSync
+
+    me = _cube_mesh()
+    _add("Shown", me)
+    _add("Hidden", me).hide_render = True
+    light = _add("HiddenLamp", bpy.data.lights.new("L", "POINT"))
+    light.hide_render = True
+    sync = ViewportSync()
+    sync.full_export(bpy.context.evaluated_depsgraph_get())
+    assert sorted(sync.scene.instances.names) == ["Hidden", "Shown"]
+    assert [l.name for l in sync.scene.lights] == ["HiddenLamp"]
+    assert _export().instances.names == ["Shown"]  # what F12 renders
+
+
+def test_the_viewport_in_local_view_shows_only_its_objects(scene):
+    from hybrid_shadow_addon.blender.viewport import ViewportSync
+
+    me = _cube_mesh()
+    _add("A", me)
+    _add("B", me)
+    _add("Lamp", bpy.data.lights.new("L", "POINT"))
+    dg = bpy.context.evaluated_depsgraph_get()
+    sync = ViewportSync()
+    sync.full_export(dg)
+    assert sorted(sync.scene.instances.names) == ["A", "B"]
+    assert sync.set_local_view(dg, ["A"])
+    assert sync.scene.instances.names == ["A"] and sync.scene.lights == []
+    assert not sync.set_local_view(dg, ["A"])  # unchanged: no export
+    assert sync.set_local_view(dg, None)
+    assert sorted(sync.scene.instances.names) == ["A", "B"] and [l.name for l in sync.scene.lights] == ["Lamp"]
+
+
+def test_visible_shadow_and_sphere_flags(scene):
+    me = _cube_mesh()
+    _add("Caster", me)
+    _add("NoShadow", me, location=(3, 0, 0)).visible_shadow = False
+    _add("Ball", me, location=(6, 0, 0))["hybrid_sphere"] = True
+    s = _export()
+    flags = dict(zip(s.instances.names, zip(s.instances.casts_shadow, s.instances.sphere)))
+    assert flags == {"Caster": (True, False), "NoShadow": (False, False), "Ball": (True, True)}
+
+
+# --------------------------------------------------------------------------------------------
+# transforms
+# --------------------------------------------------------------------------------------------
+def test_affine_inverse():
+    rng = np.random.default_rng(1)
+    m = np.tile(np.eye(4), (50, 1, 1))
+    m[:, :3, :] = rng.normal(size=(50, 3, 4))
+    m[3, :3, :3] = 0  # singular
+    m[7, 0, 3] = np.nan
+    inv = affine_inverse(m)
+    ok = np.ones(50, bool)
+    ok[[3, 7]] = False
+    np.testing.assert_allclose(inv[ok], np.linalg.inv(m[ok]), rtol=1e-9, atol=1e-9)
+    assert np.isnan(inv[~ok]).all()
+
+
+def test_nan_transform_is_rejected_naming_the_object(scene):
+    _add("Fine", _cube_mesh())
+    _add("Broken", _cube_mesh("b")).location = (float("nan"), 0, 0)
+    with pytest.raises(SceneError, match="'Broken'.*NaN"):
+        _export()
+
+
+def test_core_scene_rejects_infinite_transform():
+    m = np.eye(4)
+    m[0, 3] = np.inf
+    scene = Scene(models=[Model("tri", [(0, 0, 0), (1, 0, 0), (0, 1, 0)], [(0, 1, 2)])],
+                  instances=Instances(names=["Far"], matrices=[m]))
+    with pytest.raises(SceneError, match="'Far'"):
+        scene.validate(require_camera=False)
