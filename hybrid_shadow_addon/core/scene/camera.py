@@ -35,6 +35,7 @@ class Camera:
         self.sensor_fit = str(self.sensor_fit).upper()
 
     def validate(self) -> None:
+        """Raise :class:`SceneError` for non-finite values, unknown type or fit, a bad clip range or a zero scale."""
         if not np.isfinite(self.matrix).all():
             raise SceneError(f"camera '{self.name}' has a NaN or infinite transform")
         vals = [self.matrix, self.lens, self.sensor_width, self.sensor_height, self.ortho_scale,

@@ -54,6 +54,7 @@ class Instances:
 
     @classmethod
     def concatenate(cls, parts: Sequence["Instances"]) -> "Instances":
+        """All rows of ``parts``, in order (empty parts skipped)."""
         parts = [p for p in parts if len(p)]
         if not parts:
             return cls()

@@ -43,6 +43,7 @@ class Light:
 
     @property
     def position(self) -> np.ndarray:
+        """World position (the matrix's translation)."""
         return self.matrix[:3, 3].copy()
 
     @property
@@ -53,6 +54,7 @@ class Light:
         return d / n if n > 0 else np.array([0.0, 0.0, -1.0])
 
     def validate(self) -> None:
+        """Raise :class:`SceneError` for an unknown type, non-finite values or an unusable transform."""
         if self.type not in LIGHT_TYPES:
             raise SceneError(f"light '{self.name}' has unsupported type {self.type!r}")
         for label, v in (("colour", self.color), ("transform", self.matrix), ("power", self.power),

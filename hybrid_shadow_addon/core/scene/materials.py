@@ -53,9 +53,11 @@ class Image:
 
     @property
     def size(self) -> tuple:
+        """``(width, height)`` in texels."""
         return int(self.pixels.shape[1]), int(self.pixels.shape[0])
 
     def validate(self) -> None:
+        """Raise :class:`SceneError` for an empty image or an unsupported extension or interpolation."""
         w, h = self.size
         if w < 1 or h < 1:
             raise SceneError(f"image '{self.name}' is empty ({w}x{h})")
@@ -104,13 +106,16 @@ class Material:
 
     @property
     def has_alpha(self) -> bool:
+        """Whether the alpha can be below 1 somewhere (the material cuts)."""
         return self.alpha_image >= 0 or self.alpha < 1.0
 
     @property
     def textured(self) -> bool:
+        """Whether the material reads an image (its mesh then needs UVs)."""
         return self.color_image >= 0 or self.alpha_image >= 0
 
     def validate(self, n_images: int) -> None:
+        """Raise :class:`SceneError` for unknown modes, missing images or non-finite values."""
         if self.alpha_mode not in ALPHA_MODES:
             raise SceneError(f"material '{self.name}' has unsupported alpha mode {self.alpha_mode!r}")
         if self.alpha_channel not in ALPHA_CHANNELS:

@@ -51,6 +51,7 @@ class Model:
         self.sphere_radius = float(self.sphere_radius)
 
     def _derive_sphere(self) -> None:
+        """Bounding sphere around the box centre, rounded so its float32 copy still encloses every vertex."""
         with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf meshes are reported by validate()
             c = (self.bounds_min.astype(np.float64) + self.bounds_max) * 0.5
             if len(self.vertices):
@@ -66,13 +67,16 @@ class Model:
 
     @property
     def triangle_count(self) -> int:
+        """Number of triangles."""
         return int(self.triangles.shape[0])
 
     @property
     def vertex_count(self) -> int:
+        """Number of vertices."""
         return int(self.vertices.shape[0])
 
     def validate(self) -> None:
+        """Raise :class:`SceneError` for non-finite data or indices and per-corner arrays that do not fit."""
         if not np.isfinite(self.vertices).all():
             raise SceneError(f"mesh '{self.name}' has NaN or infinite vertex coordinates")
         if len(self.triangles) and int(self.triangles.max()) >= len(self.vertices):

@@ -44,9 +44,11 @@ class Scene:
 
     @property
     def unique_triangle_count(self) -> int:
+        """Triangles of the models, each model counted once."""
         return int(sum(m.triangle_count for m in self.models))
 
     def lights_by_type(self) -> dict:
+        """Number of lights of each type in ``LIGHT_TYPES``."""
         out = {t: 0 for t in LIGHT_TYPES}
         for light in self.lights:
             out[light.type] = out.get(light.type, 0) + 1
@@ -161,6 +163,7 @@ class Scene:
 
     # -- summary (CLI `info`) -----------------------------------------------------------------
     def summary(self) -> dict:
+        """Counts, bounds and camera as plain JSON-ready values (the CLI's ``info``)."""
         b = self.world_bounds()
         return {
             "scene": self.name,
