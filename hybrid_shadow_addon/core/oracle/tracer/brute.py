@@ -1,0 +1,104 @@
+"""Brute-force oracles over a :class:`Scene`: every shadow caster, no acceleration structure.
+
+The same ray preparation, float32 transform, watertight triangle and sphere tests as the walks,
+so they are the ground truth the structured tracers are compared with (small scenes only).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ...bake.textures import f32_up
+from ..alpha import is_opaque, transmittance
+from .primitives import F, prepare_rays, sphere_hit, transform_rays, woop_hit, woop_hit_bary, woop_setup
+
+
+def trace_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21) -> np.ndarray:
+    """Occlusion of each ray against every shadow caster of ``scene`` (small scenes only)."""
+    o, d, tm, valid = prepare_rays(origins, dirs, tmax)
+    occ = np.zeros(len(o), bool)
+    inst = scene.instances
+    if not len(inst):
+        return occ
+    for i in np.nonzero(inst.casts_shadow)[0].tolist():
+        rays = np.nonzero(valid & ~occ)[0]
+        if not rays.size:
+            break
+        model = scene.models[int(inst.model_ids[i])]
+        rows = np.broadcast_to(inst.inverse[i, :3, :].astype(F).reshape(1, 12), (rays.size, 12))
+        om, dm = transform_rays(rows, o[rays], d[rays])
+        if inst.sphere[i]:
+            c = np.broadcast_to(model.sphere_center.astype(F), om.shape)
+            r = np.broadcast_to(f32_up(model.sphere_radius), (rays.size,))
+            occ[rays[sphere_hit(om, dm, c, r, tm[rays])]] = True
+            continue
+        T = model.triangle_count
+        if T == 0:
+            continue
+        v = model.vertices[model.triangles]  # (T, 3, 3)
+        setup = woop_setup(dm)
+        per = max(1, chunk // T)
+        for a in range(0, rays.size, per):
+            sl = slice(a, a + per)
+            n = min(per, rays.size - a)
+            rr = np.repeat(np.arange(a, a + n), T)
+            tt = np.tile(np.arange(T), n)
+            s = tuple(x[rr] for x in setup)
+            h = woop_hit(om[rr], s, v[tt, 0], v[tt, 1], v[tt, 2], tm[rays[rr]])
+            occ[rays[sl]] |= h.reshape(n, T).any(axis=1)
+    return occ
+
+
+def visibility_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21) -> np.ndarray:
+    """(N,) float64 visibility in [0, 1] of each ray against every shadow caster of ``scene``
+    (small scenes only): the product, over every caster surface the ray crosses at t in
+    (0, tmax), of that surface's transmittance (:func:`core.oracle.alpha.transmittance`:
+    0 for opaque surfaces and analytic spheres; BLEND 1 - alpha(uv); CLIP alpha < threshold).
+
+    Same ray preparation, float32 transform and watertight test (``floor=False``) as
+    :func:`trace_brute`, so ``visibility == 0`` exactly where ``trace_brute`` reports occluded
+    on a scene without alpha. A triangle's UV is the barycentric blend of its corners' UVs
+    (``Model.uvs``). Invalid rays (zero direction, tmax <= 0, NaN) get 1."""
+    o, d, tm, valid = prepare_rays(origins, dirs, tmax)
+    vis = np.ones(len(o), np.float64)
+    inst = scene.instances
+    if not len(inst):
+        return vis
+    for i in np.nonzero(inst.casts_shadow)[0].tolist():
+        rays = np.nonzero(valid & (vis > 0))[0]
+        if not rays.size:
+            break
+        model = scene.models[int(inst.model_ids[i])]
+        rows = np.broadcast_to(inst.inverse[i, :3, :].astype(F).reshape(1, 12), (rays.size, 12))
+        om, dm = transform_rays(rows, o[rays], d[rays])
+        if inst.sphere[i]:
+            c = np.broadcast_to(model.sphere_center.astype(F), om.shape)
+            r = np.broadcast_to(f32_up(model.sphere_radius), (rays.size,))
+            vis[rays[sphere_hit(om, dm, c, r, tm[rays])]] = 0.0
+            continue
+        T = model.triangle_count
+        if T == 0:
+            continue
+        mid = int(inst.material_ids[i])
+        opaque = is_opaque(scene, mid)
+        v = model.vertices[model.triangles]  # (T, 3, 3)
+        uvs = (model.uvs.astype(np.float64) if model.uvs is not None
+               else np.zeros((T, 3, 2), np.float64))
+        setup = woop_setup(dm)
+        per = max(1, chunk // T)
+        for a in range(0, rays.size, per):
+            n = min(per, rays.size - a)
+            rr = np.repeat(np.arange(a, a + n), T)
+            tt = np.tile(np.arange(T), n)
+            s = tuple(x[rr] for x in setup)
+            if opaque:
+                h = woop_hit(om[rr], s, v[tt, 0], v[tt, 1], v[tt, 2], tm[rays[rr]])
+                vis[rays[a:a + n][h.reshape(n, T).any(axis=1)]] = 0.0
+                continue
+            h, bary, _ = woop_hit_bary(om[rr], s, v[tt, 0], v[tt, 1], v[tt, 2], tm[rays[rr]])
+            k = np.nonzero(h)[0]
+            if not k.size:
+                continue
+            uv = np.einsum("pc,pcj->pj", bary[k], uvs[tt[k]])
+            np.multiply.at(vis, rays[rr[k]], transmittance(scene, mid, uv))
+    return vis
+

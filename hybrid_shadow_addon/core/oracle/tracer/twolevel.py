@@ -1,0 +1,146 @@
+"""The two-level BVH walk of ``shaders/common/scene_bvh.glsl``: the same nodes in the same order
+per ray, all rays in lock step (one numpy pass per loop iteration of the shader)."""
+from __future__ import annotations
+
+import numpy as np
+
+from ...bake.textures import SPHERE_FLAG
+from .primitives import (F, TFAR_SCALE, bake_space, prepare_rays, ragged_pairs, slab_inv, sphere_hit, transform_rays,
+                         woop_hit, woop_setup)
+
+LEAF_FLAG = np.uint32(1 << 31)
+QEPS = F(2.0 ** -20)
+TLAS_EPS = F(2.0 ** -18)
+
+
+def _qbox_hit(rlo, rhi, inv, n, tmax) -> np.ndarray:
+    """Slab test of quantised rays against nodes' 16-bit boxes (``n``: the node texels)."""
+    blo = np.stack([n[:, 0] & 0xFFFF, n[:, 0] >> 16, n[:, 1] & 0xFFFF], 1).astype(F)
+    bhi = np.stack([n[:, 1] >> 16, n[:, 2] & 0xFFFF, n[:, 2] >> 16], 1).astype(F)
+    with np.errstate(over="ignore", invalid="ignore"):
+        t1 = (blo - rlo) * inv
+        t2 = (bhi - rhi) * inv
+        tn = np.minimum(t1, t2).max(axis=1)
+        tf = np.maximum(t1, t2).min(axis=1) * TFAR_SCALE
+    return np.maximum(tn, F(0)) <= np.minimum(tf, tmax)
+
+
+def _l1(v):
+    """Float32 L1 norm of each row, summed in the shader's order."""
+    a = np.abs(v)
+    return (a[:, 0] + a[:, 1]) + a[:, 2]
+
+
+def _count_by(counts: dict, keys) -> None:
+    """Add the occurrences of each key to ``counts``."""
+    k, c = np.unique(keys, return_counts=True)
+    for a, b in zip(k.tolist(), c.tolist()):
+        counts[a] = counts.get(a, 0) + b
+
+
+def trace_twolevel(baked, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
+    """The two-level walk of ``shaders/common/scene_bvh.glsl``, all rays at once. ``stats``
+    (when given) gets totals of node steps (``iterations``: top level ``tlas_nodes`` + model
+    trees ``bvh_nodes``), instances entered and triangle tests; with ``stats["per_ray"]`` True
+    also each ray's node steps (``ray_iterations``) and the model-tree node steps and triangle
+    tests per model tree (``tree_nodes``, ``tree_triangles``: keyed by the tree's end node)."""
+    o, d, tm, valid = prepare_rays(bake_space(baked, origins), dirs, tmax)
+    N = len(o)
+    occ = np.zeros(N, bool)
+    per_ray = stats is not None and bool(stats.get("per_ray"))
+    if stats is not None:
+        stats.update({"iterations": 0, "tlas_nodes": 0, "bvh_nodes": 0, "objects": 0, "triangles": 0})
+    if per_ray:  # (N,) node steps of each ray; model-tree node steps and triangle tests per tree
+        ray_steps = stats["ray_iterations"] = np.zeros(N, np.int64)
+        tree_nodes = stats["tree_nodes"] = {}
+        tree_tris = stats["tree_triangles"] = {}
+    t = baked.textures
+    node = t["node"].linear()
+    leafd = t["leaf"].linear()
+    tri = leafd.reshape(-1).view(F)
+    u = baked.uniforms
+    base = np.asarray(u["hs_tlas_base"], F)
+    qs = F(u["hs_tlas_inv_scale"])
+    end = int(u["hs_tlas_end"])
+    with np.errstate(over="ignore", invalid="ignore"):
+        toq = ((o - base) * qs).astype(F)
+        te = TLAS_EPS * (_l1(toq) + F(u["hs_tlas_babs"]))
+        t_lo = toq + te[:, None]
+        t_hi = toq - te[:, None]
+    t_inv = slab_inv((d * qs).astype(F))
+    q_lo, q_hi, q_inv = t_lo.copy(), t_hi.copy(), t_inv.copy()
+    i = np.full(N, int(u["hs_tlas_root"]), np.int64)
+    ret = np.full(N, -1, np.int64)
+    bend = np.zeros(N, np.int64)
+    om = np.zeros((N, 3), F)
+    dm = np.zeros((N, 3), F)
+    act = np.nonzero(valid)[0]
+    while act.size:
+        back = act[(ret[act] >= 0) & (i[act] >= bend[act])]
+        i[back] = ret[back]
+        ret[back] = -1
+        q_lo[back], q_hi[back], q_inv[back] = t_lo[back], t_hi[back], t_inv[back]
+        act = act[~((ret[act] < 0) & (i[act] >= end))]
+        if not act.size:
+            break
+        n = node[i[act]]
+        w = n[:, 3]
+        leaf = (w & LEAF_FLAG) != 0
+        in_tlas = ret[act] < 0
+        hit = _qbox_hit(q_lo[act], q_hi[act], q_inv[act], n, tm[act])
+        if stats is not None:
+            stats["iterations"] += act.size
+            stats["tlas_nodes"] += int(in_tlas.sum())
+            stats["bvh_nodes"] += int((~in_tlas).sum())
+        if per_ray:
+            ray_steps[act] += 1
+            _count_by(tree_nodes, bend[act][~in_tlas])
+        nxt = np.where(hit | leaf, i[act] + 1, w.astype(np.int64))
+        pay = (w & np.uint32(0x7FFFFFFF)).astype(np.int64)
+        # instances: transform, sphere test or enter the model tree
+        k = np.nonzero(hit & leaf & in_tlas)[0]
+        if k.size:
+            r = act[k]
+            rec = leafd[(5 * pay[k])[:, None] + np.arange(5)].reshape(-1, 20)
+            mo, md = transform_rays(rec[:, 0:12].view(F), o[r], d[r])
+            sph = (rec[:, 14] & SPHERE_FLAG) != 0
+            if stats is not None:
+                stats["objects"] += k.size
+            if sph.any():
+                s_ = np.nonzero(sph)[0]
+                sp = rec[s_, 16:20].view(F)
+                occ[r[s_]] |= sphere_hit(mo[s_], md[s_], sp[:, 0:3], sp[:, 3], tm[r[s_]])
+            m_ = np.nonzero(~sph)[0]
+            if m_.size:
+                rm = r[m_]
+                fr = rec[m_, 16:20].view(F)
+                with np.errstate(over="ignore", invalid="ignore"):
+                    oq = ((mo[m_] - fr[:, 0:3]) * fr[:, 3:4]).astype(F)
+                    e = QEPS * _l1(oq)
+                    q_lo[rm] = oq + e[:, None]
+                    q_hi[rm] = oq - e[:, None]
+                    q_inv[rm] = slab_inv((md[m_] * fr[:, 3:4]).astype(F))
+                om[rm], dm[rm] = mo[m_], md[m_]
+                ret[rm] = i[rm] + 1
+                nxt[k[m_]] = rec[m_, 12].astype(np.int64)
+                bend[rm] = rec[m_, 13].astype(np.int64)
+        # model leaves: up to 4 triangles, 9 floats each from texel (pay >> 3)
+        k = np.nonzero(hit & leaf & ~in_tlas)[0]
+        if k.size:
+            r = act[k]
+            first, cnt = pay[k] >> 3, pay[k] & 7
+            owner, j = ragged_pairs(np.zeros(k.size, np.int64), cnt)
+            f0 = first[owner] * 4 + j * 9
+            v = tri[f0[:, None] + np.arange(9)].reshape(-1, 3, 3)
+            p = r[owner]
+            setup = woop_setup(dm[p])
+            h = woop_hit(om[p], setup, v[:, 0], v[:, 1], v[:, 2], tm[p], floor=True)
+            if stats is not None:
+                stats["triangles"] += owner.size
+            if per_ray:
+                _count_by(tree_tris, bend[p])
+            occ[p[h]] = True
+        i[act] = nxt
+        act = act[~occ[act]]
+    return occ
+

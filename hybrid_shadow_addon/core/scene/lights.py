@@ -1,0 +1,68 @@
+"""A Blender light: sun, point, spot or area, with Blender's parameters and units."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import SceneError
+from .arrays import MAX_COORD, as_f32
+
+LIGHT_TYPES = ("SUN", "POINT", "SPOT", "AREA")
+
+
+@dataclass
+class Light:
+    """A Blender light. Lights shine along their local -Z axis.
+
+    ``power``: watts for point/spot/area (Blender's ``energy``), irradiance in W/m^2 for a sun
+    (Blender's ``energy`` of a sun is its strength). ``radius`` is ``shadow_soft_size`` (point,
+    spot); ``angle`` the sun's angular diameter; ``size``/``size_y`` the area light's extent.
+    ``spot_size`` is the full cone angle in radians, ``spot_blend`` 0..1.
+    """
+
+    name: str
+    type: str
+    color: np.ndarray = field(default_factory=lambda: np.ones(3, np.float32))
+    power: float = 1000.0
+    matrix: np.ndarray = field(default_factory=lambda: np.eye(4))
+    use_shadow: bool = True
+    radius: float = 0.0
+    angle: float = 0.0
+    spot_size: float = np.pi / 4
+    spot_blend: float = 0.15
+    size: float = 0.0
+    size_y: float = 0.0
+    area_shape: str = "SQUARE"
+    spread: float = float(np.pi)  # area light: full angle of its emission cone (Blender's spread)
+
+    def __post_init__(self):
+        self.type = str(self.type).upper()
+        self.color = as_f32(self.color).reshape(3)
+        self.matrix = np.asarray(self.matrix, np.float64).reshape(4, 4)
+
+    @property
+    def position(self) -> np.ndarray:
+        """World position (the matrix's translation)."""
+        return self.matrix[:3, 3].copy()
+
+    @property
+    def direction(self) -> np.ndarray:
+        """Unit world direction the light shines towards (local -Z)."""
+        d = -self.matrix[:3, 2]
+        n = np.linalg.norm(d)
+        return d / n if n > 0 else np.array([0.0, 0.0, -1.0])
+
+    def validate(self) -> None:
+        """Raise :class:`SceneError` for an unknown type, non-finite values or an unusable transform."""
+        if self.type not in LIGHT_TYPES:
+            raise SceneError(f"light '{self.name}' has unsupported type {self.type!r}")
+        for label, v in (("colour", self.color), ("transform", self.matrix), ("power", self.power),
+                         ("radius", self.radius), ("spot size", self.spot_size),
+                         ("spot blend", self.spot_blend), ("angle", self.angle), ("spread", self.spread)):
+            if not np.isfinite(np.asarray(v, np.float64)).all():
+                raise SceneError(f"light '{self.name}' has a NaN or infinite {label}")
+        if (np.abs(self.matrix) >= MAX_COORD).any():
+            raise SceneError(f"light '{self.name}' has an infinite or absurd transform (a value beyond {MAX_COORD:.0e})")
+        if not np.linalg.norm(self.matrix[:3, 2]) > 0:
+            raise SceneError(f"light '{self.name}' has a zero-scale matrix (no direction)")
