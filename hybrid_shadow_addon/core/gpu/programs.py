@@ -7,10 +7,14 @@ appears in the file. The source gets ``#version 410 core`` and the sorted define
 once. A ``#line`` directive per file numbers file k's lines from ``k * 100000 + 1``, so the
 driver's log maps back to ``file:line`` in the error.
 
-Programs are cached by (name, defines, varyings).
+Programs are cached by (name, defines, varyings). With ``HS_RECORD_DEFINES=/path/file.jsonl`` in
+the environment, each distinct program of ``shaders/`` built is appended to that file once, as
+``{"program", "defines", "varyings"}``: ``tools/shader_check.py`` compiles those sets again.
 """
 from __future__ import annotations
 
+import json
+import os
 import re
 from pathlib import Path
 
@@ -35,6 +39,26 @@ def default_shader_dir() -> Path:
 
 class ShaderError(GPUError):
     """A shader is missing or does not compile/link."""
+
+
+def program_stages(text: str) -> list[str]:
+    """The stages built from a program file's text: those whose name appears in it."""
+    return [stage for stage in STAGES if stage in text]
+
+
+_recorded: set = set()
+
+
+def _record(name: str, defines: tuple, varyings) -> None:
+    """Append one built program to ``$HS_RECORD_DEFINES`` (once per process and key)."""
+    target = os.environ.get("HS_RECORD_DEFINES")
+    key = (name, defines, tuple(varyings or ()))
+    if not target or key in _recorded:
+        return
+    _recorded.add(key)
+    line = json.dumps({"program": name, "defines": dict(defines), "varyings": list(key[2])})
+    with open(target, "a", encoding="utf-8") as out:
+        out.write(line + "\n")
 
 
 class ProgramCache:
@@ -123,9 +147,8 @@ class ProgramCache:
         text = path.read_text(encoding="utf-8")
         stages = {}
         files = []
-        for stage in STAGES:
-            if stage in text:
-                stages[stage], files = self.source(name, stage, defines)
+        for stage in program_stages(text):
+            stages[stage], files = self.source(name, stage, defines)
         if "VERTEX_SHADER" not in stages:
             raise ShaderError(f"shader '{name}' has no VERTEX_SHADER section")
         kwargs = dict(vertex_shader=stages["VERTEX_SHADER"],
@@ -133,6 +156,8 @@ class ProgramCache:
                       fragment_shader=stages.get("FRAGMENT_SHADER"))
         if varyings:
             kwargs["varyings"] = list(varyings)
+        if self.shader_dir.resolve() == default_shader_dir().resolve():
+            _record(name, defines, varyings)
         try:
             return self.ctx.program(**kwargs)
         except Exception as exc:
