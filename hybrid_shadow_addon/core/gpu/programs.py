@@ -26,6 +26,7 @@ GLSL_VERSION = "#version 410 core"
 STAGES = ("VERTEX_SHADER", "GEOMETRY_SHADER", "FRAGMENT_SHADER")
 _LINE_STRIDE = 100000
 _INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"\s*(?://.*)?$')
+_BRANCH = re.compile(r"^\s*#\s*(else|elif|endif)\b")
 
 
 def default_shader_dir() -> Path:
@@ -126,11 +127,15 @@ class ProgramCache:
         files.append(rel)
         base = idx * _LINE_STRIDE  # file k's lines are numbered k * stride + n (robust to drivers
         out = [f"#line {base + 1} {idx}"]  # that misreport the source-string number)
+        included = False
         for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
             m = _INCLUDE.match(line)
             if not m:
                 out.append(line)
+                if included and _BRANCH.match(line):  # a #line in a skipped group is ignored:
+                    out.append(f"#line {base + lineno + 1} {idx}")  # number again past it
                 continue
+            included = True
             inc = (self.shader_dir / m.group(1))
             if inc.resolve() in seen:
                 out.append(f"// {m.group(1)} already included")
