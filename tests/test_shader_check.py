@@ -2,6 +2,7 @@
 program, stage, define set and file:line, and rejects what strict GLSL 4.10 rejects."""
 import importlib.util
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -151,3 +152,21 @@ def test_programs_record_their_define_sets(tmp_path, gl_ctx, monkeypatch):
     other = _shaders(tmp_path, {"good.glsl": GOOD_PROGRAM, "common/shade.glsl": SHADE})
     ProgramCache(gl_ctx, other).get("good")
     assert len(rec.read_text().splitlines()) == 1
+
+
+def test_the_check_leaves_the_recording_on(tmp_path, monkeypatch):
+    """Tests that run after this module still record (make test's HS_RECORD_DEFINES)."""
+    monkeypatch.setenv("HS_RECORD_DEFINES", str(tmp_path / "rec.jsonl"))
+    root = _shaders(tmp_path, {"good.glsl": GOOD_PROGRAM, "common/shade.glsl": SHADE})
+    _failures(root, gl=False, glslang=False)
+    assert os.environ["HS_RECORD_DEFINES"] == str(tmp_path / "rec.jsonl")
+
+
+@needs_glslang
+def test_the_command_fails_on_a_broken_shader(tmp_path, capsys):
+    broken = _shaders(tmp_path / "broken", {"good.glsl": GOOD_PROGRAM, "common/shade.glsl": SHADE})
+    assert shader_check.main(["--shader-dir", str(broken), "--no-gl"]) == 1
+    assert "common/shade.glsl:5:" in capsys.readouterr().out
+    fixed = _shaders(tmp_path / "fixed", {"good.glsl": GOOD_PROGRAM,
+                                          "common/shade.glsl": SHADE.replace("undeclared_name", "0.25")})
+    assert shader_check.main(["--shader-dir", str(fixed), "--no-gl"]) == 0

@@ -242,7 +242,6 @@ def find_validator() -> str | None:
 def run_check(shader_dir: Path | None = None, recorded: Path | None = None, gl: bool = True,
               glslang: bool = True, out=print) -> list[Failure]:
     """Every program under (a) its recorded sets and (b) its single-define sets; the failures."""
-    os.environ.pop("HS_RECORD_DEFINES", None)  # the check's own builds are not part of a recording
     ctx = None
     if gl:
         from hybrid_shadow_addon.core.gpu.context import create_context
@@ -290,6 +289,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-gl", action="store_true", help="skip the running GL")
     ap.add_argument("--no-glslang", action="store_true", help="skip glslangValidator")
     args = ap.parse_args(argv)
+    os.environ.pop("HS_RECORD_DEFINES", None)  # the check's own builds are not part of a recording
     failures = run_check(args.shader_dir, args.recorded, gl=not args.no_gl, glslang=not args.no_glslang)
     return 1 if failures else 0
 
