@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: setup demo test bench extension clean
+.PHONY: setup demo test lint bench extension clean
 
 setup:
 	@bash tools/setup.sh
@@ -24,11 +24,20 @@ BPY5 := .venv-bpy5/bin/python
 BPY5_TESTS := tests/test_export_objects.py tests/test_export_meshes.py tests/test_export_materials.py tests/test_export_slots.py tests/test_export_lights.py tests/test_export_camera_world.py tests/test_export_load.py tests/test_scenes.py tests/test_pipeline.py tests/test_addon_engine.py \
 	tests/test_addon_panels.py tests/test_addon_viewport.py tests/test_addon_border.py tests/test_bad_input.py
 
-test: setup
+lint: setup
+	$(PY) -m ruff check .
+
+# the tests record each shader define set they build (programs.py); the shader check compiles
+# those and each optional define alone with the GL and with glslangValidator (tools/shader_check.py)
+SHADER_DEFINES := out/test/shader_defines.jsonl
+test: export HS_RECORD_DEFINES := $(CURDIR)/$(SHADER_DEFINES)
+test: setup lint
+	@mkdir -p $(dir $(SHADER_DEFINES)) && rm -f $(SHADER_DEFINES)
 	$(PY) -m pytest -q tests
 	@if [ -f .venv-bpy5/.requirements.sha256 ]; then \
 		echo "$(BPY5) -m pytest -q $(BPY5_TESTS)"; $(BPY5) -m pytest -q $(BPY5_TESTS); \
 	else echo "bpy 5 tests skipped: python3.13 not found (see tools/setup.sh)"; fi
+	$(PY) tools/shader_check.py --recorded $(SHADER_DEFINES)
 
 extension: setup
 	$(PY) tools/build_extension.py

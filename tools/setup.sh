@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Sets up everything `make demo` and `make test` need, on a fresh Debian/Ubuntu machine:
-# python3.11, the Mesa EGL libraries, Node.js (a test of the Flamenco job type), a .venv with the
-# pinned requirements (bpy 4.5 LTS) and, where python3.13 is found, .venv-bpy5 (bpy 5.x).
+# python3.11, the Mesa EGL libraries, glslang-tools (the shader check's reference compiler),
+# Node.js (a test of the Flamenco job type), a .venv with the pinned requirements (bpy 4.5 LTS,
+# ruff) and, where python3.13 is found, .venv-bpy5 (bpy 5.x).
 # A second run only checks (a few hundred milliseconds): nothing is reinstalled.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -43,6 +44,9 @@ compgen -G '/usr/lib/*/dri/swrast_dri.so' >/dev/null || compgen -G '/usr/lib*/dr
 if [ ${#missing[@]} -gt 0 ]; then
     apt_install libegl1 libgl1-mesa-dri libgl1
 fi
+
+# 2b. glslangValidator: tools/shader_check.py compiles the shaders against strict GLSL 4.10 with it
+command -v glslangValidator >/dev/null || apt_install glslang-tools
 
 # 3. Node.js (tests/test_flamenco.py evaluates the Flamenco job type with it; optional: without
 #    it and without root, that test is skipped)

@@ -38,17 +38,17 @@ ivec2 compact_texel(int k)
     return ivec2((block % bw) * 4 + (r & 3), (block / bw) * 4 + (r >> 2));
 }
 
-// One step down: the child of pos at 'level' that holds entry k (k becomes its rank there).
-#define HS_FIND_STEP(S, LEVEL)                                                         \
-    {                                                                                  \
-        ivec2 b = pos * 2;                                                             \
-        float c0 = pyr_count(S, LEVEL, b), c1 = pyr_count(S, LEVEL, b + ivec2(1, 0));  \
-        float c2 = pyr_count(S, LEVEL, b + ivec2(0, 1));                               \
-        if (kf < c0) { pos = b; }                                                      \
-        else if (kf < c0 + c1) { pos = b + ivec2(1, 0); kf -= c0; }                    \
-        else if (kf < c0 + c1 + c2) { pos = b + ivec2(0, 1); kf -= c0 + c1; }          \
-        else { pos = b + ivec2(1, 1); kf -= c0 + c1 + c2; }                            \
-    }
+// One step down: the child of pos at 'level' that holds entry kf (kf becomes its rank there).
+void hs_find_step(sampler2D s, int level, inout ivec2 pos, inout float kf)
+{
+    ivec2 b = pos * 2;
+    float c0 = pyr_count(s, level, b), c1 = pyr_count(s, level, b + ivec2(1, 0));
+    float c2 = pyr_count(s, level, b + ivec2(0, 1));
+    if (kf < c0) { pos = b; }
+    else if (kf < c0 + c1) { pos = b + ivec2(1, 0); kf -= c0; }
+    else if (kf < c0 + c1 + c2) { pos = b + ivec2(0, 1); kf -= c0 + c1; }
+    else { pos = b + ivec2(1, 1); kf -= c0 + c1 + c2; }
+}
 
 // The pixel of entry k (0 <= k < compact_total()).
 ivec2 compact_find(int k)
@@ -56,31 +56,32 @@ ivec2 compact_find(int k)
     ivec2 pos = ivec2(0);
     float kf = float(k);
     for (int i = u_levels - 2; i >= 1; i -= 2) {
-        HS_FIND_STEP(u_pyr1, i)
-        if (i >= 2) HS_FIND_STEP(u_pyr0, i - 1)
+        hs_find_step(u_pyr1, i, pos, kf);
+        if (i >= 2) hs_find_step(u_pyr0, i - 1, pos, kf);
     }
-    if (u_levels > 1) HS_FIND_STEP(u_need, 0)
+    if (u_levels > 1) hs_find_step(u_need, 0, pos, kf);
     return pos;
 }
 
 // The entry of pixel px (which needs a ray): the count of the entries before it.
-#define HS_PREFIX_STEP(S, LEVEL)                                                       \
-    {                                                                                  \
-        ivec2 c = px >> (LEVEL);                                                       \
-        ivec2 b = c & ~1;                                                              \
-        int o = (c.x & 1) + 2 * (c.y & 1);                                             \
-        if (o > 0) idx += pyr_count(S, LEVEL, b);                                      \
-        if (o > 1) idx += pyr_count(S, LEVEL, b + ivec2(1, 0));                        \
-        if (o > 2) idx += pyr_count(S, LEVEL, b + ivec2(0, 1));                        \
-    }
+// Adds the entries of the quadrants before px's at 'level' (its siblings in the pyramid's order).
+void hs_prefix_step(sampler2D s, int level, ivec2 px, inout float idx)
+{
+    ivec2 c = px >> level;
+    ivec2 b = c & ~1;
+    int o = (c.x & 1) + 2 * (c.y & 1);
+    if (o > 0) idx += pyr_count(s, level, b);
+    if (o > 1) idx += pyr_count(s, level, b + ivec2(1, 0));
+    if (o > 2) idx += pyr_count(s, level, b + ivec2(0, 1));
+}
 
 int compact_prefix(ivec2 px)
 {
     float idx = 0.0;
     for (int i = u_levels - 2; i >= 1; i -= 2) {
-        HS_PREFIX_STEP(u_pyr1, i)
-        if (i >= 2) HS_PREFIX_STEP(u_pyr0, i - 1)
+        hs_prefix_step(u_pyr1, i, px, idx);
+        if (i >= 2) hs_prefix_step(u_pyr0, i - 1, px, idx);
     }
-    if (u_levels > 1) HS_PREFIX_STEP(u_need, 0)
+    if (u_levels > 1) hs_prefix_step(u_need, 0, px, idx);
     return int(idx + 0.5);
 }

@@ -7,10 +7,14 @@ appears in the file. The source gets ``#version 410 core`` and the sorted define
 once. A ``#line`` directive per file numbers file k's lines from ``k * 100000 + 1``, so the
 driver's log maps back to ``file:line`` in the error.
 
-Programs are cached by (name, defines, varyings).
+Programs are cached by (name, defines, varyings). With ``HS_RECORD_DEFINES=/path/file.jsonl`` in
+the environment, each distinct program of ``shaders/`` built is appended to that file once, as
+``{"program", "defines", "varyings"}``: ``tools/shader_check.py`` compiles those sets again.
 """
 from __future__ import annotations
 
+import json
+import os
 import re
 from pathlib import Path
 
@@ -22,6 +26,7 @@ GLSL_VERSION = "#version 410 core"
 STAGES = ("VERTEX_SHADER", "GEOMETRY_SHADER", "FRAGMENT_SHADER")
 _LINE_STRIDE = 100000
 _INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"\s*(?://.*)?$')
+_BRANCH = re.compile(r"^\s*#\s*(else|elif|endif)\b")
 
 
 def default_shader_dir() -> Path:
@@ -35,6 +40,26 @@ def default_shader_dir() -> Path:
 
 class ShaderError(GPUError):
     """A shader is missing or does not compile/link."""
+
+
+def program_stages(text: str) -> list[str]:
+    """The stages built from a program file's text: those whose name appears in it."""
+    return [stage for stage in STAGES if stage in text]
+
+
+_recorded: set = set()
+
+
+def _record(name: str, defines: tuple, varyings) -> None:
+    """Append one built program to ``$HS_RECORD_DEFINES`` (once per process and key)."""
+    target = os.environ.get("HS_RECORD_DEFINES")
+    key = (name, defines, tuple(varyings or ()))
+    if not target or key in _recorded:
+        return
+    _recorded.add(key)
+    line = json.dumps({"program": name, "defines": dict(defines), "varyings": list(key[2])})
+    with open(target, "a", encoding="utf-8") as out:
+        out.write(line + "\n")
 
 
 class ProgramCache:
@@ -102,11 +127,15 @@ class ProgramCache:
         files.append(rel)
         base = idx * _LINE_STRIDE  # file k's lines are numbered k * stride + n (robust to drivers
         out = [f"#line {base + 1} {idx}"]  # that misreport the source-string number)
+        included = False
         for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
             m = _INCLUDE.match(line)
             if not m:
                 out.append(line)
+                if included and _BRANCH.match(line):  # a #line in a skipped group is ignored:
+                    out.append(f"#line {base + lineno + 1} {idx}")  # number again past it
                 continue
+            included = True
             inc = (self.shader_dir / m.group(1))
             if inc.resolve() in seen:
                 out.append(f"// {m.group(1)} already included")
@@ -123,9 +152,8 @@ class ProgramCache:
         text = path.read_text(encoding="utf-8")
         stages = {}
         files = []
-        for stage in STAGES:
-            if stage in text:
-                stages[stage], files = self.source(name, stage, defines)
+        for stage in program_stages(text):
+            stages[stage], files = self.source(name, stage, defines)
         if "VERTEX_SHADER" not in stages:
             raise ShaderError(f"shader '{name}' has no VERTEX_SHADER section")
         kwargs = dict(vertex_shader=stages["VERTEX_SHADER"],
@@ -133,6 +161,8 @@ class ProgramCache:
                       fragment_shader=stages.get("FRAGMENT_SHADER"))
         if varyings:
             kwargs["varyings"] = list(varyings)
+        if self.shader_dir.resolve() == default_shader_dir().resolve():
+            _record(name, defines, varyings)
         try:
             return self.ctx.program(**kwargs)
         except Exception as exc:

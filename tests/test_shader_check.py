@@ -1,0 +1,172 @@
+"""tools/shader_check.py: it finds programs and their defines, reports a broken shader with its
+program, stage, define set and file:line, and rejects what strict GLSL 4.10 rejects."""
+import importlib.util
+import json
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+from hybrid_shadow_addon.core.gpu import programs
+from hybrid_shadow_addon.core.gpu.programs import ProgramCache
+
+_SPEC = importlib.util.spec_from_file_location(
+    "shader_check", Path(__file__).resolve().parents[1] / "tools" / "shader_check.py")
+shader_check = sys.modules.setdefault("shader_check", importlib.util.module_from_spec(_SPEC))
+_SPEC.loader.exec_module(shader_check)
+
+needs_glslang = pytest.mark.skipif(shader_check.find_validator() is None,
+                                   reason="glslangValidator not installed (glslang-tools)")
+
+FULLSCREEN = """out vec2 v_uv;
+void main() {
+    vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2));
+    v_uv = p;
+    gl_Position = vec4(p * 2.0 - 1.0, 0.0, 1.0);
+}
+"""
+
+# a program whose include is broken only under HS_BROKEN (an undeclared name on line 3)
+GOOD_PROGRAM = """// test program
+#ifdef VERTEX_SHADER
+#include "common/fullscreen.glsl"
+#endif
+#ifdef FRAGMENT_SHADER
+#include "common/shade.glsl"
+out vec4 o_color;
+void main() { o_color = vec4(shade(), 1.0); }
+#endif
+"""
+SHADE = """#ifndef HS_SHADE_GLSL
+#define HS_SHADE_GLSL
+vec3 shade() {
+#ifdef HS_BROKEN
+    return vec3(undeclared_name);
+#elif HS_LEVEL > 1
+    return vec3(0.5);
+#else
+    return vec3(1.0);
+#endif
+}
+#endif
+"""
+
+
+def _shaders(tmp_path, files: dict) -> Path:
+    root = tmp_path / "shaders"
+    for rel, text in {"common/fullscreen.glsl": FULLSCREEN, **files}.items():
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_text(text)
+    return root
+
+
+def test_discovery_finds_programs_and_their_defines(tmp_path):
+    root = _shaders(tmp_path, {"good.glsl": GOOD_PROGRAM, "common/shade.glsl": SHADE})
+    assert shader_check.program_names(root) == ["good"]
+    cache = ProgramCache(None, root)
+    flags, values = shader_check.optional_defines(cache, "good")
+    assert flags == {"HS_BROKEN": 1}  # HS_SHADE_GLSL is the include's own guard
+    assert values == {"HS_LEVEL": [2]}
+    sets = shader_check.single_define_sets(cache, "good")
+    assert {} in sets and {"HS_BROKEN": 1} in sets and {"HS_LEVEL": 2} in sets
+
+
+def test_the_real_programs_are_found():
+    names = shader_check.program_names(programs.default_shader_dir())
+    assert {"raytrace", "lighting", "gbuffer"} <= set(names)
+    assert not any(n.startswith("common/") for n in names)
+
+
+def test_companions_follow_requirements():
+    sets = shader_check.with_companions({}, "HS_PACKET_PLANES", 1)
+    assert {"HS_SOFT_PACKET", "HS_SOFT", "HS_STRUCTURE_BVH"} <= set(sets)
+    assert shader_check.with_companions({}, "HS_SOFT_SHAPE", 2)["HS_LIGHT_LOCAL"] == 1
+    assert "HS_LIGHT_LOCAL" not in shader_check.with_companions({}, "HS_SOFT_SHAPE", 0)
+
+
+def _failures(root, **kwargs):
+    lines = []
+    failures = shader_check.run_check(root, out=lines.append, **kwargs)
+    return failures, "\n".join(lines)
+
+
+def test_gl_reports_a_broken_shader_with_file_and_line(tmp_path, gl_ctx):
+    root = _shaders(tmp_path, {"good.glsl": GOOD_PROGRAM, "common/shade.glsl": SHADE})
+    failures, text = _failures(root, glslang=False)
+    assert len(failures) == 1, text
+    bad = failures[0]
+    assert (bad.compiler, bad.program, bad.stage, bad.defines) == ("gl", "good", "FRAGMENT_SHADER", {"HS_BROKEN": 1})
+    assert "common/shade.glsl:5" in bad.log
+    assert "FAIL [gl] good FRAGMENT_SHADER (defines: HS_BROKEN=1)" in text
+    assert "no recording" in text
+
+
+@needs_glslang
+def test_glslang_reports_a_broken_shader_with_file_and_line(tmp_path):
+    root = _shaders(tmp_path, {"good.glsl": GOOD_PROGRAM, "common/shade.glsl": SHADE})
+    failures, text = _failures(root, gl=False)
+    assert [(f.compiler, f.stage, f.defines) for f in failures] == [("glslang", "FRAGMENT_SHADER", {"HS_BROKEN": 1})]
+    assert "common/shade.glsl:5:" in failures[0].log, text
+
+
+@needs_glslang
+def test_glslang_rejects_what_410_core_lacks(tmp_path):
+    """An explicit sampler binding is GLSL 4.20 (or ARB_shading_language_420pack); a macro's line
+    continuation also: Mesa takes both under #version 410 core, the check does not."""
+    binding = GOOD_PROGRAM.replace('#include "common/shade.glsl"', "layout(binding = 0) uniform sampler2D u_tex;")
+    binding = binding.replace("shade()", "texture(u_tex, vec2(0.5)).rgb")
+    continued = GOOD_PROGRAM.replace('#include "common/shade.glsl"', "#define HS_ONE \\\n    vec3(1.0)")
+    continued = continued.replace("shade()", "HS_ONE")
+    root = _shaders(tmp_path, {"binding.glsl": binding, "continued.glsl": continued})
+    failures, text = _failures(root, gl=False)
+    assert {(f.program, f.stage) for f in failures} == {  # a line continuation fails in skipped code too
+        ("binding", "FRAGMENT_SHADER"), ("continued", "VERTEX_SHADER"), ("continued", "FRAGMENT_SHADER")}, text
+    by_name = {f.program: f.log for f in failures}
+    assert "binding.glsl:6:" in by_name["binding"] and "binding" in by_name["binding"]
+    assert "continued.glsl:6:" in by_name["continued"] and "line continuation" in by_name["continued"]
+
+
+def test_recorded_sets_are_checked(tmp_path, gl_ctx):
+    root = _shaders(tmp_path, {"good.glsl": GOOD_PROGRAM, "common/shade.glsl": SHADE})
+    rec = tmp_path / "rec.jsonl"
+    rows = [{"program": "good", "defines": {"HS_LEVEL": "7"}, "varyings": []}] * 2
+    rec.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    assert shader_check.recorded_sets(rec) == {"good": [{"HS_LEVEL": "7"}]}
+    failures, text = _failures(root, recorded=rec, glslang=False)
+    assert "1 recorded define sets" in text
+    assert len(failures) == 1  # HS_BROKEN alone; the recorded set compiles
+
+
+def test_programs_record_their_define_sets(tmp_path, gl_ctx, monkeypatch):
+    rec = tmp_path / "rec.jsonl"
+    monkeypatch.setenv("HS_RECORD_DEFINES", str(rec))
+    monkeypatch.setattr(programs, "_recorded", set())
+    cache = ProgramCache(gl_ctx)
+    cache.get("upsample")
+    cache.get("upsample")
+    ProgramCache(gl_ctx).get("upsample")
+    rows = [json.loads(line) for line in rec.read_text().splitlines()]
+    assert rows == [{"program": "upsample", "defines": {}, "varyings": []}]
+    # programs outside shaders/ (the tests' own) are not recorded
+    other = _shaders(tmp_path, {"good.glsl": GOOD_PROGRAM, "common/shade.glsl": SHADE})
+    ProgramCache(gl_ctx, other).get("good")
+    assert len(rec.read_text().splitlines()) == 1
+
+
+def test_the_check_leaves_the_recording_on(tmp_path, monkeypatch):
+    """Tests that run after this module still record (make test's HS_RECORD_DEFINES)."""
+    monkeypatch.setenv("HS_RECORD_DEFINES", str(tmp_path / "rec.jsonl"))
+    root = _shaders(tmp_path, {"good.glsl": GOOD_PROGRAM, "common/shade.glsl": SHADE})
+    _failures(root, gl=False, glslang=False)
+    assert os.environ["HS_RECORD_DEFINES"] == str(tmp_path / "rec.jsonl")
+
+
+@needs_glslang
+def test_the_command_fails_on_a_broken_shader(tmp_path, capsys):
+    broken = _shaders(tmp_path / "broken", {"good.glsl": GOOD_PROGRAM, "common/shade.glsl": SHADE})
+    assert shader_check.main(["--shader-dir", str(broken), "--no-gl"]) == 1
+    assert "common/shade.glsl:5:" in capsys.readouterr().out
+    fixed = _shaders(tmp_path / "fixed", {"good.glsl": GOOD_PROGRAM,
+                                          "common/shade.glsl": SHADE.replace("undeclared_name", "0.25")})
+    assert shader_check.main(["--shader-dir", str(fixed), "--no-gl"]) == 0
