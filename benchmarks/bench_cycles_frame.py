@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -49,8 +50,9 @@ def main(argv=None) -> int:
     peer = dict(kv.split("=", 1) for kv in a.peer_settings)
     peer_settings = ours_settings.replace(**{k: _value(v) for k, v in peer.items()}) if peer else None
     pipe = Pipeline()
-    grids = pipe.shadow_pass("raytrace").light_grids
-    grids.eager = True
+    rt = pipe.shadow_pass("raytrace")
+    rt.options = replace(rt.options, eager_light_grids=True)
+    grids = rt.light_grids
     print(f"## frame against Cycles' 1-sample shadowed renders, {w}x{h}, same run\n")
     head = "| scene | lights | grids' build ms (once) | Cycles ms | ours ms | Cycles / ours |"
     if peer_settings is not None:
@@ -63,7 +65,7 @@ def main(argv=None) -> int:
             scene = current_scene(resolution=(w, h))
         pipe.set_scene(scene)
         pipe.render(scene, ours_settings, w, h)
-        build_ms = grids.last_build_ms
+        build_ms = grids.build_ms
 
         def frame(settings):
             pipe.render(scene, settings, w, h)

@@ -20,6 +20,7 @@ import argparse
 import statistics
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -81,7 +82,8 @@ def main(argv=None):
     mi.set_variant(a.variant)
     w, h = (int(v) for v in a.size.split("x"))
     pipe = Pipeline()
-    pipe.shadow_pass("raytrace").light_grids.eager = True  # (the sun's grid from the first frame on)
+    rt = pipe.shadow_pass("raytrace")
+    rt.options = replace(rt.options, eager_light_grids=True)  # (the sun's grid from the first frame on)
     print(f"## shadow-ray throughput, sun rays at {w}x{h} (Mitsuba {mi.__version__} {a.variant}, 2 cores)\n")
     print("| scene | triangles | rays | ours ms | ours Mrays/s | ours with maps Mrays/s | Mitsuba ms | Mitsuba Mrays/s "
           "| ours / Mitsuba | agree |")

@@ -9,8 +9,8 @@ per-light visibility (% of valid pixels, all lights together, and the worst ligh
 Scenes under ``stiff/`` render at their own size (200x150); the others at ``--size``. Cycles
 references are cached on disk (``tools/reference.py``: ``$XDG_CACHE_HOME/hybrid_shadows``).
 A variant is a quality, optionally with ``+key=value`` settings (``medium+conservative=all``);
-``+method=compact`` (or ``depth``, the default) picks how the refinement traces its marked pixels
-and ``+view_cos=0.3`` (any key of ``Refiner.RULES``) sets a refinement rule (``passes/refine.py``).
+``+method=depth`` (the default, and the only method) picks how the refinement traces its marked
+pixels (``RaytraceOptions.refine_method``) and ``+view_cos=0.3`` (any key of ``Refiner.RULES``) sets a refinement rule (``passes/refine.py``).
 """
 from __future__ import annotations
 
@@ -19,6 +19,7 @@ import json
 import os
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -82,15 +83,16 @@ def run_scene(arg: str, size, variants, repeats: int, ctx, refs_only: bool = Fal
     pipe = Pipeline(ctx)
     try:
         pipe.set_scene(scene)
-        refiner = pipe.shadow_pass("raytrace").refiner
-        default_method, default_rules = refiner.method, dict(refiner.rules)
+        rt = pipe.shadow_pass("raytrace")
+        refiner = rt.refiner
+        default_options, default_rules = rt.options, dict(refiner.rules)
         parsed = {v: parse_variant(v) for v in variants}
         methods = {v: parsed[v].pop("method", None) for v in variants}
         rules = {v: {k: float(parsed[v].pop(k)) for k in list(parsed[v]) if k in default_rules} for v in variants}
         settings = {v: Settings(**parsed[v]) for v in variants}
 
         def render(v):
-            refiner.method = methods[v] or default_method
+            rt.options = replace(default_options, refine_method=methods[v] or default_options.refine_method)
             refiner.rules = {**default_rules, **rules[v]}
             return pipe.render(scene, settings[v], W, H)
 

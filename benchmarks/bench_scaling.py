@@ -18,6 +18,7 @@ import json
 import os
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -107,7 +108,8 @@ def main():
               for i in args.instances]
     sweeps = {"triangles": f"{args.triangles_instances} instances", "instances": f"{args.instances_triangles} triangles"}
     pipe = Pipeline()
-    pipe.shadow_pass("raytrace").light_grids.eager = True  # (hard lights' grids up front, not mid-run)
+    rt = pipe.shadow_pass("raytrace")
+    rt.options = replace(rt.options, eager_light_grids=True)  # (hard lights' grids up front, not mid-run)
     rows = []
     names = [v.name for v in variants]
     head = f"{'sweep':<10}{'triangles':>11}{'unique':>9}{'instances':>10}{'export ms':>10}{'bake ms':>9}{'tex MB':>8}" + \

@@ -71,23 +71,23 @@ def capture(pipe, scene, quality, w, h, group):
     """Render; each refined light's marks (H, W bool), cells and the frame's geometry bits."""
     rp = pipe.shadow_pass("raytrace")
     ref = rp.refiner
-    kept_rule, orig = ref.rules["group"], rp._light
+    kept_rule, orig = ref.rules["group"], rp.hard._trace
     got = {}
 
-    def light(li, *a, **k):
-        out = orig(li, *a, **k)
-        if a[-2] == "refine":
+    def trace(job, ray):
+        out = orig(job, ray)
+        if rp.hard.plan == "refine":
             g = ref._grid
-            got[li] = (ref.marked(), read_texture(ref._work.get("cells", *g["cells"]).texture), dict(g))
+            got[ray.index] = (ref.marked(), read_texture(ref._work.get("cells", *g["cells"]).texture), dict(g))
         return out
 
-    rp._light = light
+    rp.hard._trace = trace
     ref.rules["group"] = group
     try:
         frame = pipe.render(scene, Settings(mode="raytrace", quality=quality, hard=True, structure="bvh"), w, h)
         geo = read_texture(ref._work.get("geometry", w, h).texture)
     finally:
-        rp._light = orig
+        rp.hard._trace = orig
         ref.rules["group"] = kept_rule
     return frame, got, geo
 

@@ -13,6 +13,7 @@ import argparse
 import os
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -70,7 +71,8 @@ def evaluate_case(name: str, modes=("raytrace-high",), *, ctx=None, params: str 
     ref = render_reference(bscene, resolution=(W, H))
     out = {"_scene": scene, "_ref": ref, "_cycles_s": time.perf_counter() - t0}
     pipe = Pipeline(ctx)
-    pipe.shadow_pass("raytrace").light_grids.eager = eager_grids
+    rt = pipe.shadow_pass("raytrace")
+    rt.options = replace(rt.options, eager_light_grids=eager_grids)
     try:
         bake_ms = pipe.set_scene(scene)
         out["_bake_ms"] = bake_ms

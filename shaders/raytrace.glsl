@@ -3,29 +3,40 @@
 // Output (R32F): 1 = lit, 0 = shadowed (between: the light kept through alpha-cut casters). Background texels are 1 (the lighting pass skips them).
 // Texels whose surface faces away from the light, or that the light cannot reach (outside a
 // spot's cone, behind an area light) are 0 without a ray: unlit anyway.
-// Defines (besides scene_data.glsl's): HS_LIGHT_SUN or HS_LIGHT_LOCAL (point, spot, area) picks
-// the light kind, one program per kind; HS_MAX_DISTANCE (shadows only on surfaces within
-// u_max_distance of the camera, as the shadow-map pass; rays are no longer than that either),
-// HS_INTERLACE (a quarter-resolution pass: texel q traces the pixel of this frame's phase in
-// 2x2 block q, 2q + u_offset; interlace_merge.glsl puts it together with the history),
-// HS_CONSERVATIVE (a conservative occupancy map of the light decides or shortens the ray),
-// HS_COMPACT (texel k of a compacted list traces the k-th pixel that refine_classify.glsl marked,
-// see common/compact.glsl; texels past the list's end are discarded), HS_SOFT with HS_SOFT_SHAPE
-// (an extended light: u_samples rays towards points on it, common/soft_light.glsl; the mask is
-// the weighted share of the light the pixel sees; HS_SOFT_PROBE traces HS_PROBES of them,
-// HS_SOFT_REFINE then traces all of them only near pixels whose probes disagree: it is drawn
-// under the depth test, on the pixels soft_range.glsl's CLASSIFY marked). The probe pass writes
-// RG32F sums (weighted visibility, weight) instead of the mask, (value, 1) where the answer is
-// known without a ray: the refinement continues each pixel's sequence after them.
-// HS_NO_RAYS: the prelude's answers alone, for a light that reaches no pixel (light_cull.py).
-// HS_SOFT_PACKET: a pixel's samples walk the scene together (common/scene_packet.glsl);
-// HS_SOFT_FULL: a refined pixel never stops early; HS_LOOP_CHECK (tests): see below.
-// HS_LIGHT_GRID: a hard light's rays look up its light-space grid (common/scene_lightgrid.glsl)
-// instead of walking the two-level BVH.
-// HS_SOFT_ACCUM (the viewport's running sums, soft_accumulate.glsl) writes the same sums of its
-// u_samples rays; a pixel none of whose rays had a weight writes its highest point's answer with
-// a weight of HS_ACCUM_TOP_WEIGHT, which decides only where no frame saw any weight, as a final
-// render's highest point does.
+// The probe pass and HS_SOFT_ACCUM write RG32F sums (weighted visibility, weight) instead of the
+// mask, (value, 1) where the answer is known without a ray: the refinement continues each
+// pixel's sequence after them; a pixel none of whose rays had a weight writes its highest
+// point's answer with a weight of HS_ACCUM_TOP_WEIGHT, which decides only where no frame saw any
+// weight, as a final render's highest point does.
+//
+// Defines (besides the bake's, scene_data.glsl; set in hybrid_shadow_addon/core/gpu/passes/):
+// | define           | meaning                                                          | set by            |
+// |------------------|------------------------------------------------------------------|-------------------|
+// | HS_LIGHT_SUN     | a sun: u_light_vec is the direction towards it                   | trace.py          |
+// | HS_LIGHT_LOCAL   | point, spot, area: u_light_vec is its position (bake space)      | trace.py          |
+// | HS_MAX_DISTANCE  | shadows only within u_max_distance of the camera, rays no longer | trace.py          |
+// | HS_INTERLACE     | quarter-resolution pass: texel q traces pixel 2q + u_offset of   | trace.py, for     |
+// |                  | its 2x2 block (this frame's phase; interlace_merge.glsl merges)  | hard.py's plan    |
+// | HS_CONSERVATIVE  | a conservative occupancy map decides or shortens the ray         | raytrace.py       |
+// |                  | (common/conservative_lookup.glsl)                                | (conservative.py) |
+// | HS_LIGHT_GRID    | a hard light's rays look up its light-space grid                 | hard.py, from     |
+// | (+ HS_LG_*)      | (common/scene_lightgrid.glsl) instead of walking the BVH         | light_grid.py     |
+// | HS_NO_RAYS       | the prelude's answers alone: a light that reaches no pixel       | raytrace.py       |
+// |                  | (light_cull.py)                                                  |                   |
+// | HS_SOFT          | an extended light: u_samples rays towards points on it           | trace.py          |
+// | HS_SOFT_SHAPE    | its shape (common/soft_light.glsl); the mask is the weighted     | trace.py          |
+// |                  | share of the light the pixel sees                                |                   |
+// | HS_PACKET_PLANES | packets bounded by the pyramid over the light too                | trace.py          |
+// | HS_SOFT_PROBE    | trace HS_PROBES of the samples, write sums                       | soft.py           |
+// | HS_SOFT_REFINE   | the rest of the samples, under the depth test, only on the       | soft.py           |
+// |                  | pixels soft_range.glsl's CLASSIFY marked                         |                   |
+// | HS_SOFT_ACCUM    | write the sums of u_samples rays from u_sample_base (the         | soft.py           |
+// |                  | viewport's running sums, chunked draws; soft_accumulate.glsl)    |                   |
+// | HS_SOFT_PACKET   | a pixel's samples walk the scene together                        | soft.py           |
+// |                  | (common/scene_packet.glsl)                                       |                   |
+// | HS_SOFT_FULL     | a refined pixel never stops early                                | soft.py           |
+// | HS_LOOP_CHECK    | tests: a pixel whose loop hit llvmpipe's budget reads            | soft.py           |
+// |                  | HS_LOOP_SPENT (RaytraceOptions.loop_check; see below)            |                   |
 
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
@@ -38,9 +49,6 @@
 #include "common/shadow_ray.glsl"
 #ifdef HS_LIGHT_GRID
 #include "common/scene_lightgrid.glsl"
-#endif
-#ifdef HS_COMPACT
-#include "common/compact.glsl"
 #endif
 #ifdef HS_CONSERVATIVE
 #include "common/conservative_lookup.glsl"
@@ -65,7 +73,7 @@ in vec2 v_uv;
 #define HS_ACCUM_TOP_WEIGHT 1.0e-30
 out vec4 o_sums;                // (weighted visibility, weight) of this pass's rays, and the same
                                 // of those among them before sample u_split (the first half of
-                                // a final render's samples, for its noise check: raytrace.py)
+                                // a final render's samples, for its noise check: soft.py)
 uniform int u_split;
 float o_mask;                   // the answers known without a ray: written as (o_mask, 1)
 vec2 hs_sums = vec2(-1.0);
@@ -77,11 +85,7 @@ out float o_mask;
 void trace_main()
 {
     ivec2 mt = ivec2(gl_FragCoord.xy);
-#ifdef HS_COMPACT
-    int k = compact_index(mt);
-    if (k >= compact_total()) discard;    // (an occlusion query counts the rays)
-    ivec2 px = compact_find(k);
-#elif defined(HS_INTERLACE)
+#ifdef HS_INTERLACE
     ivec2 px = min(mt * 2 + u_offset, u_full_size - 1);
 #else
     ivec2 px = mask_source_pixel(mt, u_scale, u_full_size);

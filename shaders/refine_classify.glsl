@@ -6,8 +6,7 @@
 // sample itself (or, HS_INTERLACE, has this frame's ray or an up-to-date history), or when its
 // cell agrees (refine_cells.glsl), all four samples can stand for it (refine_geometry.glsl) and
 // it does not graze the light (cosine to the light at least u_grazing). Otherwise it gets its
-// own ray: gl_FragDepth 0 (the refine draws then run only there, under the depth test) and, with
-// HS_COMPACT, o_need 1 (level 0 of the pyramid of a compacted list, common/compact.glsl).
+// own ray: gl_FragDepth 0 (the refine draws then run only there, under the depth test).
 // HS_GROUP_VOTE (passes/refine.py, rule group): every pixel of a SIMD group that holds a
 // marked pixel is marked too, unless a ray would only repeat what it knows (decided by the
 // prelude, a coarse sample, an interlaced ray or history). Where the group is a fixed block
@@ -34,9 +33,6 @@ uniform sampler2D u_geometry;   // refine_geometry.glsl
 uniform float u_grazing;
 
 layout(location = 0) out float o_mask;
-#ifdef HS_COMPACT
-layout(location = 1) out float o_need;
-#endif
 
 void main()
 {
@@ -65,9 +61,6 @@ void main()
     need = anyInvocationARB(need) && !known;   // (uniform control flow: every lane votes)
 #endif
     o_mask = need ? 1.0 : value;
-#ifdef HS_COMPACT
-    o_need = need ? 1.0 : 0.0;
-#endif
     gl_FragDepth = need ? 0.0 : 1.0;
 }
 #endif

@@ -49,7 +49,7 @@ float hs_filter_weight(vec3 p, vec3 n, float depth, vec3 qp, vec3 qn, float r2, 
 }
 #ifdef NOISE
 // A final render's noise check, per 8 x 8 block of pixels, on every other pixel of each row and
-// column (raytrace.py adds the blocks up): the sum of |a - b|, a and b the shares of the first and
+// column (soft.py adds the blocks up): the sum of |a - b|, a and b the shares of the first and
 // of the second half of the samples (u_sums: RG all, BA the first half's, raytrace.glsl u_split),
 // each filtered here as DENOISE filters a mask of u_samples (half the samples) at radius 1 (its
 // "umbra or lit" test over 3 x 3 pixels instead of 5 x 5), and the count of covered pixels.

@@ -2,6 +2,7 @@
 their masks are bit-identical to a trace's, a light with a pixel that needs a ray is never left
 out, and the stats count the rays not traced."""
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -59,11 +60,11 @@ def render_both(pipeline, scene, settings):
     out = {}
     try:
         for on in (True, False):
-            rp.cull_lights = on
+            rp.options = replace(rp.options, cull_lights=on)
             f = pipeline.render(scene, settings, W, H)
             out[on] = (f, {li: f.mask_array(li) for li in f.lights}, list(rp.culled), pipeline.lighting.lights_drawn)
     finally:
-        rp.cull_lights = True
+        rp.options = replace(rp.options, cull_lights=True)
     return out
 
 
@@ -133,15 +134,15 @@ def test_interlaced_and_accumulated_frames_are_the_same(pipeline, settings):
     seqs = {}
     try:
         for on in (True, False):
-            rp.cull_lights = on
+            rp.options = replace(rp.options, cull_lights=on)
             pipeline.reset_history()
-            rp._phase = 0  # (interlacing's phase runs on across resets: start both at the same one)
+            rp.hard._phase = 0  # (interlacing's phase runs on across resets: start both at the same one)
             seqs[on] = []
             for _ in range(5):
                 f = pipeline.render(scene, settings, W, H)
                 seqs[on].append(({li: f.mask_array(li) for li in f.lights}, list(rp.culled)))
     finally:
-        rp.cull_lights = True
+        rp.options = replace(rp.options, cull_lights=True)
     for (got, culled), (ref, _) in zip(seqs[True], seqs[False]):
         assert {scene.lights[li].name for li in culled} >= {"spot up", "spot aside", "area up"}
         for li in ref:

@@ -12,6 +12,8 @@
    setting on, a grid that fits), and follow the scene and the lights: a moved caster, a turned
    sun or a moved lamp rebuilds them.
 """
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -183,10 +185,10 @@ def test_local_bake_finds_every_caster_a_ray_hits(name, loaded):
 def eager(request):
     """The GPU tests build every grid at once (not only once it pays back)."""
     if "pipeline" in request.fixturenames:
-        grids = request.getfixturevalue("pipeline").shadow_pass("raytrace").light_grids
-        grids.eager = True
+        rt = request.getfixturevalue("pipeline").shadow_pass("raytrace")
+        rt.options = replace(rt.options, eager_light_grids=True)
         yield
-        grids.eager = False
+        rt.options = replace(rt.options, eager_light_grids=False)
     else:
         yield
 
@@ -235,7 +237,7 @@ def test_gpu_equals_the_mirror(name, pipeline, loaded):
         cov = ~np.isnan(m)
         o, d, tmax, facing = shadow_rays(fr.gbuffer, np.nonzero(cov), light, pipeline.baked.origin)
         local, vec = light_ray_uniforms(light, pipeline.baked.origin)
-        _, grid = grids.get(scene, light, local, vec)
+        grid = grids.for_light(scene, light, local, vec).grid
         st = {}
         occ = tracer.trace_light_grid(grid, grids._casters.tris, scene, pipeline.baked.origin, o[facing],
                                       d[facing], np.broadcast_to(tmax, facing.shape)[facing], st)
@@ -382,8 +384,9 @@ def test_grids_are_built_once_they_pay_back(monkeypatch, pipeline, loaded):
     from hybrid_shadow_addon.core.gpu.passes import light_grid
 
     scene = loaded("clusters")
-    grids = pipeline.shadow_pass("raytrace").light_grids
-    grids.eager = False
+    rt = pipeline.shadow_pass("raytrace")
+    rt.options = replace(rt.options, eager_light_grids=False)
+    grids = rt.light_grids
     pipeline.set_scene(scene, "bvh")
     s = Settings(hard=True)
     pipeline.render(scene, s, W, H)
@@ -399,11 +402,11 @@ def test_grids_are_built_once_they_pay_back(monkeypatch, pipeline, loaded):
     fr = pipeline.render(scene, s, W, H)  # (uploads and uses them)
     culled = {scene.lights[li].name for li in pipeline.shadow_pass("raytrace").culled}
     assert gridded(pipeline) == {scene.lights[li].name for li in fr.lights} - culled
-    assert grids.last_build_ms > 0
+    assert grids.build_ms > 0
     for k in range(len(fr.lights)):
         np.testing.assert_array_equal(fr.mask_array(k), ref.mask_array(k))
     pipeline.render(scene, s, W, H)
-    assert grids.last_build_ms == 0  # (kept)
+    assert grids.build_ms == 0  # (kept)
     pipeline.set_scene(scene, "bvh")  # a new bake: the first frame traces the tree again
     pipeline.render(scene, s, W, H)
     assert not gridded(pipeline)

@@ -1,5 +1,5 @@
 """Refinement (``quality`` medium/low): coarse rays, classification, full-resolution rays where the
-coarse answer cannot stand for a pixel, traced under a depth mask (or as a compacted list).
+coarse answer cannot stand for a pixel, traced under a depth mask.
 
 1. On every test scene and every stiff scene, medium and low differ from high's masks on at most
    0.1% of the valid pixels (all shadowed lights together). One documented exception:
@@ -12,18 +12,18 @@ coarse answer cannot stand for a pixel, traced under a depth mask (or as a compa
    its own ray (its samples' spacing on the surface is stretched: without the rule ``forest``'s
    distant terrain loses shadow streaks a pixel high); on llvmpipe every pixel of a 4x2 block
    that holds a marked pixel gets its own ray unless it is known without one (``group``).
-3. Stats: ``rays_traced`` and ``pixels``; the compact and depth-mask methods give the same masks;
-   the ``nearest`` option still gives the blocky coarse masks; interlacing converges to high and
+3. Stats: ``rays_traced`` and ``pixels``; an unknown refinement method is refused; the
+   ``nearest`` option still gives the blocky coarse masks; interlacing converges to high and
    its first frame after a change is refined, not blocky.
 """
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from conftest import TEST_SCENES
-from hybrid_shadow_addon.core.gpu.targets import read_texture
 from hybrid_shadow_addon.core.settings import Settings
 
 REPO = Path(__file__).resolve().parents[1]
@@ -74,40 +74,32 @@ def test_medium_and_low_match_high(name, pipeline, loaded):
 
 
 def _capture_marks(pipeline):
-    """Wrap the ray-traced pass so each light's ray marks (need texture) are kept."""
+    """Wrap the ray-traced pass's hard visibility so each light's ray marks are kept."""
     rp = pipeline.shadow_pass("raytrace")
     marks = {}
-    orig = rp._light
+    orig = rp.hard._trace
 
-    def light(li, *a, **k):
-        out = orig(li, *a, **k)
-        if a[-2] in ("refine", "interlace"):
-            marks[li] = rp.refiner.marked()
-            if rp.refiner.method == "compact":  # (the list's marks are the depth buffer's)
-                need = read_texture(rp.refiner._work.get("need", *out.size).texture) > 0.5
-                np.testing.assert_array_equal(need, marks[li])
+    def trace(job, ray):
+        out = orig(job, ray)
+        if rp.hard.plan in ("refine", "interlace"):
+            marks[ray.index] = rp.refiner.marked()
         return out
-    rp._light = light
+    rp.hard._trace = trace
     return rp, marks, orig
 
 
-# (the compacted list on two scenes; test_compact_and_depth_methods_agree compares it on clusters)
-@pytest.mark.parametrize("name,method", [(n, "depth") for n in ("forest", "clusters", "stiff/cards", "stiff/spot_touching",
-                                                                "stiff/thin")] + [("forest", "compact"), ("stiff/thin", "compact")])
+@pytest.mark.parametrize("name", ["forest", "clusters", "stiff/cards", "stiff/spot_touching", "stiff/thin"])
 @pytest.mark.parametrize("quality", ["medium", "low"])
-def test_refined_pixels_equal_high(name, method, quality, pipeline, loaded):
+def test_refined_pixels_equal_high(name, quality, pipeline, loaded):
     scene = loaded(name)
     pipeline.set_scene(scene)
     w, h = size_of(name, scene)
     _, high = masks(pipeline, scene, Settings(hard=True, quality="high"), w, h)
     rp, marks, orig = _capture_marks(pipeline)
-    kept = rp.refiner.method
-    rp.refiner.method = method
     try:
         frame, got = masks(pipeline, scene, Settings(hard=True, quality=quality), w, h)
     finally:
-        rp._light = orig
-        rp.refiner.method = kept
+        rp.hard._trace = orig
     assert set(marks) == set(got) - set(rp.culled)  # (lights that reach no pixel take no pass)
     for li in rp.culled:
         np.testing.assert_array_equal(got[li], high[li])
@@ -153,7 +145,7 @@ def test_grazing_view_pixels_get_their_own_rays(pipeline, loaded):
                 left += int((~m[rows[facing], cols[facing]]).sum())
             unmarked[view_cos] = (left, len(rows))
     finally:
-        rp._light = orig
+        rp.hard._trace = orig
         rp.refiner.rules["view_cos"] = 0.5
     assert unmarked[0.5][1] > 500, unmarked  # (forest's distant terrain)
     assert unmarked[0.5][0] == 0, unmarked
@@ -194,7 +186,7 @@ def test_group_rule_traces_a_marked_pixels_block_whole(pipeline, loaded):
             got[group] = (dict(marks), m, frame.gbuffer)
             pct[group] = mismatch_pct(m, high)[0]
     finally:
-        rp._light = orig
+        rp.hard._trace = orig
         rp.refiner.rules["group"] = True
     sample = np.zeros((h, w), bool)
     sample[h - 2::-2, 1::2] = True  # (pixels 2q + 1 from the bottom-left: the coarse samples)
@@ -219,6 +211,7 @@ def test_group_rule_traces_a_marked_pixels_block_whole(pipeline, loaded):
 
 def test_refinement_rules_are_checked(pipeline):
     from hybrid_shadow_addon.core.gpu.passes.refine import Refiner
+    from hybrid_shadow_addon.core.gpu.passes.trace import RaytraceOptions
 
     rp = pipeline.shadow_pass("raytrace")
     with pytest.raises(ValueError, match="unknown refinement rule"):
@@ -230,6 +223,10 @@ def test_refinement_rules_are_checked(pipeline):
             rp.refiner.defines()
     finally:
         rp.refiner.can_vote = kept
+    with pytest.raises(ValueError, match="refinement method must be one of depth, not 'compact'"):
+        RaytraceOptions(refine_method="compact")
+    with pytest.raises(ValueError, match="refinement method"):
+        rp.options = replace(rp.options, refine_method="list")
 
 
 def test_stats_count_pixels_and_rays(pipeline, loaded):
@@ -247,24 +244,6 @@ def test_stats_count_pixels_and_rays(pipeline, loaded):
         assert 0.05 * st["pixels"] < st["rays_traced"] < most * st["pixels"], (q, st)
     none = pipeline.render(scene, Settings(hard=True, mode="none"), W, H).stats
     assert none["rays_traced"] == 0 and "pixels" in none
-
-
-def test_compact_and_depth_methods_agree(pipeline, loaded):
-    scene = loaded("clusters")
-    pipeline.set_scene(scene)
-    rp = pipeline.shadow_pass("raytrace")
-    assert rp.refiner.method == "depth"  # (the default: BENCHMARKS.md, "The refinement under the depth test")
-    out = {}
-    try:
-        for method in ("compact", "depth"):
-            rp.refiner.method = method
-            f, m = masks(pipeline, scene, Settings(hard=True, quality="medium"), W, H)
-            out[method] = (m, f.stats["rays_traced"])
-    finally:
-        rp.refiner.method = "depth"
-    assert out["compact"][1] == out["depth"][1]
-    for li in out["compact"][0]:
-        np.testing.assert_array_equal(out["compact"][0][li], out["depth"][0][li])
 
 
 def test_nearest_gives_the_blocky_coarse_masks(pipeline, loaded):

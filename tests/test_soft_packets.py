@@ -10,6 +10,8 @@ Scenes: the soft-light test scene and stiff scenes whose lights are made extende
 coincident faces, analytic spheres), so the cone is carried into odd model spaces as well, and
 alpha-cut casters (a packet's rays keep a transmittance each).
 """
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -40,8 +42,9 @@ def extended(scene, area: bool = False):
 
 def masks(pipe, scene, packets: bool, samples: int = 32):
     rt = pipe.shadow_pass("raytrace")
-    rt.packets = packets
-    rt.early_stop = packets  # (a packet traces all of a refined pixel's samples: so does the reference)
+    kept = rt.options
+    # (a packet traces all of a refined pixel's samples: so does the reference)
+    rt.options = replace(kept, packets=packets, early_stop=packets)
     pipe.set_scene(scene, "bvh")
     pipe.reset_history()
     try:
@@ -49,7 +52,7 @@ def masks(pipe, scene, packets: bool, samples: int = 32):
         # apart, and no light doubles its samples, so both paths trace the same rays)
         f = pipe.render(scene, Settings(mode="raytrace", quality="high", samples=samples, noise_target=1.0), W, H)
     finally:
-        rt.packets = rt.early_stop = True
+        rt.options = replace(kept, packets=True, early_stop=True)
     return f, [f.mask_array(i) for i in range(len(scene.lights))]
 
 
@@ -122,11 +125,11 @@ def test_packets_through_alpha_cut_casters(pipe, spec):
     else:
         scene = extended(load_scene(spec))
     rt = pipe.shadow_pass("raytrace")
-    rt.loop_check = True
+    rt.options = replace(rt.options, loop_check=True)
     try:
         f1, a = masks(pipe, scene, packets=True, samples=64)
     finally:
-        rt.loop_check = False
+        rt.options = replace(rt.options, loop_check=False)
     f0, b = masks(pipe, scene, packets=False, samples=64)
     assert "HS_HAS_ALPHA=1" in f1.stats["defines"] and "HS_SOFT_PACKET=1" in f1.stats["defines"]
     assert "HS_SOFT_PACKET=1" not in f0.stats["defines"]
@@ -148,11 +151,11 @@ def test_no_pixel_spends_llvmpipe_loop_budget(pipe, packets, samples):
 
     rt = pipe.shadow_pass("raytrace")
     scene = load_scene("forest")
-    rt.loop_check = True
+    rt.options = replace(rt.options, loop_check=True)
     try:
         f, ms = masks(pipe, scene, packets=packets, samples=samples)
     finally:
-        rt.loop_check = False
+        rt.options = replace(rt.options, loop_check=False)
     assert ("HS_SOFT_PACKET=1" in f.stats["defines"]) == packets
     for li, m in enumerate(ms):
         assert not (np.nan_to_num(m) < -0.5).any(), f"light {li}: {(np.nan_to_num(m) < -0.5).sum()} pixels spent the budget"
@@ -209,7 +212,7 @@ def test_pyramid_bounds_only_where_the_cone_is_loose():
     """Rectangles and ellipses at least 1.5 times as long as wide take the pyramid's planes; a
     disk, whose cone already fits it, a sun and a sphere light do not."""
     from hybrid_shadow_addon.core.gpu.lights import soft_shape
-    from hybrid_shadow_addon.core.gpu.passes.raytrace import pyramid_bounds
+    from hybrid_shadow_addon.core.gpu.passes.trace import pyramid_bounds
     from hybrid_shadow_addon.core.scene import Light
 
     def area(shape, sx, sy):
@@ -226,7 +229,7 @@ def test_chunk_draws_end_on_aligned_blocks():
     """A refinement of more rays than one draw takes (CHUNK_RAYS) is cut where the sequence
     reaches a multiple of 64, as the shader cuts its packets: 128 samples after the probe take
     draws of 63 and 64 (not 64 and 63, whose first would walk the scene twice)."""
-    from hybrid_shadow_addon.core.gpu.passes.raytrace import CHUNK_RAYS, SOFT_PROBES, chunk_spans
+    from hybrid_shadow_addon.core.gpu.passes.soft import CHUNK_RAYS, SOFT_PROBES, chunk_spans
 
     step = CHUNK_RAYS["packets"]
     assert step == 64 and SOFT_PROBES == 1

@@ -2,10 +2,12 @@
 lights): the GPU's masks against the numpy soft oracle (``core/oracle/soft.py``), hard lights
 unchanged, convergence with the sample count, the viewport's accumulation (no ghost after a
 move, the first frame already close) and soft shadows through alpha-cut cards."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.gpu.passes.raytrace import denoise_radius
+from hybrid_shadow_addon.core.gpu.passes.soft import denoise_radius
 from hybrid_shadow_addon.core.oracle.soft import light_samples, soft_visibility
 from hybrid_shadow_addon.core.scene import Light
 from hybrid_shadow_addon.core.scene_sync import sync_scene
@@ -192,11 +194,11 @@ def test_ray_by_ray_refinement_stops_early_only_where_its_first_half_agreed(pipe
     got = {}
     pipeline.set_scene(sc, "grid")
     for stop in (True, False):
-        rt.early_stop = stop
+        rt.options = replace(rt.options, early_stop=stop)
         try:
             f = pipeline.render(sc, Settings(mode="raytrace", quality="high", structure="grid", samples=64))
         finally:
-            rt.early_stop = True
+            rt.options = replace(rt.options, early_stop=True)
         assert "HS_SOFT_PACKET=1" not in f.stats["defines"]  # (the grid: ray by ray)
         got[stop] = f.mask_array(0)
     a, b = got[True], got[False]

@@ -288,7 +288,7 @@ def test_views_share_the_bake_of_their_pipeline(gl_ctx, base):
         inter = Settings(mode="raytrace", quality="high", hard=True, interlace=True)
         b.render(scene, inter, W, H)
         b.render(scene, inter, W, H)
-        hist = b.shadow_pass("raytrace")._valid_phases
+        hist = b.shadow_pass("raytrace").hard._valid_phases
         a.move_instances(scene, [i])  # another view's bake change: b's history is stale
         first = b.render(scene, inter, W, H)
         fresh = Pipeline(gl_ctx)

@@ -62,9 +62,13 @@ def _sha(a) -> str:
 
 def _eager_light_grids(pipe) -> None:
     """Light grids built at a light's first sight, so that one frame traces them."""
+    from dataclasses import replace
+
     rt = pipe.shadow_pass("raytrace")
-    grids = getattr(rt, "light_grids", None) or getattr(getattr(rt, "hard", None), "light_grids", None)
-    grids.eager = True
+    if hasattr(rt, "options"):
+        rt.options = replace(rt.options, eager_light_grids=True)
+    else:  # (a tree before RaytraceOptions: the baseline digests)
+        rt.light_grids.eager = True
 
 
 def digest_scene(pipe, scene, size, variants) -> dict:

@@ -128,6 +128,7 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
     normal_offset: FloatProperty(name="Normal Offset", default=1.5, min=0.0, soft_max=10.0,
                                  description="Offset of the receiver along its normal, in shadow-map texels",
                                  update=_tag_viewport)
+    # Render ▸ Shadows ▸ Advanced (ui.py): choices for comparisons and research
     upsample: EnumProperty(name="Upsampling", items=UPSAMPLE_ITEMS, default="BILATERAL",
                            description="How reduced-resolution shadow masks are brought to full resolution",
                            update=_tag_viewport)
@@ -135,16 +136,16 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
                                     description="Ray traced: skip or shorten shadow rays with conservative "
                                                 "light-space occupancy maps; exact, it only changes the work",
                                     update=_tag_viewport)
+    structure: EnumProperty(name="Structure", items=STRUCTURE_ITEMS, default="BVH",
+                            description="Ray traced: acceleration structure the shadow rays walk (the masks "
+                                        "are the same; changing it re-bakes the scene)",
+                            update=_tag_viewport)
     use_light_grid: BoolProperty(name="Light Grids", default=True,
                                  description="Ray traced, BVH: a hard light's shadow rays look up a grid of the "
                                              "casters laid out around that light instead of walking the tree "
                                              "(faster; rebuilt when the light moves; scenes with alpha-cut "
                                              "casters keep the tree)",
                                  update=_tag_viewport)
-    structure: EnumProperty(name="Structure", items=STRUCTURE_ITEMS, default="BVH",
-                            description="Ray traced: acceleration structure the shadow rays walk (the masks "
-                                        "are the same; changing it re-bakes the scene)",
-                            update=_tag_viewport)
     pcss_samples: IntProperty(name="Soft Filter Taps", default=32, min=1, max=1024, soft_max=128,
                               description="Shadow maps of lights with a size: percentage-closer soft shadow "
                                           "filter taps (the blocker search takes half as many)")

@@ -52,9 +52,6 @@ class RENDER_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         col = layout.column()
         col.active = props.mode == "RAYTRACE"
         col.prop(props, "quality", text="Render Quality")
-        col.prop(props, "upsample")
-        col.prop(props, "conservative_maps")
-        col.prop(props, "structure")
         sub = col.column()
         sub.active = props.structure == "BVH"
         sub.prop(props, "use_light_grid")
@@ -125,6 +122,21 @@ class RENDER_PT_hybrid_shadows_lighting(RenderSubPanel, bpy.types.Panel):
         layout = self.split_layout()
         layout.prop(context.scene.hybrid_shadows, "use_specular")
         layout.prop(context.scene.render, "film_transparent")
+
+
+class RENDER_PT_hybrid_shadows_advanced(RenderSubPanel, bpy.types.Panel):
+    """Choices for comparisons and research, not for the artist's everyday render."""
+
+    bl_label = "Advanced"
+
+    def draw(self, context):
+        layout = self.split_layout()
+        props = context.scene.hybrid_shadows
+        col = layout.column()
+        col.active = props.mode == "RAYTRACE"
+        col.prop(props, "upsample")
+        col.prop(props, "structure")
+        col.prop(props, "conservative_maps")
 
 
 class RENDER_PT_hybrid_shadows_debug(RenderSubPanel, bpy.types.Panel):
@@ -342,7 +354,8 @@ def draw_viewport_header(self, context):
 
 CLASSES = (
     RENDER_PT_hybrid_shadows, RENDER_PT_hybrid_shadows_limits, RENDER_PT_hybrid_shadows_viewport,
-    RENDER_PT_hybrid_shadows_shadowmap, RENDER_PT_hybrid_shadows_lighting, RENDER_PT_hybrid_shadows_debug,
+    RENDER_PT_hybrid_shadows_shadowmap, RENDER_PT_hybrid_shadows_lighting, RENDER_PT_hybrid_shadows_advanced,
+    RENDER_PT_hybrid_shadows_debug,
     VIEWLAYER_PT_hybrid_shadows_passes, OBJECT_PT_hybrid_shadows, DATA_PT_hybrid_shadows_light_settings,
     DATA_PT_hybrid_shadows_light, MATERIAL_PT_hybrid_shadows_context, MATERIAL_PT_hybrid_shadows_surface,
     WORLD_PT_hybrid_shadows,

@@ -156,8 +156,9 @@ def compare_steps(scene, output_dir, *, reference, resolution=None, variants=Non
     # the hard lights' grids from the first frame on (a warm-up frame builds them): the timed
     # frames are the steady state a viewport or an animation reaches, the build is reported apart
     with gl():
-        grids = pipeline.shadow_pass("raytrace").light_grids
-    was_eager, grids.eager = grids.eager, True
+        rt = pipeline.shadow_pass("raytrace")
+    grids, kept = rt.light_grids, rt.options
+    rt.options = replace(kept, eager_light_grids=True)
     built0 = grids.total_build_ms
     try:
         with gl():
@@ -187,7 +188,7 @@ def compare_steps(scene, output_dir, *, reference, resolution=None, variants=Non
             yield done, total, f"{v.name}: error"
             rows.append(_variant_row(v, shadow, tot, names, visibility, ours, out))
     finally:
-        grids.eager = was_eager
+        rt.options = kept
         grids_ms = grids.total_build_ms - built0
         if own_pipeline:
             with gl():

@@ -17,7 +17,7 @@
  * llvmpipe counts the iterations of all the loops of a shader invocation against one budget of
  * 65535, after which every loop stops (rays left untested, answers that look plausible): the
  * walk's loops and the rays of a triangle, four to an iteration, stay well within it for 64
- * rays on forest (raytrace.py's CHUNK_RAYS caps the rays of one draw; HS_LOOP_CHECK tests it).
+ * rays on forest (soft.py's CHUNK_RAYS caps the rays of one draw; HS_LOOP_CHECK tests it).
  *
  * Cone: apex o, unit axis a, every ray within the angle whose sine is sin_a of a, and no ray
  * point further than len from the apex. A point p of a ray with |p - o| <= D projects onto the
@@ -27,7 +27,7 @@
  * never skip one a ray does. Packets whose rays spread wider than HS_PACKET_MIN_COS (a large
  * light close to the surface) are traced ray by ray.
  *
- * A rectangle or elongated ellipse light (HS_PACKET_PLANES, raytrace.py's pyramid_bounds)
+ * A rectangle or elongated ellipse light (HS_PACKET_PLANES, trace.py's pyramid_bounds)
  * bounds its rays tighter still: every ray lies inside the pyramid from the origin over the
  * light's rectangle, so a node wholly outside one of its four planes is skipped as well (the
  * planes go into each instance's model space as L^-T n). A cone around a rectangle sweeps a

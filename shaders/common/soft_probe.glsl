@@ -6,7 +6,7 @@
 #ifndef HS_SOFT_PROBE_GLSL
 #define HS_SOFT_PROBE_GLSL
 
-#define HS_PROBES 1           // rays per pixel of the probe pass (SOFT_PROBES of raytrace.py)
+#define HS_PROBES 1           // rays per pixel of the probe pass (SOFT_PROBES of soft.py)
 #define HS_PROBE_RADIUS 4     // a pixel takes its probe answer when every probe within this
                               // many pixels saw all or none of the light alike (soft_range.glsl)
 // (1 probe within 4 pixels, 81 rays around a pixel, against 2 within 3, 98: as exact against

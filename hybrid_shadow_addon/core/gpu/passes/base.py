@@ -47,3 +47,18 @@ class ShadowPass(Pass):
         ``rays_traced`` (the rays actually traced), ``pixels`` (pixels with geometry x shadowed
         lights; 0 where a mode does not count them) and shader ``defines`` of the last render."""
         return {"mask_resolution": list(job.size), "rays": 0, "rays_traced": 0, "pixels": 0, "defines": []}
+
+
+class LightVisibility(Pass):
+    """One side of a shadow pass's per-light work (the ray-traced pass's hard or soft
+    visibility): between :meth:`begin_frame` and :meth:`end_frame` of a job,
+    :meth:`light` returns one light's mask texture."""
+
+    def begin_frame(self, job) -> None:
+        """Once per frame, before its lights."""
+
+    def light(self, job, ray):
+        raise NotImplementedError
+
+    def end_frame(self, job) -> None:
+        """Once per frame, after its lights."""

@@ -1,5 +1,7 @@
 """Conservative light-space occupancy maps for the ray-traced shadow pass
-(``shaders/conservative_map.glsl``; Hertel, Hormann & Westermann 2009).
+(``shaders/conservative_map.glsl``; Hertel, Hormann & Westermann 2009), built only under
+``Settings.conservative`` ``sun`` or ``all``: they pay where a map's draw costs less than the
+traversal it saves (many receivers nearer the light than every caster, costly rays).
 
 Per shadowed light, one R32F map holds for every texel a lower bound ``D`` of the light depth
 of any shadow caster whose surface touches the texel's column. A shadow ray from a receiver
@@ -27,10 +29,13 @@ is far below 1/16 texel off.
 """
 from __future__ import annotations
 
+import time
+
 import moderngl
 import numpy as np
 
 from ..geometry import CasterDraws
+from ..lights import light_ray_uniforms
 from ..projection import CUBE_AXES, look_basis
 from ..targets import TargetCache, set_uniforms
 
@@ -49,8 +54,32 @@ class MapViews:
         self.margin = margin  # depth margin (metres) subtracted from D by the ray pass
 
 
+def bind_map(prog, unit, tex, views, origin) -> int:
+    """Bind a light's map ``tex`` and its ``views`` (:class:`MapViews`) to ``prog`` from
+    ``unit`` on (``origin``: the bake's); returns the next free unit."""
+    tex.use(unit)
+    prog["u_cm"].value = unit
+    n = len(views.bases)
+    bases = np.zeros((6, 3, 3), np.float32)
+    wins = np.zeros((6, 4), np.float32)
+    tiles = np.zeros((6, 4), np.float32)
+    for k in range(n):
+        bases[k] = views.bases[k].T  # column-major upload: rows of .T = columns
+        if views.windows[k] is not None:
+            wins[k] = views.windows[k]
+            tiles[k] = (*views.tiles[k], 1.0)
+    prog["u_cm_origin"].value = tuple(float(v) for v in np.asarray(views.origin) - origin)  # bake space
+    for name, arr in (("u_cm_basis", bases), ("u_cm_win", wins), ("u_cm_tile", tiles)):
+        u = prog[name]  # (the sun's program keeps only element 0 of the arrays)
+        u.write(arr[:max(1, u.array_length)].tobytes())
+    prog["u_cm_margin"].value = float(views.margin)
+    return unit + 1
+
+
 class ConservativeMaps:
-    """Builds one light's conservative map per call to :meth:`render` into a shared atlas."""
+    """Builds one light's conservative map per call to :meth:`render` into a shared atlas;
+    :meth:`start` and :meth:`for_light` pick the lights ``Settings.conservative`` maps and time
+    the builds (``last_ms``)."""
 
     def __init__(self, gpu, sun_size: int = 2048, face_size: int = 512):
         self.ctx = gpu.ctx
@@ -61,6 +90,33 @@ class ConservativeMaps:
         self._targets = TargetCache(self.ctx, what="conservative map")
         self._frame = None
         self.stats: dict = {}
+        self.last_ms = 0.0  # time spent building the maps in the last frame (incl. finish)
+        self._locals = False  # whether this frame's point, spot and area lights get maps too
+
+    # -- the frame's lights ----------------------------------------------------------------------
+    def start(self, scene, gbuffer, settings, lights) -> None:
+        """A frame of ``settings`` (``conservative`` ``sun`` or ``all``) shadowing ``lights``:
+        read the receivers if some light will get a map."""
+        self.last_ms = 0.0
+        self._locals = settings.conservative == "all"
+        if lights and (self._locals or any(not light_ray_uniforms(scene.lights[li])[0] for li in lights)):
+            t0 = time.perf_counter()
+            self.begin_frame(scene, gbuffer)
+            self.last_ms += (time.perf_counter() - t0) * 1e3
+
+    def for_light(self, scene, li: int, local: bool):
+        """The map ``(texture, MapViews)`` of light ``li`` this frame, or None (a local light
+        under ``sun``, or nothing to gain)."""
+        if local and not self._locals:
+            return None
+        ctx = self.ctx
+        ctx.finish()  # (so last_ms holds the maps alone, not the previous light's rays)
+        t0 = time.perf_counter()
+        cmap = self.render(scene, li, local, light_ray_uniforms(scene.lights[li])[1])
+        ctx.finish()
+        self.last_ms += (time.perf_counter() - t0) * 1e3
+        ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+        return cmap
 
     # -- per frame ---------------------------------------------------------------------------
     def begin_frame(self, scene, gbuffer) -> None:

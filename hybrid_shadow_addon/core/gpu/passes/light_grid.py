@@ -1,21 +1,24 @@
 """The hard lights' light-space grids on the GPU (``Settings.light_grid``; bake:
-:mod:`...bake.lightgrid`, shader: ``shaders/common/scene_lightgrid.glsl``).
+:mod:`...bake.lightgrid`, shader: ``shaders/common/scene_lightgrid.glsl``): a per-light
+accelerator, :class:`LightGridCache`, owned by the ray-traced pass's hard visibility
+(:mod:`.hard`), which asks it :meth:`~LightGridCache.for_light` and tells it each BVH trace's
+time (:meth:`~LightGridCache.note_bvh`).
 
-A grid costs a bake (numpy: about 3 us per caster and light, 2-3 s for each of `forest`'s lights)
-and saves part of every later frame's rays, so it is built only where it pays back: a light is
-traced through the two-level BVH the first time a frame sees it as it is (after any change of
-the bake, or of the light's direction or position), its time measured; when a later frame sees
-it unchanged, its grid is built if the estimated build time is at most :data:`PAYBACK_FRAMES`
-times that BVH time (the estimate: this machine's last build's time per caster, or
-:data:`BUILD_US_PER_CASTER`). A one-frame render then never builds one; a still scene in the
-viewport, or an animation of the camera, builds them from the second frame on where the rays are
-costly enough. Such a build runs in a background thread (numpy, which leaves the interpreter
-to the render thread for most of its work): the frames meanwhile trace the tree, and the first
-frame after it is done uploads and uses the grid, so a viewport never stalls for one.
-``eager`` (benchmarks, tests) builds at first sight, in the frame. A grid is kept while the bake
-and its light stay; the world casters, and their triangle texture shared by all grids, once per
-bake (any upload or update of the scene textures). Once the grids kept hold MAX_BYTES, no more
-are built. A light whose grid does not fit
+A grid costs a bake (numpy, per caster and light) and saves part of every later frame's rays,
+so it is built only where it pays back: a light is traced through the two-level BVH the first
+time a frame sees it as it is (after any change of the bake, or of the light's direction or
+position), its time measured; when a later frame sees it unchanged, its grid is built if the
+estimated build time is at most :data:`PAYBACK_FRAMES` times that BVH time (the estimate: this
+machine's last build's time per caster, or :data:`BUILD_US_PER_CASTER`). A one-frame render
+then never builds one; a still scene in the viewport, or an animation of the camera, builds
+them from the second frame on where the rays are costly enough. Such a build runs in a
+background thread (numpy, which leaves the interpreter to the render thread for most of its
+work): the frames meanwhile trace the tree, and the first frame after it is done uploads and
+uses the grid, so a viewport never stalls for one. ``eager``
+(``RaytraceOptions.eager_light_grids``: benchmarks, tests, tools) builds at first sight, in the
+frame. A grid is kept while the bake and its light stay; the world casters, and their triangle
+texture shared by all grids, once per bake (any upload or update of the scene textures). Once
+the grids kept hold MAX_BYTES, no more are built. A light whose grid does not fit
 (:func:`...bake.lightgrid.build_sun_grid` / ``build_local_grid`` return None) keeps the BVH.
 """
 from __future__ import annotations
@@ -53,8 +56,30 @@ class _TexSet:
     uniforms: dict = field(default_factory=dict)
 
 
-class LightGrids:
-    def __init__(self, gpu):
+@dataclass
+class LightGridHandle:
+    """A light's grid ready to trace: its textures, the built :class:`...bake.lightgrid`
+    grid and the textures of the triangles all grids share."""
+
+    textures: SceneTextures
+    grid: object
+    triangles: SceneTextures
+
+    @property
+    def defines(self) -> dict:
+        return self.grid.defines
+
+    def bind(self, prog, unit: int) -> int:
+        """Bind the grid (and the shared triangles) to ``prog`` from ``unit`` on."""
+        unit = self.triangles.bind(prog, unit)
+        return self.textures.bind(prog, unit)
+
+
+class LightGridCache:
+    """The hard lights' grids of one pass: built where they pay back (or at first sight,
+    ``eager``), kept while the bake and the light stay."""
+
+    def __init__(self, gpu, eager: bool = False):
         self.ctx = gpu.ctx
         self.scene_textures = gpu.scene_textures
         self._generation = None
@@ -62,8 +87,8 @@ class LightGrids:
         self._tri = None  # SceneTextures of the shared triangle texture
         self._grids: dict = {}  # (kind, light vector bytes) -> (SceneTextures or None, LightGrid or None)
         self._used: set = set()  # keys the current frame used
-        self.last_build_ms = 0.0  # time spent building grids (and casters) in the last frame
-        self.eager = False  # build at a light's first sight (benchmarks, tests), not once it pays
+        self.build_ms = 0.0  # time spent building grids (and casters) in the last frame
+        self.eager = bool(eager)  # build at a light's first sight (benchmarks, tests), not once it pays
         self.total_build_ms = 0.0  # all builds and uploads so far (compare reports it)
         self._seen: dict = {}  # key -> ms of the light's last BVH trace in this bake
         self._pending: dict = {}  # key -> Future of a grid being built in the background
@@ -79,7 +104,7 @@ class LightGrids:
         return bool(settings.light_grid) and baked is not None and baked.structure == "bvh" and not baked.has_alpha
 
     def begin_frame(self) -> None:
-        self.last_build_ms = 0.0
+        self.build_ms = 0.0
         self.last = {}
         self._used = set()
 
@@ -101,13 +126,13 @@ class LightGrids:
         """A light was traced through the BVH in ``ms``: the measure its grid must pay back."""
         self._seen[self.key(local, light_vec)] = float(ms)
 
-    def get(self, scene, light, local: bool, light_vec):
-        """``(textures, grid)`` of a hard light (``light_vec``: the shader's ``u_light_vec``), or
-        None: no grid (yet: see the module's docstring; or it does not fit)."""
-        st = self.scene_textures
-        if self._generation != st.generation:
+    def for_light(self, scene, light, local: bool, light_vec) -> LightGridHandle | None:
+        """The grid of a hard light (``light_vec``: the shader's ``u_light_vec``), or None: no
+        grid (yet: see the module's docstring; or it does not fit)."""
+        textures = self.scene_textures
+        if self._generation != textures.generation:
             self.release()
-            self._generation = st.generation
+            self._generation = textures.generation
         key = self.key(local, light_vec)
         self._used.add(key)
         hit = self._grids.pop(key, None)
@@ -134,9 +159,9 @@ class LightGrids:
                         return None
                 t0 = time.perf_counter()
                 if self._casters is None:
-                    self._casters = world_casters(scene, st.baked.origin)
+                    self._casters = world_casters(scene, textures.baked.origin)
                 build = build_local_grid if local else build_sun_grid
-                args = (self._casters, light_vec, st.baked.config.tex_width)
+                args = (self._casters, light_vec, textures.baked.config.tex_width)
                 if not self.eager:  # (the frames go on through the tree meanwhile)
                     if self._pool is None:
                         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="light-grid")
@@ -151,24 +176,24 @@ class LightGrids:
             self.last[light.name] = {"cells": list(grid.cells), "entries": grid.entries,
                                      "max_cell": grid.max_cell, "build_ms": round(grid.build_ms, 1),
                                      "bytes": grid.nbytes}
-        return None if grid is None else hit
+        return None if grid is None else LightGridHandle(tex, grid, self._tri)
 
     def _spent(self, t0: float) -> None:
         ms = (time.perf_counter() - t0) * 1e3
-        self.last_build_ms += ms
+        self.build_ms += ms
         self.total_build_ms += ms
 
     def _upload(self, grid) -> tuple:
         """(textures, grid) of a built grid (None: (None, None)), the shared triangles too."""
-        st = self.scene_textures
+        textures = self.scene_textures
         tex = None
         try:
             if grid is not None and self._tri is None:
-                self._tri = SceneTextures(self.ctx, buffers=st.using_buffers)
-                self._tri.upload(_TexSet({"lg_tri": tri_texture(self._casters, st.baked.config.tex_width)},
+                self._tri = SceneTextures(self.ctx, buffers=textures.using_buffers)
+                self._tri.upload(_TexSet({"lg_tri": tri_texture(self._casters, textures.baked.config.tex_width)},
                                          {"lg_tri": "hs_lg_tri_tex"}))
             if grid is not None:
-                tex = SceneTextures(self.ctx, buffers=st.using_buffers)
+                tex = SceneTextures(self.ctx, buffers=textures.using_buffers)
                 tex.upload(grid)
         except GPUError:  # (larger than this GPU's textures: the tree, as for a grid that does not fit)
             if tex is not None:
@@ -182,11 +207,6 @@ class LightGrids:
         """Until the builds in the background are done (tests, benchmarks)."""
         for fut in list(self._pending.values()):
             fut.exception()
-
-    def bind(self, prog, unit: int, hit) -> int:
-        """Bind a light's grid (and the shared triangles) to ``prog`` from ``unit`` on."""
-        unit = self._tri.bind(prog, unit)
-        return hit[0].bind(prog, unit)
 
     def release(self) -> None:
         for tex, _ in self._grids.values():

@@ -8,51 +8,42 @@ resolution: do the samples around a cell agree) and ``shaders/refine_classify.gl
 the coarse answer, or a mark that the pixel needs its own ray, which is exactly the ray ``high``
 traces for it; with the ``group`` rule, on llvmpipe, so does every pixel of a SIMD group that
 holds such a pixel, unless it is known without a ray: the trace under the depth test pays the
-group its slowest lane anyway). The marks go to a depth buffer (0: ray, 1: done) and, for
-``compact``, also to level 0 of a histogram pyramid. Two ways to trace only the marked pixels:
-
-- ``depth`` (default): the full-resolution trace runs under the depth test;
-- ``compact``: the pyramid (``shaders/compact_reduce.glsl``, ``common/compact.glsl``) turns the
-  marks into a dense list; ``shaders/raytrace.glsl`` with ``HS_COMPACT`` traces it (texel k ->
-  k-th marked pixel, in quadtree order) over just the texels the list fills (its length is read
-  back, one texel per light), and ``shaders/compact_scatter.glsl`` copies each result to its
-  pixel under the depth test.
-
-Both draw at window depth 0.5 with depth function ``>`` and no depth writes, so unmarked pixels
-are rejected before shading (early depth test). The list keeps a SIMD group's lanes busy, but
-each listed ray pays a walk down the pyramid and each result a walk up it in the scatter
-(about 27 fetches each), a read-back per light and ~10 more draws: on llvmpipe, where a ray
-of the two-level BVH costs a few dozen fetches, that costs more than the idle lanes of the
-masked trace (``BENCHMARKS.md``, "The refinement under the depth test"), so ``depth`` is the
-default. Occlusion queries count the pixels with geometry and the rays traced, without reading
-masks.
+group its slowest lane anyway). The marks go to a depth buffer (0: ray, 1: done), and the
+full-resolution trace then runs under the depth test (window depth 0.5, depth function ``>``,
+no depth writes), so unmarked pixels are rejected before shading (early depth test). Occlusion
+queries count the pixels with geometry and the rays traced, without reading masks.
 """
 from __future__ import annotations
 
 import moderngl
 import numpy as np
 
-from ..targets import Target, TargetCache, create_texture, set_uniforms
+from ..targets import TargetCache, set_uniforms
 
-METHODS = ("compact", "depth")
+#: the ways to trace the marked pixels (``RaytraceOptions.refine_method``)
+METHODS = ("depth",)
+
+
+def check_method(method: str) -> str:
+    """``method`` if it is one of :data:`METHODS`, else a ValueError that names them."""
+    if method not in METHODS:
+        raise ValueError(f"refinement method must be one of {', '.join(METHODS)}, not {method!r}")
+    return method
 
 
 class Refiner:
-    """Classify, compaction and refine draws for the ray-traced pass, and their ray counts."""
+    """Classify and refine draws for the ray-traced pass, and their ray counts."""
 
     #: default refinement rules (see the shaders named in the module docstring); ``group``
     #: None: :meth:`group_default` for the context
     RULES = dict(plane_tol=0.02, normal_cos=0.9, grazing=0.05, ring=1, view_cos=0.5, group=None)
 
-    def __init__(self, gpu, method: str = "depth", **rules):
-        if method not in METHODS:
-            raise ValueError(f"method must be one of {', '.join(METHODS)}, not {method!r}")
+    def __init__(self, gpu, **rules):
         unknown = sorted(set(rules) - set(self.RULES))
         if unknown:
             raise ValueError(f"unknown refinement rule(s) {', '.join(unknown)}; the rules are {', '.join(self.RULES)}")
         self.ctx = gpu.ctx
         self.programs = gpu.programs
-        self.method = method
         self.rules = {**self.RULES, **rules}
         self.can_vote = "GL_ARB_shader_group_vote" in self.ctx.extensions
         if self.rules["group"] is None:
@@ -61,7 +52,6 @@ class Refiner:
         self._work = TargetCache(self.ctx, what="refinement target")  # role -> target
         self._depth = None
         self._fbos: dict = {}  # key -> (attachments, framebuffer with the depth buffer)
-        self._pyr = None  # (size, layout, atlas targets)
         self._grid: dict = {}
         self._pool: list = []  # occlusion queries, reused
         self._used = 0
@@ -137,14 +127,13 @@ class Refiner:
         the depth test costs each block its slowest marked lane: the block's other rays are
         traced at no extra cost (``BENCHMARKS.md``, "A marked pixel's SIMD group traces
         whole"). On a GPU the early depth test packs the surviving pixels into the trace's
-        groups, so the extra rays would cost; off there. (The rule applies to the ``compact``
-        method too, whose list then holds the extra rays as lanes of their own.)"""
+        groups, so the extra rays would cost; off there."""
         return ("GL_ARB_shader_group_vote" in ctx.extensions
                 and "llvmpipe" in str(ctx.info.get("GL_RENDERER", "")).lower())
 
     def defines(self) -> dict:
-        """Extra defines of the classify program for this method and rules."""
-        out = {"HS_COMPACT": 1} if self.method == "compact" else {}
+        """Extra defines of the classify program for these rules."""
+        out = {}
         if self.rules["group"]:
             if not self.can_vote:
                 raise ValueError("the refinement rule group needs GL_ARB_shader_group_vote, which this "
@@ -172,7 +161,7 @@ class Refiner:
         self._work.get("geometry", *gbuffer.size).texture.use(unit + 2)
         set_uniforms(prog, {**uniforms, **self._grid_uniforms(gbuffer), "u_coarse": unit, "u_cells": unit + 1,
                             "u_geometry": unit + 2, "u_grazing": float(self.rules["grazing"])})
-        self._draw_marks(self._fbo(key, target, with_need=self.method == "compact"), target, vao)
+        self._draw_marks(self._fbo(key, target), target, vao)
 
     def marked(self) -> np.ndarray:
         """The pixels the last :meth:`classify` (or :meth:`mark`) marked for a ray: (H, W) bool,
@@ -184,42 +173,12 @@ class Refiner:
         return d < 0.5
 
     def refine(self, key, target, vao) -> None:
-        """``depth``: draw the (already set up) full-resolution trace ``vao`` into ``target``
+        """Draw the (already set up) full-resolution trace ``vao`` into ``target``
         where :meth:`classify` marked pixels."""
         fbo = self._fbo(key, target)
         with self._masked(fbo, target):
             with self._query("refined", key):
                 vao.render(moderngl.TRIANGLES, vertices=3)
-
-    def refine_compact(self, key, target, trace, gbuffer) -> None:
-        """``compact``: trace the marked pixels as a dense list and scatter the results into
-        ``target``. ``trace()``: sets up the ``HS_COMPACT`` trace (binds its inputs) and returns
-        ``(prog, vao, next unit)``; called after the list is built, whose draws bind texture
-        units of their own."""
-        ctx = self.ctx
-        w, h = target.texture.size
-        need = self._work.get("need", w, h)
-        layout, atlases = self._pyramid((w, h))
-        n = self._reduce(need.texture, layout, atlases)
-        if n == 0:
-            return
-        cw = -(-w // 4) * 4
-        rays = self._work.get("rays", cw, -(-h // 4) * 4)
-        rows = min(rays.texture.height, -(-n // (4 * cw)) * 4)  # the 4x4 blocks the list fills
-        prog, vao, unit = trace()
-        self._bind_pyramid(prog, unit, need.texture, layout, atlases)
-        set_uniforms(prog, {"u_compact_width": cw})
-        ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
-        rays.use(ctx, (0, 0, cw, rows))
-        with self._query("refined", key):
-            vao.render(moderngl.TRIANGLES, vertices=3)
-        sprog, svao = self.programs.fullscreen("compact_scatter")
-        rays.texture.use(0)
-        set_uniforms(sprog, {"u_rays": 0, "u_compact_width": cw})
-        self._bind_pyramid(sprog, 1, need.texture, layout, atlases)
-        fbo = self._fbo(key, target)  # (not the need texture: the scatter reads it)
-        with self._masked(fbo, target):
-            svao.render(moderngl.TRIANGLES, vertices=3)
 
     def mark(self, key, target, vao, color: bool = True) -> None:
         """Draw ``vao``, a full-screen program that writes its answers and marks (``gl_FragDepth``
@@ -275,7 +234,7 @@ class Refiner:
     def _masked(self, fbo, target):
         return self._Masked(self.ctx, fbo, target)
 
-    def _fbo(self, key, target, with_need: bool = False):
+    def _fbo(self, key, target):
         size = target.texture.size
         if self._depth is None or self._depth.size != size:
             self._release_fbos()
@@ -283,73 +242,13 @@ class Refiner:
                 self._depth.release()
             self._depth = self.ctx.depth_texture(size)
         colors = [target.texture]
-        if with_need:
-            colors.append(self._work.get("need", *size).texture)
-        k = (key, with_need)
-        hit = self._fbos.get(k)
+        hit = self._fbos.get(key)
         if hit is None or len(hit[0]) != len(colors) or any(a is not b for a, b in zip(hit[0], colors)):
             if hit is not None:
                 hit[1].release()
-            hit = self._fbos[k] = (colors, self.ctx.framebuffer(color_attachments=colors,
+            hit = self._fbos[key] = (colors, self.ctx.framebuffer(color_attachments=colors,
                                                                 depth_attachment=self._depth))
         return hit[1]
-
-    # -- compaction ---------------------------------------------------------------------------
-    def _pyramid(self, size):
-        """Layout and atlases of the histogram pyramid over a ``size`` mask."""
-        if self._pyr is not None and self._pyr[0] == size:
-            return self._pyr[1:]
-        self._release_pyramid()
-        sizes = [tuple(size)]
-        while sizes[-1] != (1, 1):
-            w, h = sizes[-1]
-            sizes.append(((w + 1) // 2, (h + 1) // 2))
-        n = len(sizes)
-        offs = [(0, 0)] * n
-        extent = [[0, 0], [0, 0]]
-        for i in range(1, n):  # level i goes to atlas (n - 1 - i) % 2 (common/compact.glsl)
-            a = (n - 1 - i) % 2
-            offs[i] = (extent[a][0], 0)
-            extent[a][0] += sizes[i][0]
-            extent[a][1] = max(extent[a][1], sizes[i][1])
-        atlases = []
-        for a in range(2):
-            tex = create_texture(self.ctx, max(1, extent[a][0]), max(1, extent[a][1]), 1, "f4", 0.0)
-            atlases.append(Target(tex, self.ctx.framebuffer(color_attachments=[tex])))
-        self._pyr = (tuple(size), dict(levels=n, sizes=sizes, offs=offs), atlases)
-        return self._pyr[1:]
-
-    def _bind_pyramid(self, prog, unit: int, need_tex, layout, atlases) -> int:
-        need_tex.use(unit)
-        atlases[0].texture.use(unit + 1)
-        atlases[1].texture.use(unit + 2)
-        set_uniforms(prog, {"u_need": unit, "u_pyr0": unit + 1, "u_pyr1": unit + 2, "u_levels": layout["levels"]})
-        for name, vals in (("u_lvl_off", layout["offs"]), ("u_lvl_size", layout["sizes"])):
-            if name in prog:
-                u = prog[name]
-                arr = np.zeros((16, 2), np.int32)
-                arr[:len(vals)] = vals
-                u.write(arr[:max(1, u.array_length)].tobytes())
-        return unit + 3
-
-    def _reduce(self, need_tex, layout, atlases) -> int:
-        """Build the pyramid's levels 1 and up; returns the number of marked pixels."""
-        prog, vao = self.programs.fullscreen("compact_reduce")
-        ctx = self.ctx
-        ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
-        n = layout["levels"]
-        if n == 1:
-            return int(round(float(np.frombuffer(need_tex.read(), np.float32)[0])))
-        for i in range(1, n):
-            src = need_tex if i == 1 else atlases[(n - i) % 2].texture
-            dst = atlases[(n - 1 - i) % 2]
-            src.use(0)
-            set_uniforms(prog, {"u_src": 0, "u_src_off": layout["offs"][i - 1], "u_src_size": layout["sizes"][i - 1],
-                                "u_dst_off": layout["offs"][i]})
-            dst.use(ctx, (*layout["offs"][i], *layout["sizes"][i]))
-            vao.render(moderngl.TRIANGLES, vertices=3)
-        top = atlases[0].fbo.read(viewport=(*layout["offs"][n - 1], 1, 1), components=1, dtype="f4")
-        return int(round(float(np.frombuffer(top, np.float32)[0])))
 
     # -- release ------------------------------------------------------------------------------
     def _release_fbos(self) -> None:
@@ -357,15 +256,8 @@ class Refiner:
             fbo.release()
         self._fbos.clear()
 
-    def _release_pyramid(self) -> None:
-        if self._pyr is not None:
-            for t in self._pyr[2]:
-                t.release()
-            self._pyr = None
-
     def release(self) -> None:
         self._release_fbos()
-        self._release_pyramid()
         self._work.release()
         if self._depth is not None:
             self._depth.release()

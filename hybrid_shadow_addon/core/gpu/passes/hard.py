@@ -1,0 +1,183 @@
+"""The ray-traced pass's visibility by plans: one ray per pixel and light, or fewer and a
+refinement (hard lights, and soft lights whose plan traces all their samples at once).
+
+- ``full`` (``high``): one ray per pixel and shadowed light.
+- ``refine`` (``medium`` / ``low``): coarse rays every 2nd / 4th pixel, then refinement
+  (:mod:`.refine`): pixels whose coarse neighbourhood agrees and stands for them take its
+  answer, the others get their own ray, the very ray ``high`` traces, under the depth test.
+- ``coarse`` (``upsample='nearest'``): the coarse mask alone, left to the upsample pass (the
+  thesis' blocky look, for comparisons).
+- ``interlace`` (any quality; thesis 3.5.2): one pixel of every 2x2 block per frame, traced
+  as a quarter-resolution mask (a full-resolution pass in which three pixels of four only copy
+  their history would keep every 8-pixel SIMD group of a software rasteriser tracing) and merged
+  with the history (``shaders/interlace_merge.glsl``); pixels whose history is not up to date
+  since the last :meth:`~HardVisibility.reset_history` are refined from this frame's rays, so a
+  change never leaves stale shadows behind, the first frame after it is nearly exact and a still
+  view is exact after four frames.
+
+A hard light on the two-level BVH traces its light grid where :class:`.light_grid.LightGridCache`
+has one (``HS_LIGHT_GRID``); its BVH time is measured otherwise, the measure a grid must pay back.
+"""
+from __future__ import annotations
+
+import time
+
+from ..targets import TargetCache, draw_fullscreen, set_uniforms
+from .base import LightVisibility
+from .light_grid import LightGridCache
+from .trace import LightRay, RaytraceOptions, TraceProgram
+
+#: the defines of the trace that the refinement's classify program takes over
+CLASSIFY_DEFINES = ("HS_LIGHT_LOCAL", "HS_LIGHT_SUN", "HS_MAX_DISTANCE", "HS_INTERLACE", "HS_SOFT", "HS_SOFT_SHAPE")
+
+
+def plan_of(settings) -> str:
+    """``full`` (one ray per pixel), ``refine`` (coarse rays, then refinement), ``interlace``
+    (this frame's phase, refinement where history is missing) or ``coarse`` (the coarse mask
+    alone, upscaled by the upsample pass: ``upsample='nearest'``, the thesis' look)."""
+    if settings.interlace:
+        return "interlace"
+    if settings.mask_scale == 1:
+        return "full"
+    return "coarse" if settings.upsample == "nearest" else "refine"
+
+
+class HardVisibility(LightVisibility):
+    """Masks of the lights traced by the frame's plan (:func:`plan_of`), with the interlacing
+    history and the hard lights' grids (:attr:`light_grids`)."""
+
+    def __init__(self, gpu, refiner, program: TraceProgram, options: RaytraceOptions):
+        super().__init__(gpu)
+        self.refiner = refiner
+        self.trace = program
+        self.options = options
+        self.light_grids = LightGridCache(gpu, eager=options.eager_light_grids)
+        self._targets = TargetCache(self.ctx, fill=1.0, what="mask")  # (light, role) -> target
+        self._phase = 0
+        self._valid_phases = 0
+        self.plan = self._last_plan = None
+        self._grids_on = False  # whether this frame's hard lights may trace grids
+
+    def reset_history(self) -> None:
+        """Forget the interlacing history."""
+        self._valid_phases = 0
+
+    def _target(self, key, w, h, components: int | None = None):
+        t = self._targets.get(key, w, h, components)
+        if self._targets.created:
+            self._valid_phases = 0
+        return t
+
+    def still(self) -> bool:
+        """Interlacing: every other phase's history is up to date (a still view)."""
+        return self._valid_phases | (1 << self._phase) == 15
+
+    def begin_frame(self, job) -> None:
+        """The frame's plan, the pixels with geometry counted (full resolution, and the coarse
+        samples' pixels) and the refinement's grid of coarse samples."""
+        gbuffer, settings = job.gbuffer, job.settings
+        full = gbuffer.size
+        scale = settings.mask_scale
+        plan = self.plan = plan_of(settings)
+        if plan != self._last_plan:
+            self._valid_phases = 0
+            self._last_plan = plan
+        self.light_grids.eager = self.options.eager_light_grids
+        self.light_grids.begin_frame()
+        self._grids_on = LightGridCache.usable(self.trace.scene_textures.baked, settings)
+        if not job.lights:
+            return
+        self.refiner.count_valid(gbuffer, full, 1, "valid")
+        if plan in ("refine", "coarse"):
+            self.refiner.count_valid(gbuffer, settings.mask_size(*full), scale, "coarse")
+        if plan == "refine":
+            self.refiner.prepare(gbuffer, scale, (scale // 2, scale // 2), False)
+        elif plan == "interlace":  # (this frame's phase: one pixel of each 2x2 block)
+            off = (self._phase & 1, self._phase >> 1)
+            grid = (max(1, -(-(full[0] - off[0]) // 2)), max(1, -(-(full[1] - off[1]) // 2)))
+            self.refiner.count_valid(gbuffer, grid, 2, "coarse", off)
+            # (a still view classifies nothing: _trace merges the history alone)
+            self.refiner.prepare(gbuffer, 2, off, True, geometry=not self.still())
+
+    def attach_grid(self, job, ray: LightRay) -> None:
+        """Give a hard light its grid (and its defines) where the cache has one."""
+        if self._grids_on and ray.soft is None:
+            ray.grid = self.light_grids.for_light(job.scene, ray.light, ray.local, ray.vec)
+            if ray.grid is not None:
+                ray.defines.update(ray.grid.defines)
+
+    def light(self, job, ray: LightRay):
+        ctx = self.ctx
+        timed = self._grids_on and ray.soft is None and ray.grid is None and not self.light_grids.eager
+        if timed:  # (the light's BVH time: what a grid would have to pay back)
+            ctx.finish()
+            t0 = time.perf_counter()
+        out = self._trace(job, ray)
+        if timed:
+            ctx.finish()
+            self.light_grids.note_bvh(ray.local, ray.vec, (time.perf_counter() - t0) * 1e3)
+        return out
+
+    def end_frame(self, job) -> None:
+        self.light_grids.end_frame()
+        if self.plan == "interlace":
+            self._valid_phases |= 1 << self._phase
+            self._phase = (self._phase + 1) % 4
+
+    def _program(self, defines, ray, gbuffer, settings, scale):
+        return self.trace.bind(defines, ray, gbuffer, settings, scale)
+
+    def _trace(self, job, ray: LightRay):
+        gbuffer, settings, plan = job.gbuffer, job.settings, self.plan
+        li, defines = ray.index, ray.defines
+        full = gbuffer.size
+        ctx = self.ctx
+        if plan in ("full", "coarse"):
+            scale = 1 if plan == "full" else settings.mask_scale
+            size = full if plan == "full" else settings.mask_size(*full)
+            out = self._target((li, "out" if plan == "full" else "coarse"), *size)
+            _, vao, _ = self._program(defines, ray, gbuffer, settings, scale)
+            draw_fullscreen(ctx, vao, out)
+            return out.texture
+        plain = {k: v for k, v in defines.items() if k != "HS_INTERLACE"}
+        uniforms = self.trace.uniforms(ray, gbuffer, settings)
+        class_defs = {k: v for k, v in defines.items() if k in CLASSIFY_DEFINES}
+        class_defs.update(self.refiner.defines())
+        if plan == "refine":
+            scale = settings.mask_scale
+            _, vao, _ = self._program(plain, ray, gbuffer, settings, scale)
+            coarse = self._target((li, "coarse"), *settings.mask_size(*full))
+            draw_fullscreen(ctx, vao, coarse)
+            dst = self._target((li, "out"), *full)
+            self.refiner.classify((li, "out"), dst, gbuffer, coarse.texture, class_defs, uniforms)
+        else:  # interlace: this frame's phase pixel of each 2x2 block traced densely, with the history
+            off = (self._phase & 1, self._phase >> 1)
+            prog, vao, _ = self._program(defines, ray, gbuffer, settings, 2)
+            set_uniforms(prog, {"u_offset": off})
+            # (one size for every phase: an odd side's last texel then traces the edge pixel
+            # again; a scratch target, not _target's: it carries nothing from frame to frame)
+            traced = self._targets.get((li, "traced"), (full[0] + 1) // 2, (full[1] + 1) // 2)
+            draw_fullscreen(ctx, vao, traced)
+            out = self._target((li, "out"), *full)
+            hist = self._target((li, "hist"), *full)
+            mprog, mvao = self.programs.fullscreen("interlace_merge")
+            traced.texture.use(0)
+            hist.texture.use(1)
+            set_uniforms(mprog, {"u_traced": 0, "u_history": 1, "u_phase": self._phase,
+                                 "u_valid_phases": self._valid_phases})
+            draw_fullscreen(ctx, mvao, out)
+            dst = hist
+            if self.still():
+                # a still view: every pixel has this frame's ray or an up-to-date history, so
+                # nothing to classify or refine (what classify would write is the merge itself)
+                ctx.copy_framebuffer(hist.fbo, out.fbo)
+                return hist.texture
+            self.refiner.classify((li, "hist"), dst, gbuffer, out.texture, class_defs, uniforms)
+        key = (li, "hist" if plan == "interlace" else "out")
+        _, vao, _ = self._program(plain, ray, gbuffer, settings, 1)
+        self.refiner.refine(key, dst, vao)
+        return dst.texture
+
+    def release(self) -> None:
+        self.light_grids.close()
+        self._targets.release()
