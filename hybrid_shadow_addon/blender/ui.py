@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import bpy
 
+from ..core.bake.structures import STRUCTURES
 from .compare_operator import draw_compare_button
 from .engine import ENGINE_ID
 from .export import principled_node, world_background
@@ -56,7 +57,7 @@ class RENDER_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         col.prop(props, "conservative_maps")
         col.prop(props, "structure")
         sub = col.column()
-        sub.active = props.structure == "BVH"
+        sub.active = STRUCTURES[props.structure.lower()].supports_light_grids
         sub.prop(props, "use_light_grid")
         col = layout.column()
         col.active = props.mode == "RAYTRACE"
