@@ -119,7 +119,7 @@ class HierarchicalGrid(GridUpdates, AccelerationStructure):
 
     @property
     def defines(self) -> dict:
-        """``#define``s for scene_data.glsl. Flags are present only when true (``#ifdef``)."""
+        """``#define``s for scene_grid.glsl. Flags are present only when true (``#ifdef``)."""
         w = self.config.tex_width
         d = {
             "HS_STRUCTURE_GRID": 1,
