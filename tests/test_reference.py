@@ -119,5 +119,5 @@ def _fixed_scene():
 
 def _fixed_baked(structure="grid"):
     if structure not in _CACHE:
-        _CACHE[structure] = bake_scene(_fixed_scene(), BakeConfig(structure="grid", base_node_size=1.0, structure=structure))
+        _CACHE[structure] = bake_scene(_fixed_scene(), BakeConfig(base_node_size=1.0, structure=structure))
     return _CACHE[structure]

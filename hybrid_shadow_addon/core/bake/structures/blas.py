@@ -151,7 +151,7 @@ def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None) -> BlasBu
         cmn, cmx = np.ascontiguousarray(cmn.T), np.ascontiguousarray(cmx.T)
     else:
         cmn = cmx = np.zeros((0, 3))
-    b = build_sah(cmn, cmx, c0, ncl, leaf_size=1, bins=8, sah_min=RUN_SAH_MIN)
+    tree = build_sah(cmn, cmx, c0, ncl, leaf_size=1, bins=8, sah_min=RUN_SAH_MIN)
     # model frames
     lo = np.zeros((M, 3))
     hi = np.zeros((M, 3))
@@ -161,9 +161,9 @@ def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None) -> BlasBu
         hi[has] = np.maximum.reduceat(cmx, c0[has], axis=0)
     base, inv_s = quant_frame(lo, hi)
     # triangles in leaf order; a leaf = one cluster, ceil(9 c / 4) texels
-    nmod = np.repeat(np.arange(M), b.node_count)
-    leaf = b.leaf_count > 0
-    lcl = b.perm[b.leaf_start[leaf]]  # cluster of each leaf, leaves in pre-order
+    nmod = np.repeat(np.arange(M), tree.node_count)
+    leaf = tree.leaf_count > 0
+    lcl = tree.perm[tree.leaf_start[leaf]]  # cluster of each leaf, leaves in pre-order
     lcnt = cl_cnt[lcl]
     ltex = tri_texels(lcnt)
     lmod = nmod[leaf]
@@ -185,12 +185,12 @@ def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None) -> BlasBu
         if want_uv:
             _put_blocks(uv4, lfirst[sel], uvs.reshape(total, 6), t_first, cnt, 6, tt)
     # packed nodes
-    qlo, qhi = quantise(b.node_min, b.node_max, np.repeat(base.T, b.node_count, axis=1).T,
-                        np.repeat(inv_s, b.node_count))
-    w = np.where(leaf, 0, b.escape).astype(np.uint32)
+    qlo, qhi = quantise(tree.node_min, tree.node_max, np.repeat(base.T, tree.node_count, axis=1).T,
+                        np.repeat(inv_s, tree.node_count))
+    w = np.where(leaf, 0, tree.escape).astype(np.uint32)
     lpay = ((lfirst - tri_start[lmod]) << 3) | lcnt
     w[leaf] = LEAF_FLAG | lpay.astype(np.uint32)
-    return BlasBuild(b, b.node_start, b.node_count, tri_start, tri_texels_m, tc, b.depth, base, inv_s,
+    return BlasBuild(tree, tree.node_start, tree.node_count, tri_start, tri_texels_m, tc, tree.depth, base, inv_s,
                      pack_nodes(qlo, qhi, w), tri4, uv4)
 
 

@@ -76,10 +76,10 @@ class HierarchicalGrid(GridUpdates, AccelerationStructure):
             if uvm.any():  # alpha-cut shadows: [uv] mirrors [tri], [object_mat] below
                 structure.models.uv = uvm.copy()
                 tex.uv = new_texture("uv", tex.tri_tail * UV_TEXELS, cfg.tex_width)
-                ms = structure.models
+                slots = structure.models
                 for m in np.nonzero(uvm)[0].tolist():
                     ts, tc = int(build.tri_start[m]), int(build.tri_count[m])
-                    structure.write_model_uvs(scene, m, build.tri_src[ts:ts + tc], int(ms.tri_start[m]))
+                    structure.write_model_uvs(scene, m, build.tri_src[ts:ts + tc], int(slots.tri_start[m]))
         t_bvh = time.perf_counter() - t_models
 
         # objects ------------------------------------------------------------------------------
@@ -340,14 +340,14 @@ class HierarchicalGrid(GridUpdates, AccelerationStructure):
 
     def write_models(self, ids: np.ndarray, scene) -> None:
         """[model] texels of model ids ``ids``."""
-        ms = self.models
+        slots = self.models
         rec = self.tex.model.records(MODEL_TEXELS)
         for m in np.asarray(ids).tolist():
             model = scene.models[m]
             sph = np.array([*model.sphere_center, model.sphere_radius], np.float64)
             s = np.concatenate([sph[:3].astype(np.float32), f32_up(sph[3:])])
             rec[m, 0:4] = f32_bits(s)
-            rec[m, 4:8] = [ms.node_start[m], ms.node_count[m], ms.tri_start[m], ms.tri_count[m]]
+            rec[m, 4:8] = [slots.node_start[m], slots.node_count[m], slots.tri_start[m], slots.tri_count[m]]
 
     def write_bvh(self, build, node_base: int, tri_base: int, local_model: int) -> None:
         """[bvh] and [tri] records of one model of ``build`` at absolute ``node_base``/``tri_base``."""

@@ -167,10 +167,10 @@ class GridUpdates:
 
     def rebuild_model(self, scene, m: int, rep: UpdateReport) -> None:
         w = self.config.tex_width
-        ms, tex = self.models, self.tex
+        slots, tex = self.models, self.tex
         build = build_bvhs([scene.models[m]], self.config.leaf_size)
         nc, tc = int(build.node_count[0]), int(build.tri_count[0])
-        node_base, tri_base, at_tail = ms.place(m, nc, tc, tex.bvh_tail, tex.tri_tail)
+        node_base, tri_base, at_tail = slots.place(m, nc, tc, tex.bvh_tail, tex.tri_tail)
         if at_tail:
             tex.bvh_tail += nc
             tex.tri_tail += tc
@@ -178,9 +178,9 @@ class GridUpdates:
                 if grow_texture(tex[name], n_tex):
                     rep.resized.add(name)
                 tex[name].used = n_tex
-        ms.node_start[m], ms.node_count[m] = node_base, nc
-        ms.tri_start[m], ms.tri_count[m] = tri_base, tc
-        ms.depth[m] = int(build.depth[0]) if len(build.depth) else 0
+        slots.node_start[m], slots.node_count[m] = node_base, nc
+        slots.tri_start[m], slots.tri_count[m] = tri_base, tc
+        slots.depth[m] = int(build.depth[0]) if len(build.depth) else 0
         if nc:
             self.write_bvh(build, node_base, tri_base, 0)
         self.write_models(np.array([m]), scene)
@@ -189,7 +189,7 @@ class GridUpdates:
             if grow_texture(tex.uv, n_uv):
                 rep.resized.add("uv")
             tex.uv.used = max(tex.uv.used, n_uv)
-            ms.uv[m] = bool(scene.alpha_models()[m])
+            slots.uv[m] = bool(scene.alpha_models()[m])
             self.write_model_uvs(scene, m, build.tri_src[:tc], tri_base)
             rep.ranges += texel_rows("uv", tri_base * UV_TEXELS, (tri_base + tc) * UV_TEXELS, w)
         rep.ranges += texel_rows("bvh", node_base * BVH_TEXELS, (node_base + nc) * BVH_TEXELS, w)

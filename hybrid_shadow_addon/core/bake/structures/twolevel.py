@@ -167,10 +167,10 @@ class TwoLevelBVH(AccelerationStructure):
     def sphere_frames(scene, mid, sph) -> np.ndarray:
         """(count of ``sph``, 4) float32 model spheres (centre, radius rounded up) of the
         analytic sphere instances among model ids ``mid``."""
-        ms = np.unique(mid[sph])
+        sphere_models = np.unique(mid[sph])
         sp = np.array([np.concatenate([scene.models[m].sphere_center, f32_up([scene.models[m].sphere_radius])])
-                       for m in ms.tolist()], np.float32).reshape(-1, 4)
-        return sp[np.searchsorted(ms, mid[sph])]
+                       for m in sphere_models.tolist()], np.float32).reshape(-1, 4)
+        return sp[np.searchsorted(sphere_models, mid[sph])]
 
     def write_instance_records(self, scene, idx) -> None:
         """[leaf] instance records of instances ``idx`` (needs the model trees' places)."""
