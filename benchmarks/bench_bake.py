@@ -18,6 +18,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene  # noqa: E402
+from hybrid_shadow_addon.core.bake.structures import DEFAULT_STRUCTURE, STRUCTURES  # noqa: E402
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene  # noqa: E402
 
 
@@ -56,8 +57,8 @@ def main():
     ap.add_argument("--tris", type=int, default=10000)
     ap.add_argument("--per-model", type=int, default=1000)
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--structure", choices=("bvh", "grid"), default="bvh",
-                    help="acceleration structure to bake (default: bvh, the add-on's default)")
+    ap.add_argument("--structure", choices=tuple(STRUCTURES), default=DEFAULT_STRUCTURE,
+                    help="acceleration structure to bake (default: the add-on's)")
     args = ap.parse_args()
     cfg = BakeConfig(structure=args.structure)
     t = time.perf_counter()
@@ -72,17 +73,11 @@ def main():
         fulls.append(ms)
     best, med = min(fulls), float(np.median(fulls))
     st = baked.stats
-    if args.structure == "bvh":
-        print(f"full bake: {best:.0f} ms (best of {args.repeat}, median {med:.0f}; model trees {st['blas_ms']:.0f}, "
-              f"top level {st['tlas_ms']:.0f} ms, its tree built alongside the model trees)  target < 2000 ms")
-        print(f"model trees: {st['bvh_nodes']} nodes, max depth {st['bvh_max_depth']}; top level: "
-              f"{st['tlas_nodes']} nodes, max depth {st['tlas_max_depth']}")
-    else:
-        print(f"full bake: {best:.0f} ms (best of {args.repeat}, median {med:.0f}; bvh {st['bvh_ms']:.0f}, "
-              f"objects {st['objects_ms']:.0f}, grid {st['grid_ms']:.0f} ms)  target < 2000 ms")
-        print(f"grid: {st['grid_levels']} levels, base node {st['grid_base_node_size']:.2f} m, dims {st['grid_dims'][0]}, "
-              f"{st['grid_nodes']} nodes ({st['grid_nodes_nonempty']} non-empty), max {st['max_objects_per_node']} objects/node")
-        print(f"bvh: {st['bvh_nodes']} nodes, max depth {st['bvh_max_depth']}")
+    timings = ", ".join(f"{k[:-3]} {st[k]:.0f}" for k in st if k.endswith("_ms") and k != "bake_ms")
+    print(f"full bake: {best:.0f} ms (best of {args.repeat}, median {med:.0f}; {timings} ms)  target < 2000 ms")
+    counts = ("bvh_nodes", "bvh_max_depth", "tlas_nodes", "tlas_max_depth", "grid_levels", "grid_dims", "grid_nodes",
+              "grid_nodes_nonempty", "max_objects_per_node")
+    print(f"{baked.structure}: " + ", ".join(f"{k} {st[k]}" for k in counts if k in st))
     print("textures:")
     for name, tex in baked.textures.items():
         print(f"  {name:11s} {tex.gl_internal_format:9s} {tex.width}x{tex.height}x{tex.layers:<3d} {tex.nbytes / 2**20:8.2f} MB")

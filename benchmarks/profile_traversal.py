@@ -78,10 +78,10 @@ def relayout(nodes: np.ndarray, start: int, end: int, key) -> np.ndarray:
 
 def tree_ranges(baked) -> dict:
     """{(root, end): model id} of the model trees, plus the top level as (root, end): -1."""
-    st = baked.bvh
+    models = baked.accel.models
     u = baked.uniforms
     out = {(int(u["hs_tlas_root"]), int(u["hs_tlas_end"])): -1}
-    for m, (s, c) in enumerate(zip(st.node_start, st.node_count)):
+    for m, (s, c) in enumerate(zip(models.node_start, models.node_count)):
         if c > 0:
             out[(int(s), int(s + c))] = m
     return out

@@ -227,6 +227,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .core.settings import STRUCTURES
     p = _Parser(
         prog="python -m hybrid_shadow_addon",
         description="Hybrid ray-traced shadows: inspect, render, compare with Cycles, benchmark.",
@@ -273,7 +274,7 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--no-light-grids", action="store_true",
                     help="raytrace, bvh: hard lights always walk the tree, never a light grid (by default an "
                          "animation's hard lights build grids where they pay back)")
-    pr.add_argument("--structure", choices=("grid", "bvh"), default=None,
+    pr.add_argument("--structure", choices=STRUCTURES, default=None,
                     help="raytrace: acceleration structure, hierarchical grid or two-level BVH (default: Settings')")
     pr.add_argument("--samples", type=int, default=None, metavar="N",
                     help="raytrace: shadow rays per pixel towards a light with a size (soft shadows; "

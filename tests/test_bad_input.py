@@ -151,7 +151,7 @@ def test_mesh_larger_than_one_texture_splits_into_layers(gl_ctx):
     v = (c + rng.normal(scale=0.15, size=(n, 3, 3))).reshape(-1, 3)
     model = Model("big", v, np.arange(3 * n).reshape(-1, 3))
     scene = Scene(models=[model], instances=Instances(names=["big"], model_ids=[0], matrices=np.eye(4)[None]))
-    baked = bake_scene(scene, BakeConfig(tex_width=4))
+    baked = bake_scene(scene, BakeConfig(structure="grid", tex_width=4))
     assert baked.textures["tri"].layers > 1
     o = rng.uniform(-7, 7, (20000, 3))
     d = rng.normal(size=(20000, 3))

@@ -1,7 +1,7 @@
 """Per-model BVH: structure invariants and logarithmic traversal cost."""
 import numpy as np
 
-from hybrid_shadow_addon.core.bake import bake_scene
+from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 from hybrid_shadow_addon.core.bake.bvh import build_bvhs
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
@@ -49,7 +49,7 @@ def test_bvh_cost_is_logarithmic():
     model = Model("terrain", v, tris)
     assert model.triangle_count > 49000
     scene = Scene(models=[model], instances=Instances(names=["t"]))
-    baked = bake_scene(scene)
+    baked = bake_scene(scene, BakeConfig(structure="grid"))
     rng = np.random.default_rng(1)
     R = 200
     o = np.stack([rng.uniform(-9, 9, R), rng.uniform(-9, 9, R), np.full(R, 3.0)], 1)
@@ -65,7 +65,7 @@ def test_bvh_cost_is_logarithmic():
 def test_shared_edges_watertight():
     """Rays through shared edges and vertices of a tessellated plate never slip through."""
     scene = Scene(models=[plate_model(8)], instances=Instances(names=["p"]))
-    baked = bake_scene(scene)
+    baked = bake_scene(scene, BakeConfig(structure="grid"))
     xs = np.linspace(-1, 1, 9)[1:-1]
     X, Y = np.meshgrid(xs, xs)
     o = np.stack([X.ravel(), Y.ravel(), np.ones(X.size)], 1)

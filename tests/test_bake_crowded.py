@@ -91,7 +91,7 @@ def test_crowded_node_gets_object_bvh_and_matches_brute():
     rng = np.random.default_rng(0)
     clusters = ((0.0, 0.0), (30.0, -20.0))
     scene = crowded_scene(rng, 4000, clusters)
-    baked = bake_scene(scene)
+    baked = bake_scene(scene, BakeConfig(structure="grid"))
     st = baked.stats
     assert st["max_objects_per_node"] >= 1000 and st["object_bvh_nodes"] >= 2
     assert st["object_bvh_objects"] >= 3900
@@ -102,7 +102,7 @@ def test_crowded_node_gets_object_bvh_and_matches_brute():
     hit = assert_equal_tracers(scene, baked, o, d, t)
     assert 0.05 < hit.mean() < 0.95
     # the flat-list bake agrees ray for ray
-    flat = bake_scene(scene, BakeConfig(object_bvh_threshold=10 ** 9))
+    flat = bake_scene(scene, BakeConfig(structure="grid", object_bvh_threshold=10 ** 9))
     assert flat.stats["object_bvh_nodes"] == 0
     assert (trace_structured(flat, o, d, t) == hit).all()
 
@@ -111,9 +111,9 @@ def test_crowded_node_gets_object_bvh_and_matches_brute():
 def test_leaf_sizes_and_thresholds(leaf, threshold):
     rng = np.random.default_rng(10 + leaf)
     scene = crowded_scene(rng, 1500)
-    baked = bake_scene(scene, BakeConfig(object_leaf_size=leaf, object_bvh_threshold=threshold))
-    counts = baked.node_count
-    assert ((counts > threshold) == (baked.node_obvh >= 0)).all()
+    baked = bake_scene(scene, BakeConfig(structure="grid", object_leaf_size=leaf, object_bvh_threshold=threshold))
+    counts = baked.accel.node_count
+    assert ((counts > threshold) == (baked.accel.node_obvh >= 0)).all()
     for n in _obvh_nodes(baked):
         _check_tree(baked, n)
     o, d, t = crowd_rays(rng, scene, 1500)
@@ -123,9 +123,9 @@ def test_leaf_sizes_and_thresholds(leaf, threshold):
 def test_incremental_moves_rebuild_object_bvhs():
     rng = np.random.default_rng(1)
     scene = crowded_scene(rng, 2500)
-    baked = bake_scene(scene)
+    baked = bake_scene(scene, BakeConfig(structure="grid"))
     n = len(scene.instances)
-    crowd = np.nonzero(baked.node_obvh[baked.inst_node] >= 0)[0]
+    crowd = np.nonzero(baked.accel.node_obvh[baked.accel.inst_node] >= 0)[0]
     assert crowd.size >= 1000
     steps = [
         ("jiggle inside the crowd", rng.choice(crowd, 40, replace=False), lambda M: M[:, :3, 3] + rng.normal(scale=0.05, size=(len(M), 3))),
@@ -147,9 +147,9 @@ def test_incremental_moves_rebuild_object_bvhs():
         assert_equal_tracers(scene, baked, o, d, t)
     assert baked.stats["object_bvh_nodes"] >= 2  # the new crowd got its own tree
     # the remaining crowd thins out below the threshold: back to a flat list
-    idx = np.nonzero(baked.inst_node == baked.inst_node[crowd[0]])[0]
-    node = baked.inst_node[crowd[0]]
-    assert baked.node_obvh[node] >= 0
+    idx = np.nonzero(baked.accel.inst_node == baked.accel.inst_node[crowd[0]])[0]
+    node = baked.accel.inst_node[crowd[0]]
+    assert baked.accel.node_obvh[node] >= 0
     go = idx[: idx.size - 20]
     M = scene.instances.matrices[go].copy()
     M[:, 0, 3] += rng.uniform(-60, 60, go.size)
@@ -159,33 +159,33 @@ def test_incremental_moves_rebuild_object_bvhs():
     rep = baked.update_instances(scene, go)
     if not rep.regrid:
         _assert_report_covers(baked, before, rep)
-        assert baked.node_count[node] <= 32 and baked.node_obvh[node] == -1
+        assert baked.accel.node_count[node] <= 32 and baked.accel.node_obvh[node] == -1
         assert baked.textures["grid"].linear()[node, 3] == 0
     o, d, t = crowd_rays(rng, scene, 1200, ((0.0, 0.0), (-40.0, -40.0)))
     a = assert_equal_tracers(scene, baked, o, d, t)
-    assert (a == trace_structured(bake_scene(scene), o, d, t)).all()
+    assert (a == trace_structured(bake_scene(scene, BakeConfig(structure="grid")), o, d, t)).all()
 
 
 def test_overflow_relocation_and_regrid_with_object_bvhs():
     rng = np.random.default_rng(2)
     scene = crowded_scene(rng, 1200, n_far=600)
-    baked = bake_scene(scene, BakeConfig(index_reserve=1.0, outside_rebake_fraction=0.5))
+    baked = bake_scene(scene, BakeConfig(structure="grid", index_reserve=1.0, outside_rebake_fraction=0.5))
     n = len(scene.instances)
-    node = int(np.argmax(baked.node_count))
+    node = int(np.argmax(baked.accel.node_count))
     # pile far boxes into the crowded node: its list overflows -> tail, the tree moves too
     # (each box takes the sphere centre of a member, radius a hair bigger: same node)
     far = np.arange(n - 500, n)
-    members = rng.choice(np.nonzero(baked.inst_node == node)[0], far.size)
+    members = rng.choice(np.nonzero(baked.accel.inst_node == node)[0], far.size)
     plate_r = scene.models[2].sphere_radius
     M = np.tile(np.eye(4), (far.size, 1, 1))
-    M[:, :3, :3] *= (baked.inst_radius[members] * 1.001 / plate_r)[:, None, None]
-    M[:, :3, 3] = baked.inst_center[members] + baked.origin - M[:, :3, :3] @ scene.models[2].sphere_center
+    M[:, :3, :3] *= (baked.accel.inst_radius[members] * 1.001 / plate_r)[:, None, None]
+    M[:, :3, 3] = baked.accel.inst_center[members] + baked.origin - M[:, :3, :3] @ scene.models[2].sphere_center
     scene.instances.set_matrices(far, M)
-    tail0, bvh0, root0 = baked.index_tail, baked.bvh_tail, baked.node_obvh[node]
+    tail0, bvh0, root0 = baked.accel.index_tail, baked.accel.bvh_tail, baked.accel.node_obvh[node]
     before = _snapshot(baked)
     rep = baked.update_instances(scene, far)
-    assert not rep.regrid and baked.index_tail > tail0
-    assert baked.bvh_tail > bvh0 and baked.node_obvh[node] != root0
+    assert not rep.regrid and baked.accel.index_tail > tail0
+    assert baked.accel.bvh_tail > bvh0 and baked.accel.node_obvh[node] != root0
     _assert_report_covers(baked, before, rep)
     _check_tree(baked, node)
     o, d, t = crowd_rays(rng, scene, 1500)
@@ -202,8 +202,8 @@ def test_overflow_relocation_and_regrid_with_object_bvhs():
         _assert_report_covers(baked, before, rep)
         if rep.regrid:
             regrid = True
-            ends = baked.model_node_start + baked.model_node_cap
-            assert baked.grid_bvh_range[0] == ends.max()
+            ends = baked.accel.model_node_start + baked.accel.model_node_cap
+            assert baked.accel.grid_bvh_range[0] == ends.max()
             break
     assert regrid
     for nd in _obvh_nodes(baked):
@@ -215,7 +215,7 @@ def test_overflow_relocation_and_regrid_with_object_bvhs():
 def test_update_model_in_crowded_node():
     rng = np.random.default_rng(3)
     scene = crowded_scene(rng, 1500)
-    baked = bake_scene(scene)
+    baked = bake_scene(scene, BakeConfig(structure="grid"))
     scene.models[0] = blob_model(rng, 10, "bigger tiny", size=0.05)  # spheres grow: trees rebuilt
     before = _snapshot(baked)
     rep = baked.update_model(scene, 0)
@@ -250,8 +250,8 @@ def test_objects_per_ray_in_a_crowded_node_is_logarithmic():
     per_ray = {}
     for n in (512, 8192):
         scene = _cloud_scene(rng, n)
-        tree = bake_scene(scene)
-        flat = bake_scene(scene, BakeConfig(object_bvh_threshold=10 ** 9))
+        tree = bake_scene(scene, BakeConfig(structure="grid"))
+        flat = bake_scene(scene, BakeConfig(structure="grid", object_bvh_threshold=10 ** 9))
         assert tree.stats["max_objects_per_node"] >= n and tree.stats["object_bvh_nodes"] >= 1
         k = 400
         o = np.column_stack([rng.uniform(-0.5, 0.5, (k, 2)), np.full(k, 2.0)])
@@ -276,7 +276,7 @@ def test_glsl_matches_structured_on_crowded_scenes(gl_ctx):
     rng = np.random.default_rng(5)
     clusters = ((0.0, 0.0), (20.0, 10.0))
     scene = crowded_scene(rng, 3000, clusters)
-    baked = bake_scene(scene, BakeConfig(object_leaf_size=3))
+    baked = bake_scene(scene, BakeConfig(structure="grid", object_leaf_size=3))
     assert baked.stats["object_bvh_nodes"] >= 2
     o, d, t = crowd_rays(rng, scene, 12000, clusters)
     ref = trace_structured(baked, o, d, t)

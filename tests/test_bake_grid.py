@@ -13,14 +13,14 @@ from test_bake_scenes import adversarial_scene, random_rays, random_scene
 def _node_lists(baked):
     g = baked.textures["grid"].linear()
     idx = baked.textures["grid_index"].linear()
-    return {n: idx[g[n, 0]:g[n, 0] + g[n, 1], 0].astype(int).tolist() for n in range(baked.layout.n_nodes) if g[n, 1]}
+    return {n: idx[g[n, 0]:g[n, 0] + g[n, 1], 0].astype(int).tolist() for n in range(baked.accel.layout.n_nodes) if g[n, 1]}
 
 
 def test_every_caster_in_exactly_one_node_at_its_lowest_level():
     rng = np.random.default_rng(1)
     scene, *_ = adversarial_scene(rng)
-    baked = bake_scene(scene, BakeConfig(base_node_size=1.0))
-    lay = baked.layout
+    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
+    lay = baked.accel.layout
     lists = _node_lists(baked)
     seen = np.concatenate([np.array(v) for v in lists.values()])
     casters = np.nonzero(scene.instances.casts_shadow)[0]
@@ -55,8 +55,8 @@ def test_every_caster_in_exactly_one_node_at_its_lowest_level():
 def test_grid_fits_scene_and_stats():
     rng = np.random.default_rng(2)
     scene = random_scene(rng, n_inst=400, area=500)
-    baked = bake_scene(scene)
-    lay = baked.layout
+    baked = bake_scene(scene, BakeConfig(structure="grid"))
+    lay = baked.accel.layout
     c, r = scene.instance_spheres()
     cs = scene.instances.casts_shadow
     lo = (c[cs, :2] - r[cs, None]).min(0)
@@ -100,13 +100,13 @@ def test_nodes_at_agrees_with_place():
     m = np.tile(np.eye(4), (n, 1, 1))
     m[:, :3, 3] = c + (2e5, -3e5, 0)
     scene = Scene(models=[tet], instances=Instances(names=[f"t{i}" for i in range(n)], model_ids=np.zeros(n), matrices=m))
-    baked = bake_scene(scene, BakeConfig(base_node_size=1.0))
+    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
     assert np.abs(baked.origin).max() > 0
     wc, _ = scene.instance_spheres()
-    held = baked.inst_node
-    at = baked.layout.nodes_at(wc[:, :2] - baked.origin[:2])
-    assert (at[baked.layout.node_level(held), np.arange(n)] == held).all()
-    assert (baked.node_count[held] > 0).all()
+    held = baked.accel.inst_node
+    at = baked.accel.layout.nodes_at(wc[:, :2] - baked.origin[:2])
+    assert (at[baked.accel.layout.node_level(held), np.arange(n)] == held).all()
+    assert (baked.accel.node_count[held] > 0).all()
 
 
 def test_texture_sizes_and_layers():
@@ -118,7 +118,7 @@ def test_texture_sizes_and_layers():
     M[:, :2, 3] = rng.uniform(-30, 30, (n, 2))
     M[:, :3, :3] *= 0.5
     scene = Scene(models=[big], instances=Instances(names=[f"o{i}" for i in range(n)], matrices=M))
-    cfg = BakeConfig(tex_width=4)
+    cfg = BakeConfig(structure="grid", tex_width=4)
     baked = bake_scene(scene, cfg)
     tri = baked.textures["tri"]
     assert tri.layers >= 2 and tri.height == MAX_TEX_SIZE
@@ -130,7 +130,7 @@ def test_texture_sizes_and_layers():
     assert np.allclose(rec[:n, 0:12].reshape(n, 3, 4), scene.instances.inverse[:, :3, :], rtol=1e-6)
     o, d, t = random_rays(rng, scene, 150)
     a = trace_structured(baked, o, d, t)
-    b = trace_structured(bake_scene(scene), o, d, t)
+    b = trace_structured(bake_scene(scene, BakeConfig(structure="grid")), o, d, t)
     assert (a == b).all()
 
 
@@ -143,7 +143,7 @@ def test_crowded_node_thousands_of_objects():
     sphere = rng.random(n) < 0.5
     model = Model("t", [[0, 0, 0], [1, 0, 0], [0, 1, 1]], [[0, 1, 2]])
     scene = Scene(models=[model], instances=Instances(names=[f"o{i}" for i in range(n)], matrices=M, sphere=sphere))
-    baked = bake_scene(scene, BakeConfig(base_node_size=64.0))
+    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=64.0))
     assert baked.stats["max_objects_per_node"] >= 3000
     o = rng.uniform(-1, 3, (400, 3))
     d = rng.normal(size=(400, 3))

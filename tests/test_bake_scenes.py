@@ -105,8 +105,8 @@ def adversarial_scene(rng):
     parts.append(Instances(names=[f"b{i}" for i in range(6)], model_ids=np.ones(6), matrices=M3,
                            sphere=np.array([0, 1, 0, 1, 0, 1], bool)))
     scene = Scene(models=models, instances=Instances.concatenate(parts))
-    baked = bake_scene(scene, BakeConfig(base_node_size=1.0))
-    lay = baked.layout
+    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
+    lay = baked.accel.layout
     n = 6000
     o = rng.uniform(-10, 10, (n, 3))
     o[:, 2] = rng.uniform(-1, 4, n)
@@ -148,7 +148,7 @@ def assert_equal_tracers(scene, baked, o, d, t):
 def test_random_scenes_structured_equals_brute(seed):
     rng = np.random.default_rng(seed)
     scene = random_scene(rng, n_inst=150)
-    baked = bake_scene(scene)
+    baked = bake_scene(scene, BakeConfig(structure="grid"))
     o, d, t = random_rays(rng, scene, 3000)
     hit = assert_equal_tracers(scene, baked, o, d, t)
     assert 0.05 < hit.mean() < 0.95
@@ -157,9 +157,9 @@ def test_random_scenes_structured_equals_brute(seed):
 def test_adversarial_scene():
     rng = np.random.default_rng(42)
     scene, o, d, t = adversarial_scene(rng)
-    baked = bake_scene(scene, BakeConfig(base_node_size=1.0))
+    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
     assert baked.stats["max_objects_per_node"] >= 1000
-    assert baked.layout.levels >= 4
+    assert baked.accel.layout.levels >= 4
     hit = assert_equal_tracers(scene, baked, o, d, t)
     assert 0.05 < hit.mean() < 0.95
 
@@ -188,8 +188,8 @@ def test_axis_rays_on_every_border():
     """Axis-aligned rays (two components exactly 0) starting exactly on node borders and corners."""
     rng = np.random.default_rng(3)
     scene = random_scene(rng, n_inst=120, area=10)
-    baked = bake_scene(scene, BakeConfig(base_node_size=1.0))
-    o, d, t = border_rays(rng, baked.layout, 300)
+    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
+    o, d, t = border_rays(rng, baked.accel.layout, 300)
     hit = assert_equal_tracers(scene, baked, o, d, t)
     assert hit.any()
 
@@ -197,7 +197,7 @@ def test_axis_rays_on_every_border():
 def test_no_casters_and_empty():
     rng = np.random.default_rng(0)
     for scene in (Scene(), random_scene(rng, n_inst=10, casters=0.0)):
-        baked = bake_scene(scene)
+        baked = bake_scene(scene, BakeConfig(structure="grid"))
         for tex in baked.textures.values():
             assert tex.width >= 1 and tex.height >= 1 and tex.layers >= 1
         o, d, t = rng.normal(size=(50, 3)), rng.normal(size=(50, 3)), np.inf
@@ -208,7 +208,7 @@ def test_no_casters_and_empty():
 def test_degenerate_rays():
     rng = np.random.default_rng(5)
     scene = random_scene(rng, n_inst=50, area=3)
-    baked = bake_scene(scene)
+    baked = bake_scene(scene, BakeConfig(structure="grid"))
     o = np.zeros((4, 3))
     d = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [np.nan, 0, 0]], float)
     t = np.array([1.0, 0.0, -1.0, 1.0])
@@ -223,21 +223,21 @@ def test_far_from_origin():
     scene.instances.matrices[:, 0, 3] += 10000.0
     scene.instances.matrices[:, 1, 3] -= 7000.0
     scene.instances.set_matrices(slice(None), scene.instances.matrices.copy())
-    baked = bake_scene(scene)
+    baked = bake_scene(scene, BakeConfig(structure="grid"))
     # bake space: a round origin near the scene, so the textures hold small coordinates
     assert np.allclose(baked.origin, (10000.0, -7000.0, 0.0), atol=64)
     assert np.abs(baked.uniforms["hs_grid_origin"]).max() < 100
     o, d, t = random_rays(rng, scene, 2000)
     assert_equal_tracers(scene, baked, o, d, t)
     # the same scene at home bakes with origin zero
-    assert not bake_scene(random_scene(np.random.default_rng(11), n_inst=100, area=20)).origin.any()
+    assert not bake_scene(random_scene(np.random.default_rng(11), n_inst=100, area=20), BakeConfig(structure="grid")).origin.any()
 
 
 def test_sun_rays_from_ground():
     """Typical shadow rays: from a ground grid towards a sun, tmax infinite."""
     rng = np.random.default_rng(9)
     scene = random_scene(rng, n_inst=200, area=20, tri_counts=(1, 12, 60))
-    baked = bake_scene(scene)
+    baked = bake_scene(scene, BakeConfig(structure="grid"))
     X, Y = np.meshgrid(np.linspace(-25, 25, 40), np.linspace(-25, 25, 40))
     o = np.stack([X.ravel(), Y.ravel(), np.full(X.size, -0.5)], 1)
     for sun in ([0.3, 0.2, 1.0], [0, 0, 1], [1, 0, 0.2], [0, -1, 0.05]):

@@ -5,7 +5,7 @@ import pytest
 
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 from hybrid_shadow_addon.core.bake.sah import build_sah
-from hybrid_shadow_addon.core.bake.twolevel import LEAF_FLAG, build_blas
+from hybrid_shadow_addon.core.bake.structures.blas import LEAF_FLAG, build_blas
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 from hybrid_shadow_addon.core.settings import Settings

@@ -30,7 +30,7 @@ def _assert_report_covers(baked, before, rep):
 def test_move_instances_matches_brute_and_touches_only_moved():
     rng = np.random.default_rng(0)
     scene = random_scene(rng, n_inst=250, tri_counts=(1, 12, 40))
-    baked = bake_scene(scene)
+    baked = bake_scene(scene, BakeConfig(structure="grid"))
     for step in range(4):
         before = _snapshot(baked)
         idx = rng.choice(len(scene.instances), 12, replace=False)
@@ -49,13 +49,13 @@ def test_move_instances_matches_brute_and_touches_only_moved():
         assert_equal_tracers(scene, baked, o, d, t)
     # equal to a fresh bake on the same rays
     o, d, t = random_rays(rng, scene, 1500)
-    assert (trace_structured(baked, o, d, t) == trace_structured(bake_scene(scene), o, d, t)).all()
+    assert (trace_structured(baked, o, d, t) == trace_structured(bake_scene(scene, BakeConfig(structure="grid")), o, d, t)).all()
 
 
 def test_crowding_relocates_to_tail_and_leaving_grid_goes_outside():
     rng = np.random.default_rng(1)
     scene = random_scene(rng, n_inst=300, area=20, tri_counts=(1, 12, 40))
-    baked = bake_scene(scene, BakeConfig(outside_rebake_fraction=0.5))
+    baked = bake_scene(scene, BakeConfig(structure="grid", outside_rebake_fraction=0.5))
     n = len(scene.instances)
     # pile 60 instances onto one spot: their node overflows its capacity -> tail
     idx = rng.choice(n, 60, replace=False)
@@ -63,10 +63,10 @@ def test_crowding_relocates_to_tail_and_leaving_grid_goes_outside():
     M[:, :3, 3] = [1.0, 1.0, 1.0]
     M[:, :3, :3] = np.eye(3) * 0.1
     scene.instances.set_matrices(idx, M)
-    tail0 = baked.index_tail
+    tail0 = baked.accel.index_tail
     before = _snapshot(baked)
     rep = baked.update_instances(scene, idx)
-    assert baked.index_tail > tail0 and not rep.regrid
+    assert baked.accel.index_tail > tail0 and not rep.regrid
     _assert_report_covers(baked, before, rep)
     o, d, t = random_rays(rng, scene, 1500)
     assert_equal_tracers(scene, baked, o, d, t)
@@ -87,7 +87,7 @@ def test_crowding_relocates_to_tail_and_leaving_grid_goes_outside():
 def test_regrid_when_many_leave():
     rng = np.random.default_rng(2)
     scene = random_scene(rng, n_inst=200, area=10)
-    baked = bake_scene(scene)
+    baked = bake_scene(scene, BakeConfig(structure="grid"))
     idx = np.arange(50)
     M = scene.instances.matrices[idx].copy()
     M[:, 1, 3] += 300.0
@@ -101,7 +101,7 @@ def test_regrid_when_many_leave():
 def test_caster_flag_and_many_updates_exhaust_tail():
     rng = np.random.default_rng(3)
     scene = random_scene(rng, n_inst=150, area=15)
-    baked = bake_scene(scene, BakeConfig(index_reserve=0.0))
+    baked = bake_scene(scene, BakeConfig(structure="grid", index_reserve=0.0))
     for _ in range(30):
         idx = rng.choice(150, 20, replace=False)
         M = scene.instances.matrices[idx].copy()
@@ -117,27 +117,27 @@ def test_caster_flag_and_many_updates_exhaust_tail():
 def test_update_model_rebuilds_that_model_only():
     rng = np.random.default_rng(4)
     scene = random_scene(rng, n_inst=200, tri_counts=(1, 12, 40))
-    baked = bake_scene(scene)
+    baked = bake_scene(scene, BakeConfig(structure="grid"))
     m = 2
     before = _snapshot(baked)
     other = [k for k in range(len(scene.models)) if k != m]
-    old_rows = {k: (baked.model_node_start[k], baked.model_node_count[k]) for k in other}
+    old_rows = {k: (baked.accel.model_node_start[k], baked.accel.model_node_count[k]) for k in other}
     scene.models[m] = blob_model(rng, 200, "edited", size=2.0)  # bigger: appended
     rep = baked.update_model(scene, m)
     for k in other:  # other models' BVHs untouched
         s, c = old_rows[k]
-        assert baked.model_node_start[k] == s and baked.model_node_count[k] == c
+        assert baked.accel.model_node_start[k] == s and baked.accel.model_node_count[k] == c
         a = before["bvh"].reshape(-1, 4)[2 * s:2 * (s + c)]
         assert np.array_equal(a, baked.textures["bvh"].linear()[2 * s:2 * (s + c)])
     _assert_report_covers(baked, before, rep)
     o, d, t = random_rays(rng, scene, 1500)
     assert_equal_tracers(scene, baked, o, d, t)
     # smaller edit: in place
-    start = baked.model_node_start[m]
+    start = baked.accel.model_node_start[m]
     scene.models[m] = blob_model(rng, 30, "edited2")
     before = _snapshot(baked)
     rep = baked.update_model(scene, m)
-    assert baked.model_node_start[m] == start and not ({"bvh", "tri"} & rep.resized)
+    assert baked.accel.model_node_start[m] == start and not ({"bvh", "tri"} & rep.resized)
     _assert_report_covers(baked, before, rep)
     assert_equal_tracers(scene, baked, o, d, t)
     # a new model appended to the scene

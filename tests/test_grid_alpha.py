@@ -233,17 +233,17 @@ def test_grid_alpha_textures(pipeline):
     the triangles' [tri] records (and only theirs)."""
     scene = alpha_scene()
     b = bake_scene(scene, BakeConfig(structure="grid"))
-    slots = b.tex.object_mat.linear()[: len(scene.instances), 0]
+    slots = b.accel.tex.object_mat.linear()[: len(scene.instances), 0]
     np.testing.assert_array_equal(slots, [0, 0, 1, 2, 3, 3, 4, 0])
-    assert b.models.uv.tolist() == [False, True, True, False]
+    assert b.accel.models.uv.tolist() == [False, True, True, False]
     _check_uvs(b, scene)
 
 
 def _check_uvs(b, scene):
     """Every [tri] triangle of a model with kept UVs has the UVs of the same mesh triangle."""
-    ms = b.models
-    tri = b.tex.tri.records(3)
-    uv = b.tex.uv.records(2)
+    ms = b.accel.models
+    tri = b.accel.tex.tri.records(3)
+    uv = b.accel.tex.uv.records(2)
     for m, model in enumerate(scene.models):
         ts, tc = int(ms.tri_start[m]), int(ms.tri_count[m])
         if not ms.uv[m]:
@@ -331,7 +331,7 @@ def test_edit_alpha_mesh_equals_fresh_bake(pipeline, gl_ctx, structure):
     pipeline.update_model(scene, len(scene.models) - 1)
     inc = _masks(pipeline, scene, structure)
     if structure == "grid":
-        assert pipeline.baked.models.uv[-1]
+        assert pipeline.baked.accel.models.uv[-1]
         _check_uvs(pipeline.baked, scene)
     full = _compare_fresh(pipeline, gl_ctx, scene, structure, inc)
     for li in full:
@@ -436,7 +436,7 @@ def test_glsl_visibility_through_crowded_grid(gl_ctx, structure):
     b = bake_scene(scene, cfg)
     assert b.has_alpha
     if structure == "grid":
-        assert "HS_HAS_NODE_BVH" in b.defines and b.layout.levels > 2 and "HS_HAS_SPHERES" in b.defines
+        assert "HS_HAS_NODE_BVH" in b.defines and b.accel.layout.levels > 2 and "HS_HAS_SPHERES" in b.defines
     n = 12000
     o = np.column_stack([rng.uniform(-11, 11, (n, 2)), rng.uniform(0.01, 0.2, n)])
     d = rng.normal(size=(n, 3))

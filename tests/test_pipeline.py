@@ -4,7 +4,7 @@ interlacing; incremental updates; what the shader variants compile."""
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.bake import bake_scene
+from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 from hybrid_shadow_addon.core.oracle.rays import shadow_rays
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.oracle.tracer import trace_structured
@@ -163,7 +163,7 @@ def test_shader_variants_hold_only_what_the_scene_needs(pipeline, loaded):
     frame = pipeline.render(scene, Settings(hard=True, mode="raytrace", max_distance=5.0), W, H)
     assert "HS_MAX_DISTANCE=1" in frame.stats["defines"]
     forest = loaded("forest")
-    assert "HS_HAS_SPHERES" in bake_scene(forest).defines
+    assert "HS_HAS_SPHERES" in bake_scene(forest, BakeConfig(structure="grid")).defines
 
 
 def test_progress_steps_and_cancel(pipeline, loaded):

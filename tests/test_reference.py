@@ -57,7 +57,7 @@ def test_ellipsoid_sphere_primitive_exact():
     ref = (disc >= 0) & (((t0 > 0) & (t0 < tmax)) | ((t1 > 0) & (t1 < tmax)))
     got = trace_brute(scene, o, d, tmax)
     assert (got != ref).mean() < 1e-3 and ref.sum() > 1000
-    assert (trace_structured(bake_scene(scene), o, d, tmax) == got).all()
+    assert (trace_structured(bake_scene(scene, BakeConfig(structure="grid")), o, d, tmax) == got).all()
     # the robust quadratic: tiny sphere far away along the ray
     f = np.float32
     hit = sphere_hit(np.array([[0, 0, -1e4]], f), np.array([[0, 0, 1]], f), np.zeros((1, 3), f), np.array([1e-3], f), np.array([2e4], f))
@@ -79,12 +79,12 @@ def test_property_structured_equals_brute(seed, n, base, spheres, axis):
                      matrices=random_matrices(rng, n, area=rng.uniform(1, 20)), sphere=rng.random(n) < spheres,
                      casts_shadow=rng.random(n) < 0.9)
     scene = Scene(models=models, instances=inst)
-    baked = bake_scene(scene, BakeConfig(base_node_size=base))
+    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=base))
     o, d, t = random_rays(rng, scene, 300, axis=axis)
     # snap some origins onto node borders of level 0
-    s = baked.layout.node_sizes[0]
+    s = baked.accel.layout.node_sizes[0]
     k = rng.random(len(o)) < 0.3
-    o[k, :2] = baked.layout.origin + np.round((o[k, :2] - baked.layout.origin) / s) * s
+    o[k, :2] = baked.accel.layout.origin + np.round((o[k, :2] - baked.accel.layout.origin) / s) * s
     brute = trace_brute(scene, o, d, t)
     assert (trace_structured(baked, o, d, t) == brute).all()
     assert (trace_structured(bake_scene(scene, BakeConfig(structure="bvh")), o, d, t) == brute).all()

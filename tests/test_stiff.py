@@ -261,8 +261,8 @@ def test_origins_on_node_borders_numpy(seed, level_pick):
 
     rng = np.random.default_rng(seed)
     scene = random_scene(rng, n_inst=60, area=8)
-    baked = bake_scene(scene, BakeConfig(base_node_size=1.0))
-    lay = baked.layout
+    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
+    lay = baked.accel.layout
     lvl = level_pick % lay.levels
     s = lay.node_sizes[lvl]
     nx, ny = lay.dims[lvl]
@@ -307,8 +307,8 @@ def test_axis_and_border_rays_glsl(gl_ctx, glsl):
 
     rng = np.random.default_rng(5)
     scene = random_scene(rng, n_inst=100, area=10)
-    baked = bake_scene(scene, BakeConfig(base_node_size=1.0))
-    o, d, t = border_rays(rng, baked.layout, 200)
+    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
+    o, d, t = border_rays(rng, baked.accel.layout, 200)
     ref = trace_structured(baked, o, d, t)
     gl = glsl.gl_trace(gl_ctx, baked, o, d, t)
     assert ref.any() and (~ref).any()

@@ -15,6 +15,7 @@ from __future__ import annotations
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
 
+from ..core.bake.structures import DEFAULT_STRUCTURE, STRUCTURES
 from ..core.settings import Settings
 
 MODE_ITEMS = (
@@ -49,15 +50,12 @@ CONSERVATIVE_ITEMS = (
     ("ALL", "All Lights", "Conservative occupancy maps for every light (a cube of six maps around point, "
                           "spot and area lights)", 2),
 )
-STRUCTURE_ITEMS = (
-    ("GRID", "Hierarchical Grid", "The thesis' hierarchical 2D grid over the instances, a BVH per model", 0),
-    ("BVH", "Two-Level BVH", "SAH tree over the instances whose leaves enter SAH trees per model "
-                             "(compact one-texel nodes)", 1),
-)
+STRUCTURE_ITEMS = tuple((name.upper(), cls.label, cls.description, i) for i, (name, cls) in enumerate(STRUCTURES.items()))
 DEBUG_ITEMS = (
     ("NONE", "None", "Show the lit image", 0),
     ("LIGHT_MASK", "Light Mask", "Show the shadow mask of one light (white lit, black shadowed, blue no geometry)", 1),
-    ("GRID_HEAT", "Grid Occupancy", "Heat map of how many shadow casters the grid nodes above each pixel hold", 2),
+    ("GRID_HEAT", "Grid Occupancy", "Heat map of how many shadow casters the acceleration structure holds "
+                                     "above each pixel (grid nodes or instance boxes)", 2),
     ("NORMAL", "G-Buffer Normal", "Show the G-buffer's world-space shading normal", 3),
     ("ALBEDO", "G-Buffer Albedo", "Show the G-buffer's base colour", 4),
     ("DEPTH", "G-Buffer Depth", "Show the G-buffer's camera distance, near bright, far dark", 5),
@@ -136,7 +134,7 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
                                     description="Ray traced: skip or shorten shadow rays with conservative "
                                                 "light-space occupancy maps; exact, it only changes the work",
                                     update=_tag_viewport)
-    structure: EnumProperty(name="Structure", items=STRUCTURE_ITEMS, default="BVH",
+    structure: EnumProperty(name="Structure", items=STRUCTURE_ITEMS, default=DEFAULT_STRUCTURE.upper(),
                             description="Ray traced: acceleration structure the shadow rays walk (the masks "
                                         "are the same; changing it re-bakes the scene)",
                             update=_tag_viewport)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import bpy
 
+from ..core.bake.structures import STRUCTURES
 from .compare_operator import draw_compare_button
 from .engine import ENGINE_ID
 from .export import principled_node, world_background
@@ -53,7 +54,7 @@ class RENDER_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         col.active = props.mode == "RAYTRACE"
         col.prop(props, "quality", text="Render Quality")
         sub = col.column()
-        sub.active = props.structure == "BVH"
+        sub.active = STRUCTURES[props.structure.lower()].supports_light_grids
         sub.prop(props, "use_light_grid")
         col = layout.column()
         col.active = props.mode == "RAYTRACE"

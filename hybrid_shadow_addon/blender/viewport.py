@@ -344,19 +344,14 @@ def _heat(t: np.ndarray) -> np.ndarray:
 
 
 def grid_occupancy(baked, position: np.ndarray) -> np.ndarray:
-    """Per pixel, the shadow casters held by the grid nodes (all levels) over the pixel's world
-    XY; -1 where there is no geometry. ``position``: the G-buffer's (H, W, 4) world position."""
-    lay = baked.layout
+    """Per pixel, the baked structure's occupancy over the pixel's world XY
+    (:meth:`AccelerationStructure.occupancy`: the grid's casters in the nodes of every level over
+    it, the two-level BVH's instance boxes over it); -1 where there is no geometry.
+    ``position``: the G-buffer's (H, W, 4) world position."""
     valid = position[..., 3] > 0.5
     out = np.full(position.shape[:2], -1.0, np.float32)
-    if lay is None or not valid.any():
-        return out
-    counts = np.asarray(baked.node_count)
-    xy = position[valid][:, :2].astype(np.float64) - np.asarray(baked.origin, np.float64)[:2]  # bake space
-    nodes = lay.nodes_at(xy)  # (levels, N), -1 outside
-    total = np.where(nodes >= 0, counts[np.maximum(nodes, 0)], 0).sum(axis=0, dtype=np.float64)
-    total += counts[lay.outside_node] if lay.outside_node < len(counts) else 0
-    out[valid] = total
+    if valid.any():
+        out[valid] = baked.occupancy(position[valid][:, :2])
     return out
 
 
@@ -379,7 +374,7 @@ def debug_image(view: str, frame, scene, pipeline, light_name: str | None = None
     elif view == "GRID_HEAT":
         baked = getattr(pipeline, "baked", None)
         if baked is None:
-            raise ValueError("the grid occupancy view needs the ray-traced mode (no grid is baked)")
+            raise ValueError("the grid occupancy view needs the ray-traced mode (no structure is baked)")
         occ = grid_occupancy(baked, gb.read("position"))
         top = max(1.0, float(occ.max()))
         rgb[:] = _heat(np.log1p(np.maximum(occ, 0)) / np.log1p(top))

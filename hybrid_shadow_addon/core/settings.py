@@ -5,12 +5,15 @@ import math
 import numbers
 from dataclasses import asdict, dataclass, fields, replace
 
+from .bake.structures import DEFAULT_STRUCTURE
+from .bake.structures import STRUCTURES as STRUCTURE_CLASSES
+
 MODES = ("raytrace", "shadowmap", "none")
 QUALITIES = ("high", "medium", "low")
 QUALITY_SCALE = {"high": 1, "medium": 2, "low": 4}  # mask resolution = full / scale
 UPSAMPLE_FILTERS = ("bilateral", "nearest")
 CONSERVATIVE_MAPS = ("off", "sun", "all")
-STRUCTURES = ("grid", "bvh")  # acceleration structures the bake can build
+STRUCTURES = tuple(STRUCTURE_CLASSES)  # acceleration structures the bake can build
 
 
 @dataclass(frozen=True)
@@ -42,8 +45,8 @@ class Settings:
       light; point, spot and area lights get a cube of six maps).
     - ``structure``: the acceleration structure the shadow rays walk: ``grid`` (the thesis'
       hierarchical 2D grid over per-model BVHs) or ``bvh`` (a two-level BVH: binned-SAH model
-      trees under a binned-SAH tree over the instances, quantised one-texel nodes; the default:
-      its shadow rays are 3-6x faster, see BENCHMARKS.md). The masks are the same; changing it
+      trees under a binned-SAH tree over the instances, quantised one-texel nodes; the default,
+      ``DEFAULT_STRUCTURE``: its shadow rays are faster). The masks are the same; changing it
       re-bakes the scene.
     - ``light_grid``: on the two-level BVH, a hard light's shadow rays (all on lines through
       the light: a sun's parallel, a point, spot or hard area light's meeting at its centre) look
@@ -86,7 +89,7 @@ class Settings:
     upsample: str = "bilateral"
     specular: bool = True
     conservative: str = "off"
-    structure: str = "bvh"
+    structure: str = DEFAULT_STRUCTURE
     light_grid: bool = True
     samples: int = 64
     noise_target: float = 0.003

@@ -1,6 +1,38 @@
-/* scene_bvh.glsl -- the two-level BVH walk (HS_STRUCTURE_BVH), included by scene_data.glsl.
- * Texture layout: scene_data.glsl ([node], [leaf]).
+/* scene_bvh.glsl -- the two-level BVH (HS_STRUCTURE_BVH, structure "bvh"): its textures and
+ * the walk that reads them; included by scene_data.glsl (shared fetches and tests).
+ * Packer: hybrid_shadow_addon/core/bake/structures/twolevel.py, blas.py, tlas.py (TwoLevelBVH).
  * Oracle: hybrid_shadow_addon/core/oracle/tracer.py (_trace_bvh mirrors this file step by step).
+ *
+ * ============================== BVH TEXTURE LAYOUT =======================================
+ * [node]  RGBA32UI "hs_node_tex", 1 texel per node: every model tree (BLAS), then the top-level
+ *         tree over the instances (TLAS, [hs_tlas_root, hs_tlas_end)), each in depth-first
+ *         pre-order (left child = node + 1). Boxes are 16-bit integers on the tree's grid,
+ *         floor / ceil of the exact box (never smaller): model trees on the model's grid
+ *         (p_q = (p_model - base) * inv_s, [leaf] frame), the top level on the scene's grid
+ *         (p_q = (p_bake - hs_tlas_base) * hs_tlas_inv_scale); inv_s is a power of two.
+ *     .x  qmin.x | qmin.y << 16      .y  qmin.z | qmax.x << 16      .z  qmax.y | qmax.z << 16
+ *     .w  inner node: escape (absolute index of the node after its subtree);
+ *         leaf: 0x80000000 | payload (a leaf's escape is node + 1). Top-level payload = instance
+ *         id; model-tree payload = (first [leaf] texel << 3) | triangle count (1..HS_BVH_LEAF_SIZE).
+ *     The walk widens each box per ray by e = 2^-20 |o_q|_1 (model trees) or 2^-18 (|o_q|_1 +
+ *     hs_tlas_babs) (top level), which covers the rounding of o_q; top-level leaf boxes are the
+ *     world box of the model box corners padded by 2^-18 (|box|_inf + extent) (float32 inverses).
+ * [leaf]  RGBA32UI "hs_leaf_tex": instance records first (5 texels, texel 5 * id + k), then
+ *         the model leaves' triangles; the shader reads max(5, ceil(9 HS_BVH_LEAF_SIZE / 4))
+ *         texels from any record start (the texture has that much padding at its end).
+ *     instance k=0..2  bits(row k of the inverse world matrix, bake space -> model space)
+ *              k=3     .x model tree root [node], .y its end, .z model id | 0x80000000 if an
+ *                      analytic sphere, .w 0
+ *              k=4     mesh: bits(model grid base xyz, inv_s); sphere: bits(model-space sphere
+ *                      centre xyz, radius rounded up)
+ *     triangles: a leaf's triangles back to back, 9 floats each (bits of v0, v1, v2 in model
+ *              space), ceil(9 count / 4) texels, read with static swizzles.
+ * Uniforms: hs_tlas_base (vec3), hs_tlas_inv_scale, hs_tlas_babs (|base * inv_scale|_1),
+ *   hs_tlas_root, hs_tlas_end. Defines: HS_STRUCTURE_BVH, HS_TEX_WIDTH(_LOG2), HS_TEX_ROWS_LOG2,
+ *   HS_BVH_LEAF_SIZE, HS_HAS_MESHES / HS_HAS_SPHERES when the top level holds such casters.
+ *
+ * [uv]  RGBA32F "hs_uv_tex" (HS_HAS_ALPHA only): the UVs of alpha-cut models' triangles at the
+ *         same [leaf] texels as their triangles (6 floats per triangle).
  */
 #ifndef HS_SCENE_BVH_GLSL
 #define HS_SCENE_BVH_GLSL

@@ -1,18 +1,20 @@
-"""Scene -> GPU textures: hierarchical 2D grid over per-model BVHs (``structure="grid"``) or a
-two-level BVH (``structure="bvh"``, twolevel.py), packed textures, incremental updates.
+"""Scene -> GPU textures: one acceleration structure (``structures/``: the two-level BVH, the
+default, or the thesis' hierarchical grid), packed textures, incremental updates.
 
 Public API::
 
-    baked = bake_scene(scene, BakeConfig())          # BakedScene (BakeConfig(structure="bvh"))
-    baked.textures   # grid: {'grid', 'grid_index', 'object', 'model', 'bvh', 'tri'}; bvh: {'node', 'leaf'}
-    baked.defines    # #defines for shaders/common/scene_data.glsl
+    baked = bake_scene(scene, BakeConfig())          # BakedScene (BakeConfig(structure="grid"))
+    baked.accel      # the AccelerationStructure (structures.TwoLevelBVH / HierarchicalGrid)
+    baked.textures   # bvh: {'node', 'leaf'}; grid: {'grid', 'grid_index', 'object', 'model', 'bvh', 'tri'}
+    baked.defines    # #defines for shaders/common/scene_data.glsl and the structure's include
     baked.uniforms   # uniform values (grid origin, node sizes, dims, scene max height, ...)
     baked.samplers   # texture name -> sampler uniform name
     baked.stats      # bake ms, bytes per texture, node counts, max objects per node, ...
     report = baked.update_instances(scene, indices)   # after Instances.set_matrices
     report = baked.update_model(scene, model_id)      # edited (or appended) mesh
 
-Texel layouts: ``shaders/common/scene_data.glsl`` (the one description packer and shader follow).
+Texel layouts: next to the GLSL that reads them (``shaders/common/scene_data.glsl`` and the
+structure's ``glsl_include``), the one description packer and shader follow.
 """
 from .baked import BakedScene, bake_scene
 from .state import BakeConfig, UpdateReport

@@ -8,7 +8,7 @@ of every model is processed by one set of numpy operations (no per-node Python).
 
 Flattening: nodes in depth-first (pre-)order, so the left child of node ``i`` is ``i + 1``; each
 node stores its *escape* index ``i + 2 * leaves(i) - 1`` (the node after its subtree). The GPU
-walks it stackless (see ``hs_bvh_occluded`` in scene_data.glsl): box hit -> ``i + 1`` (or test the
+walks it stackless (see ``hs_bvh_occluded`` in scene_grid.glsl): box hit -> ``i + 1`` (or test the
 leaf's triangles, then escape), box miss -> escape.
 
 Triangles are stored de-indexed (3 vertices per triangle, leaf order). Boxes are rounded outward

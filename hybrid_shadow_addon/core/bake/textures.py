@@ -1,7 +1,9 @@
 """Texture containers and the texel packing shared by the bake and the incremental update.
 
-THE layout of every texel is documented once, in ``shaders/common/scene_data.glsl`` (block comment
-"SCENE TEXTURE LAYOUT"); the constants below follow it and name the section they implement.
+THE layout of every texel is documented once, next to the GLSL that reads it: the addressing in
+``shaders/common/scene_data.glsl``, each structure's records in its own file (``scene_grid.glsl``
+"GRID TEXTURE LAYOUT", ``scene_bvh.glsl`` "BVH TEXTURE LAYOUT"); the constants below follow it
+and name the section they implement.
 
 Every texture is held as a 2D array (``sampler2DArray`` / ``usampler2DArray``) of ``width`` =
 ``BakeConfig.tex_width`` texels (a power of two <= 16384); the GPU side uploads the record
@@ -26,7 +28,7 @@ MAX_TEX_SIZE = 16384
 MAX_ROWS_LOG2 = 14
 MAX_LAYERS = 2048  # GL 4.1 guarantees GL_MAX_ARRAY_TEXTURE_LAYERS >= 2048
 
-# texels per record (see scene_data.glsl)
+# texels per record of the grid (see scene_grid.glsl)
 GRID_TEXELS = 1        # 'grid'        u4 x4: offset, count, bits(max height), capacity
 INDEX_TEXELS = 1       # 'grid_index'  u4 x2: object id, model id | SPHERE_FLAG
 OBJECT_TEXELS = 4      # 'object'      f4 x4: 3 rows of the inverse world matrix, world sphere

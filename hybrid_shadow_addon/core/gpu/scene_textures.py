@@ -8,7 +8,7 @@ Both hold the same texels, so the masks are the same either way.
 ``upload(baked)`` creates (or re-creates) every texture; ``apply(baked, report)`` re-uploads only
 the row ranges an incremental update changed (textures that grew are re-created whole).
 ``bind(prog, first_unit)`` binds the textures to consecutive units and sets the sampler and
-grid uniforms a program that includes ``shaders/common/scene_data.glsl`` declares.
+structure uniforms a program that includes ``shaders/common/scene_data.glsl`` declares.
 """
 from __future__ import annotations
 

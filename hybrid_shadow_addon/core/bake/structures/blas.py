@@ -1,0 +1,241 @@
+"""The model trees of the two-level BVH (its bottom level): SAH trees over Morton-ordered
+clusters of triangles, boxes quantised to 16 bits on a per-model grid, packed for [node] and
+[leaf] of ``shaders/common/scene_bvh.glsl`` (see :mod:`.twolevel` for the whole structure).
+
+Triangles are Morton-sorted per model and cut into clusters of ``leaf_size`` consecutive
+triangles; the clusters are the leaves of a tree whose nodes of more than ``RUN_SAH_MIN``
+clusters split by SAH between equal runs of the Morton order (``sah.build_sah``). Node boxes are
+quantised on a per-model grid (origin ``base``, power-of-two step ``1 / inv_s``), floor / ceil of
+the exact float64 union, so the decoded box always holds its triangles.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..bvh import _morton3
+from ..sah import build_sah
+from ..textures import f32_down, f32_up
+
+QMAX = 65535
+QSPAN = 65000.0  # quanta a box spans at most (room for floor / ceil and the base rounding)
+LEAF_FLAG = np.uint32(1 << 31)
+SPATIAL_MIN = 4096  # top-level nodes larger than this split by spatially binned SAH
+RUN_SAH_MIN = 32  # nodes larger than this split by SAH over runs of their Morton order
+FRAME_MARGIN = 1.0 / 16.0  # top-level quantisation frame: scene box + this fraction per side
+TLAS_PAD = 2.0 ** -18  # relative padding of the top-level boxes (float32 inverse matrices)
+INST_TEXELS = 5  # [leaf] instance record: bits(inverse rows 0..2), (tree root, tree end,
+#                 model | SPHERE_FLAG, 0), bits(quant base xyz, inv_s) or bits(model sphere)
+NODE_TEXELS = 1  # [node] u4: quantised box (3 x 2 x 16 bits), escape or LEAF_FLAG | payload
+TRI4_FLOATS = 9  # [leaf] triangles: a leaf's triangles back to back, 9 float bits each
+LEAF_READ = 9  # texels the shader reads from any [leaf] record start (the tail is padded)
+
+FORMATS = {"node": (4, "u4"), "leaf": (4, "u4"), "uv": (4, "f4")}
+NAMES = tuple(FORMATS)  # "uv" (UVs at the [leaf] texels of alpha-cut models) only when present
+
+
+def leaf_size(config) -> int:
+    """Triangles per model leaf (``BakeConfig.bvh_leaf_size``, 1..4)."""
+    return int(min(max(int(config.bvh_leaf_size), 1), 4))
+
+
+def tri_texels(count) -> np.ndarray:
+    return -(-(np.asarray(count, np.int64) * TRI4_FLOATS) // 4)
+
+
+def quant_frame(lo, hi):
+    """(base float32, inv_s power of two) of a grid over [lo, hi] (rows: one frame each)."""
+    lo = np.asarray(lo, np.float64).reshape(-1, 3)
+    hi = np.asarray(hi, np.float64).reshape(-1, 3)
+    base = f32_down(lo).astype(np.float64)
+    ext = np.maximum((hi - base).max(axis=1), 1e-30)
+    e = np.ceil(np.log2(ext / QSPAN))
+    e = np.clip(e, -120, 120)
+    return base, 2.0 ** (-e)
+
+
+def quantise(nmin, nmax, base, inv_s):
+    """(N, 3) uint32 pairs (qlo, qhi): floor / ceil of the box on the frame, clipped."""
+    # by component (3, N) C order: the per-node scale then runs along the contiguous axis
+    inv = np.asarray(inv_s, np.float64)
+    out = []
+    for v, up in ((nmin, False), (nmax, True)):
+        t = np.subtract(np.asarray(v).T, np.asarray(base).T, dtype=np.float64, order="C")
+        t *= inv
+        if up:
+            np.ceil(t, out=t)
+        np.clip(t, 0, QMAX, out=t)
+        out.append(t.astype(np.uint32).T)  # truncation: the floor of the clipped lower bound
+    return out[0], out[1]
+
+
+def pack_nodes(qlo, qhi, w) -> np.ndarray:
+    out = np.empty((len(qlo), 4), np.uint32)
+    out[:, 0] = qlo[:, 0] | (qlo[:, 1] << np.uint32(16))
+    out[:, 1] = qlo[:, 2] | (qhi[:, 0] << np.uint32(16))
+    out[:, 2] = qhi[:, 1] | (qhi[:, 2] << np.uint32(16))
+    out[:, 3] = w
+    return out
+
+
+@dataclass
+class BlasBuild:
+    """Model trees of a list of models, local indices (nodes, [tri4] texels)."""
+
+    build: object  # SAHBuild over clusters
+    node_start: np.ndarray
+    node_count: np.ndarray
+    tri_start: np.ndarray  # first [tri4] texel per model
+    tri_texels: np.ndarray
+    tri_count: np.ndarray
+    depth: np.ndarray
+    base: np.ndarray  # (M, 3)
+    inv_s: np.ndarray  # (M,)
+    nodes: np.ndarray  # (Nn, 4) uint32 packed, leaf payloads local to tri_start = 0, escapes local
+    tri4: np.ndarray  # (texels, 4) float32
+    uv4: np.ndarray = None  # (texels, 4) float32 UVs at the triangles' texels (6 per triangle), or None
+
+
+def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None) -> BlasBuild:
+    """Model trees of ``models``; ``uv_models`` (bool per model): pack those models' UVs into
+    ``uv4`` at the same texels as their triangles (the any-hit alpha test reads them).
+    ``alloc(texels, want_uv)``: where to write ``tri4`` / ``uv4`` (zeroed (texels, 4) float32
+    views, e.g. into the textures; the second None unless ``want_uv``); default new arrays."""
+    M = len(models)
+    L = int(min(max(leaf_size, 1), 4))
+    tc = np.array([m.triangle_count for m in models], np.int64)
+    total = int(tc.sum())
+    tris = np.empty((total, 3, 3), np.float32)
+    want_uv = uv_models is not None and bool(np.any(uv_models))
+    uvs = np.zeros((total, 3, 2), np.float32) if want_uv else None
+    t0 = np.concatenate([[0], np.cumsum(tc)[:-1]]).astype(np.int64) if M else np.zeros(0, np.int64)
+    third = np.float32(1.0 / 3.0)
+    t9 = tris.reshape(total, 9)
+    tmin = np.empty((3, total), np.float32)  # triangle boxes by component (while the model's
+    tmax = np.empty((3, total), np.float32)  # triangles are in cache)
+    for mi, (m, s0) in enumerate(zip(models, t0.tolist())):
+        T = m.triangle_count
+        if not T:
+            continue
+        tr = m.vertices.take(m.triangles.ravel(), axis=0).reshape(T, 3, 3)
+        cen = (tr[:, 0] + tr[:, 1] + tr[:, 2]) * third
+        cmin = np.array([cen[:, k].min() for k in range(3)], np.float32)  # (a column is faster
+        cmax = np.array([cen[:, k].max() for k in range(3)], np.float32)  # than min(axis=0))
+        span = np.maximum(cmax - cmin, np.float32(1e-30))
+        q = np.clip((cen - cmin) * (np.float32(1023.0) / span), 0, 1023).astype(np.uint32)
+        order = np.argsort(_morton3(q), kind="stable")
+        np.take(tr, order, axis=0, out=tris[s0:s0 + T])
+        tm = t9[s0:s0 + T]
+        for k in range(3):
+            np.minimum(np.minimum(tm[:, k], tm[:, 3 + k]), tm[:, 6 + k], out=tmin[k, s0:s0 + T])
+            np.maximum(np.maximum(tm[:, k], tm[:, 3 + k]), tm[:, 6 + k], out=tmax[k, s0:s0 + T])
+        if want_uv and uv_models[mi] and m.uvs is not None:
+            uvs[s0:s0 + T] = m.uvs[order]
+    # clusters of L consecutive triangles per model
+    ncl = -(-tc // L)
+    c0 = np.concatenate([[0], np.cumsum(ncl)[:-1]]).astype(np.int64) if M else np.zeros(0, np.int64)
+    mod = np.repeat(np.arange(M), ncl)
+    j = np.arange(int(ncl.sum())) - c0[mod]
+    cl_tri0 = t0[mod] + j * L
+    cl_cnt = np.minimum(L, tc[mod] - j * L)
+    # cluster boxes: min(min(t0, t1), ..) like a reduceat over the cluster (its last triangle
+    # repeats in a short cluster: min is idempotent)
+    if len(cl_tri0):
+        cmn = np.take(tmin, cl_tri0, axis=1)
+        cmx = np.take(tmax, cl_tri0, axis=1)
+        for jj in range(1, L):
+            nxt = cl_tri0 + np.minimum(jj, cl_cnt - 1)
+            np.minimum(cmn, np.take(tmin, nxt, axis=1), out=cmn)
+            np.maximum(cmx, np.take(tmax, nxt, axis=1), out=cmx)
+        cmn, cmx = np.ascontiguousarray(cmn.T), np.ascontiguousarray(cmx.T)
+    else:
+        cmn = cmx = np.zeros((0, 3))
+    tree = build_sah(cmn, cmx, c0, ncl, leaf_size=1, bins=8, sah_min=RUN_SAH_MIN)
+    # model frames
+    lo = np.zeros((M, 3))
+    hi = np.zeros((M, 3))
+    has = ncl > 0
+    if has.any():
+        lo[has] = np.minimum.reduceat(cmn, c0[has], axis=0)
+        hi[has] = np.maximum.reduceat(cmx, c0[has], axis=0)
+    base, inv_s = quant_frame(lo, hi)
+    # triangles in leaf order; a leaf = one cluster, ceil(9 c / 4) texels
+    nmod = np.repeat(np.arange(M), tree.node_count)
+    leaf = tree.leaf_count > 0
+    lcl = tree.perm[tree.leaf_start[leaf]]  # cluster of each leaf, leaves in pre-order
+    lcnt = cl_cnt[lcl]
+    ltex = tri_texels(lcnt)
+    lmod = nmod[leaf]
+    tri_texels_m = np.bincount(lmod, weights=ltex, minlength=M).astype(np.int64)
+    tri_start = np.concatenate([[0], np.cumsum(tri_texels_m)[:-1]]).astype(np.int64) if M else np.zeros(0, np.int64)
+    lfirst = (np.cumsum(ltex) - ltex).astype(np.int64)  # global texel
+    n_tex = int(ltex.sum())
+    if alloc is None:
+        tri4 = np.zeros((n_tex, 4), np.float32)
+        uv4 = np.zeros((n_tex, 4), np.float32) if want_uv else None
+    else:
+        tri4, uv4 = alloc(n_tex, want_uv)
+    ltri0 = cl_tri0[lcl]
+    for cnt in np.unique(lcnt).tolist():  # leaves of ``cnt`` triangles: blocks of ceil(9 cnt / 4) texels
+        sel = np.nonzero(lcnt == cnt)[0]
+        tt = -(-cnt * TRI4_FLOATS // 4)
+        t_first = ltri0[sel]
+        _put_blocks(tri4, lfirst[sel], t9, t_first, cnt, TRI4_FLOATS, tt)
+        if want_uv:
+            _put_blocks(uv4, lfirst[sel], uvs.reshape(total, 6), t_first, cnt, 6, tt)
+    # packed nodes
+    qlo, qhi = quantise(tree.node_min, tree.node_max, np.repeat(base.T, tree.node_count, axis=1).T,
+                        np.repeat(inv_s, tree.node_count))
+    w = np.where(leaf, 0, tree.escape).astype(np.uint32)
+    lpay = ((lfirst - tri_start[lmod]) << 3) | lcnt
+    w[leaf] = LEAF_FLAG | lpay.astype(np.uint32)
+    return BlasBuild(tree, tree.node_start, tree.node_count, tri_start, tri_texels_m, tc, tree.depth, base, inv_s,
+                     pack_nodes(qlo, qhi, w), tri4, uv4)
+
+
+def _run(a, step) -> bool:
+    """``a`` (1-D int) is ``a[0] + step * arange(len(a))``."""
+    n = len(a)
+    return n == 1 or (int(a[-1] - a[0]) == (n - 1) * step and bool((np.diff(a) == step).all()))
+
+
+def _put_blocks(tex4, first, rows, row0, cnt, per, tt) -> None:
+    """Leaf blocks: rows ``row0[i] .. row0[i] + cnt`` of ``rows`` (R, per) float32, back to back,
+    at texels ``first[i] ..`` of ``tex4`` (texels, 4), a block spanning ``tt`` texels (the tail
+    stays zero). Slices when both sides run back to back, else a scatter of whole texels (as
+    uint64 pairs: bit-exact)."""
+    n = len(first)
+    if not n:
+        return
+    if _run(first, tt) and _run(row0, cnt):
+        dst = tex4[first[0]:first[0] + n * tt].reshape(n, tt * 4)
+        dst[:, :cnt * per] = rows[row0[0]:row0[0] + n * cnt].reshape(n, cnt * per)
+        return
+    blk = np.zeros((n, tt * 4), np.float32)
+    blk[:, :cnt * per] = np.take(rows, row0[:, None] + np.arange(cnt), axis=0).reshape(n, cnt * per)
+    dst = ((first[:, None] + np.arange(tt)) * 2)[:, :, None] + np.arange(2)
+    tex4.view(np.uint64).reshape(-1)[dst.reshape(-1)] = blk.view(np.uint64).reshape(-1)
+
+
+def relocate_nodes(nodes, node_base, local_start, local_count, tri_base, local_tri):
+    """Local escapes / leaf payloads of each model's nodes -> absolute indices (in place)."""
+    # (uint32 arithmetic wraps like the int64 sums cast to uint32; payload + (tri_base << 3)
+    # keeps the count bits)
+    def per_node(v):
+        return np.repeat((np.asarray(v, np.int64) % 2 ** 32).astype(np.uint32), local_count)
+    w = nodes[:, 3]
+    leaf = (w & LEAF_FLAG) != 0
+    w_inner = w + per_node(np.asarray(node_base, np.int64) - local_start)
+    pay = (w & np.uint32(0x7FFFFFFF)) + per_node(np.asarray(tri_base, np.int64) << 3)
+    nodes[:, 3] = np.where(leaf, LEAF_FLAG | pay, w_inner)
+
+
+def model_box(model, sphere: bool) -> np.ndarray:
+    """(2, 3) float64 model-space box of a mesh (or of its bounding sphere)."""
+    if sphere:
+        c = model.sphere_center.astype(np.float64)
+        r = float(f32_up(model.sphere_radius))
+        return np.stack([c - r, c + r])
+    return np.stack([model.bounds_min.astype(np.float64), model.bounds_max.astype(np.float64)])
+
