@@ -47,12 +47,6 @@ class BakedScene:
         """The structure's registry name (``Settings.structure``)."""
         return self.accel.name
 
-    @property
-    def bvh(self) -> AccelerationStructure | None:
-        """The structure when its walk is the two-level one (the dispatch of
-        ``oracle.tracer.trace_structured``), else None."""
-        return self.accel if self.accel.two_level else None
-
     # ------------------------------------------------------------------ public read-outs --
     @property
     def textures(self) -> dict[str, TextureData]:

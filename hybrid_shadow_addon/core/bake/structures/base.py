@@ -69,8 +69,8 @@ class AccelerationStructure(ABC):
     #: whether the per-light light grids can stand in for its walk (they reuse its triangle test
     #: and instance records)
     supports_light_grids: ClassVar[bool] = False
-    #: its walk is the two-level one of ``oracle.tracer.trace_structured``
-    two_level: ClassVar[bool] = False
+    #: whether a pixel's soft-shadow rays can walk it together (``shaders/common/scene_packet.glsl``)
+    supports_packets: ClassVar[bool] = False
     #: user-facing label (Blender's enum, the CLI's help)
     label: ClassVar[str]
     description: ClassVar[str]
@@ -159,11 +159,10 @@ class AccelerationStructure(ABC):
         """Recompute the derived entries of :attr:`stats` (the timings stay)."""
 
     # -------------------------------------------------------------------------- oracle -----
+    @abstractmethod
     def trace(self, baked, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
         """Occlusion of each world-space ray, walking the baked textures in numpy exactly as the
         shader does (``baked``: the :class:`~..baked.BakedScene` holding this structure)."""
-        from ...oracle.tracer import trace_structured
-        return trace_structured(baked, origins, dirs, tmax, stats)
 
     @abstractmethod
     def occupancy(self, xy: np.ndarray) -> np.ndarray:

@@ -44,7 +44,7 @@ class TwoLevelBVH(AccelerationStructure):
     description = "SAH tree over the instances whose leaves enter SAH trees per model (compact one-texel nodes)"
     glsl_include = "common/scene_bvh.glsl"
     supports_light_grids = True
-    two_level = True
+    supports_packets = True
 
     def __init__(self, config, origin, materials):
         super().__init__(config, origin, materials)
@@ -418,6 +418,11 @@ class TwoLevelBVH(AccelerationStructure):
             "tlas_max_depth": int(self.top.depth.max()) if len(self.top.depth) else 0,
         })
         return self.stats
+
+    def trace(self, baked, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
+        from ...oracle.tracer import trace_twolevel
+
+        return trace_twolevel(baked, origins, dirs, tmax, stats)
 
     def occupancy(self, xy: np.ndarray) -> np.ndarray:
         """The casters whose top-level (world) box covers each point in x and y: how many

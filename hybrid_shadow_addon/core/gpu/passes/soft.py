@@ -311,12 +311,12 @@ class SoftVisibility(LightVisibility):
     def _packet_defines(self, defines, rays: int) -> dict:
         """``HS_SOFT_PACKET`` (a pixel's soft-shadow rays walk the scene together,
         ``shaders/common/scene_packet.glsl``) for a pass that traces ``rays`` rays per pixel:
-        two-level BVH (each ray keeps its own transmittance through alpha-cut casters), from
+        structures that support them (:attr:`AccelerationStructure.supports_packets`; each ray keeps its own transmittance through alpha-cut casters), from
         PACKET_MIN_RAYS rays on (fewer are faster one by one on llvmpipe), unless
         :attr:`RaytraceOptions.packets` is off. With it ``HS_SOFT_FULL``: a refined
         pixel traces all its samples in one walk (cheaper than two halves with the ray-by-ray
         path's early stop between them, and exact)."""
-        ok = self.options.packets and rays >= PACKET_MIN_RAYS and "HS_STRUCTURE_BVH" in defines
+        ok = self.options.packets and rays >= PACKET_MIN_RAYS and self.gpu.scene_textures.baked.accel.supports_packets
         return {"HS_SOFT_PACKET": 1, "HS_SOFT_FULL": 1} if ok else {}
 
     @staticmethod

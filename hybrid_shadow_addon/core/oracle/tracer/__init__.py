@@ -27,11 +27,9 @@ from .twolevel import LEAF_FLAG, QEPS, TLAS_EPS, trace_twolevel
 
 def trace_structured(baked, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
     """Occlusion of each ray through the baked textures by the walk of the bake's structure
-    (:func:`trace_twolevel` for a BVH bake, else :func:`trace_grid`). ``origins`` are world
-    space; they move into bake space (``baked.origin``) in float64."""
-    if getattr(baked, "bvh", None) is not None:
-        return trace_twolevel(baked, origins, dirs, tmax, stats)
-    return trace_grid(baked, origins, dirs, tmax, stats)
+    (its :meth:`AccelerationStructure.trace`: :func:`trace_twolevel` or :func:`trace_grid`).
+    ``origins`` are world space; they move into bake space (``baked.origin``) in float64."""
+    return baked.trace(origins, dirs, tmax, stats)
 
 
 __all__ = [
