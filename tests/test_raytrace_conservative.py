@@ -75,3 +75,18 @@ def test_maps_skip_most_rays_on_the_forest(pipeline, loaded):
     # the sun's casters are culled against the receivers' window
     sun = [li for li in stats if scene.lights[li].type == "SUN"]
     assert sun and stats[sun[0]]["casters"] < len(scene.instances)
+
+
+def test_conservative_maps_leave_soft_lights_alone(pipeline, loaded):
+    """Lights with a size trace their samples without a map (a map bounds only the rays to a
+    light's centre): their masks equal those rendered without maps, the hard lights' too."""
+    scene = loaded("soft_lights")
+    pipeline.set_scene(scene)
+    out = []
+    for cons in ("off", "all"):
+        frame = pipeline.render(scene, Settings(mode="raytrace", samples=8, conservative=cons), W, H)
+        out.append({li: frame.mask_array(li) for li in frame.lights})
+    plain, culled = out
+    assert plain.keys() == culled.keys() and plain
+    for li in plain:
+        np.testing.assert_array_equal(culled[li], plain[li], err_msg=scene.lights[li].name)

@@ -140,7 +140,7 @@ class RaytracePass(ShadowPass):
             if soft is not None:
                 self._soft_samples = max(self._soft_samples, int(settings.samples))
             ray = LightRay(li, light, local, vec, soft, self.trace.defines(settings, local, soft))
-            if maps is not None:
+            if maps is not None and soft is None:  # (a map bounds the rays to a light's centre only)
                 ray.cmap = maps.for_light(scene, li, local)
                 if ray.cmap is not None:
                     ray.defines["HS_CONSERVATIVE"] = 1
