@@ -327,7 +327,7 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
-    from test_addon_engine import isolated_env
+    from tests.helpers.blender_env import isolated_env
 
     tmp = tmp_path_factory.mktemp("viewport")
     proc = subprocess.run([sys.executable, __file__, str(tmp)], cwd=REPO, env=isolated_env(tmp),

@@ -257,7 +257,7 @@ def _on_triangles(p, T, eps=1e-9):
 def test_origins_on_node_borders_numpy(seed, level_pick):
     """Origins exactly on node borders/corners of a random level, directions with exact zeros:
     the structured tracer (grid + BVH) equals brute force."""
-    from test_bake_scenes import random_scene
+    from tests.helpers.scenes import random_scene
 
     rng = np.random.default_rng(seed)
     scene = random_scene(rng, n_inst=60, area=8)
@@ -283,9 +283,9 @@ def test_origins_on_node_borders_numpy(seed, level_pick):
 # -- the same on the GLSL tracer ------------------------------------------------------------
 @pytest.fixture(scope="module")
 def glsl():
-    import test_bake_glsl
+    from tests.helpers import glsl
 
-    return test_bake_glsl
+    return glsl
 
 
 def test_no_slip_through_shared_edges_glsl(gl_ctx, glsl):
@@ -303,7 +303,8 @@ def test_no_slip_through_shared_edges_glsl(gl_ctx, glsl):
 
 def test_axis_and_border_rays_glsl(gl_ctx, glsl):
     """Axis-aligned rays from exact node borders/corners of every level: GLSL == numpy."""
-    from test_bake_scenes import border_rays, random_scene
+    from tests.helpers.rays import border_rays
+    from tests.helpers.scenes import random_scene
 
     rng = np.random.default_rng(5)
     scene = random_scene(rng, n_inst=100, area=10)
