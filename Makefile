@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: setup demo test bench extension clean
+.PHONY: setup demo test test-fast bench extension clean
 
 setup:
 	@bash tools/setup.sh
@@ -29,6 +29,10 @@ test: setup
 	@if [ -f .venv-bpy5/.requirements.sha256 ]; then \
 		echo "$(BPY5) -m pytest -q $(BPY5_TESTS)"; $(BPY5) -m pytest -q $(BPY5_TESTS); \
 	else echo "bpy 5 tests skipped: python3.13 not found (see tools/setup.sh)"; fi
+
+# the inner loop: everything but the slow tests and the Cycles renders (markers: pyproject.toml)
+test-fast: setup
+	$(PY) -m pytest -q -m "not slow and not cycles" tests
 
 extension: setup
 	$(PY) tools/build_extension.py

@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles, pytest.mark.slow]
+
 REPO = Path(__file__).resolve().parents[1]
 PY = sys.executable
 SCENE = "forest:trees=20,spheres=6,variants=2,terrain=64,width=160,height=120"

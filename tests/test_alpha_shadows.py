@@ -16,6 +16,8 @@ from hybrid_shadow_addon.core.settings import Settings
 from tests.helpers.rays import shadow_rays
 from tests.helpers.scenes import alpha_scene, colour_image, trs
 
+pytestmark = [pytest.mark.gpu]
+
 
 def render(pipeline, sc, mode="raytrace"):
     """A frame of ``sc`` at quality high, baked afresh (the pipeline keeps its bake otherwise)."""

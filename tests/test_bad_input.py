@@ -15,6 +15,8 @@ import pytest
 from hybrid_shadow_addon.__main__ import main
 from hybrid_shadow_addon.core.errors import GPUError
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+
 REPO = Path(__file__).resolve().parents[1]
 LIB = REPO / "test_scenes" / "_lib.py"
 

@@ -19,6 +19,8 @@ from tests.helpers.bake import snapshot as _snapshot
 from tests.helpers.rays import random_rays
 from tests.helpers.scenes import blob_model, plate_model, random_matrices
 
+pytestmark = [pytest.mark.gpu]
+
 
 def tiny_model(name="tiny", s=0.03):
     """A closed tetrahedron-ish cube corner set: 4 triangles, ~s wide."""

@@ -13,6 +13,8 @@ from tests.helpers.glsl import gl_trace
 from tests.helpers.rays import random_rays
 from tests.helpers.scenes import adversarial_scene, random_scene
 
+pytestmark = [pytest.mark.gpu]
+
 
 @pytest.fixture(scope="module")
 def ctx(gl_ctx):

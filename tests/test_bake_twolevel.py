@@ -16,6 +16,8 @@ from tests.helpers.bake import snapshot as _snapshot
 from tests.helpers.rays import random_rays
 from tests.helpers.scenes import adversarial_scene, blob_model, plate_model, random_scene
 
+pytestmark = [pytest.mark.gpu]
+
 BVH = BakeConfig(structure="bvh")
 
 

@@ -14,6 +14,8 @@ from hybrid_shadow_addon.core.settings import Settings
 
 from tests.helpers.scenes import blob_model
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+
 W, H = 96, 72
 
 

@@ -12,6 +12,8 @@ from hybrid_shadow_addon.blender.load import (SCENES_DIR, builtin_scenes, load_s
 from hybrid_shadow_addon.core.errors import SceneError, SceneLoadError
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 
+pytestmark = [pytest.mark.blender]
+
 
 # --------------------------------------------------------------------------------------------
 # helpers

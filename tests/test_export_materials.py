@@ -13,6 +13,8 @@ from hybrid_shadow_addon.blender.export import ExportWarning, blend_settings, ex
 from hybrid_shadow_addon.blender.load import load_scene, open_scene
 from hybrid_shadow_addon.core.scene import Scene
 
+pytestmark = [pytest.mark.blender, pytest.mark.cycles]
+
 
 # --------------------------------------------------------------------------------------------
 # helpers

@@ -11,6 +11,8 @@ from hybrid_shadow_addon.blender import export
 from hybrid_shadow_addon.blender.export import export_depsgraph, slot_name, slot_owner
 from hybrid_shadow_addon.blender.load import open_scene
 
+pytestmark = [pytest.mark.blender]
+
 BARK = (0.3, 0.15, 0.05, 1.0)
 
 

@@ -19,8 +19,9 @@ JOB_TYPE = REPO / "tools/flamenco/hybrid_shadows.js"
 STUB = REPO / "tests/flamenco_stub.js"
 NODE = shutil.which("node") or shutil.which("nodejs")
 
-pytestmark = pytest.mark.skipif(NODE is None, reason="Node.js not found: tools/setup.sh installs it "
-                                "(apt-get install nodejs, as root); the job type cannot be evaluated without it")
+pytestmark = [pytest.mark.skipif(NODE is None, reason="Node.js not found: tools/setup.sh installs it "
+                                 "(apt-get install nodejs, as root); the job type cannot be evaluated without it"),
+              pytest.mark.blender, pytest.mark.gpu]
 
 BASE = {"frames": "1-10", "chunk_size": 4, "shadow_mode": "RAYTRACE", "shadow_quality": "MEDIUM",
         "render_output_root": "/farm/renders", "render_output_path": "/farm/renders/shot/{timestamp}/######",

@@ -17,6 +17,8 @@ from tests.helpers.rays import interior
 from tests.helpers.rig import PassRig
 from tests.helpers.scenes import all_lights, basic_scene, look_at
 
+pytestmark = [pytest.mark.gpu]
+
 W, H = 160, 120
 
 

@@ -10,6 +10,8 @@ from tests.helpers.rays import interior, ray_cast
 from tests.helpers.rig import PassRig
 from tests.helpers.scenes import all_lights, basic_scene, trs
 
+pytestmark = [pytest.mark.gpu]
+
 W, H = 160, 120
 
 

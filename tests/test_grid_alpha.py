@@ -23,6 +23,8 @@ from hybrid_shadow_addon.core.settings import Settings
 
 from tests.helpers.scenes import cube_model, look_at, plane_model, trs
 
+pytestmark = [pytest.mark.gpu]
+
 STRUCTURES = ("grid", "bvh")
 TOL = 0.02  # |GPU - oracle| allowed on ...
 AGREE = 0.999  # ... this fraction of the pixels / rays

@@ -11,6 +11,8 @@ from hybrid_shadow_addon.core.settings import Settings
 
 from tests.helpers.scenes import look_at, trs
 
+pytestmark = [pytest.mark.gpu]
+
 W, H = 96, 72
 DOWN = trs((0, 0, 0))  # lights shine along their local -Z: down
 UP = trs((0, 0, 0), rot_x=math.pi)

@@ -22,9 +22,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import TEST_SCENES
+from tests.helpers.blender_env import TEST_SCENES
 from hybrid_shadow_addon.core.gpu.targets import read_texture
 from hybrid_shadow_addon.core.settings import Settings
+
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles, pytest.mark.slow]
 
 REPO = Path(__file__).resolve().parents[1]
 W, H = 160, 120

@@ -10,6 +10,8 @@ from hybrid_shadow_addon.core.scene import Model
 from hybrid_shadow_addon.core.scene_sync import same_model, sync_scene
 from hybrid_shadow_addon.core.settings import Settings
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+
 SETTINGS = Settings(mode="raytrace", quality="high", interlace=False)
 SCENE = "animated"
 

@@ -11,6 +11,8 @@ from hybrid_shadow_addon.core.settings import Settings
 from tests.helpers.rays import shadow_rays as _shadow_rays
 from tests.helpers.scenes import LIGHTS, basic_scene, soft_scene, trs
 
+pytestmark = [pytest.mark.gpu]
+
 PIXELS = 2000  # covered pixels per light the oracle checks (a fixed random subset)
 ORACLE_SAMPLES = 196
 

@@ -16,6 +16,8 @@ import pytest
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.settings import Settings
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.slow]
+
 W, H = 160, 120
 
 

@@ -13,6 +13,8 @@ from hybrid_shadow_addon.core.settings import Settings
 from tests.helpers.rays import shadow_rays as _shadow_rays
 from tests.helpers.scenes import LIGHTS, alpha_scene, soft_scene, trs
 
+pytestmark = [pytest.mark.gpu]
+
 
 def frame_of(pipeline, scene, **kw):
     pipeline.set_scene(scene, "bvh")

@@ -37,6 +37,8 @@ from hybrid_shadow_addon.core.scene import Instances, Model, Scene  # noqa: E402
 
 import stiff_table  # noqa: E402
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+
 LIMIT_PCT = 0.1
 COINCIDENT = ("Slab", "Slab top", "Twin A", "Twin B")  # degenerate.py's coincident faces
 
@@ -64,6 +66,8 @@ def test_stiff_scenes_are_builtin_scenes():
     assert not any(n.split("/")[-1].startswith("_") for n in names)
 
 
+@pytest.mark.cycles
+@pytest.mark.slow
 @pytest.mark.parametrize("name", [c for c in stiff_table.CASES if c not in ("degenerate", "far_away")])  # (below)
 def test_stiff_case_matches_cycles(name, gl_ctx):
     r = case(name, gl_ctx)
@@ -75,6 +79,8 @@ def test_stiff_case_matches_cycles(name, gl_ctx):
         assert m["mismatch_pct"] <= LIMIT_PCT, f"{name}/{light}: {m['mismatch_pct']:.3f}% ({m['mismatch']}/{m['valid']})"
 
 
+@pytest.mark.cycles
+@pytest.mark.slow
 def test_far_away_is_far_and_within_limit(gl_ctx):
     r = case("far_away", gl_ctx)
     lo, hi = r["_scene"].world_bounds()
@@ -83,6 +89,8 @@ def test_far_away_is_far_and_within_limit(gl_ctx):
         assert m["mismatch_pct"] <= LIMIT_PCT, (light, m["mismatch_pct"])
 
 
+@pytest.mark.cycles
+@pytest.mark.slow
 def test_degenerate_meshes(gl_ctx):
     r = case("degenerate", gl_ctx)
     names = r["_scene"].instances.names
@@ -98,6 +106,8 @@ def test_degenerate_meshes(gl_ctx):
         assert co["false"] <= max(2, 0.01 * co["valid"]), (light, co)
 
 
+@pytest.mark.cycles
+@pytest.mark.slow
 def test_crowd_has_thousands_of_objects_in_one_node(gl_ctx):
     from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 

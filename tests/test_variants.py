@@ -14,6 +14,8 @@ import pytest
 from hybrid_shadow_addon.core.scene import Camera, Instances, Light, Model, Scene
 from hybrid_shadow_addon.core.settings import Settings
 
+pytestmark = [pytest.mark.gpu]
+
 W, H = 64, 48
 
 

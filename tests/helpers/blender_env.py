@@ -24,6 +24,15 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 IGNORED = {"-b", "--background", "-y", "--enable-autoexec", "--factory-startup", "-noaudio"}
 
+#: the built-in scenes at test sizes (pipeline tests run on every one)
+TEST_SCENES = {
+    "cube_on_plane": "cube_on_plane",
+    "forest": "forest",
+    "clusters": "clusters",
+    "city": "city:blocks=4",
+    "scaling": "scaling:triangles=20000,instances=200",
+}
+
 
 def isolated_env(tmp: Path) -> dict:
     """This process's environment with Blender's user folders under ``tmp``, for a subprocess
