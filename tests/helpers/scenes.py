@@ -266,3 +266,56 @@ def adversarial_scene(rng):
     o[far, :2] *= 5
     t = rng.choice([np.inf, 1.0, 5.0], n)
     return scene, o, d, t
+
+
+#: the size ``variant_scene`` renders at
+VARIANT_SIZE = (64, 48)
+
+
+def variant_scene(lights=("SUN",), meshes=True, spheres=False, spread=1.0):
+    """A scene with just the optional features asked for: a ground and a box (``meshes``), a ball
+    (``spheres``; a big sphere as the ground without meshes), far-apart boxes (``spread``: several
+    grid levels), one light of each type in ``lights``."""
+    models = [Model("plane", [[-5, -5, 0], [5, -5, 0], [5, 5, 0], [-5, 5, 0]], [[0, 1, 2], [0, 2, 3]]),
+              Model("box", np.array([[x, y, z] for x in (-.5, .5) for y in (-.5, .5) for z in (0, 1)]),
+                    [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                     [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])]
+    names, mids, mats, sph = [], [], [], []
+    if meshes:
+        names += ["ground", "box"]
+        mids += [0, 1]
+        mats += [np.eye(4), np.eye(4)]
+        sph += [False, False]
+    if spheres:
+        m = np.eye(4)
+        m[:3, 3] = (1.5, 1.0, 0.6)
+        names.append("ball")
+        mids.append(1)
+        mats.append(m)
+        sph.append(True)
+        if not meshes:  # something to receive shadows: a big sphere as the ground
+            g = np.diag([20.0, 20.0, 1.0, 1.0])
+            g[2, 3] = -1.0
+            names.append("ground ball")
+            mids.append(1)
+            mats.append(g)
+            sph.append(True)
+    if spread > 1.0:  # far-apart objects: several grid levels
+        for i, x in enumerate((-spread, spread)):
+            m = np.eye(4)
+            m[0, 3] = x
+            names.append(f"far{i}")
+            mids.append(1)
+            mats.append(m)
+            sph.append(spheres and not meshes)
+    inst = Instances(names=names, model_ids=mids, matrices=np.array(mats), sphere=np.array(sph, bool))
+    cam = np.eye(4)
+    cam[:3, 3] = (0, -8, 5)
+    a = np.radians(58)
+    cam[:3, :3] = [[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]]
+    ls = []
+    for t in lights:
+        m = np.eye(4)
+        m[:3, 3] = (1, -1, 4)
+        ls.append(Light(t, t, matrix=m, power=500.0, spot_size=np.radians(120)))
+    return Scene(models=models, instances=inst, lights=ls, camera=Camera(matrix=cam), resolution=VARIANT_SIZE)
