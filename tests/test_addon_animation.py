@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.slow]
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 
 REPO = Path(__file__).resolve().parents[1]
 FRAMES = (1, 2, 3, 4)

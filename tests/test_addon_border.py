@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.slow]
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 
 REPO = Path(__file__).resolve().parents[1]
 BORDER = (0.23, 0.71, 0.12, 0.64)  # min x, max x, min y, max y

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles, pytest.mark.slow]
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles]
 
 REPO = Path(__file__).resolve().parents[1]
 PY = sys.executable

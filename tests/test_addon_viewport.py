@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.slow]
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 
 REPO = Path(__file__).resolve().parents[1]
 SCENE = "forest:trees=12,spheres=4,variants=2,terrain=32,width=160,height=120"

@@ -29,7 +29,7 @@ import pytest
 from hybrid_shadow_addon.core.settings import Settings
 from hybrid_shadow_addon.tools.metrics import mask_error
 
-pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles, pytest.mark.slow]
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles]
 
 W, H = 320, 240
 LIMIT_PCT = 0.5  # all valid pixels, as compare counts them

@@ -10,7 +10,7 @@ import pytest
 
 from hybrid_shadow_addon.tools.bench import FIGURES, path_frames
 
-pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.slow]
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 
 REPO = Path(__file__).resolve().parents[1]
 

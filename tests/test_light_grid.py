@@ -23,7 +23,7 @@ from hybrid_shadow_addon.core.settings import Settings
 
 from tests.helpers.blender_env import TEST_SCENES
 
-pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.slow]
 
 W, H = 160, 120
 DIRECTIONS = [(0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.3, -0.2, 0.93),

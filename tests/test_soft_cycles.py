@@ -39,7 +39,7 @@ import pytest
 from hybrid_shadow_addon.core.settings import Settings
 from hybrid_shadow_addon.tools.metrics import mask_error
 
-pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles, pytest.mark.slow]
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles]
 
 W, H = 160, 120
 CYCLES_SAMPLES = 128

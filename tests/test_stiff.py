@@ -67,7 +67,6 @@ def test_stiff_scenes_are_builtin_scenes():
 
 
 @pytest.mark.cycles
-@pytest.mark.slow
 @pytest.mark.parametrize("name", [c for c in stiff_table.CASES if c not in ("degenerate", "far_away")])  # (below)
 def test_stiff_case_matches_cycles(name, gl_ctx):
     r = case(name, gl_ctx)
@@ -80,7 +79,6 @@ def test_stiff_case_matches_cycles(name, gl_ctx):
 
 
 @pytest.mark.cycles
-@pytest.mark.slow
 def test_far_away_is_far_and_within_limit(gl_ctx):
     r = case("far_away", gl_ctx)
     lo, hi = r["_scene"].world_bounds()
@@ -90,7 +88,6 @@ def test_far_away_is_far_and_within_limit(gl_ctx):
 
 
 @pytest.mark.cycles
-@pytest.mark.slow
 def test_degenerate_meshes(gl_ctx):
     r = case("degenerate", gl_ctx)
     names = r["_scene"].instances.names
@@ -107,7 +104,6 @@ def test_degenerate_meshes(gl_ctx):
 
 
 @pytest.mark.cycles
-@pytest.mark.slow
 def test_crowd_has_thousands_of_objects_in_one_node(gl_ctx):
     from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 
