@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: setup demo test lint bench extension clean
+.PHONY: setup demo test test-fast lint bench extension clean
 
 setup:
 	@bash tools/setup.sh
@@ -38,6 +38,10 @@ test: setup lint
 		echo "$(BPY5) -m pytest -q $(BPY5_TESTS)"; $(BPY5) -m pytest -q $(BPY5_TESTS); \
 	else echo "bpy 5 tests skipped: python3.13 not found (see tools/setup.sh)"; fi
 	$(PY) tools/shader_check.py --recorded $(SHADER_DEFINES)
+
+# the inner loop: everything but the slow tests and the Cycles renders (markers: pyproject.toml)
+test-fast: setup
+	$(PY) -m pytest -q -m "not slow and not cycles" tests
 
 extension: setup
 	$(PY) tools/build_extension.py

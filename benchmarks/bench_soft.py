@@ -35,7 +35,7 @@ from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
 
 def load(spec, size):
     if spec == "soft":
-        from tests.test_soft_shadows import soft_scene
+        from tests.helpers.scenes import soft_scene
         sc = soft_scene()
     else:
         from hybrid_shadow_addon.blender.load import load_scene

@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
 from hybrid_shadow_addon.core.scene import Light  # noqa: E402
@@ -21,10 +20,10 @@ from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
 
 
 def scene_with_blocks(n=400, seed=0):
-    from test_variants import make_scene
+    from tests.helpers.scenes import variant_scene
     from hybrid_shadow_addon.core.scene import Instances
 
-    s = make_scene(("SUN",))
+    s = variant_scene(("SUN",))
     rng = np.random.default_rng(seed)
     m = np.tile(np.eye(4), (n, 1, 1))
     m[:, :2, 3] = rng.uniform(-5, 5, (n, 2))

@@ -10,7 +10,7 @@ same machine load.
     .venv/bin/python benchmarks/soft_cost_peer.py --peer /tmp/softpeer [--scenes soft soft_lights:width=320,height=240]
         [--size 320x240] [--samples 32] [--alternations 3] [--viewport]
 
-Scene ``soft`` is the test suite's hand-made scene (``tests/test_soft_shadows.py``). With
+Scene ``soft`` is the test suite's hand-made scene (``soft_scene`` in ``tests/helpers/scenes.py``). With
 ``--viewport`` the soft column is the viewport's first frame after a change (``Settings.accumulate``
 after ``reset_history``) instead of a final render.
 """
@@ -33,8 +33,11 @@ from hybrid_shadow_addon.core.settings import Settings
 spec, size, samples = sys.argv[2], sys.argv[3], int(sys.argv[4])
 W, H = (int(v) for v in size.split("x"))
 if spec == "soft":
-    sys.path.insert(0, os.path.join(root, "tests"))
-    from test_soft_shadows import soft_scene
+    try:
+        from tests.helpers.scenes import soft_scene
+    except ImportError:  # a peer tree without tests/helpers
+        sys.path.insert(0, os.path.join(root, "tests"))
+        from test_soft_shadows import soft_scene
     scene = soft_scene(); scene.resolution = (W, H)
 else:
     from hybrid_shadow_addon.blender.load import load_scene

@@ -14,15 +14,7 @@ if str(REPO) not in sys.path:
 
 import pytest  # noqa: E402
 
-
-#: the built-in scenes at test sizes (pipeline tests run on every one)
-TEST_SCENES = {
-    "cube_on_plane": "cube_on_plane",
-    "forest": "forest",
-    "clusters": "clusters",
-    "city": "city:blocks=4",
-    "scaling": "scaling:triangles=20000,instances=200",
-}
+from tests.helpers.blender_env import TEST_SCENES  # noqa: E402
 
 
 @pytest.fixture(scope="session")

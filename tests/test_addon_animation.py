@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+
 REPO = Path(__file__).resolve().parents[1]
 FRAMES = (1, 2, 3, 4)
 
@@ -62,7 +64,7 @@ def driver(out_dir: str) -> None:
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    from test_addon_engine import isolated_env
+    from tests.helpers.blender_env import isolated_env
 
     tmp = tmp_path_factory.mktemp("animation")
     proc = subprocess.run([sys.executable, __file__, str(tmp)], cwd=REPO, env=isolated_env(tmp),

@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+
 REPO = Path(__file__).resolve().parents[1]
 BORDER = (0.23, 0.71, 0.12, 0.64)  # min x, max x, min y, max y
 W, H = 96, 64

@@ -9,7 +9,6 @@ report that the tests below read.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,19 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles]
+
 REPO = Path(__file__).resolve().parents[1]
 PY = sys.executable
 SCENE = "forest:trees=20,spheres=6,variants=2,terrain=64,width=160,height=120"
 MODES = ("RAYTRACE", "SHADOWMAP", "NONE")
 EXT_MODULE = "bl_ext.user_default.hybrid_shadows"
-
-
-def isolated_env(tmp: Path) -> dict:
-    env = dict(os.environ)
-    for var in ("BLENDER_USER_RESOURCES", "XDG_CONFIG_HOME", "XDG_CACHE_HOME"):
-        env[var] = str(tmp / var.lower())
-    env["PYTHONDONTWRITEBYTECODE"] = "1"
-    return env
 
 
 def read_exr(path) -> dict:
@@ -152,6 +145,8 @@ def driver(out_dir: str, zip_path: str) -> None:
 # ------------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
+    from tests.helpers.blender_env import isolated_env
+
     tmp = tmp_path_factory.mktemp("addon")
     env = isolated_env(tmp)
     build = subprocess.run([PY, str(REPO / "tools/build_extension.py"), "--platform", "linux-x64"],

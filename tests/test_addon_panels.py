@@ -10,6 +10,8 @@ import pytest
 from hybrid_shadow_addon.blender import ui
 from hybrid_shadow_addon.blender.export import export_light
 
+pytestmark = [pytest.mark.blender]
+
 ENGINE = "HYBRID_SHADOWS"
 
 

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+
 REPO = Path(__file__).resolve().parents[1]
 SCENE = "forest:trees=12,spheres=4,variants=2,terrain=32,width=160,height=120"
 
@@ -327,7 +329,7 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
-    from test_addon_engine import isolated_env
+    from tests.helpers.blender_env import isolated_env
 
     tmp = tmp_path_factory.mktemp("viewport")
     proc = subprocess.run([sys.executable, __file__, str(tmp)], cwd=REPO, env=isolated_env(tmp),

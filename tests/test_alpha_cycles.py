@@ -29,6 +29,8 @@ import pytest
 from hybrid_shadow_addon.core.settings import Settings
 from hybrid_shadow_addon.tools.metrics import mask_error
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles]
+
 W, H = 320, 240
 LIMIT_PCT = 0.5  # all valid pixels, as compare counts them
 SINGLE_SURFACE_LIMIT_PCT = 0.05  # valid pixels whose camera ray crosses no fractional alpha

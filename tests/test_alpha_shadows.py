@@ -10,95 +10,13 @@ from hybrid_shadow_addon.core.bake.materials import bake_materials, mip_chain, s
 from hybrid_shadow_addon.core.oracle.alpha import albedo as oracle_albedo
 from hybrid_shadow_addon.core.oracle.alpha import material_alpha
 from hybrid_shadow_addon.core.oracle.tracer import visibility_brute
-from hybrid_shadow_addon.core.scene import Camera, Image, Instances, Light, Material, Model, Scene
+from hybrid_shadow_addon.core.scene import Instances, Scene
 from hybrid_shadow_addon.core.scene_sync import FULL, sync_scene
 from hybrid_shadow_addon.core.settings import Settings
-from tests.test_gpu_scenes import look_at, trs
+from tests.helpers.rays import shadow_rays
+from tests.helpers.scenes import alpha_scene, colour_image, trs
 
-QUAD_UV = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)
-
-
-def quad(name, size=1.0, uv_scale=1.0):
-    v = np.array([[-size, -size, 0], [size, -size, 0], [size, size, 0], [-size, size, 0]], np.float32)
-    return Model(name, v, np.array([[0, 1, 2], [0, 2, 3]], np.uint32), uvs=QUAD_UV * uv_scale)
-
-
-def leaf_alpha(n=64):
-    """A soft-edged leaf: alpha falls from 1 to 0 across an ellipse's rim, with a round hole."""
-    y, x = (np.mgrid[0:n, 0:n] + 0.5) / n * 2 - 1
-    r = np.sqrt((x / 0.9) ** 2 + (y / 0.55) ** 2)
-    a = np.clip((1.0 - r) * 6.0, 0, 1) * (np.hypot(x - 0.3, y) > 0.18)
-    px = np.zeros((n, n, 4), np.uint8)
-    px[..., 1] = 160
-    px[..., 3] = np.round(a * 255)
-    return px
-
-
-def checker(n=8):
-    a = ((np.arange(n)[:, None] + np.arange(n)[None, :]) % 2 * 255).astype(np.uint8)
-    px = np.full((n, n, 4), 200, np.uint8)
-    px[..., 3] = a
-    return px
-
-
-def colour_image(n=32):
-    y, x = np.mgrid[0:n, 0:n]
-    px = np.zeros((n, n, 4), np.uint8)
-    px[..., 0] = x * 255 // (n - 1)
-    px[..., 1] = y * 255 // (n - 1)
-    px[..., 2] = ((x // 4 + y // 4) % 2) * 200
-    px[..., 3] = 255
-    return px
-
-
-def alpha_scene(lights=("sun",), card_materials=(0, 1, 2, 3)):
-    """A textured ground, four cards above it: a Closest checker (BLEND), a Linear soft leaf
-    (BLEND), two stacked alpha-0.5 cards, a CLIP leaf; an opaque cube as a plain caster."""
-    images = [Image("checker", checker(), interpolation="Closest"), Image("leaf", leaf_alpha()),
-              Image("ground", colour_image(), extension="REPEAT")]
-    materials = [Material("checker", alpha_image=0), Material("leaf", alpha_image=1),
-                 Material("half", alpha=0.5), Material("clip", alpha_image=1, alpha_mode="CLIP", alpha_threshold=0.7),
-                 Material("ground", color_image=2, uv_transform=np.float32([[3, 0, 0.1], [0, 3, 0]]))]
-    cube_v = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float32)
-    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    cube = Model("cube", cube_v, np.array([t for q in quads for t in ((q[0], q[1], q[2]), (q[0], q[2], q[3]))], np.uint32))
-    models = [quad("ground", 6.0), quad("card"), cube]
-    mats = [trs((0, 0, 0)), trs((-2.2, 1.5, 1.4), rot_z=0.3, rot_x=0.2), trs((1.8, 1.6, 1.3), rot_z=-0.4),
-            trs((-1.8, -1.8, 1.0), scale=(0.8, 0.8, 1)), trs((-1.8, -1.8, 1.5), scale=(0.8, 0.8, 1)),
-            trs((2.0, -1.5, 1.2), rot_x=-0.3), trs((0.2, 0.0, 0.4), scale=(0.3, 0.3, 0.4))]
-    mids = [0, 1, 1, 1, 1, 1, 2]
-    cm = list(card_materials)
-    material_ids = [4, cm[0], cm[1], cm[2], cm[2], cm[3], -1]
-    inst = Instances(names=["ground", "checker", "leaf", "half_a", "half_b", "clip", "cube"], model_ids=mids,
-                     matrices=np.array(mats), material_ids=material_ids, base_color=[(1, 1, 1, 1)] * 7)
-    ls = []
-    if "sun" in lights:
-        ls.append(Light("sun", "SUN", power=3.0, matrix=trs((0, 0, 10), rot_z=0.7, rot_x=0.45)))
-    if "point" in lights:
-        ls.append(Light("point", "POINT", power=800.0, matrix=trs((0.5, 0.8, 5.0))))
-    cam = Camera(matrix=look_at((0.5, -7.5, 8.5), (0, 0, 0.3)), lens=30.0)
-    return Scene(models=models, instances=inst, lights=ls, camera=cam, resolution=(200, 150),
-                 materials=materials, images=images).validate()
-
-
-def _shadow_rays(frame, scene, li):
-    """Origins (a little off the surface along the normal) and directions to light ``li`` of
-    every covered pixel, row order of ``mask_array``."""
-    pos = frame.gbuffer.read("position")
-    nrm = frame.gbuffer.read("normal")
-    ok = pos[..., 3] > 0
-    p = pos[..., :3][ok].astype(np.float64)
-    n = nrm[..., :3][ok].astype(np.float64)
-    light = scene.lights[li]
-    o = p + n * 2e-4
-    if light.type == "SUN":
-        d = np.broadcast_to(-light.direction, o.shape)
-        tmax = np.full(len(o), np.inf)
-    else:
-        d = light.position - o
-        tmax = np.ones(len(o))
-    facing = (n * d).sum(axis=1) > 0
-    return ok, o, d, tmax, facing
+pytestmark = [pytest.mark.gpu]
 
 
 def render(pipeline, sc, mode="raytrace"):
@@ -118,7 +36,7 @@ def test_raytraced_masks_match_the_oracle(pipeline, scene, li):
     f = render(pipeline, scene)
     assert "HS_HAS_ALPHA=1" in f.stats["defines"]
     mask = f.mask_array(li)
-    ok, o, d, tmax, facing = _shadow_rays(f, scene, li)
+    ok, o, d, tmax, facing = shadow_rays(f, scene, li)
     ref = visibility_brute(scene, o, d, tmax)
     got = mask[ok]
     sel = facing
@@ -138,7 +56,7 @@ def test_transparent_shadow_off_casts_the_whole_card(pipeline):
     sc.materials[0].transparent_shadow = False
     f = render(pipeline, sc)
     mask = f.mask_array(0)
-    ok, o, d, tmax, facing = _shadow_rays(f, sc, 0)
+    ok, o, d, tmax, facing = shadow_rays(f, sc, 0)
     ref = visibility_brute(sc, o, d, tmax)
     diff = np.abs(mask[ok][facing] - ref[facing])
     assert (diff > 0.02).mean() < 0.002

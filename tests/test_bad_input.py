@@ -15,6 +15,8 @@ import pytest
 from hybrid_shadow_addon.__main__ import main
 from hybrid_shadow_addon.core.errors import GPUError
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+
 REPO = Path(__file__).resolve().parents[1]
 LIB = REPO / "test_scenes" / "_lib.py"
 
@@ -140,10 +142,10 @@ def test_more_lights_than_the_limit(script, tmp_path, capfd, monkeypatch, gl_ctx
 def test_mesh_larger_than_one_texture_splits_into_layers(gl_ctx):
     """A 40k-triangle mesh with 4-texel-wide textures needs 2 layers of 16384 rows for its
     triangles: the GLSL tracer reads it exactly like the numpy one."""
-    import test_bake_glsl
     from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
     from hybrid_shadow_addon.core.oracle.tracer import trace_structured
     from hybrid_shadow_addon.core.scene import Instances, Model, Scene
+    from tests.helpers.glsl import gl_trace
 
     rng = np.random.default_rng(0)
     n = 40000
@@ -156,7 +158,7 @@ def test_mesh_larger_than_one_texture_splits_into_layers(gl_ctx):
     o = rng.uniform(-7, 7, (20000, 3))
     d = rng.normal(size=(20000, 3))
     ref = trace_structured(baked, o, d, np.inf)
-    gl = test_bake_glsl.gl_trace(gl_ctx, baked, o, d, np.inf)
+    gl = gl_trace(gl_ctx, baked, o, d, np.inf)
     assert 0.05 < ref.mean() < 0.95
     assert (ref == gl).mean() >= 0.999
 
@@ -174,11 +176,8 @@ def test_textures_past_the_gpu_limits_fail_clearly(monkeypatch, gl_ctx):
     layers = gl_ctx.info["GL_MAX_ARRAY_TEXTURE_LAYERS"] + 1
     fake = TextureData("tri", np.zeros((layers, 1, 4, 1), np.float32), "f4")  # tiny, but too many layers
     st = SceneTextures(gl_ctx)
-    create = getattr(st, "_create", None) or getattr(st, "_texture", None)
-    if create is None:
-        pytest.skip("SceneTextures has no per-texture creator to call")
     with pytest.raises(GPUError, match="this GPU allows"):
-        create(fake)
+        st._create(fake)
 
 
 def cli(*args):

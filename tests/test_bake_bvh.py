@@ -6,7 +6,7 @@ from hybrid_shadow_addon.core.bake.bvh import build_bvhs
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 
-from test_bake_scenes import blob_model, plate_model
+from tests.helpers.scenes import blob_model, plate_model
 
 
 def test_bvh_invariants():

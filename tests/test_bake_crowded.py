@@ -13,8 +13,13 @@ from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 
-from test_bake_scenes import assert_equal_tracers, blob_model, plate_model, random_matrices, random_rays
-from test_bake_update import _assert_report_covers, _snapshot
+from tests.helpers.bake import assert_equal_tracers
+from tests.helpers.bake import assert_report_covers as _assert_report_covers
+from tests.helpers.bake import snapshot as _snapshot
+from tests.helpers.rays import random_rays
+from tests.helpers.scenes import blob_model, plate_model, random_matrices
+
+pytestmark = [pytest.mark.gpu]
 
 
 def tiny_model(name="tiny", s=0.03):
@@ -271,7 +276,7 @@ def test_objects_per_ray_in_a_crowded_node_is_logarithmic():
 
 
 def test_glsl_matches_structured_on_crowded_scenes(gl_ctx):
-    import test_bake_glsl as tg
+    from tests.helpers import glsl as tg
 
     rng = np.random.default_rng(5)
     clusters = ((0.0, 0.0), (20.0, 10.0))

@@ -7,7 +7,8 @@ from hybrid_shadow_addon.core.bake.textures import OBJECT_TEXELS, MAX_TEX_SIZE
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 
-from test_bake_scenes import adversarial_scene, random_rays, random_scene
+from tests.helpers.rays import random_rays
+from tests.helpers.scenes import adversarial_scene, random_scene
 
 
 def _node_lists(baked):

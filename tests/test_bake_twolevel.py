@@ -10,9 +10,13 @@ from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 from hybrid_shadow_addon.core.settings import Settings
 
-from test_bake_scenes import (adversarial_scene, assert_equal_tracers, blob_model, plate_model, random_rays,
-                              random_scene)
-from test_bake_update import _assert_report_covers, _snapshot
+from tests.helpers.bake import assert_equal_tracers
+from tests.helpers.bake import assert_report_covers as _assert_report_covers
+from tests.helpers.bake import snapshot as _snapshot
+from tests.helpers.rays import random_rays
+from tests.helpers.scenes import adversarial_scene, blob_model, plate_model, random_scene
+
+pytestmark = [pytest.mark.gpu]
 
 BVH = BakeConfig(structure="bvh")
 
@@ -241,7 +245,7 @@ def test_structure_setting_and_config():
 @pytest.mark.parametrize("seed", [0, 1])
 @pytest.mark.parametrize("leaf", [1, 2, 4])
 def test_glsl_bvh_matches_numpy(gl_ctx, seed, leaf):
-    from test_bake_glsl import gl_trace
+    from tests.helpers.glsl import gl_trace
 
     rng = np.random.default_rng(100 + seed)
     scene = random_scene(rng, n_inst=300, spheres=0.3)
@@ -256,7 +260,7 @@ def test_glsl_bvh_matches_numpy(gl_ctx, seed, leaf):
 
 
 def test_glsl_bvh_spheres_only_and_meshes_only(gl_ctx):
-    from test_bake_glsl import gl_trace
+    from tests.helpers.glsl import gl_trace
 
     for spheres in (0.0, 1.0):
         rng = np.random.default_rng(11)

@@ -4,27 +4,11 @@ import numpy as np
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 from hybrid_shadow_addon.core.oracle.tracer import trace_structured
 from hybrid_shadow_addon.core.scene import Model
-
-from test_bake_scenes import assert_equal_tracers, blob_model, random_rays, random_scene
-
-
-def _snapshot(baked):
-    return {k: t.data.copy() for k, t in baked.textures.items()}
-
-
-def _assert_report_covers(baked, before, rep):
-    """Every texel that changed lies in a reported row range (or a resized texture)."""
-    for name, tex in baked.textures.items():
-        if name in rep.resized:
-            continue
-        old = before[name]
-        assert old.shape == tex.data.shape
-        diff = (old != tex.data).any(axis=(2, 3))  # (layers, height)
-        covered = np.zeros_like(diff)
-        for n, layer, y0, y1 in rep.ranges:
-            if n == name:
-                covered[layer, y0:y1] = True
-        assert not (diff & ~covered).any(), f"{name}: changed rows not reported"
+from tests.helpers.bake import assert_equal_tracers
+from tests.helpers.bake import assert_report_covers as _assert_report_covers
+from tests.helpers.bake import snapshot as _snapshot
+from tests.helpers.rays import random_rays
+from tests.helpers.scenes import blob_model, random_scene
 
 
 def test_move_instances_matches_brute_and_touches_only_moved():

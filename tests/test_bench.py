@@ -10,6 +10,8 @@ import pytest
 
 from hybrid_shadow_addon.tools.bench import FIGURES, path_frames
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+
 REPO = Path(__file__).resolve().parents[1]
 
 

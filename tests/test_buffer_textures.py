@@ -12,7 +12,9 @@ from hybrid_shadow_addon.core.gpu.buffer_textures import BufferTexture, gl_funct
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.settings import Settings
 
-from test_bake_scenes import blob_model
+from tests.helpers.scenes import blob_model
+
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 
 W, H = 96, 72
 

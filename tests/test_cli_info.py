@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = [pytest.mark.blender]
+
 REPO = Path(__file__).resolve().parents[1]
-pytestmark = pytest.mark.skipif(not (REPO / "hybrid_shadow_addon" / "__main__.py").is_file(),
-                                reason="the CLI (hybrid_shadow_addon/__main__.py) is not there yet")
 
 
 def info(*args):

@@ -4,6 +4,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles]
+
 REPO = Path(__file__).resolve().parents[1]
 
 

@@ -13,6 +13,8 @@ import pytest
 from hybrid_shadow_addon.core.errors import HybridShadowError
 from hybrid_shadow_addon.tools.variants import VARIANTS, resolve_variants
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles]
+
 REPO = Path(__file__).resolve().parents[1]
 PY = sys.executable
 

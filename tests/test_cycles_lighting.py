@@ -13,6 +13,8 @@ from hybrid_shadow_addon.blender.cycles_reference import _configure, _find, _rea
 from hybrid_shadow_addon.blender.export import export_depsgraph
 from hybrid_shadow_addon.core.settings import Settings
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles]
+
 W = H = 48
 
 

@@ -3,6 +3,8 @@ and the ray-traced mask equals Cycles' per-light visibility on cube_on_plane."""
 import numpy as np
 import pytest
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles]
+
 W, H = 160, 120
 
 

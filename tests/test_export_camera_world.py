@@ -6,6 +6,8 @@ import pytest
 from tests.helpers.export_scenes import empty_scene
 from tests.helpers.export_scenes import export_scene as _export
 
+pytestmark = [pytest.mark.blender]
+
 
 @pytest.fixture
 def scene():

@@ -8,6 +8,8 @@ from tests.helpers.export_scenes import add_object as _add
 from tests.helpers.export_scenes import empty_scene
 from tests.helpers.export_scenes import export_scene as _export
 
+pytestmark = [pytest.mark.blender]
+
 
 @pytest.fixture
 def scene():

@@ -7,6 +7,8 @@ from hybrid_shadow_addon.blender.load import (SCENES_DIR, builtin_scenes, load_s
                                               parse_scene_arg)
 from hybrid_shadow_addon.core.errors import SceneError, SceneLoadError
 
+pytestmark = [pytest.mark.blender]
+
 
 # --------------------------------------------------------------------------------------------
 # load_scene

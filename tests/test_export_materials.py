@@ -18,6 +18,8 @@ from tests.helpers.export_scenes import empty_scene
 from tests.helpers.export_scenes import export_scene as _export
 from tests.helpers.export_scenes import row as _row
 
+pytestmark = [pytest.mark.blender]
+
 
 @pytest.fixture
 def scene():
@@ -471,6 +473,7 @@ def test_every_builtin_scene_validates_with_its_materials():
 # --------------------------------------------------------------------------------------------
 # against Cycles
 # --------------------------------------------------------------------------------------------
+@pytest.mark.cycles
 def test_alpha_cards_transparent_shadows_match_cycles():
     """The exported alpha (images, UVs, mapping, row order) casts the shadows Cycles casts: the
     numpy oracle's visibility from Cycles' own surface points equals Cycles' per light."""
@@ -503,6 +506,7 @@ def test_alpha_cards_transparent_shadows_match_cycles():
         assert mismatch < 0.005, f"{light.name}: {mismatch:.3%} of the pixels disagree"
 
 
+@pytest.mark.cycles
 def test_diffuse_color_pass_is_the_exported_albedo():
     """render_diffuse_color on the ground of alpha_cards: the colour image as the export reads
     it (oracle albedo at the ground's UVs, which are its xy / 14 m + 0.5)."""

@@ -15,6 +15,8 @@ from tests.helpers.export_scenes import export_scene as _export
 from tests.helpers.export_scenes import gn_instancer as _gn_instancer
 from tests.helpers.export_scenes import object_info as _object_info
 
+pytestmark = [pytest.mark.blender]
+
 
 @pytest.fixture
 def scene():

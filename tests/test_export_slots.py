@@ -14,6 +14,8 @@ from tests.helpers.export_scenes import add_object as _add
 from tests.helpers.export_scenes import empty_scene, gn_instancer, object_info
 from tests.helpers.export_scenes import row as _row
 
+pytestmark = [pytest.mark.blender]
+
 BARK = (0.3, 0.15, 0.05, 1.0)
 
 

@@ -1,7 +1,7 @@
 """The Flamenco job type (tools/flamenco/hybrid_shadows.js): its compileJob under Node.js with a
 stand-in of Flamenco's authoring API (tests/flamenco_stub.js), the commands it produces, and one
 produced chunk's command line run with ``bpy`` in place of the ``blender`` binary
-(tests/blender_argv.py)."""
+(tests/helpers/blender_env.py)."""
 from __future__ import annotations
 
 import json
@@ -19,8 +19,9 @@ JOB_TYPE = REPO / "tools/flamenco/hybrid_shadows.js"
 STUB = REPO / "tests/flamenco_stub.js"
 NODE = shutil.which("node") or shutil.which("nodejs")
 
-pytestmark = pytest.mark.skipif(NODE is None, reason="Node.js not found: tools/setup.sh installs it "
-                                "(apt-get install nodejs, as root); the job type cannot be evaluated without it")
+pytestmark = [pytest.mark.skipif(NODE is None, reason="Node.js not found: tools/setup.sh installs it "
+                                 "(apt-get install nodejs, as root); the job type cannot be evaluated without it"),
+              pytest.mark.blender, pytest.mark.gpu]
 
 BASE = {"frames": "1-10", "chunk_size": 4, "shadow_mode": "RAYTRACE", "shadow_quality": "MEDIUM",
         "render_output_root": "/farm/renders", "render_output_path": "/farm/renders/shot/{timestamp}/######",
@@ -103,9 +104,9 @@ def test_bad_settings_fail_the_job(tmp_path, settings, words):
 
 def test_a_chunk_renders_its_frames(tmp_path):
     py = sys.executable
-    helper = str(REPO / "tests/blender_argv.py")
+    helper = str(REPO / "tests/helpers/blender_env.py")
     blend = tmp_path / "shot.blend"
-    from test_addon_engine import isolated_env
+    from tests.helpers.blender_env import isolated_env
 
     env = isolated_env(tmp_path)
     made = subprocess.run([py, helper, "--make-blend", "animated", str(blend)], cwd=tmp_path, env=env,

@@ -14,6 +14,8 @@ from hybrid_shadow_addon.core.settings import Settings
 from hybrid_shadow_addon.tools import render as R
 from hybrid_shadow_addon.tools.render import FrameRangeError, frame_path, parse_frames
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+
 REPO = Path(__file__).resolve().parents[1]
 SCENE = "animated"
 SETTINGS = Settings(mode="raytrace", quality="high", interlace=False)

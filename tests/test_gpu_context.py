@@ -9,6 +9,8 @@ from hybrid_shadow_addon.core.gpu import context as context_mod
 from hybrid_shadow_addon.core.gpu.context import create_context, gpu_limits, make_current
 from hybrid_shadow_addon.core.gpu.programs import ProgramCache, ShaderError
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+
 
 def test_context_and_limits(gl_ctx):
     assert create_context(gl_ctx) is gl_ctx

@@ -2,8 +2,11 @@
 import numpy as np
 import pytest
 
-from pass_rig import PassRig
-from test_gpu_scenes import basic_scene, interior, ray_cast, trs
+from tests.helpers.rays import interior, ray_cast
+from tests.helpers.rig import PassRig
+from tests.helpers.scenes import basic_scene, trs
+
+pytestmark = [pytest.mark.gpu]
 
 W, H = 160, 120
 

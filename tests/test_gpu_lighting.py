@@ -13,9 +13,11 @@ from hybrid_shadow_addon.core.image import to_srgb8, write_png
 from hybrid_shadow_addon.core.oracle import lighting as lighting_reference
 from hybrid_shadow_addon.core.scene import Light
 from hybrid_shadow_addon.core.settings import Settings
-from test_gpu_scenes import basic_scene, interior
-from pass_rig import PassRig
-from test_gpu_shadowmap import all_lights, look_at
+from tests.helpers.rays import interior
+from tests.helpers.rig import PassRig
+from tests.helpers.scenes import all_lights, basic_scene, look_at
+
+pytestmark = [pytest.mark.gpu]
 
 W, H = 160, 120
 

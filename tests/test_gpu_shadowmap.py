@@ -6,17 +6,13 @@ from hybrid_shadow_addon.core.gpu.frame import read_mask
 from hybrid_shadow_addon.core.gpu.lights import select_shadowed_lights
 from hybrid_shadow_addon.core.scene import Light
 from hybrid_shadow_addon.core.settings import Settings
-from pass_rig import PassRig
-from test_gpu_scenes import basic_scene, interior, look_at, ray_cast, trs
+from tests.helpers.rays import interior, ray_cast
+from tests.helpers.rig import PassRig
+from tests.helpers.scenes import all_lights, basic_scene, trs
+
+pytestmark = [pytest.mark.gpu]
 
 W, H = 160, 120
-
-
-def all_lights():
-    return [Light("sun", "SUN", power=3.0, matrix=look_at((-3, 6, 7), (0, 0, 0))),
-            Light("point", "POINT", power=500.0, matrix=trs((1.5, -2.0, 3.5))),
-            Light("spot", "SPOT", power=800.0, matrix=look_at((-2.5, -2.0, 5.0), (0.5, 0.5, 0.0)), spot_size=1.2),
-            Light("area", "AREA", power=300.0, matrix=look_at((0.5, -3.0, 4.0), (0, 0, 0)), size=0.5)]
 
 
 @pytest.fixture(scope="module")

@@ -21,7 +21,9 @@ from hybrid_shadow_addon.core.oracle.tracer import bake_space, visibility_brute
 from hybrid_shadow_addon.core.scene import Camera, Image, Instances, Light, Material, Model, Scene
 from hybrid_shadow_addon.core.settings import Settings
 
-from test_gpu_scenes import cube_model, look_at, plane_model, trs
+from tests.helpers.scenes import cube_model, look_at, plane_model, trs
+
+pytestmark = [pytest.mark.gpu]
 
 STRUCTURES = ("grid", "bvh")
 TOL = 0.02  # |GPU - oracle| allowed on ...
@@ -361,10 +363,10 @@ void main() {
 def gl_visibility(ctx, baked, origins, dirs, tmax):
     import moderngl
 
-    from test_bake_glsl import VERT, _resolve
+    from tests.helpers.glsl import VERT, resolve
 
     defines = dict(baked.defines)
-    prog = ctx.program(vertex_shader=_resolve(VERT, defines), fragment_shader=_resolve(VIS_FRAG, defines))
+    prog = ctx.program(vertex_shader=resolve(VERT, defines), fragment_shader=resolve(VIS_FRAG, defines))
     n = len(origins)
     W = 256
     H = -(-n // W)

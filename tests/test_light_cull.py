@@ -10,7 +10,9 @@ import pytest
 from hybrid_shadow_addon.core.scene import Camera, Instances, Light, Model, Scene
 from hybrid_shadow_addon.core.settings import Settings
 
-from tests.test_gpu_scenes import look_at, trs
+from tests.helpers.scenes import look_at, trs
+
+pytestmark = [pytest.mark.gpu]
 
 W, H = 96, 72
 DOWN = trs((0, 0, 0))  # lights shine along their local -Z: down

@@ -23,7 +23,9 @@ from hybrid_shadow_addon.core.oracle import tracer
 from hybrid_shadow_addon.core.oracle.rays import shadow_rays
 from hybrid_shadow_addon.core.settings import Settings
 
-from conftest import TEST_SCENES
+from tests.helpers.blender_env import TEST_SCENES
+
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.slow]
 
 W, H = 160, 120
 DIRECTIONS = [(0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.3, -0.2, 0.93),

@@ -436,7 +436,8 @@ def test_sphere_stays_opaque():
 
 
 def test_agrees_with_trace_brute_without_alpha():
-    from test_bake_scenes import random_rays, random_scene
+    from tests.helpers.rays import random_rays
+    from tests.helpers.scenes import random_scene
 
     rng = np.random.default_rng(11)
     sc = random_scene(rng, n_inst=60, tri_counts=(1, 12, 60))
@@ -453,7 +454,8 @@ def test_agrees_with_trace_brute_without_alpha():
 
 def test_alpha_only_lightens():
     """With cutting materials a ray is never darker than 0, nor shaded unless it is occluded."""
-    from test_bake_scenes import random_rays, random_scene
+    from tests.helpers.rays import random_rays
+    from tests.helpers.scenes import random_scene
 
     rng = np.random.default_rng(12)
     sc = random_scene(rng, n_inst=60, tri_counts=(1, 12, 60))

@@ -10,7 +10,9 @@ from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.oracle.tracer import trace_structured
 from hybrid_shadow_addon.core.settings import Settings
 
-from conftest import TEST_SCENES
+from tests.helpers.blender_env import TEST_SCENES
+
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.slow]
 
 W, H = 160, 120
 SAMPLES_PER_LIGHT = 1500  # the numpy tracer is the slow side: compare a seeded sample of pixels

@@ -71,7 +71,8 @@ coord = st.floats(-20, 20, allow_nan=False, width=32)
 @given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 60), base=st.sampled_from([None, 0.5, 2.0, 7.0]),
        spheres=st.floats(0, 1), axis=st.floats(0, 1))
 def test_property_structured_equals_brute(seed, n, base, spheres, axis):
-    from test_bake_scenes import random_matrices, random_rays, blob_model, plate_model
+    from tests.helpers.rays import random_rays
+    from tests.helpers.scenes import blob_model, plate_model, random_matrices
 
     rng = np.random.default_rng(seed)
     models = [blob_model(rng, 3), plate_model(2), blob_model(rng, 20)]
@@ -111,7 +112,7 @@ _CACHE = {}
 
 def _fixed_scene():
     if "s" not in _CACHE:
-        from test_bake_scenes import random_scene
+        from tests.helpers.scenes import random_scene
 
         _CACHE["s"] = random_scene(np.random.default_rng(77), n_inst=120, area=15, tri_counts=(1, 12, 40))
     return _CACHE["s"]

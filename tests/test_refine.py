@@ -23,8 +23,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import TEST_SCENES
+from tests.helpers.blender_env import TEST_SCENES
 from hybrid_shadow_addon.core.settings import Settings
+
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 
 REPO = Path(__file__).resolve().parents[1]
 W, H = 160, 120
@@ -281,6 +283,7 @@ def test_interlacing_refines_its_first_frame_and_converges(quality, size, pipeli
         np.testing.assert_array_equal(still[li], high[li])
 
 
+@pytest.mark.cycles
 def test_thin_scene_high_matches_cycles(gl_ctx):
     """The sub-pixel casters scene is a stiff scene like the others: high within 0.1% of Cycles."""
     sys.path.insert(0, str(REPO / "benchmarks"))

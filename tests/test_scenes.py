@@ -8,6 +8,9 @@ import pytest
 from hybrid_shadow_addon.blender.export import export_depsgraph
 from hybrid_shadow_addon.blender.load import builtin_scenes, open_scene
 
+pytestmark = [pytest.mark.blender]
+
+
 # small versions: the whole file stays within seconds
 SMALL = {
     "cube_on_plane": "cube_on_plane",

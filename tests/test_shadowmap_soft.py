@@ -8,9 +8,10 @@ import pytest
 from hybrid_shadow_addon.core.oracle.soft import soft_visibility
 from hybrid_shadow_addon.core.scene import Light
 from hybrid_shadow_addon.core.settings import Settings
-from tests.test_alpha_shadows import _shadow_rays
-from tests.test_gpu_scenes import basic_scene, trs
-from tests.test_soft_shadows import LIGHTS, soft_scene
+from tests.helpers.rays import shadow_rays as _shadow_rays
+from tests.helpers.scenes import LIGHTS, basic_scene, soft_scene, trs
+
+pytestmark = [pytest.mark.gpu]
 
 PIXELS = 2000  # covered pixels per light the oracle checks (a fixed random subset)
 ORACLE_SAMPLES = 196

@@ -39,6 +39,8 @@ import pytest
 from hybrid_shadow_addon.core.settings import Settings
 from hybrid_shadow_addon.tools.metrics import mask_error
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles]
+
 W, H = 160, 120
 CYCLES_SAMPLES = 128
 LIGHTS = ("Sun", "Sphere", "Spot", "Square", "Rect", "Disk")

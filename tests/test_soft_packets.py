@@ -18,6 +18,8 @@ import pytest
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.settings import Settings
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.slow]
+
 W, H = 160, 120
 
 
@@ -30,7 +32,7 @@ def extended(scene, area: bool = False):
         if light.type == "SUN":
             light.angle = np.radians(3.0)
         elif light.type == "POINT" and area:
-            from tests.test_gpu_scenes import trs
+            from tests.helpers.scenes import trs
             m = trs(light.position, rot_z=0.5, rot_x=0.45)
             light.type, light.area_shape, light.size, light.size_y, light.matrix = "AREA", "RECTANGLE", 2.0, 0.7, m
         elif light.type in ("POINT", "SPOT"):
@@ -99,8 +101,7 @@ def test_packets_give_each_ray_its_own_answer(pipe, spec, samples):
 
 
 def test_packets_through_analytic_spheres(pipe):
-    from tests.test_soft_shadows import LIGHTS, soft_scene
-    from tests.test_gpu_scenes import basic_scene
+    from tests.helpers.scenes import LIGHTS, basic_scene, soft_scene
 
     scene = basic_scene(lights=soft_scene(LIGHTS).lights, with_sphere=True)
     f1, a = masks(pipe, scene, packets=True)
@@ -117,7 +118,7 @@ def test_packets_through_alpha_cut_casters(pipe, spec):
     traced alone: the masks equal the ray-by-ray ones. The test scene's cards (6° sun) and
     ``alpha_cards`` with its lights made extended; with its own loop-budget check."""
     from hybrid_shadow_addon.blender.load import load_scene
-    from tests.test_alpha_shadows import alpha_scene
+    from tests.helpers.scenes import alpha_scene
 
     if spec == "alpha_scene":
         scene = alpha_scene(lights=("sun",))
@@ -168,7 +169,7 @@ def pegs_scene():
     1.2 x 0.4 m rectangle area light and a 1 x 0.5 m ellipse light, whose packets are bounded by
     the planes of the pyramid over the light, carried into each instance's model space."""
     from hybrid_shadow_addon.core.scene import Camera, Instances, Light, Model, Scene
-    from tests.test_gpu_scenes import cube_model, look_at, plane_model, trs
+    from tests.helpers.scenes import cube_model, look_at, plane_model, trs
 
     cube = cube_model()
     vs, ts = [], []

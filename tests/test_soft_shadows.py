@@ -12,24 +12,10 @@ from hybrid_shadow_addon.core.oracle.soft import light_samples, soft_visibility
 from hybrid_shadow_addon.core.scene import Light
 from hybrid_shadow_addon.core.scene_sync import sync_scene
 from hybrid_shadow_addon.core.settings import Settings
-from tests.test_alpha_shadows import _shadow_rays, alpha_scene
-from tests.test_gpu_scenes import basic_scene, trs
+from tests.helpers.rays import shadow_rays as _shadow_rays
+from tests.helpers.scenes import LIGHTS, alpha_scene, soft_scene, trs
 
-LIGHTS = [
-    Light("sun", "SUN", power=3.0, matrix=trs((0, 0, 10), rot_z=2.6, rot_x=0.9), angle=np.radians(15)),
-    Light("ball", "POINT", power=500.0, matrix=trs((1.5, -1.0, 3.5)), radius=0.4),
-    Light("square", "AREA", power=500.0, matrix=trs((-1.0, 1.0, 3.0), rot_x=0.3), size=0.9, area_shape="SQUARE"),
-    Light("rect", "AREA", power=500.0, matrix=trs((1.0, 1.5, 3.0), rot_z=0.4), size=1.2, size_y=0.5,
-          area_shape="RECTANGLE"),
-    Light("disk", "AREA", power=500.0, matrix=trs((0.5, -0.5, 3.2)), size=1.0, area_shape="DISK"),
-]
-
-
-def soft_scene(lights=LIGHTS):
-    return basic_scene(lights=[Light(l.name, l.type, power=l.power, matrix=l.matrix.copy(), radius=l.radius,
-                                     angle=l.angle, size=l.size, size_y=l.size_y, area_shape=l.area_shape,
-                                     spread=l.spread, spot_size=l.spot_size, spot_blend=l.spot_blend)
-                               for l in lights])
+pytestmark = [pytest.mark.gpu]
 
 
 def frame_of(pipeline, scene, **kw):

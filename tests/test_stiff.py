@@ -37,6 +37,8 @@ from hybrid_shadow_addon.core.scene import Instances, Model, Scene  # noqa: E402
 
 import stiff_table  # noqa: E402
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+
 LIMIT_PCT = 0.1
 COINCIDENT = ("Slab", "Slab top", "Twin A", "Twin B")  # degenerate.py's coincident faces
 
@@ -64,6 +66,7 @@ def test_stiff_scenes_are_builtin_scenes():
     assert not any(n.split("/")[-1].startswith("_") for n in names)
 
 
+@pytest.mark.cycles
 @pytest.mark.parametrize("name", [c for c in stiff_table.CASES if c not in ("degenerate", "far_away")])  # (below)
 def test_stiff_case_matches_cycles(name, gl_ctx):
     r = case(name, gl_ctx)
@@ -75,6 +78,7 @@ def test_stiff_case_matches_cycles(name, gl_ctx):
         assert m["mismatch_pct"] <= LIMIT_PCT, f"{name}/{light}: {m['mismatch_pct']:.3f}% ({m['mismatch']}/{m['valid']})"
 
 
+@pytest.mark.cycles
 def test_far_away_is_far_and_within_limit(gl_ctx):
     r = case("far_away", gl_ctx)
     lo, hi = r["_scene"].world_bounds()
@@ -83,6 +87,7 @@ def test_far_away_is_far_and_within_limit(gl_ctx):
         assert m["mismatch_pct"] <= LIMIT_PCT, (light, m["mismatch_pct"])
 
 
+@pytest.mark.cycles
 def test_degenerate_meshes(gl_ctx):
     r = case("degenerate", gl_ctx)
     names = r["_scene"].instances.names
@@ -98,6 +103,7 @@ def test_degenerate_meshes(gl_ctx):
         assert co["false"] <= max(2, 0.01 * co["valid"]), (light, co)
 
 
+@pytest.mark.cycles
 def test_crowd_has_thousands_of_objects_in_one_node(gl_ctx):
     from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 
@@ -257,7 +263,7 @@ def _on_triangles(p, T, eps=1e-9):
 def test_origins_on_node_borders_numpy(seed, level_pick):
     """Origins exactly on node borders/corners of a random level, directions with exact zeros:
     the structured tracer (grid + BVH) equals brute force."""
-    from test_bake_scenes import random_scene
+    from tests.helpers.scenes import random_scene
 
     rng = np.random.default_rng(seed)
     scene = random_scene(rng, n_inst=60, area=8)
@@ -283,9 +289,9 @@ def test_origins_on_node_borders_numpy(seed, level_pick):
 # -- the same on the GLSL tracer ------------------------------------------------------------
 @pytest.fixture(scope="module")
 def glsl():
-    import test_bake_glsl
+    from tests.helpers import glsl
 
-    return test_bake_glsl
+    return glsl
 
 
 def test_no_slip_through_shared_edges_glsl(gl_ctx, glsl):
@@ -303,7 +309,8 @@ def test_no_slip_through_shared_edges_glsl(gl_ctx, glsl):
 
 def test_axis_and_border_rays_glsl(gl_ctx, glsl):
     """Axis-aligned rays from exact node borders/corners of every level: GLSL == numpy."""
-    from test_bake_scenes import border_rays, random_scene
+    from tests.helpers.rays import border_rays
+    from tests.helpers.scenes import random_scene
 
     rng = np.random.default_rng(5)
     scene = random_scene(rng, n_inst=100, area=10)

@@ -11,56 +11,13 @@ light in its table (``HS_LIT_*``, tested in ``test_gpu_lighting.py``);
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.scene import Camera, Instances, Light, Model, Scene
+from hybrid_shadow_addon.core.scene import Instances
 from hybrid_shadow_addon.core.settings import Settings
+from tests.helpers.scenes import VARIANT_SIZE, variant_scene
 
-W, H = 64, 48
+pytestmark = [pytest.mark.gpu]
 
-
-def make_scene(lights=("SUN",), meshes=True, spheres=False, spread=1.0):
-    models = [Model("plane", [[-5, -5, 0], [5, -5, 0], [5, 5, 0], [-5, 5, 0]], [[0, 1, 2], [0, 2, 3]]),
-              Model("box", np.array([[x, y, z] for x in (-.5, .5) for y in (-.5, .5) for z in (0, 1)]),
-                    [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-                     [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])]
-    names, mids, mats, sph = [], [], [], []
-    if meshes:
-        names += ["ground", "box"]
-        mids += [0, 1]
-        mats += [np.eye(4), np.eye(4)]
-        sph += [False, False]
-    if spheres:
-        m = np.eye(4)
-        m[:3, 3] = (1.5, 1.0, 0.6)
-        names.append("ball")
-        mids.append(1)
-        mats.append(m)
-        sph.append(True)
-        if not meshes:  # something to receive shadows: a big sphere as the ground
-            g = np.diag([20.0, 20.0, 1.0, 1.0])
-            g[2, 3] = -1.0
-            names.append("ground ball")
-            mids.append(1)
-            mats.append(g)
-            sph.append(True)
-    if spread > 1.0:  # far-apart objects: several grid levels
-        for i, x in enumerate((-spread, spread)):
-            m = np.eye(4)
-            m[0, 3] = x
-            names.append(f"far{i}")
-            mids.append(1)
-            mats.append(m)
-            sph.append(spheres and not meshes)
-    inst = Instances(names=names, model_ids=mids, matrices=np.array(mats), sphere=np.array(sph, bool))
-    cam = np.eye(4)
-    cam[:3, 3] = (0, -8, 5)
-    a = np.radians(58)
-    cam[:3, :3] = [[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]]
-    ls = []
-    for t in lights:
-        m = np.eye(4)
-        m[:3, 3] = (1, -1, 4)
-        ls.append(Light(t, t, matrix=m, power=500.0, spot_size=np.radians(120)))
-    return Scene(models=models, instances=inst, lights=ls, camera=Camera(matrix=cam), resolution=(W, H))
+W, H = VARIANT_SIZE
 
 
 def trace(gl_ctx, scene, **settings):
@@ -82,39 +39,39 @@ def trace(gl_ctx, scene, **settings):
 
 
 def test_sun_only_scene_has_no_local_light_code(gl_ctx):
-    d, u, masks = trace(gl_ctx, make_scene(("SUN",)))
+    d, u, masks = trace(gl_ctx, variant_scene(("SUN",)))
     assert "HS_LIGHT_SUN" in d and "HS_LIGHT_LOCAL" not in d
     assert (masks[0][np.isfinite(masks[0])] < 0.5).any()
 
 
 @pytest.mark.parametrize("kind", ["POINT", "SPOT", "AREA"])
 def test_local_light_scene_has_no_sun_code(gl_ctx, kind):
-    d, u, _ = trace(gl_ctx, make_scene((kind,)))
+    d, u, _ = trace(gl_ctx, variant_scene((kind,)))
     assert "HS_LIGHT_LOCAL" in d and "HS_LIGHT_SUN" not in d
 
 
 def test_mixed_lights_compile_both_kinds(gl_ctx):
-    d, _, masks = trace(gl_ctx, make_scene(("SUN", "POINT")))
+    d, _, masks = trace(gl_ctx, variant_scene(("SUN", "POINT")))
     assert "HS_LIGHT_LOCAL" in d and "HS_LIGHT_SUN" in d and len(masks) == 2
 
 
 def test_meshes_only_has_no_sphere_code(gl_ctx):
-    d, u, _ = trace(gl_ctx, make_scene(meshes=True, spheres=False))
+    d, u, _ = trace(gl_ctx, variant_scene(meshes=True, spheres=False))
     assert "HS_HAS_MESHES" in d and "HS_HAS_SPHERES" not in d
     assert "hs_bvh_tex" in u and "hs_tri_tex" in u
 
 
 def test_spheres_only_has_no_mesh_code(gl_ctx):
-    d, u, masks = trace(gl_ctx, make_scene(meshes=False, spheres=True))
+    d, u, masks = trace(gl_ctx, variant_scene(meshes=False, spheres=True))
     assert "HS_HAS_SPHERES" in d and "HS_HAS_MESHES" not in d
     assert "hs_bvh_tex" not in u and "hs_tri_tex" not in u  # BVH and triangle fetches compiled out
     assert (masks[0][np.isfinite(masks[0])] < 0.5).any()
 
 
 def test_object_bvh_code_only_for_crowded_nodes(gl_ctx):
-    d, _, _ = trace(gl_ctx, make_scene())
+    d, _, _ = trace(gl_ctx, variant_scene())
     assert "HS_HAS_NODE_BVH" not in d
-    crowd = make_scene()
+    crowd = variant_scene()
     rng = np.random.default_rng(5)
     m = np.tile(np.eye(4), (200, 1, 1))
     m[:, :3, :3] *= 0.05
@@ -127,23 +84,23 @@ def test_object_bvh_code_only_for_crowded_nodes(gl_ctx):
 
 
 def test_grid_levels_only_as_many_as_needed(gl_ctx):
-    small, _, _ = trace(gl_ctx, make_scene())
-    wide, _, _ = trace(gl_ctx, make_scene(spread=400.0))
+    small, _, _ = trace(gl_ctx, variant_scene())
+    wide, _, _ = trace(gl_ctx, variant_scene(spread=400.0))
     assert small["HS_GRID_LEVELS"] < wide["HS_GRID_LEVELS"]
 
 
 def test_max_distance_and_interlace_only_when_on(gl_ctx):
-    d, u, _ = trace(gl_ctx, make_scene())
+    d, u, _ = trace(gl_ctx, variant_scene())
     assert "HS_MAX_DISTANCE" not in d and "u_max_distance" not in u
     assert "HS_INTERLACE" not in d and "u_offset" not in u
-    d, u, _ = trace(gl_ctx, make_scene(), max_distance=5.0)
+    d, u, _ = trace(gl_ctx, variant_scene(), max_distance=5.0)
     assert "HS_MAX_DISTANCE" in d and "u_max_distance" in u
 
 
 # ---- structure "bvh": the two-level walk and nothing of the grid -------------------------------
 @pytest.mark.parametrize("meshes,spheres", [(True, False), (False, True), (True, True)])
 def test_bvh_structure_compiles_only_what_the_scene_has(gl_ctx, meshes, spheres):
-    scene = make_scene(meshes=meshes, spheres=spheres)
+    scene = variant_scene(meshes=meshes, spheres=spheres)
     d, u, masks = trace(gl_ctx, scene, structure="bvh")
     assert "HS_STRUCTURE_BVH" in d and "HS_GRID_LEVELS" not in d
     assert ("HS_HAS_MESHES" in d) == meshes and ("HS_HAS_SPHERES" in d) == spheres
@@ -159,5 +116,5 @@ def test_bvh_leaf_size_define_follows_the_config():
     from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 
     for k in (1, 3):
-        d = bake_scene(make_scene(), BakeConfig(structure="bvh", bvh_leaf_size=k)).defines
+        d = bake_scene(variant_scene(), BakeConfig(structure="bvh", bvh_leaf_size=k)).defines
         assert d["HS_BVH_LEAF_SIZE"] == k

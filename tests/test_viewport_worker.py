@@ -20,6 +20,8 @@ from hybrid_shadow_addon.core.gpu.worker import (RenderRequest, RenderWorker, Sh
 from hybrid_shadow_addon.core.settings import Settings
 from hybrid_shadow_addon.blender import gl  # bpy-free: the context hygiene of Blender's threads
 
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+
 W, H = 96, 72
 FULL = Settings(mode="raytrace", quality="high", hard=True)
 FAST = Settings(mode="raytrace", quality="low", hard=True)

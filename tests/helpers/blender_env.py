@@ -1,5 +1,7 @@
-"""Run a ``blender`` command line with the ``bpy`` module in place of the binary (there is no
-``blender`` here): ``python tests/blender_argv.py [blender arguments...]``.
+"""Blender set-up shared by the tests: an environment whose Blender user files stay in a
+temporary folder (``isolated_env``), and a ``blender`` command line run with the ``bpy`` module in
+place of the binary (there is no ``blender`` here): ``python tests/helpers/blender_env.py
+[blender arguments...]``.
 
 Arguments are applied in order, as Blender does: the ``.blend`` file, ``-S/--scene``,
 ``-E/--engine``, ``--python-expr`` (``--python-exit-code``), ``-o/--render-output``,
@@ -9,17 +11,37 @@ ignored. The add-on is registered from the source tree first (a worker has the e
 installed and enabled) and unregistered at the end; the last line on stdout is a JSON report of
 the frames rendered and the engine's bakes by kind.
 
-``python tests/blender_argv.py --make-blend SCENE OUT.blend`` saves a scene argument (see
+``python tests/helpers/blender_env.py --make-blend SCENE OUT.blend`` saves a scene argument (see
 ``blender/load.py``) as a ``.blend`` file.
 """
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 IGNORED = {"-b", "--background", "-y", "--enable-autoexec", "--factory-startup", "-noaudio"}
+
+#: the built-in scenes at test sizes (pipeline tests run on every one)
+TEST_SCENES = {
+    "cube_on_plane": "cube_on_plane",
+    "forest": "forest",
+    "clusters": "clusters",
+    "city": "city:blocks=4",
+    "scaling": "scaling:triangles=20000,instances=200",
+}
+
+
+def isolated_env(tmp: Path) -> dict:
+    """This process's environment with Blender's user folders under ``tmp``, for a subprocess
+    that runs ``bpy``."""
+    env = dict(os.environ)
+    for var in ("BLENDER_USER_RESOURCES", "XDG_CONFIG_HOME", "XDG_CACHE_HOME"):
+        env[var] = str(tmp / var.lower())
+    env["PYTHONDONTWRITEBYTECODE"] = "1"
+    return env
 
 
 class ArgvError(Exception):

@@ -1,4 +1,4 @@
-"""Runs single passes outside the pipeline, each on a FrameJob built from the arguments."""
+"""Runs single passes outside the pipeline (``PassRig``), each on a FrameJob built from the arguments."""
 from hybrid_shadow_addon.core.gpu.context import make_current
 from hybrid_shadow_addon.core.gpu.frame import FrameJob
 from hybrid_shadow_addon.core.gpu.lights import select_shadowed_lights
