@@ -66,8 +66,8 @@ def only_one_cut(scene, name: str):
 
 def load(arg: str, size):
     import bpy
-
     from bench_quality import reference
+
     from hybrid_shadow_addon.blender.export import export_depsgraph
     from hybrid_shadow_addon.blender.load import open_scene
 

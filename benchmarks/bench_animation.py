@@ -19,10 +19,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hybrid_shadow_addon.__main__ import parse_resolution  # noqa: E402
-from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
 from hybrid_shadow_addon.core.scene_sync import sync_scene  # noqa: E402
-from hybrid_shadow_addon.tools.render import (frame_path, frame_stats, parse_frames, render_to_files,  # noqa: E402
-                                              write_outputs)
+from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+from hybrid_shadow_addon.tools.render import frame_path, frame_stats, parse_frames, render_to_files, write_outputs  # noqa: E402
 
 
 def frame_step(source, f, settings, out, pipe, prev, persist):

@@ -93,7 +93,7 @@ def main(argv=None) -> int:
     if not (a.peer / "hybrid_shadow_addon").is_dir():
         raise SystemExit(f"--peer {a.peer}: not a tree of this project (no hybrid_shadow_addon/)")
     trees = {"peer": a.peer.resolve(), "this": REPO}
-    print(f"| scene | pass | peer ms | this ms | peer / this |\n|---|---|---:|---:|---:|")
+    print("| scene | pass | peer ms | this ms | peer / this |\n|---|---|---:|---:|---:|")
     for scene in a.scenes:
         got = {k: [] for k in trees}
         for _ in range(a.alternations):

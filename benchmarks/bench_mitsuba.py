@@ -28,8 +28,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
-from hybrid_shadow_addon.core.oracle.rays import shadow_rays  # noqa: E402
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
+from hybrid_shadow_addon.core.oracle.rays import shadow_rays  # noqa: E402
 from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
 
 DEFAULT = "scaling:triangles=1000,instances=1;scaling:triangles=10000,instances=10;" \

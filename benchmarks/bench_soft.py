@@ -68,6 +68,7 @@ def references(pipe, scene, pixels, cycles: bool, cycles_samples: int):
             out[li][2] = soft_visibility(scene, li, o[pick], n[pick], samples=256)
     if cycles:
         import bpy  # noqa: F401  (load_scene left the Blender scene open)
+
         from hybrid_shadow_addon.blender.cycles_reference import render_reference
         ref = render_reference(bpy.context.scene, [scene.lights[li].name for li in out],
                                resolution=scene.resolution, samples=cycles_samples, hard=False)

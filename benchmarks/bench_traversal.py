@@ -41,7 +41,7 @@ def run(cwd: Path, scene: str, out: Path, structure: str | None, resolution: str
     return json.loads((out / "stats.json").read_text())
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _has_hard(cwd: Path) -> bool:
     """Whether the tree's ``render`` knows ``--hard`` (a tree from before soft shadows is hard)."""
     p = subprocess.run([sys.executable, "-m", "hybrid_shadow_addon", "render", "--help"], cwd=cwd,

@@ -20,8 +20,8 @@ from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
 
 
 def scene_with_blocks(n=400, seed=0):
-    from tests.helpers.scenes import variant_scene
     from hybrid_shadow_addon.core.scene import Instances
+    from tests.helpers.scenes import variant_scene
 
     s = variant_scene(("SUN",))
     rng = np.random.default_rng(seed)

@@ -35,6 +35,7 @@ def reference(spec: str, size, samples: int, cache: Path) -> dict:
     if path.exists():
         return dict(np.load(path))
     import bpy  # noqa: F401  (load_scene left the Blender scene open)
+
     from hybrid_shadow_addon.blender.cycles_reference import render_reference
     ref = render_reference(bpy.context.scene, None, resolution=size, samples=samples, hard=False)
     cache.mkdir(parents=True, exist_ok=True)

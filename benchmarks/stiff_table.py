@@ -57,11 +57,11 @@ def evaluate_case(name: str, modes=("raytrace-high",), *, ctx=None, params: str 
     not only once they pay back."""
     import bpy
 
+    from hybrid_shadow_addon.blender.cycles_reference import render_reference
     from hybrid_shadow_addon.blender.export import export_depsgraph
     from hybrid_shadow_addon.blender.load import open_scene
     from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
     from hybrid_shadow_addon.core.settings import Settings
-    from hybrid_shadow_addon.blender.cycles_reference import render_reference
 
     arg = f"stiff/{name}" + (f":{params}" if params else "")
     bscene = open_scene(arg)

@@ -35,8 +35,8 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
 
     import hybrid_shadow_addon
     from hybrid_shadow_addon.blender.engine import HybridShadowsEngine
-    from hybrid_shadow_addon.blender.gl import create_pipeline, gl_scope, release_pipeline
     from hybrid_shadow_addon.blender.export import export_depsgraph
+    from hybrid_shadow_addon.blender.gl import create_pipeline, gl_scope, release_pipeline
     from hybrid_shadow_addon.blender.load import open_scene
     from hybrid_shadow_addon.blender.viewport import ViewportDisplay, ViewportSync, viewport_camera
     from hybrid_shadow_addon.core.settings import Settings
@@ -292,8 +292,9 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
         bpy.ops.render.render()
         scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = rx, ry, pc
         scene.render.engine = "HYBRID_SHADOWS"
-        import gpu
         from mathutils import Matrix
+
+        import gpu
 
         off = gpu.types.GPUOffScreen(w, h, format="RGBA32F")
         display = ViewportDisplay()

@@ -5,7 +5,6 @@ from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 from hybrid_shadow_addon.core.bake.bvh import build_bvhs
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
-
 from tests.helpers.scenes import blob_model, plate_model
 
 

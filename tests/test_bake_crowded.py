@@ -12,7 +12,6 @@ import pytest
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
-
 from tests.helpers.bake import assert_equal_tracers
 from tests.helpers.bake import assert_report_covers as _assert_report_covers
 from tests.helpers.bake import snapshot as _snapshot

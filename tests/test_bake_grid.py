@@ -3,10 +3,9 @@ import numpy as np
 
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 from hybrid_shadow_addon.core.bake.grid import MARGIN_CELLS, place, plan_grid
-from hybrid_shadow_addon.core.bake.textures import OBJECT_TEXELS, MAX_TEX_SIZE
+from hybrid_shadow_addon.core.bake.textures import MAX_TEX_SIZE, OBJECT_TEXELS
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
-
 from tests.helpers.rays import random_rays
 from tests.helpers.scenes import adversarial_scene, random_scene
 

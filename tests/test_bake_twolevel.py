@@ -9,7 +9,6 @@ from hybrid_shadow_addon.core.bake.structures.blas import LEAF_FLAG, build_blas
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 from hybrid_shadow_addon.core.settings import Settings
-
 from tests.helpers.bake import assert_equal_tracers
 from tests.helpers.bake import assert_report_covers as _assert_report_covers
 from tests.helpers.bake import snapshot as _snapshot

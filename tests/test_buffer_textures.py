@@ -11,7 +11,6 @@ from hybrid_shadow_addon.core.gpu import scene_textures as st_mod
 from hybrid_shadow_addon.core.gpu.buffer_textures import BufferTexture, gl_functions, max_texels
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.settings import Settings
-
 from tests.helpers.scenes import blob_model
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu]

@@ -10,11 +10,11 @@ W, H = 160, 120
 
 @pytest.fixture(scope="module")
 def cube_scene_and_reference():
+    import bpy
+
+    from hybrid_shadow_addon.blender.cycles_reference import render_reference
     from hybrid_shadow_addon.blender.export import export_depsgraph
     from hybrid_shadow_addon.blender.load import open_scene
-    from hybrid_shadow_addon.blender.cycles_reference import render_reference
-
-    import bpy
 
     bscene = open_scene("cube_on_plane")
     engine_before = bscene.render.engine
@@ -81,8 +81,8 @@ def test_sphere_primitives_render_as_the_sphere_we_trace(gl_ctx):
     """A coarse UV sphere flagged as a sphere primitive (squashed by its object's scale, smoothed
     by a modifier): the reference renders the ellipsoid we trace, so the masks agree; with
     ``mesh_spheres`` it renders the facets, whose shadow differs. The scene is left as it was."""
-    import bpy
     import bmesh  # (importable once bpy is)
+    import bpy
 
     from hybrid_shadow_addon.blender.cycles_reference import render_reference
     from hybrid_shadow_addon.blender.export import export_depsgraph

@@ -3,8 +3,7 @@ exported, and the errors they raise."""
 import bpy
 import pytest
 
-from hybrid_shadow_addon.blender.load import (SCENES_DIR, builtin_scenes, load_scene, open_scene,
-                                              parse_scene_arg)
+from hybrid_shadow_addon.blender.load import SCENES_DIR, builtin_scenes, load_scene, open_scene, parse_scene_arg
 from hybrid_shadow_addon.core.errors import SceneError, SceneLoadError
 
 pytestmark = [pytest.mark.blender]

@@ -510,8 +510,7 @@ def test_alpha_cards_transparent_shadows_match_cycles():
 def test_diffuse_color_pass_is_the_exported_albedo():
     """render_diffuse_color on the ground of alpha_cards: the colour image as the export reads
     it (oracle albedo at the ground's UVs, which are its xy / 14 m + 0.5)."""
-    from hybrid_shadow_addon.blender.cycles_reference import render_diffuse_color
-    from hybrid_shadow_addon.blender.cycles_reference import render_reference
+    from hybrid_shadow_addon.blender.cycles_reference import render_diffuse_color, render_reference
     from hybrid_shadow_addon.core.oracle.alpha import albedo
 
     w, h = 120, 90

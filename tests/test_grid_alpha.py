@@ -20,7 +20,6 @@ from hybrid_shadow_addon.core.oracle.rays import shadow_rays
 from hybrid_shadow_addon.core.oracle.tracer import bake_space, visibility_brute
 from hybrid_shadow_addon.core.scene import Camera, Image, Instances, Light, Material, Model, Scene
 from hybrid_shadow_addon.core.settings import Settings
-
 from tests.helpers.scenes import cube_model, look_at, plane_model, trs
 
 pytestmark = [pytest.mark.gpu]

@@ -9,7 +9,6 @@ import pytest
 
 from hybrid_shadow_addon.core.scene import Camera, Instances, Light, Model, Scene
 from hybrid_shadow_addon.core.settings import Settings
-
 from tests.helpers.scenes import look_at, trs
 
 pytestmark = [pytest.mark.gpu]

@@ -22,7 +22,6 @@ from hybrid_shadow_addon.core.bake.baked import choose_origin
 from hybrid_shadow_addon.core.oracle import tracer
 from hybrid_shadow_addon.core.oracle.rays import shadow_rays
 from hybrid_shadow_addon.core.settings import Settings
-
 from tests.helpers.blender_env import TEST_SCENES
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.slow]

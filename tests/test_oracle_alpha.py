@@ -3,10 +3,8 @@ albedo, the watertight test's barycentrics and brute-force visibility (hand-made
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.oracle.alpha import (albedo, material_alpha, sample_image, srgb_to_linear,
-                                                   transmittance)
-from hybrid_shadow_addon.core.oracle.tracer import (trace_brute, visibility_brute, woop_hit, woop_hit_bary,
-                                                    woop_setup)
+from hybrid_shadow_addon.core.oracle.alpha import albedo, material_alpha, sample_image, srgb_to_linear, transmittance
+from hybrid_shadow_addon.core.oracle.tracer import trace_brute, visibility_brute, woop_hit, woop_hit_bary, woop_setup
 from hybrid_shadow_addon.core.scene import LUMA, Image, Instances, Material, Model, Scene
 
 W = H = 4

@@ -3,9 +3,19 @@ watertight triangles, the sphere test and its pre-test, the slab test, ray prepa
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.oracle.tracer.primitives import (SLAB_BIG, prepare_rays, ragged_pairs, slab_hit,
-                                                               slab_inv, sphere_hit, sphere_pretest, transform_rays,
-                                                               woop_hit, woop_hit_bary, woop_setup)
+from hybrid_shadow_addon.core.oracle.tracer.primitives import (
+    SLAB_BIG,
+    prepare_rays,
+    ragged_pairs,
+    slab_hit,
+    slab_inv,
+    sphere_hit,
+    sphere_pretest,
+    transform_rays,
+    woop_hit,
+    woop_hit_bary,
+    woop_setup,
+)
 
 F = np.float32
 

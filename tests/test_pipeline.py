@@ -5,11 +5,10 @@ import numpy as np
 import pytest
 
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
-from hybrid_shadow_addon.core.oracle.rays import shadow_rays
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.oracle.rays import shadow_rays
 from hybrid_shadow_addon.core.oracle.tracer import trace_structured
 from hybrid_shadow_addon.core.settings import Settings
-
 from tests.helpers.blender_env import TEST_SCENES
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.slow]

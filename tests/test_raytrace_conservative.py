@@ -6,7 +6,6 @@ import pytest
 
 from hybrid_shadow_addon.core.scene import Light
 from hybrid_shadow_addon.core.settings import Settings
-
 from tests.helpers.blender_env import TEST_SCENES
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.slow]

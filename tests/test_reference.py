@@ -1,6 +1,7 @@
 """The reference tracers themselves: primitives against float64 geometry, property tests."""
 import numpy as np
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 from hybrid_shadow_addon.core.oracle.tracer import sphere_hit, trace_brute, trace_structured, woop_hit, woop_setup

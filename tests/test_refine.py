@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.helpers.blender_env import TEST_SCENES
 from hybrid_shadow_addon.core.settings import Settings
+from tests.helpers.blender_env import TEST_SCENES
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 

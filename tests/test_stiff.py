@@ -29,13 +29,13 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "benchmarks"))
 
-from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E402
+import stiff_table  # noqa: E402
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st
 
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene  # noqa: E402
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured  # noqa: E402
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene  # noqa: E402
-
-import stiff_table  # noqa: E402
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 

@@ -7,8 +7,14 @@ import numpy as np
 import pytest
 
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
-from hybrid_shadow_addon.core.bake.structures import (DEFAULT_STRUCTURE, STRUCTURES, AccelerationStructure,
-                                                      HierarchicalGrid, TwoLevelBVH, structure_class)
+from hybrid_shadow_addon.core.bake.structures import (
+    DEFAULT_STRUCTURE,
+    STRUCTURES,
+    AccelerationStructure,
+    HierarchicalGrid,
+    TwoLevelBVH,
+    structure_class,
+)
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 from hybrid_shadow_addon.core.settings import Settings

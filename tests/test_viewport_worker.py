@@ -12,13 +12,21 @@ import time
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
-from hybrid_shadow_addon.core.gpu.context import software_renderer
-from hybrid_shadow_addon.core.gpu.worker import (RenderRequest, RenderWorker, SharedRegistry, SharedViewport,
-                                                 UpdateRounds, fast_settings, refine_frames, snapshot,
-                                                 writable_matrices)
-from hybrid_shadow_addon.core.settings import Settings
 from hybrid_shadow_addon.blender import gl  # bpy-free: the context hygiene of Blender's threads
+from hybrid_shadow_addon.core.gpu.context import software_renderer
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.gpu.worker import (
+    RenderRequest,
+    RenderWorker,
+    SharedRegistry,
+    SharedViewport,
+    UpdateRounds,
+    fast_settings,
+    refine_frames,
+    snapshot,
+    writable_matrices,
+)
+from hybrid_shadow_addon.core.settings import Settings
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 

@@ -6,7 +6,7 @@ error) to stop the work: the pipeline, ``compare`` and ``bench`` let it propagat
 """
 from __future__ import annotations
 
-from typing import Callable, Optional
+from collections.abc import Callable
 
 from .errors import Cancelled
 
@@ -17,7 +17,7 @@ def null_progress(done: int, total: int, label: str = "") -> None:
     """A progress callback that does nothing."""
 
 
-def call(progress: Optional[Progress], done: int, total: int, label: str = "") -> None:
+def call(progress: Progress | None, done: int, total: int, label: str = "") -> None:
     """``progress(done, total, label)`` when a callback is given."""
     if progress is not None:
         progress(done, total, label)

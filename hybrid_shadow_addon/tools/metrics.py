@@ -58,7 +58,7 @@ class MaskError:
     def mae(self) -> float:
         return self.abs_error_sum / self.valid_pixels if self.valid_pixels else 0.0
 
-    def __add__(self, other: "MaskError") -> "MaskError":
+    def __add__(self, other: MaskError) -> MaskError:
         return MaskError(self.valid_pixels + other.valid_pixels, self.mismatch_pixels + other.mismatch_pixels,
                          self.missed_pixels + other.missed_pixels, self.false_pixels + other.false_pixels,
                          self.abs_error_sum + other.abs_error_sum, self.off_pixels + other.off_pixels)

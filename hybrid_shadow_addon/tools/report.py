@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 
-
 #: the error axis of the plot is logarithmic: mismatches below this (% of pixels) sit on it
 ERROR_FLOOR_PCT = 1e-3
 #: ... and mean absolute errors below this

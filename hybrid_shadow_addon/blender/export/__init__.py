@@ -13,14 +13,29 @@ from __future__ import annotations
 
 from ...core.scene import Scene
 from .camera import export_camera, render_resolution
-from .common import (GEOMETRY_TYPES, SPHERE_PROPERTY, ExportWarning, is_sphere_primitive, to_matrices,
-                     to_matrix)
+from .common import GEOMETRY_TYPES, SPHERE_PROPERTY, ExportWarning, is_sphere_primitive, to_matrices, to_matrix
 from .images import image_pixels
 from .lights import export_light, export_lights, light_color, light_power
-from .materials import (MaterialReading, TextureLink, blend_settings, mapping_affine, material_surface,
-                        principled_node, read_material)
-from .meshes import (ModelTable, mesh_arrays, mesh_uv_layer, mesh_uvs, slot_name, slot_owner,
-                     slot_triangles, smooth_normals, used_slots)
+from .materials import (
+    MaterialReading,
+    TextureLink,
+    blend_settings,
+    mapping_affine,
+    material_surface,
+    principled_node,
+    read_material,
+)
+from .meshes import (
+    ModelTable,
+    mesh_arrays,
+    mesh_uv_layer,
+    mesh_uvs,
+    slot_name,
+    slot_owner,
+    slot_triangles,
+    smooth_normals,
+    used_slots,
+)
 from .objects import SceneExporter
 from .shading import ShadingTable
 from .visibility import RenderVisibility

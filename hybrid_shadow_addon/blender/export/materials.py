@@ -59,7 +59,7 @@ class TextureLink:
     uv_map: str = ""
     uv_affine: np.ndarray = field(default_factory=lambda: IDENTITY_UV.copy())
 
-    def same_mapping(self, other: "TextureLink") -> bool:
+    def same_mapping(self, other: TextureLink) -> bool:
         return self.uv_map == other.uv_map and np.allclose(self.uv_affine, other.uv_affine, atol=1e-7)
 
 

@@ -3,7 +3,6 @@ fills). The structures' own state: ``structures/``."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
 
 from .textures import merge_ranges
 
@@ -13,16 +12,16 @@ class BakeConfig:
     """How to bake: the structure to build and its sizes (the grid's and the trees')."""
 
     tex_width: int = 4096  # power of two <= 16384; every texture wraps its rows at this width
-    base_node_size: Optional[float] = None  # level-0 node size (m); None: fit to the scene
-    max_level0_nodes: Optional[int] = None  # None: 4 * casters (at least 64, at most 4M)
+    base_node_size: float | None = None  # level-0 node size (m); None: fit to the scene
+    max_level0_nodes: int | None = None  # None: 4 * casters (at least 64, at most 4M)
     leaf_size: int = 4  # triangles per BVH leaf (1..7)
     index_slack: float = 0.25  # spare slots per grid node, as a fraction of its count (+1)
     index_reserve: float = 0.25  # spare tail of the grid index list, fraction of its length
     outside_rebake_fraction: float = 0.01  # regrid when more casters than this left the grid
-    origin: Optional[tuple] = None  # bake-space origin in world space; None: choose_origin()
+    origin: tuple | None = None  # bake-space origin in world space; None: choose_origin()
     object_bvh_threshold: int = 32  # nodes with more objects than this get an object BVH
     object_leaf_size: int = 4  # grid-index entries per object-BVH leaf (1..7)
-    structure: Optional[str] = None  # a name of structures.STRUCTURES; None: DEFAULT_STRUCTURE
+    structure: str | None = None  # a name of structures.STRUCTURES; None: DEFAULT_STRUCTURE
     bvh_leaf_size: int = 2  # structure "bvh": triangles per model-tree leaf (1..4)
 
     def __post_init__(self):
@@ -69,7 +68,7 @@ class UpdateReport:
             n += (y1 - y0) * baked.textures[name].width
         return n
 
-    def merge(self, other: "UpdateReport") -> "UpdateReport":
+    def merge(self, other: UpdateReport) -> UpdateReport:
         self.ranges = merge_ranges(self.ranges + other.ranges)
         self.resized |= other.resized
         self.uniforms_changed |= other.uniforms_changed

@@ -2,8 +2,8 @@
 pass reads its inputs from, and reading masks back."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Optional
 
 import moderngl
 import numpy as np
@@ -36,7 +36,7 @@ class CameraUniforms:
     ortho: bool
 
     @classmethod
-    def from_camera(cls, camera, width: int, height: int) -> "CameraUniforms":
+    def from_camera(cls, camera, width: int, height: int) -> CameraUniforms:
         cw = camera.world_matrix_normalized()
         view = camera.view_matrix()
         rot_view = np.eye(4)
@@ -135,10 +135,10 @@ class FrameJob:
     height: int
     film_transparent: bool = False
     lights: list = field(default_factory=list)
-    gbuffer: Optional[GBuffer] = None
+    gbuffer: GBuffer | None = None
     masks: dict = field(default_factory=dict)
-    image: Optional[moderngl.Texture] = None
-    on_light: Optional[Callable[[int], None]] = None
+    image: moderngl.Texture | None = None
+    on_light: Callable[[int], None] | None = None
     dark: set = field(default_factory=set)
 
     @property

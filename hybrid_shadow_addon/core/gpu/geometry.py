@@ -2,7 +2,6 @@
 sphere primitives, and the caster draw lists of the light-space passes."""
 from __future__ import annotations
 
-import moderngl
 import numpy as np
 
 

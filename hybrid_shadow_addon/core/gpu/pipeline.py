@@ -78,7 +78,7 @@ class _SharedBake:
 
 
 class Pipeline:
-    def __init__(self, ctx=None, *, share: "Pipeline | None" = None):
+    def __init__(self, ctx=None, *, share: Pipeline | None = None):
         if share is None:
             self.ctx = create_context(ctx)
             make_current(self.ctx)  # (a handed-in context may not be the thread's current one)
@@ -95,7 +95,7 @@ class Pipeline:
         self.lighting = LightingPass(self.gpu)
         self._shadow: dict = {}  # mode -> shadow pass, created on first use
 
-    def view(self) -> "Pipeline":
+    def view(self) -> Pipeline:
         """Another pipeline sharing this one's context, programs, model buffers and bake, with
         its own passes (targets, history). Release it before this one."""
         return Pipeline(share=self)

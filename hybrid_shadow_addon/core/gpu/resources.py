@@ -6,7 +6,6 @@ import moderngl
 import numpy as np
 
 from ..bake.materials import bake_materials, material_signature
-
 from .geometry import ModelBufferCache
 from .programs import ProgramCache
 from .scene_textures import SceneTextures

@@ -144,7 +144,7 @@ def _default_release(pipeline) -> None:
     pipeline.ctx.release()
 
 
-_live: "weakref.WeakSet[RenderWorker]" = weakref.WeakSet()
+_live: weakref.WeakSet[RenderWorker] = weakref.WeakSet()
 
 
 class RenderWorker:

@@ -2,8 +2,8 @@
 arrays, not Python objects; with the affine-matrix helpers they use."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
@@ -53,7 +53,7 @@ class Instances:
         return len(self.names)
 
     @classmethod
-    def concatenate(cls, parts: Sequence["Instances"]) -> "Instances":
+    def concatenate(cls, parts: Sequence[Instances]) -> Instances:
         """All rows of ``parts``, in order (empty parts skipped)."""
         parts = [p for p in parts if len(p)]
         if not parts:
@@ -71,7 +71,7 @@ class Instances:
             material_ids=np.concatenate([p.material_ids for p in parts]),
         )
 
-    def take(self, rows) -> "Instances":
+    def take(self, rows) -> Instances:
         """The instances at ``rows`` (indices or a boolean mask), in that order."""
         rows = np.arange(len(self))[np.asarray(rows)] if len(self) else np.zeros(0, np.int64)
         return Instances(names=[self.names[i] for i in rows.tolist()], model_ids=self.model_ids[rows],

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
 
 import numpy as np
 
@@ -22,7 +21,7 @@ class Scene:
     models: list = field(default_factory=list)  # list[Model]
     instances: Instances = field(default_factory=Instances)
     lights: list = field(default_factory=list)  # list[Light]
-    camera: Optional[Camera] = None
+    camera: Camera | None = None
     world_color: np.ndarray = field(default_factory=lambda: np.float32([0.05, 0.05, 0.05]))
     resolution: tuple = (1920, 1080)
     frame: int = 1
@@ -96,7 +95,7 @@ class Scene:
         return (wc - wh).min(axis=0), (wc + wh).max(axis=0)
 
     # -- validation ---------------------------------------------------------------------------
-    def check_transforms(self) -> "Scene":
+    def check_transforms(self) -> Scene:
         """Raise :class:`SceneError` naming the first object, light or camera with a NaN or
         infinite transform (what the export rejects at once; :meth:`validate` checks the rest)."""
         inst = self.instances
@@ -111,7 +110,7 @@ class Scene:
             raise SceneError(f"camera '{self.camera.name}' has a NaN or infinite transform")
         return self
 
-    def validate(self, require_camera: bool = True) -> "Scene":
+    def validate(self, require_camera: bool = True) -> Scene:
         """Raise :class:`SceneError` naming the first unusable object; return self."""
         for m in self.models:
             m.validate()

@@ -28,7 +28,7 @@ class ModelSlots:
     depth: np.ndarray
 
     @classmethod
-    def empty(cls, m: int = 0) -> "ModelSlots":
+    def empty(cls, m: int = 0) -> ModelSlots:
         return cls(*(np.zeros(m, np.int64) for _ in range(7)))
 
     def append(self) -> None:
@@ -88,7 +88,7 @@ class AccelerationStructure(ABC):
     # -------------------------------------------------------------------------- building --
     @classmethod
     @abstractmethod
-    def bake(cls, scene, config, origin: np.ndarray, materials) -> "AccelerationStructure":
+    def bake(cls, scene, config, origin: np.ndarray, materials) -> AccelerationStructure:
         """The structure over ``scene``, its textures filled and :attr:`stats` timed."""
 
     @abstractmethod

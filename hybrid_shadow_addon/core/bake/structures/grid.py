@@ -23,8 +23,22 @@ import numpy as np
 from .. import grid as _grid
 from ..bvh import build_bvhs
 from ..materials import model_uvs
-from ..textures import (BVH_TEXELS, EMPTY_HEIGHT, GRID_TEXELS, INDEX_TEXELS, MAX_ROWS_LOG2, MODEL_TEXELS,
-                        OBJECT_TEXELS, REL_EPS, SPHERE_FLAG, TRI_TEXELS, TextureData, f32_bits, f32_up, texel_rows)
+from ..textures import (
+    BVH_TEXELS,
+    EMPTY_HEIGHT,
+    GRID_TEXELS,
+    INDEX_TEXELS,
+    MAX_ROWS_LOG2,
+    MODEL_TEXELS,
+    OBJECT_TEXELS,
+    REL_EPS,
+    SPHERE_FLAG,
+    TRI_TEXELS,
+    TextureData,
+    f32_bits,
+    f32_up,
+    texel_rows,
+)
 from .base import AccelerationStructure
 from .grid_state import UV_TEXELS, GridModels, GridState, InstanceState, TextureSet, new_texture
 from .grid_update import GridUpdates
@@ -51,7 +65,7 @@ class HierarchicalGrid(GridUpdates, AccelerationStructure):
         self.grid: GridState = GridState.empty()
 
     @classmethod
-    def bake(cls, scene, config, origin, materials) -> "HierarchicalGrid":
+    def bake(cls, scene, config, origin, materials) -> HierarchicalGrid:
         structure = cls(config, origin, materials)
         cfg = config
         tex = structure.tex

@@ -3,7 +3,6 @@ per-instance and per-grid-node arrays. Texel layouts: ``shaders/common/scene_gri
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 
@@ -50,11 +49,11 @@ class TextureSet:
     tri: TextureData
     bvh_tail: int = 0  # [bvh] records allocated: model BVHs, then the grid's object BVHs
     tri_tail: int = 0  # [tri] records allocated
-    uv: Optional[TextureData] = None  # [uv]: UV_TEXELS per [tri] record (mirrors [tri])
-    object_mat: Optional[TextureData] = None  # [object_mat]: 1 texel per instance
+    uv: TextureData | None = None  # [uv]: UV_TEXELS per [tri] record (mirrors [tri])
+    object_mat: TextureData | None = None  # [object_mat]: 1 texel per instance
 
     @classmethod
-    def empty(cls, width: int) -> "TextureSet":
+    def empty(cls, width: int) -> TextureSet:
         return cls(**{name: new_texture(name, 0, width) for name in BASE_TEXTURE_NAMES})
 
     def __getitem__(self, name: str) -> TextureData:
@@ -71,10 +70,10 @@ class GridModels(ModelSlots):
     """:class:`ModelSlots` in [bvh] / [tri] records, plus which models' UVs are in [uv]."""
 
     #: (M,) bool: the model's UVs are in [uv] (alpha-cut shadows); None: the bake has no [uv]
-    uv: Optional[np.ndarray] = None
+    uv: np.ndarray | None = None
 
     @classmethod
-    def from_build(cls, build) -> "GridModels":
+    def from_build(cls, build) -> GridModels:
         """The models of a :class:`~..bvh.BVHBuild` packed from record 0, no spare room."""
         return cls(node_start=build.node_start.copy(), node_count=build.node_count.copy(),
                    node_cap=build.node_count.copy(), tri_start=build.tri_start.copy(),
@@ -94,7 +93,7 @@ class InstanceState:
     slot: np.ndarray  # (N,) int64 [grid_index] slot, -1: none
 
     @classmethod
-    def empty(cls, n: int = 0) -> "InstanceState":
+    def empty(cls, n: int = 0) -> InstanceState:
         return cls(np.zeros((n, 3)), np.zeros(n), np.zeros(n), np.zeros(n, np.int64), np.zeros(n, bool),
                    np.full(n, -1, np.int64), np.full(n, -1, np.int64))
 
@@ -120,7 +119,7 @@ class GridState:
     bvh_grown: bool = False  # the grid build resized [bvh]
 
     @classmethod
-    def new(cls, layout: GridLayout) -> "GridState":
+    def new(cls, layout: GridLayout) -> GridState:
         """Empty nodes of ``layout``."""
         n = layout.n_nodes
         return cls(layout, np.zeros(n, np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64),
@@ -128,7 +127,7 @@ class GridState:
                    np.zeros(n, np.int64), np.zeros(layout.levels, np.int64))
 
     @classmethod
-    def empty(cls) -> "GridState":
+    def empty(cls) -> GridState:
         return cls.new(plan_grid(np.zeros((0, 3)), np.zeros(0)))
 
 

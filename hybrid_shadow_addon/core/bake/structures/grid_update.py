@@ -21,8 +21,19 @@ import numpy as np
 from .. import grid as _grid
 from ..bvh import build_bvhs, build_trees, morton_order_groups
 from ..state import UpdateReport
-from ..textures import (BVH_TEXELS, MODEL_TEXELS, OBJECT_TEXELS, TRI_TEXELS, f32_bits, f32_down, f32_up, grow_texture,
-                        merge_ranges, rows_of_texels, texel_rows)
+from ..textures import (
+    BVH_TEXELS,
+    MODEL_TEXELS,
+    OBJECT_TEXELS,
+    TRI_TEXELS,
+    f32_bits,
+    f32_down,
+    f32_up,
+    grow_texture,
+    merge_ranges,
+    rows_of_texels,
+    texel_rows,
+)
 from .grid_state import UV_TEXELS
 
 

@@ -18,11 +18,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..state import UpdateReport
-from ..textures import (MAX_ROWS_LOG2, SPHERE_FLAG, TextureData, alloc_texture, f32_bits, f32_up, grow_texture,
-                        merge_ranges, rows_of_texels, texel_rows)
+from ..textures import (
+    MAX_ROWS_LOG2,
+    SPHERE_FLAG,
+    TextureData,
+    alloc_texture,
+    f32_bits,
+    f32_up,
+    grow_texture,
+    merge_ranges,
+    rows_of_texels,
+    texel_rows,
+)
 from .base import AccelerationStructure, ModelSlots
-from .blas import (FORMATS, INST_TEXELS, LEAF_READ, NAMES, TLAS_PAD, build_blas, leaf_size, model_box,
-                   relocate_nodes)
+from .blas import FORMATS, INST_TEXELS, LEAF_READ, NAMES, TLAS_PAD, build_blas, leaf_size, model_box, relocate_nodes
 from .tlas import TopLevel
 
 
@@ -74,7 +83,7 @@ class TwoLevelBVH(AccelerationStructure):
 
     # ----------------------------------------------------------------------------- bake --
     @classmethod
-    def bake(cls, scene, config, origin, materials) -> "TwoLevelBVH":
+    def bake(cls, scene, config, origin, materials) -> TwoLevelBVH:
         t_start = time.perf_counter()
         self = cls(config, origin, materials)
         models = list(scene.models)

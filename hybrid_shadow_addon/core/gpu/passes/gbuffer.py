@@ -29,8 +29,17 @@ from ...errors import SceneError
 from ...scene import max_scale
 from ..context import check_render_size
 from ..frame import GBUFFER_TARGETS, CameraUniforms, GBuffer
-from ..geometry import (INDEXED_ATTRS, INDEXED_ATTRS_NO_UV, INDEXED_FORMAT, INDEXED_FORMAT_NO_UV, PROXY_ATTRS,
-                        PROXY_FORMAT, InstanceBatch, ProxyMesh, unit_cube)
+from ..geometry import (
+    INDEXED_ATTRS,
+    INDEXED_ATTRS_NO_UV,
+    INDEXED_FORMAT,
+    INDEXED_FORMAT_NO_UV,
+    PROXY_ATTRS,
+    PROXY_FORMAT,
+    InstanceBatch,
+    ProxyMesh,
+    unit_cube,
+)
 from ..targets import create_texture
 from .base import Pass
 

@@ -19,9 +19,24 @@ from ...bake.textures import BVH_TEXELS, FLT_BIG, MODEL_TEXELS, OBJECT_TEXELS, S
 from .brute import trace_brute, visibility_brute
 from .grid import BIG, EPS16, OBVH_EPS, trace_grid
 from .lightgrid import instance_sphere_hit, light_grid_place, trace_light_grid
-from .primitives import (PRETEST_EPS, SLAB_BIG, TFAR_SCALE, TFLOOR, F, bake_space, prepare_rays, ragged_pairs,
-                         slab_hit, slab_inv, sphere_hit, sphere_pretest, transform_rays, woop_hit, woop_hit_bary,
-                         woop_setup)
+from .primitives import (
+    PRETEST_EPS,
+    SLAB_BIG,
+    TFAR_SCALE,
+    TFLOOR,
+    F,
+    bake_space,
+    prepare_rays,
+    ragged_pairs,
+    slab_hit,
+    slab_inv,
+    sphere_hit,
+    sphere_pretest,
+    transform_rays,
+    woop_hit,
+    woop_hit_bary,
+    woop_setup,
+)
 from .twolevel import LEAF_FLAG, QEPS, TLAS_EPS, trace_twolevel
 
 

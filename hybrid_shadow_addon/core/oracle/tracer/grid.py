@@ -11,8 +11,19 @@ from __future__ import annotations
 import numpy as np
 
 from ...bake.textures import BVH_TEXELS, MODEL_TEXELS, OBJECT_TEXELS, SPHERE_FLAG, TRI_TEXELS
-from .primitives import (F, bake_space, prepare_rays, ragged_pairs, slab_hit, slab_inv, sphere_hit, sphere_pretest,
-                         transform_rays, woop_hit, woop_setup)
+from .primitives import (
+    F,
+    bake_space,
+    prepare_rays,
+    ragged_pairs,
+    slab_hit,
+    slab_inv,
+    sphere_hit,
+    sphere_pretest,
+    transform_rays,
+    woop_hit,
+    woop_setup,
+)
 
 BIG = F(3.4e38)  # "no boundary" t of the DDA; > FLT_BIG
 EPS16 = F(2.0 ** -16)

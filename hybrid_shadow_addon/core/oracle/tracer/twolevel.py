@@ -5,8 +5,18 @@ from __future__ import annotations
 import numpy as np
 
 from ...bake.textures import SPHERE_FLAG
-from .primitives import (F, TFAR_SCALE, bake_space, prepare_rays, ragged_pairs, slab_inv, sphere_hit, transform_rays,
-                         woop_hit, woop_setup)
+from .primitives import (
+    TFAR_SCALE,
+    F,
+    bake_space,
+    prepare_rays,
+    ragged_pairs,
+    slab_inv,
+    sphere_hit,
+    transform_rays,
+    woop_hit,
+    woop_setup,
+)
 
 LEAF_FLAG = np.uint32(1 << 31)
 QEPS = F(2.0 ** -20)
