@@ -123,11 +123,13 @@ def run(size, structures, repeats: int, warmup: int, bake_repeats: int, ctx) -> 
     alpha, ref_alpha = load(f"alpha_cards:width={W},height={H}", size)
     binary, ref_binary = load(f"alpha_cards:width={W},height={H},closest=1", size)
     opaque, ref_opaque = load(f"alpha_cards:width={W},height={H},opaque=1", size)
-    scenes = {"alpha": (alpha, ref_alpha), "binary": (binary, ref_binary), "one cut": (only_one_cut(alpha, ONE_CUT), None),
+    scenes = {"alpha": (alpha, ref_alpha), "binary": (binary, ref_binary),
+              "one cut": (only_one_cut(alpha, ONE_CUT), None),
               "opaque": (opaque, ref_opaque),
               "no images": (strip_materials(alpha), ref_opaque)}  # (the opaque scene's shadows)
     out = {"resolution": [W, H], "triangles": int(alpha.triangle_count), "instances": len(alpha.instances),
-           "images": len(alpha.images), "materials": len(alpha.materials), "lights": [l.name for l in alpha.lights],
+           "images": len(alpha.images), "materials": len(alpha.materials),
+           "lights": [light.name for light in alpha.lights],
            "repeats": repeats, "warmup": warmup, "rows": {}}
     for s in structures:
         settings = Settings(mode="raytrace", quality="high", structure=s, hard=True)
@@ -191,7 +193,8 @@ def table(res: dict, structures) -> str:
             else:
                 mm = "–"
             alpha = "yes" if any(d.startswith("HS_HAS_ALPHA") for d in r["defines"]) else "no"
-            lines.append(f"| {LABELS[v]} | {s} | {alpha} | {r['shadow_ms']:.0f} | {r['shadow_ms'] / base:.2f} | {r['bake_ms']:.1f} | "
+            lines.append(f"| {LABELS[v]} | {s} | {alpha} | {r['shadow_ms']:.0f} | {r['shadow_ms'] / base:.2f} | "
+                         f"{r['bake_ms']:.1f} | "
                          f"{r['atlas_ms']:.1f} | {r['texture_mb']:.2f} | {r['material_mb']:.2f} | {mm} |")
     return "\n".join(lines)
 

@@ -104,7 +104,8 @@ def main():
     ratio_rest = s["every_frame"]["besides_shadows_ms_median"] / s["persistent"]["besides_shadows_ms_median"]
     print(f"{args.scene}: frames {args.frames} ({len(frames)}), {w}x{h}, {args.mode}/{args.quality}; "
           f"{len(scene.instances)} instances, {scene.triangle_count} triangles; loaded in {load_s:.1f} s")
-    print("| per frame (median ms) | wall | export | bake / update | passes | of which shadows | wall - shadows | bakes |")
+    print("| per frame (median ms) | wall | export | bake / update | passes | of which shadows | wall - shadows "
+          "| bakes |")
     print("|---|---:|---:|---:|---:|---:|---:|---|")
     for k, label in (("every_frame", "bake every frame"), ("persistent", "persistent bake")):
         v = s[k]
@@ -115,7 +116,8 @@ def main():
     print(f"persistent bake: first (full) bake {s['persistent']['bake_ms_first']:.0f} ms; "
           f"per-frame speed-up x{ratio:.2f} (median wall), x{ratio_rest:.2f} besides the shadow pass (same run)")
     if args.json:
-        Path(args.json).write_text(json.dumps({"summary": s, "ratio": ratio, "ratio_besides_shadows": ratio_rest, "frames": runs}, indent=1))
+        Path(args.json).write_text(json.dumps({"summary": s, "ratio": ratio, "ratio_besides_shadows": ratio_rest,
+                                               "frames": runs}, indent=1))
 
 
 if __name__ == "__main__":

@@ -80,13 +80,14 @@ def main():
     print(f"{baked.structure}: " + ", ".join(f"{k} {st[k]}" for k in counts if k in st))
     print("textures:")
     for name, tex in baked.textures.items():
-        print(f"  {name:11s} {tex.gl_internal_format:9s} {tex.width}x{tex.height}x{tex.layers:<3d} {tex.nbytes / 2**20:8.2f} MB")
+        print(f"  {name:11s} {tex.gl_internal_format:9s} {tex.width}x{tex.height}x{tex.layers:<3d} "
+              f"{tex.nbytes / 2**20:8.2f} MB")
     print(f"  {'total':11s} {'':9s} {'':15s} {st['total_bytes'] / 2**20:8.2f} MB")
 
     n = len(scene.instances)
     k = max(1, n // 100)
     times = []
-    for r in range(args.repeat):
+    for _ in range(args.repeat):
         idx = rng.choice(n, k, replace=False)
         M = scene.instances.matrices[idx].copy()
         M[:, :2, 3] += rng.normal(scale=3.0, size=(k, 2))

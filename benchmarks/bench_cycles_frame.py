@@ -7,7 +7,8 @@ alternating in one process, same run (a script, not a test).
 Ours: ``raytrace`` at ``high``, hard lights (as the hard Cycles reference renders them), every
 shadowed light; the median ``total_ms`` (G-buffer + shadows + lighting + readback) of ``--frames``
 warm frames. The light grids are built up front (``eager``; their build time, once per scene and
-light, is printed apart: a viewport or an animation pays it once). Cycles: the compare tool's reference recipe (``blender/cycles_reference.py``: one
+light, is printed apart: a viewport or an animation pays it once). Cycles: the compare tool's reference recipe
+(``blender/cycles_reference.py``: one
 light at a time, 1 sample at the pixel centre, ``max_bounces`` 0), each light rendered with its
 shadow and without; the shadowed renders' time is half of each light's pair (the two renders of a
 pair cost the same to within a few %), so "Cycles ms" is the sum over the lights of half their

@@ -54,7 +54,8 @@ def main():
     print()
     print(f"{'case':<16}{'instances':>10}{'models':>8}{'triangles':>11}{'unique':>10}{'export s':>10}{'target':>8}  ok")
     for label, n, m, t, u, s, target in rows:
-        print(f"{label:<16}{n:>10}{m:>8}{t:>11}{u:>10}{s:>10.3f}{'<' + str(target):>8}  {'yes' if s < target else 'NO'}")
+        print(f"{label:<16}{n:>10}{m:>8}{t:>11}{u:>10}{s:>10.3f}{'<' + str(target):>8}  "
+              f"{'yes' if s < target else 'NO'}")
     print()
     print(f"{'scene':<16}{'instances':>10}{'models':>8}{'triangles':>11}{'build ms':>10}{'export ms':>10}")
     for name, n, m, t, build, s in scenes:

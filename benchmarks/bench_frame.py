@@ -63,9 +63,9 @@ if interlace:  # the first frame after a change and a still view (frames 5 on), 
     out = {"first_ms": statistics.median(first), "still_ms": statistics.median(still)}
 else:
     rows = [pipe.render(scene, settings, W, H).timings for _ in range(frames)][2:]
-    out = {k: statistics.median(r.get(k, 0.0) for r in rows) for k in %r}
+    out = {k: statistics.median(r.get(k, 0.0) for r in rows) for k in PASSES_TUPLE}
 print("HS_FRAME " + json.dumps(out), flush=True)
-""" % (PASSES,)
+""".replace("PASSES_TUPLE", repr(PASSES))
 
 
 def measure(tree: Path, scene: str, size: str, soft: bool, mode: str, frames: int, interlace: bool = False) -> dict:
@@ -104,7 +104,8 @@ def main(argv=None) -> int:
             this = statistics.median(r[p] for r in got["this"])
             ratio = f"{peer / this:.2f}x" if this > 0 else "-"
             label = {"first_ms": "interlaced shadows, first frame after a change",
-                     "still_ms": "interlaced shadows, a still view"}.get(p, p.replace("_ms", "").replace("total", "frame"))
+                     "still_ms": "interlaced shadows, a still view"}.get(
+                p, p.replace("_ms", "").replace("total", "frame"))
             print(f"| {scene} | {label} | {peer:.1f} | {this:.1f} | {ratio} |", flush=True)
     return 0
 

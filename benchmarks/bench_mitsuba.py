@@ -90,10 +90,10 @@ def main(argv=None):
     print("|---|---|---|---|---|---|---|---|---|---|")
     for spec in a.scenes.split(";"):
         scene = load_scene(spec)
-        suns = [i for i, l in enumerate(scene.lights) if l.type == "SUN"]
+        suns = [i for i, light in enumerate(scene.lights) if light.type == "SUN"]
         li = suns[0] if suns else 0
-        for i, l in enumerate(scene.lights):
-            l.use_shadow = i == li
+        for i, light in enumerate(scene.lights):
+            light.use_shadow = i == li
         pipe.set_scene(scene)
         timings = {}
         for cons in (False, True):  # (the mask compared below is the last: with maps)

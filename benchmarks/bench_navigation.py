@@ -67,7 +67,8 @@ def main(argv=None) -> int:
     full = Settings(mode="raytrace", quality="high", hard=hard, accumulate=True, samples=args.samples, frame_samples=4)
     fast = dataclasses.replace(full, quality="low", samples=4 if args.soft else args.samples)
     worker = RenderWorker()
-    print(f"{'soft' if args.soft else 'hard'} lights, {w}x{h}, medians of {args.repeats} changes (ms from the request)\n")
+    print(f"{'soft' if args.soft else 'hard'} lights, {w}x{h}, medians of {args.repeats} changes "
+          "(ms from the request)\n")
     print("| scene | navigation | first image | first full-quality frame | last frame | frames |")
     print("|---|---|---:|---:|---:|---:|")
     try:

@@ -10,7 +10,8 @@ Scenes under ``stiff/`` render at their own size (200x150); the others at ``--si
 references are cached on disk (``tools/reference.py``: ``$XDG_CACHE_HOME/hybrid_shadows``).
 A variant is a quality, optionally with ``+key=value`` settings (``medium+conservative=all``);
 ``+method=depth`` (the default, and the only method) picks how the refinement traces its marked
-pixels (``RaytraceOptions.refine_method``) and ``+view_cos=0.3`` (any key of ``Refiner.RULES``) sets a refinement rule (``passes/refine.py``).
+pixels (``RaytraceOptions.refine_method``) and ``+view_cos=0.3`` (any key of ``Refiner.RULES``) sets a
+refinement rule (``passes/refine.py``).
 """
 from __future__ import annotations
 
@@ -32,7 +33,8 @@ SCENES = ("forest", "clusters", "city")
 
 
 def stiff_cases() -> list:
-    return sorted(f"stiff/{p.stem}" for p in (REPO / "test_scenes" / "stiff").glob("*.py") if not p.stem.startswith("_"))
+    return sorted(f"stiff/{p.stem}" for p in (REPO / "test_scenes" / "stiff").glob("*.py")
+                  if not p.stem.startswith("_"))
 
 
 def parse_variant(text: str) -> dict:

@@ -106,14 +106,15 @@ def main():
              for t in args.triangles]
     cases += [("instances", f"scaling:triangles={args.instances_triangles},instances={i},width={w},height={h}")
               for i in args.instances]
-    sweeps = {"triangles": f"{args.triangles_instances} instances", "instances": f"{args.instances_triangles} triangles"}
+    sweeps = {"triangles": f"{args.triangles_instances} instances",
+              "instances": f"{args.instances_triangles} triangles"}
     pipe = Pipeline()
     rt = pipe.shadow_pass("raytrace")
     rt.options = replace(rt.options, eager_light_grids=True)  # (hard lights' grids up front, not mid-run)
     rows = []
     names = [v.name for v in variants]
-    head = f"{'sweep':<10}{'triangles':>11}{'unique':>9}{'instances':>10}{'export ms':>10}{'bake ms':>9}{'tex MB':>8}" + \
-        "".join(f"{n:>16}" for n in names)
+    head = f"{'sweep':<10}{'triangles':>11}{'unique':>9}{'instances':>10}{'export ms':>10}{'bake ms':>9}" \
+        f"{'tex MB':>8}" + "".join(f"{n:>16}" for n in names)
     print(f"shadow ms per mode at {w}x{h}, median of {args.repeats}")
     print(head, flush=True)
     t_all = time.perf_counter()

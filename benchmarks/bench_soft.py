@@ -118,7 +118,7 @@ def main(argv=None) -> int:
                  for n in (1, 4, 16, 32, 64)]
         acc = base.replace(accumulate=True, frame_samples=4, samples=64)
         rows += [("viewport, first frame", acc, 1), ("viewport, 8 still frames", acc, 8)]
-        for label, s, frames in rows:  # (a warm-up render compiles each program first)
+        for _label, s, _frames in rows:  # (a warm-up render compiles each program first)
             pipe.set_scene(scene, "bvh")
             pipe.render(scene, s)
         hard_ms = None

@@ -143,8 +143,9 @@ def main(argv=None) -> int:
     w, h = (int(v) for v in args.size.lower().split("x"))
     rng = np.random.default_rng(7)
     pipe = Pipeline()
-    print("| scene | unoccluded rays | BVH steps/ray: top level of all | instances entered/ray | best loose grid (base) "
-          "| cells + objects = fetches/ray | instances reached/ray | loose grid / BVH top level | at most saved of the walk |")
+    print("| scene | unoccluded rays | BVH steps/ray: top level of all | instances entered/ray "
+          "| best loose grid (base) | cells + objects = fetches/ray | instances reached/ray "
+          "| loose grid / BVH top level | at most saved of the walk |")
     print("|---|---:|---:|---:|---|---:|---:|---:|---:|")
     try:
         for spec in args.scenes:
@@ -153,7 +154,7 @@ def main(argv=None) -> int:
             frame = pipe.render(scene, Settings(mode="raytrace", quality="high", structure="bvh", hard=True), w, h)
             baked = pipe.baked
             lo, hi = instance_boxes(scene)
-            O, D, T = [], [], []
+            o_parts, d_parts, t_parts = [], [], []
             for k, li in enumerate(frame.lights):
                 valid = ~np.isnan(frame.mask_array(k))
                 rows, cols = np.nonzero(valid)
@@ -161,8 +162,8 @@ def main(argv=None) -> int:
                 idx = np.nonzero(facing)[0]
                 if len(idx) > args.rays:
                     idx = np.sort(rng.choice(idx, args.rays, replace=False))
-                O.append(o[idx]), D.append(d[idx]), T.append(np.broadcast_to(tmax, facing.shape)[idx])
-            o, d, tmax = np.concatenate(O), np.concatenate(D), np.concatenate(T)
+                o_parts.append(o[idx]), d_parts.append(d[idx]), t_parts.append(np.broadcast_to(tmax, facing.shape)[idx])
+            o, d, tmax = np.concatenate(o_parts), np.concatenate(d_parts), np.concatenate(t_parts)
             occ = tracer.trace_structured(baked, o, d, tmax)
             o, d, tmax = o[~occ], d[~occ], tmax[~occ]
             st: dict = {}

@@ -52,7 +52,8 @@ def row(label: str, frame, scene, ref: dict) -> str:
         if name not in ref:
             continue
         e = mask_error(ref[name], frame.mask_array(li))
-        cells.append(f"{e.abs_error_sum / max(e.valid_pixels, 1):.4f} / {100 * e.off_pixels / max(e.valid_pixels, 1):.2f} %")
+        cells.append(f"{e.abs_error_sum / max(e.valid_pixels, 1):.4f} / "
+                     f"{100 * e.off_pixels / max(e.valid_pixels, 1):.2f} %")
     return f"| {label} | " + " | ".join(cells) + " |"
 
 

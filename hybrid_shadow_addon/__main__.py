@@ -79,7 +79,8 @@ def cmd_info(args) -> int:
         return 0
     lights = ", ".join(f"{n} {t.lower()}" for t, n in s["lights"].items() if n) or "none"
     print(f"scene       {s['scene']} (frame {s['frame']}, {s['resolution'][0]}x{s['resolution'][1]})")
-    print(f"instances   {s['instances']} ({s['shadow_casters']} cast shadows, {s['sphere_primitives']} sphere primitives)")
+    print(f"instances   {s['instances']} ({s['shadow_casters']} cast shadows, "
+          f"{s['sphere_primitives']} sphere primitives)")
     print(f"models      {s['models']}")
     print(f"triangles   {s['triangles']} placed, {s['unique_triangles']} unique")
     print(f"lights      {lights} ({s['shadowed_lights']} cast shadows)")
@@ -112,7 +113,8 @@ def cmd_render(args) -> int:
         settings = Settings(mode=args.mode, quality=args.quality, max_shadowed_lights=args.max_shadowed_lights,
                         max_distance=args.max_distance, interlace=False,
                         conservative=args.conservative_maps, structure=args.structure or Settings.structure,
-                        light_grid=not args.no_light_grids, samples=args.samples if args.samples is not None else Settings.samples, hard=args.hard,
+                        light_grid=not args.no_light_grids,
+                        samples=args.samples if args.samples is not None else Settings.samples, hard=args.hard,
                         noise_target=args.noise_target if args.noise_target is not None else Settings.noise_target)
     except ValueError as e:
         raise SceneError(str(e)) from None

@@ -20,7 +20,8 @@ lib["add_object"]("Pillar", lib["box"]("Pillar", (0.6, 0.6, 2.5), base_at_origin
 lib["add_object"]("Ball", lib["uv_sphere"]("Ball", radius=0.7, segments=16, rings=8,
                                            materials=[lib["material"]("Blue", (0.1, 0.2, 0.8), 0.3)]),
                   location=(-2.0, 2.0, 0.7))
-cube = lib["add_object"]("Cube", lib["box"]("Cube", (1.2, 1.2, 1.2), materials=[lib["material"]("Red", (0.8, 0.1, 0.1))]),
+cube = lib["add_object"]("Cube", lib["box"]("Cube", (1.2, 1.2, 1.2),
+                                           materials=[lib["material"]("Red", (0.8, 0.1, 0.1))]),
                          location=(-3.0, -1.0, 0.6))
 edit = bpy.context.preferences.edit
 interpolation, edit.keyframe_new_interpolation_type = edit.keyframe_new_interpolation_type, "LINEAR"

@@ -19,10 +19,13 @@ scene = lib["setup_scene"]("city", (int(PARAMS.get("width", 640)), int(PARAMS.ge
 lib["set_world"](scene, (0.01, 0.012, 0.03), 1.0)
 pitch = BLOCK + STREET
 extent = BLOCKS * pitch + STREET
-lib["add_object"]("Streets", lib["plane"]("Streets", extent, materials=[lib["material"]("Asphalt", (0.05, 0.05, 0.05), 0.7)]))
+lib["add_object"]("Streets", lib["plane"]("Streets", extent,
+                                          materials=[lib["material"]("Asphalt", (0.05, 0.05, 0.05), 0.7)]))
 
-unit = lib["box"]("Building", (1, 1, 1), base_at_origin=True, materials=[lib["material"]("Concrete", (0.5, 0.48, 0.45), 0.8)])
-pole = lib["box"]("Pole", (0.2, 0.2, 6), base_at_origin=True, materials=[lib["material"]("Steel", (0.3, 0.3, 0.32), 0.4, 0.8)])
+unit = lib["box"]("Building", (1, 1, 1), base_at_origin=True,
+                  materials=[lib["material"]("Concrete", (0.5, 0.48, 0.45), 0.8)])
+pole = lib["box"]("Pole", (0.2, 0.2, 6), base_at_origin=True,
+                  materials=[lib["material"]("Steel", (0.3, 0.3, 0.32), 0.4, 0.8)])
 start = -extent / 2 + STREET
 n = 0
 for bx in range(BLOCKS):

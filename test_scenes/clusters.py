@@ -31,13 +31,15 @@ for k in range(2):
         a = 2 * math.pi * j / (3 + k)
         lib["add_object"](f"Cluster {k} palm {j}", palm, coll, location=(2.5 * math.cos(a), 2.5 * math.sin(a), -0.1),
                           rotation=(0, 0, a))
-        lib["add_object"](f"Cluster {k} rock {j}", rock, coll, location=(1.2 * math.cos(a + 0.5), 1.2 * math.sin(a + 0.5), 0.3),
+        lib["add_object"](f"Cluster {k} rock {j}", rock, coll,
+                          location=(1.2 * math.cos(a + 0.5), 1.2 * math.sin(a + 0.5), 0.3),
                           scale=(0.8, 0.6, 0.5))
     layouts.append(coll)
 
 centres = lib["jittered_points"](rng, CLUSTERS, 80.0)
 for i, (x, y) in enumerate(centres):
-    empty = lib["add_object"](f"Cluster.{i:02d}", None, location=(x, y, 0), rotation=(0, 0, rng.uniform(0, 2 * math.pi)))
+    empty = lib["add_object"](f"Cluster.{i:02d}", None, location=(x, y, 0),
+                              rotation=(0, 0, rng.uniform(0, 2 * math.pi)))
     empty.instance_type = "COLLECTION"
     empty.instance_collection = layouts[i % 2]
 

@@ -28,9 +28,11 @@ source = lib["hidden_collection"]("Models")
 mat = lib["material"]("Blob", (0.7, 0.5, 0.3), 0.5)
 per_model = max(1, TRIANGLES // INSTANCES)
 for m in range(MODELS):
-    lib["add_object"](f"Model.{m:03d}", lib["sphere_for_triangles"](f"Model.{m:03d}", per_model, 1.0, 0.15, m, [mat]), source)
+    lib["add_object"](f"Model.{m:03d}", lib["sphere_for_triangles"](f"Model.{m:03d}", per_model, 1.0, 0.15, m, [mat]),
+                      source)
 i = np.arange(INSTANCES)
-pos = np.stack([(i % side + 0.5) * spacing - field / 2, (i // side + 0.5) * spacing - field / 2, np.full(INSTANCES, 1.0)], axis=1)
+pos = np.stack([(i % side + 0.5) * spacing - field / 2, (i // side + 0.5) * spacing - field / 2,
+                np.full(INSTANCES, 1.0)], axis=1)
 pos[:, :2] += rng.uniform(-0.5, 0.5, (INSTANCES, 2))
 lib["instance_on_points"]("Field", source, pos, rotations=rng.uniform(0, 2 * math.pi, (INSTANCES, 3)),
                           scales=rng.uniform(0.6, 1.2, INSTANCES), variants=i % MODELS)

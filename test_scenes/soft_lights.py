@@ -2,7 +2,8 @@
 wide sun (4°), a sphere light (point, radius 0.3 m), a spot light (radius 0.2 m, 70° cone,
 blend 0.3) and square (1 m), rectangle (1.2 x 0.5 m) and disk (1 m) area lights, each over a box
 whose shadow it softens; 200x150. The light sizes are Blender's own settings (sun ``angle``,
-``shadow_soft_size``, ``spot_size``, ``spot_blend``, area ``shape``, ``size``, ``size_y``), so Cycles renders the same penumbrae (``compare --soft``, tests/test_soft_cycles.py).
+``shadow_soft_size``, ``spot_size``, ``spot_blend``, area ``shape``, ``size``, ``size_y``), so Cycles renders the
+same penumbrae (``compare --soft``, tests/test_soft_cycles.py).
 
 PARAMS: ``width``, ``height``.
 """

@@ -242,7 +242,8 @@ def test_shadow_mode_changes_image(run):
     c = {m: run["exr"][m]["Combined"] for m in MODES}
     assert np.abs(c["RAYTRACE"] - c["NONE"]).max() > 0.05
     assert np.abs(c["SHADOWMAP"] - c["NONE"]).max() > 0.05
-    shadowed = sum(float((run["exr"]["RAYTRACE"][n] < 0.5).mean()) for n in run["exr"]["RAYTRACE"] if n.startswith("Shadow "))
+    shadowed = sum(float((run["exr"]["RAYTRACE"][n] < 0.5).mean()) for n in run["exr"]["RAYTRACE"]
+                   if n.startswith("Shadow "))
     assert shadowed > 0.01
 
 

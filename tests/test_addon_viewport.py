@@ -91,7 +91,8 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
 
         ref = create_pipeline()
         step("move", lambda: setattr(bpy.data.objects["Palm.0003"], "location",
-                                     bpy.data.objects["Palm.0003"].location + type(bpy.data.objects["Palm.0003"].location)((2.0, 1.0, 0.0))))
+                                     bpy.data.objects["Palm.0003"].location
+                                     + type(bpy.data.objects["Palm.0003"].location)((2.0, 1.0, 0.0))))
         check_masks("move")
 
         def edit_terrain():
@@ -129,7 +130,8 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
         vc = viewport_camera(view, win, w, h)
         core = export_depsgraph(dg, resolution=(w, h))
         r["camera_projection_error"] = float(np.abs(vc.projection_matrix(w, h) - np.array(win)).max())
-        r["camera_matrix_error"] = float(np.abs(vc.world_matrix_normalized() - core.camera.world_matrix_normalized()).max())
+        r["camera_matrix_error"] = float(np.abs(vc.world_matrix_normalized()
+                                                - core.camera.world_matrix_normalized()).max())
 
         # view_draw's refine logic, on a stand-in for the engine instance (inline worker first:
         # one frame per redraw, as the draw callback used to render)
@@ -308,7 +310,8 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
             display.upload(frame.image)
             with gpu.matrix.push_pop(), gpu.matrix.push_pop_projection():
                 gpu.matrix.load_matrix(Matrix.Identity(4))
-                gpu.matrix.load_projection_matrix(Matrix.Translation((-1.0, -1.0, 0.0)) @ Matrix.Diagonal((2.0 / w, 2.0 / h, 1.0, 1.0)))
+                gpu.matrix.load_projection_matrix(Matrix.Translation((-1.0, -1.0, 0.0))
+                                                  @ Matrix.Diagonal((2.0 / w, 2.0 / h, 1.0, 1.0)))
                 display.draw(scene, w, h)
             pixels = np.array(fb.read_color(0, 0, w, h, 4, 0, "FLOAT").to_list(), np.float32).reshape(h, w, 4)
         release_pipeline(vp_pipe)

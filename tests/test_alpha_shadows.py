@@ -138,7 +138,8 @@ def test_atlas_mips_and_packing():
     top = srgb_decode(levels[-1][0, 0, :3] / 255.0)
     np.testing.assert_allclose(top, lin.mean(axis=(0, 1)), atol=0.01)  # averaged in linear light
     pos = shelf_pack([(300, 200), (100, 100), (512, 40), (200, 250)], 512)
-    rects = [(x, y, l, w, h) for (x, y, l), (w, h) in zip(pos.tolist(), [(300, 200), (100, 100), (512, 40), (200, 250)])]
+    rects = [(x, y, lay, w, h)
+             for (x, y, lay), (w, h) in zip(pos.tolist(), [(300, 200), (100, 100), (512, 40), (200, 250)])]
     for i, a in enumerate(rects):
         assert a[0] + a[3] <= 512 and a[1] + a[4] <= 512
         for b in rects[i + 1:]:

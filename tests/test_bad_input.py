@@ -32,8 +32,10 @@ SCRIPTS = {
     "empty": CAMERA + SUN,
     "nocamera": CUBE + SUN,
     "nolights": CUBE + CAMERA,
-    "nan": CUBE + 'ob = L["add_object"]("Broken", L["box"]("B", (1, 1, 1)))\nob.location = (float("nan"), 0, 0)\n' + SUN + CAMERA,
-    "inf": CUBE + 'ob = L["add_object"]("Huge", L["box"]("H", (1, 1, 1)))\nob.scale = (float("inf"), 1, 1)\n' + SUN + CAMERA,
+    "nan": CUBE + 'ob = L["add_object"]("Broken", L["box"]("B", (1, 1, 1)))\n'
+                  'ob.location = (float("nan"), 0, 0)\n' + SUN + CAMERA,
+    "inf": CUBE + 'ob = L["add_object"]("Huge", L["box"]("H", (1, 1, 1)))\n'
+                  'ob.scale = (float("inf"), 1, 1)\n' + SUN + CAMERA,
     "zero": CUBE + 'ob = L["add_object"]("Flat", L["box"]("F", (1, 1, 1)))\nob.scale = (1, 0, 1)\n' + SUN + CAMERA,
     "nanlight": CUBE + 'ob = L["add_sun"]("Bad sun", 45, 0)\nob.rotation_euler = (float("nan"), 0, 0)\n' + CAMERA,
     "lights": CUBE + "".join(f'L["add_light"]("P{i}", "POINT", location=({i}, 0, 3))\n' for i in range(5)) + CAMERA,

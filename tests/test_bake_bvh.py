@@ -10,7 +10,8 @@ from tests.helpers.scenes import blob_model, plate_model
 
 def test_bvh_invariants():
     rng = np.random.default_rng(0)
-    models = [blob_model(rng, k) for k in (1, 2, 3, 4, 5, 17, 100, 1000)] + [Model("empty", np.zeros((0, 3)), np.zeros((0, 3)))]
+    models = ([blob_model(rng, k) for k in (1, 2, 3, 4, 5, 17, 100, 1000)]
+              + [Model("empty", np.zeros((0, 3)), np.zeros((0, 3)))])
     b = build_bvhs(models)
     assert b.node_count[-1] == 0 and b.tri_count[-1] == 0
     for m in range(len(models) - 1):

@@ -132,10 +132,14 @@ def test_incremental_moves_rebuild_object_bvhs():
     crowd = np.nonzero(baked.accel.node_obvh[baked.accel.inst_node] >= 0)[0]
     assert crowd.size >= 1000
     steps = [
-        ("jiggle inside the crowd", rng.choice(crowd, 40, replace=False), lambda M: M[:, :3, 3] + rng.normal(scale=0.05, size=(len(M), 3))),
-        ("crowd objects leave far away", rng.choice(crowd, 60, replace=False), lambda M: M[:, :3, 3] + [40.0, 25.0, 0.0]),
-        ("far boxes join the crowd", np.arange(n - 60, n - 30), lambda M: np.column_stack([rng.uniform(-0.3, 0.3, (len(M), 2)), np.full(len(M), 0.4)])),
-        ("a new crowd forms", rng.choice(crowd, 400, replace=False), lambda M: np.column_stack([rng.uniform(-40.3, -39.7, (len(M), 2)), rng.uniform(0.1, 0.6, len(M))])),
+        ("jiggle inside the crowd", rng.choice(crowd, 40, replace=False),
+         lambda M: M[:, :3, 3] + rng.normal(scale=0.05, size=(len(M), 3))),
+        ("crowd objects leave far away", rng.choice(crowd, 60, replace=False),
+         lambda M: M[:, :3, 3] + [40.0, 25.0, 0.0]),
+        ("far boxes join the crowd", np.arange(n - 60, n - 30),
+         lambda M: np.column_stack([rng.uniform(-0.3, 0.3, (len(M), 2)), np.full(len(M), 0.4)])),
+        ("a new crowd forms", rng.choice(crowd, 400, replace=False),
+         lambda M: np.column_stack([rng.uniform(-40.3, -39.7, (len(M), 2)), rng.uniform(0.1, 0.6, len(M))])),
     ]
     for name, idx, new_t in steps:
         before = _snapshot(baked)

@@ -13,7 +13,8 @@ from tests.helpers.scenes import adversarial_scene, random_scene
 def _node_lists(baked):
     g = baked.textures["grid"].linear()
     idx = baked.textures["grid_index"].linear()
-    return {n: idx[g[n, 0]:g[n, 0] + g[n, 1], 0].astype(int).tolist() for n in range(baked.accel.layout.n_nodes) if g[n, 1]}
+    return {n: idx[g[n, 0]:g[n, 0] + g[n, 1], 0].astype(int).tolist() for n in range(baked.accel.layout.n_nodes)
+            if g[n, 1]}
 
 
 def test_every_caster_in_exactly_one_node_at_its_lowest_level():
@@ -69,7 +70,7 @@ def test_grid_fits_scene_and_stats():
     assert st["casters"] == cs.sum() and st["outside_objects"] == 0
     assert set(st["bytes"]) == {"grid", "grid_index", "object", "model", "bvh", "tri"}
     assert sum(st["objects_per_level"]) == cs.sum()
-    for k, v in baked.defines.items():
+    for _name, v in baked.defines.items():
         assert isinstance(v, (int, str))
     assert baked.defines["HS_GRID_LEVELS"] == lay.levels
 
@@ -99,7 +100,8 @@ def test_nodes_at_agrees_with_place():
     tet = Model("tet", [(0, 0, 0), (0.2, 0, 0), (0, 0.2, 0), (0, 0, 0.2)], [(0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3)])
     m = np.tile(np.eye(4), (n, 1, 1))
     m[:, :3, 3] = c + (2e5, -3e5, 0)
-    scene = Scene(models=[tet], instances=Instances(names=[f"t{i}" for i in range(n)], model_ids=np.zeros(n), matrices=m))
+    scene = Scene(models=[tet],
+                  instances=Instances(names=[f"t{i}" for i in range(n)], model_ids=np.zeros(n), matrices=m))
     baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
     assert np.abs(baked.origin).max() > 0
     wc, _ = scene.instance_spheres()

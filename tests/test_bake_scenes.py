@@ -79,7 +79,8 @@ def test_far_from_origin():
     o, d, t = random_rays(rng, scene, 2000)
     assert_equal_tracers(scene, baked, o, d, t)
     # the same scene at home bakes with origin zero
-    assert not bake_scene(random_scene(np.random.default_rng(11), n_inst=100, area=20), BakeConfig(structure="grid")).origin.any()
+    assert not bake_scene(random_scene(np.random.default_rng(11), n_inst=100, area=20),
+                          BakeConfig(structure="grid")).origin.any()
 
 
 def test_sun_rays_from_ground():

@@ -69,7 +69,7 @@ def test_blas_quantised_boxes_hold_their_triangles():
     rng = np.random.default_rng(2)
     models = [blob_model(rng, k) for k in (1, 3, 9, 200)] + [plate_model(6)]
     bl = build_blas(models, 2)
-    for m, model in enumerate(models):
+    for m, _model in enumerate(models):
         ns, nc = bl.node_start[m], bl.node_count[m]
         base, s = bl.base[m], 1.0 / bl.inv_s[m]
         for i in range(ns, ns + nc):

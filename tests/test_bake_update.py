@@ -33,7 +33,8 @@ def test_move_instances_matches_brute_and_touches_only_moved():
         assert_equal_tracers(scene, baked, o, d, t)
     # equal to a fresh bake on the same rays
     o, d, t = random_rays(rng, scene, 1500)
-    assert (trace_structured(baked, o, d, t) == trace_structured(bake_scene(scene, BakeConfig(structure="grid")), o, d, t)).all()
+    assert (trace_structured(baked, o, d, t)
+            == trace_structured(bake_scene(scene, BakeConfig(structure="grid")), o, d, t)).all()
 
 
 def test_crowding_relocates_to_tail_and_leaving_grid_goes_outside():

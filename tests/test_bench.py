@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from hybrid_shadow_addon.core.errors import HybridShadowError
 from hybrid_shadow_addon.tools.bench import FIGURES, path_frames
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu]
@@ -20,7 +21,7 @@ def test_path_frames():
     assert path_frames(1, 250, 3) == [1, 126, 250]
     assert path_frames(1, 5, 10) == [1, 2, 3, 4, 5]
     assert path_frames(7, 7, 4) == [7]
-    with pytest.raises(Exception):
+    with pytest.raises(HybridShadowError):
         path_frames(1, 10, 0)
 
 
@@ -53,7 +54,7 @@ def test_bench_statistics(bench):
     assert list(b["modes"]) == ["none", "raytrace-high", "shadowmap-512"]
     assert len(b["bake_ms"]) == 1  # only instances and the camera move: one bake, then updates
     assert b["update_ms"]["count"] > 0  # the rolling spheres
-    for name, m in b["modes"].items():
+    for _name, m in b["modes"].items():
         s = m["stats"]
         assert len(m["frame_ms"]) == 2 and all(len(row) == 3 for row in m["frame_ms"])
         assert all(t > 0 for row in m["frame_ms"] for t in row)

@@ -39,7 +39,7 @@ def test_lights_of_every_type(scene):
     s = _export()
     got = {light.name: light for light in s.lights}
     assert s.lights_by_type() == {"SUN": 1, "POINT": 1, "SPOT": 1, "AREA": 2}
-    for name, (kind, props) in specs.items():
+    for name, (kind, _props) in specs.items():
         light, ob = got[name], bpy.data.objects[name]
         assert light.type == kind and light.power == pytest.approx(ob.data.energy)
         np.testing.assert_allclose(light.matrix, np.array(ob.matrix_world), atol=1e-6)

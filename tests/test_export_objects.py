@@ -171,7 +171,7 @@ def test_the_viewport_shows_objects_hidden_from_render(scene):
     sync = ViewportSync()
     sync.full_export(bpy.context.evaluated_depsgraph_get())
     assert sorted(sync.scene.instances.names) == ["Hidden", "Shown"]
-    assert [l.name for l in sync.scene.lights] == ["HiddenLamp"]
+    assert [light.name for light in sync.scene.lights] == ["HiddenLamp"]
     assert _export().instances.names == ["Shown"]  # what F12 renders
 
 
@@ -190,7 +190,7 @@ def test_the_viewport_in_local_view_shows_only_its_objects(scene):
     assert sync.scene.instances.names == ["A"] and sync.scene.lights == []
     assert not sync.set_local_view(dg, ["A"])  # unchanged: no export
     assert sync.set_local_view(dg, None)
-    assert sorted(sync.scene.instances.names) == ["A", "B"] and [l.name for l in sync.scene.lights] == ["Lamp"]
+    assert sorted(sync.scene.instances.names) == ["A", "B"] and [light.name for light in sync.scene.lights] == ["Lamp"]
 
 
 def test_visible_shadow_and_sphere_flags(scene):

@@ -334,8 +334,8 @@ def _gn_instancer(name, points, target, as_instance):
 def _summary(s):
     """Instances as sorted (model's slot, triangles, material, colour, position) rows (the two
     paths name the model of realised geometry differently)."""
-    return sorted((s.models[m].name.rsplit(" [slot ", 1)[-1], s.models[m].triangle_count, -1 if k < 0 else s.materials[k].name,
-                   tuple(np.round(c, 5)), tuple(np.round(mat[:3, 3], 4)))
+    return sorted((s.models[m].name.rsplit(" [slot ", 1)[-1], s.models[m].triangle_count,
+                   -1 if k < 0 else s.materials[k].name, tuple(np.round(c, 5)), tuple(np.round(mat[:3, 3], 4)))
                   for m, k, c, mat in zip(s.instances.model_ids, s.instances.material_ids, s.instances.base_color,
                                           s.instances.matrices))
 

@@ -67,14 +67,17 @@ def shader_dir(tmp_path):
     from hybrid_shadow_addon.core.gpu.programs import default_shader_dir
 
     (tmp_path / "common").mkdir()
-    (tmp_path / "common" / "fullscreen.glsl").write_text((default_shader_dir() / "common" / "fullscreen.glsl").read_text())
-    (tmp_path / "common" / "inc_a.glsl").write_text('#include "common/inc_b.glsl"\nfloat value_a() { return value_b() + 1.0; }\n')
+    (tmp_path / "common" / "fullscreen.glsl").write_text(
+        (default_shader_dir() / "common" / "fullscreen.glsl").read_text())
+    (tmp_path / "common" / "inc_a.glsl").write_text('#include "common/inc_b.glsl"\n'
+                                                    "float value_a() { return value_b() + 1.0; }\n")
     (tmp_path / "common" / "inc_b.glsl").write_text("float value_b() { return 0.5; }\n")
     (tmp_path / "ok.glsl").write_text(SHADER)
     (tmp_path / "broken.glsl").write_text(
         '#include "common/inc_b.glsl"\n#ifdef VERTEX_SHADER\nvoid main() { gl_Position = vec4(0); }\n#endif\n'
         "#ifdef FRAGMENT_SHADER\nout vec4 o;\nvoid main() {\n  o = vec4(undefined_thing);\n}\n#endif\n")
-    (tmp_path / "broken_inc.glsl").write_text('#include "common/bad.glsl"\n#ifdef VERTEX_SHADER\nvoid main() { gl_Position = vec4(f()); }\n#endif\n')
+    (tmp_path / "broken_inc.glsl").write_text('#include "common/bad.glsl"\n#ifdef VERTEX_SHADER\n'
+                                              "void main() { gl_Position = vec4(f()); }\n#endif\n")
     (tmp_path / "common" / "bad.glsl").write_text("// a comment\nfloat f() { return nope; }\n")
     return tmp_path
 
@@ -94,14 +97,16 @@ def test_programs_cached_by_defines_and_includes(gl_ctx, shader_dir):
     vao.render(vertices=3)
     img = np.frombuffer(tex.read(), np.float32).reshape(4, 4, 4)
     assert np.allclose(img[..., 0], 4.5)
-    fbo.release(); tex.release()
+    fbo.release()
+    tex.release()
 
 
 def test_missing_shader_is_clear(gl_ctx, shader_dir):
     progs = ProgramCache(gl_ctx, shader_dir)
     with pytest.raises(ShaderError, match="shader 'nope' not found"):
         progs.get("nope")
-    (shader_dir / "inc_missing.glsl").write_text('#include "common/missing.glsl"\n#ifdef VERTEX_SHADER\nvoid main(){}\n#endif\n')
+    (shader_dir / "inc_missing.glsl").write_text('#include "common/missing.glsl"\n'
+                                                 "#ifdef VERTEX_SHADER\nvoid main(){}\n#endif\n")
     with pytest.raises(ShaderError, match=r"common/missing.glsl.*inc_missing.glsl:1"):
         progs.get("inc_missing")
 

@@ -158,14 +158,16 @@ def test_indexed_layout_keeps_every_corner_and_face():
     verts = np.concatenate([g, rng.random((len(g), 1), np.float32)], 1)
     flat = verts.copy()
     flat[:, 2] = 0.0  # a flat grid: one face normal for all
-    quads = [(i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1) for i in range(n - 1) for j in range(n - 1)]
+    quads = [(i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1)
+             for i in range(n - 1) for j in range(n - 1)]
     tris = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], np.uint32)
     smooth = rng.normal(size=(len(verts), 3)).astype(np.float32)
     sharp = smooth[tris].copy()
     sharp[:10, 0] = sharp[10:20, 1] = (0.0, 0.0, 1.0)  # a sharp edge: vertices with two normals
     seam = verts[tris][..., :2] * 0.1
     seam[5:9, 2] = -1.0  # a UV seam
-    for vv, normals, uvs in ((verts, None, None), (verts, smooth[tris], None), (verts, smooth[tris], verts[tris][..., :2] * 0.1),
+    for vv, normals, uvs in ((verts, None, None), (verts, smooth[tris], None),
+                             (verts, smooth[tris], verts[tris][..., :2] * 0.1),
                              (verts, sharp, seam), (flat, None, None)):
         m = Model("grid", vv, tris, normals=normals, uvs=uvs)
         for order in (None, np.random.default_rng(1).permutation(len(tris))):
@@ -210,7 +212,8 @@ def test_face_normals_of_a_bumpy_grid(gpass):
     rng = np.random.default_rng(5)
     xy = np.stack(np.meshgrid(np.linspace(-3, 3, n), np.linspace(-3, 3, n), indexing="ij"), -1).reshape(-1, 2)
     verts = np.concatenate([xy, 0.15 * rng.random((len(xy), 1))], 1).astype(np.float32)
-    quads = [(i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1) for i in range(n - 1) for j in range(n - 1)]
+    quads = [(i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1)
+             for i in range(n - 1) for j in range(n - 1)]
     tris = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], np.uint32)
     base = basic_scene()
     scene = Scene(models=[Model("bumps", verts, tris)],
@@ -242,9 +245,11 @@ def _bumpy_grid(n, size, seed, uv=False):
     from hybrid_shadow_addon.core.scene import Model
 
     rng = np.random.default_rng(seed)
-    xy = np.stack(np.meshgrid(np.linspace(-size, size, n), np.linspace(-size, size, n), indexing="ij"), -1).reshape(-1, 2)
+    xy = np.stack(np.meshgrid(np.linspace(-size, size, n), np.linspace(-size, size, n), indexing="ij"),
+                  -1).reshape(-1, 2)
     verts = np.concatenate([xy, 0.2 * rng.random((len(xy), 1))], 1).astype(np.float32)
-    quads = [(i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1) for i in range(n - 1) for j in range(n - 1)]
+    quads = [(i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1)
+             for i in range(n - 1) for j in range(n - 1)]
     tris = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], np.uint32)
     normals = rng.normal(size=(len(verts), 3)).astype(np.float32)[tris]
     normals[..., 2] = np.abs(normals[..., 2]) + 2.0
@@ -285,7 +290,8 @@ def test_big_models_are_drawn_by_chunks_in_view(gpass, monkeypatch):
         gb = gpass.gbuffer(scene, W, H)
         got[key] = ({k: gb.read(k).copy() for k in names}, gp.triangles, gp.draw_calls)
         assert first == 2 * terrain.triangle_count + 12
-    (img, tris, draws), (whole, whole_tris, _), (own, own_tris, own_draws) = got["chunks"], got["whole"], got["own order"]
+    (img, tris, draws), (whole, whole_tris, _), (own, own_tris, own_draws) = (got["chunks"], got["whole"],
+                                                                              got["own order"])
     assert own_tris == whole_tris == 2 * terrain.triangle_count + 12 and own_draws == 2
     assert tris < 0.75 * whole_tris and draws > own_draws
     for k in names:

@@ -1,4 +1,5 @@
 """Lighting pass against the numpy reference; sRGB/PNG output; edge-aware upsample; settings."""
+import dataclasses
 import math
 import struct
 import zlib
@@ -57,7 +58,7 @@ def test_none_mode_matches_numpy(rig, camera_type):
 
 
 def test_each_light_type_alone_and_masks_multiply(rig):
-    for i, light in enumerate(all_lights()):
+    for light in all_lights():
         light.spot_blend = 0.0 if light.type == "SPOT" else light.spot_blend
         scene = basic_scene(lights=[light])
         gb = rig.gbuffer(scene, W, H)
@@ -230,7 +231,7 @@ def test_settings_validation():
         assert list(kw)[0] in str(ei.value) and "\n" not in str(ei.value)
     with pytest.raises(ValueError, match="unknown setting"):
         Settings.from_dict({"modes": "none"})
-    with pytest.raises(Exception):
+    with pytest.raises(dataclasses.FrozenInstanceError):
         s.mode = "none"  # frozen
 
 

@@ -157,7 +157,7 @@ def masks(pipeline):
 def test_masks_equal_brute_force_visibility(masks, structure):
     scene, res = masks
     seen = np.zeros(0)
-    for li, (got, ref, rays) in res[structure].items():
+    for li, (got, ref, _rays) in res[structure].items():
         frac, bad = agreement(got, ref)
         assert frac >= AGREE, f"light {li}: {bad} pixels differ by more than {TOL}"
         seen = np.concatenate([seen, ref[~np.isnan(ref)]])
@@ -174,7 +174,7 @@ def test_closest_checker_is_exact_away_from_texel_edges(masks, structure):
     scene, res = masks
     n_tested = 0
     values = set()
-    for li, (got, ref, (rows, cols, o, d, tmax, facing)) in res[structure].items():
+    for _li, (got, ref, (rows, cols, o, d, tmax, facing)) in res[structure].items():
         uv, crossed = checker_uv(scene, o, d, tmax)
         st = uv * 8.0
         edge = np.minimum(np.abs(st - np.round(st)), 1.0).min(axis=1)

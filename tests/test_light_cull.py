@@ -25,7 +25,8 @@ def at(m, pos):
 
 
 def cull_scene(lights):
-    quad = Model("ground", np.float32([[-6, -6, 0], [6, -6, 0], [6, 6, 0], [-6, 6, 0]]), np.uint32([[0, 1, 2], [0, 2, 3]]))
+    quad = Model("ground", np.float32([[-6, -6, 0], [6, -6, 0], [6, 6, 0], [-6, 6, 0]]),
+                 np.uint32([[0, 1, 2], [0, 2, 3]]))
     cube_v = np.float32([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (0, 2)])
     quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
     cube = Model("cube", cube_v, np.uint32([t for q in quads for t in ((q[0], q[1], q[2]), (q[0], q[2], q[3]))]))

@@ -166,7 +166,8 @@ def test_local_bake_finds_every_caster_a_ray_hits(name, loaded):
         wc = lightgrid.WorldCasters(wc.tris[np.sort(keep)], wc.sphere_inst[:40], wc.sphere_center[:40],
                                     wc.sphere_radius[:40], wc.scale)
     rng = np.random.default_rng(11)
-    places = light_places(wc, rng) + [np.asarray(l.position - origin) for l in scene.lights if l.type != "SUN"]
+    places = light_places(wc, rng) + [np.asarray(light.position - origin) for light in scene.lights
+                                          if light.type != "SUN"]
     hits = 0
     for L in places:
         L = np.asarray(L, np.float32)

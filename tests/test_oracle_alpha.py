@@ -199,7 +199,8 @@ def test_albedo():
     sc = Scene(images=images, materials=[Material("srgb", color_image=0), Material("lin", color_image=1),
                                          Material("none", alpha=0.5)],
                instances=Instances(names=["a", "b", "c", "d"], material_ids=[0, 1, 2, -1],
-                                   base_color=[[0.5, 1.0, 0.25, 1], [1, 1, 1, 1], [0.1, 0.2, 0.3, 1], [0.4, 0.5, 0.6, 1]]))
+                                   base_color=[[0.5, 1.0, 0.25, 1], [1, 1, 1, 1], [0.1, 0.2, 0.3, 1],
+                                               [0.4, 0.5, 0.6, 1]]))
     rows = [0, 1, 2, 3, 0]
     uv = [[0.25, 0.5], [0.75, 0.5], [0.5, 0.5], [0.5, 0.5], [0.75, 0.5]]
     got = albedo(sc, rows, uv)

@@ -171,7 +171,8 @@ def test_progress_steps_and_cancel(pipeline, loaded):
     scene = loaded("forest")
     pipeline.set_scene(scene)
     seen = []
-    frame = pipeline.render(scene, Settings(hard=True, mode="raytrace"), 40, 30, progress=lambda done, total, label: seen.append((label, done, total)))
+    frame = pipeline.render(scene, Settings(hard=True, mode="raytrace"), 40, 30,
+                            progress=lambda done, total, label: seen.append((label, done, total)))
     labels = [label for label, _, _ in seen]
     assert labels[0] == "G-buffer" and labels[-1] == "Reading the image"
     for li in frame.lights:

@@ -26,7 +26,8 @@ def test_triangle_test_against_float64():
     t = (e2 * q).sum(1) / det
     ref = (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0) & (t < tmax)
     f = np.float32
-    got = woop_hit(o.astype(f), woop_setup(d.astype(f)), v[:, 0].astype(f), v[:, 1].astype(f), v[:, 2].astype(f), tmax.astype(f))
+    got = woop_hit(o.astype(f), woop_setup(d.astype(f)), v[:, 0].astype(f), v[:, 1].astype(f), v[:, 2].astype(f),
+                   tmax.astype(f))
     assert (got != ref).mean() < 1e-3 and ref.sum() > 100
 
 
@@ -61,7 +62,8 @@ def test_ellipsoid_sphere_primitive_exact():
     assert (trace_structured(bake_scene(scene, BakeConfig(structure="grid")), o, d, tmax) == got).all()
     # the robust quadratic: tiny sphere far away along the ray
     f = np.float32
-    hit = sphere_hit(np.array([[0, 0, -1e4]], f), np.array([[0, 0, 1]], f), np.zeros((1, 3), f), np.array([1e-3], f), np.array([2e4], f))
+    hit = sphere_hit(np.array([[0, 0, -1e4]], f), np.array([[0, 0, 1]], f), np.zeros((1, 3), f), np.array([1e-3], f),
+                     np.array([2e4], f))
     assert hit.all()
 
 

@@ -101,9 +101,9 @@ def test_camera_projection_matches_pixel_rays(fit, w, h):
 
 def test_camera_sensor_fit_field_of_view():
     cam = Camera(lens=50, sensor_width=36, sensor_height=24, sensor_fit="AUTO")
-    l, r, b, t = cam.viewplane(640, 360)
+    left, right, bottom, top = cam.viewplane(640, 360)
     # horizontal fit: the view plane's width at clip_start equals sensor_width * clip_start / lens
-    assert np.isclose(r - l, 36 * cam.clip_start / 50)
+    assert np.isclose(right - left, 36 * cam.clip_start / 50)
     cam.sensor_fit = "VERTICAL"
-    l, r, b, t = cam.viewplane(640, 360)
-    assert np.isclose(t - b, 24 * cam.clip_start / 50)
+    left, right, bottom, top = cam.viewplane(640, 360)
+    assert np.isclose(top - bottom, 24 * cam.clip_start / 50)

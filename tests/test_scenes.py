@@ -133,7 +133,8 @@ def test_scenes_are_deterministic():
 
 
 def test_scaling_params():
-    scene = export_depsgraph((open_scene("scaling:triangles=6000,instances=300"), bpy.context.evaluated_depsgraph_get())[1])
+    scene = export_depsgraph((open_scene("scaling:triangles=6000,instances=300"),
+                              bpy.context.evaluated_depsgraph_get())[1])
     ground = [i for i, m in enumerate(scene.models) if m.name == "Ground"]
     assert len(ground) == 1 and len(scene.models) == 2
     assert len(scene.instances) == 301

@@ -60,7 +60,7 @@ def same(a, b):
 @pytest.mark.parametrize("pcf", [0, 1])
 def test_hard_lights_keep_the_hard_masks(pipeline, pcf):
     sc = soft_scene()
-    zero = soft_scene([Light(l.name, l.type, power=l.power, matrix=l.matrix) for l in LIGHTS])
+    zero = soft_scene([Light(light.name, light.type, power=light.power, matrix=light.matrix) for light in LIGHTS])
     hard, fh = shadowmap(pipeline, sc, hard=True, pcf=pcf)
     plain, fz = shadowmap(pipeline, zero, pcf=pcf)
     soft, fs = shadowmap(pipeline, sc, pcf=pcf)

@@ -68,7 +68,7 @@ def soft_ref():
 
 def test_scene_lights_have_sizes(soft_ref):
     scene, ref = soft_ref
-    by = {l.name: l for l in scene.lights}
+    by = {light.name: light for light in scene.lights}
     assert set(ref.visibility) == set(LIGHTS) == set(by)
     assert by["Sun"].angle == pytest.approx(np.radians(4.0), rel=1e-4)
     assert by["Sphere"].type == "POINT" and by["Sphere"].radius == pytest.approx(0.3)
@@ -82,7 +82,7 @@ def test_soft_raytrace_matches_cycles(pipeline, soft_ref):
     scene, ref = soft_ref
     pipeline.set_scene(scene, "bvh")
     f = pipeline.render(scene, Settings(mode="raytrace", quality="high"), W, H)
-    index = {l.name: i for i, l in enumerate(scene.lights)}
+    index = {light.name: i for i, light in enumerate(scene.lights)}
     for name in LIGHTS:
         vis = ref.visibility[name]
         ours = f.mask_array(index[name])

@@ -159,7 +159,8 @@ def test_no_pixel_spends_llvmpipe_loop_budget(pipe, packets, samples):
         rt.options = replace(rt.options, loop_check=False)
     assert ("HS_SOFT_PACKET=1" in f.stats["defines"]) == packets
     for li, m in enumerate(ms):
-        assert not (np.nan_to_num(m) < -0.5).any(), f"light {li}: {(np.nan_to_num(m) < -0.5).sum()} pixels spent the budget"
+        assert not (np.nan_to_num(m) < -0.5).any(), \
+            f"light {li}: {(np.nan_to_num(m) < -0.5).sum()} pixels spent the budget"
     assert ((ms[0] > 0.02) & (ms[0] < 0.98)).sum() > 300, "the sun should show penumbrae"
 
 
@@ -176,7 +177,8 @@ def pegs_scene():
     for i in range(10):
         for j in range(10):
             ts.append(cube.triangles + len(vs) * 8)
-            vs.append(cube.vertices * np.float32(0.03) + np.array([-0.65 + 0.13 * i, -0.65 + 0.13 * j, 0.0], np.float32))
+            vs.append(cube.vertices * np.float32(0.03)
+                      + np.array([-0.65 + 0.13 * i, -0.65 + 0.13 * j, 0.0], np.float32))
     pegs = Model("pegs", np.concatenate(vs), np.concatenate(ts).astype(np.uint32))
     shear = np.eye(4)
     shear[0, 1], shear[2, 0] = 0.6, 0.3

@@ -87,7 +87,7 @@ def test_noise_check_gives_noisy_lights_twice_the_samples(pipeline, oracle):
     plain, plain_masks, e_plain = render(n, 0.0)
     assert plain["samples"] == n and plain["noise"] == {}
     checked, checked_masks, _ = render(n, 1.0)  # (estimated, never above)
-    assert checked["samples"] == n and set(checked["noise"]) == {l.name for l in LIGHTS}
+    assert checked["samples"] == n and set(checked["noise"]) == {light.name for light in LIGHTS}
     _, many, _ = render(512, 0.0)
     for light, a, b, m in zip(LIGHTS, plain_masks, checked_masks, many):
         fin = np.isfinite(a)
@@ -105,7 +105,7 @@ def test_noise_check_gives_noisy_lights_twice_the_samples(pipeline, oracle):
 def test_hard_lights_are_unchanged(pipeline):
     sc = soft_scene()
     hard = frame_of(pipeline, sc, hard=True)
-    zero = soft_scene([Light(l.name, l.type, power=l.power, matrix=l.matrix) for l in LIGHTS])
+    zero = soft_scene([Light(light.name, light.type, power=light.power, matrix=light.matrix) for light in LIGHTS])
     f0 = frame_of(pipeline, zero)  # size 0: one ray per pixel, exactly as before soft shadows
     assert f0.stats["samples"] == 1 and not any("HS_SOFT" in d for d in f0.stats["defines"])
     for li in range(len(LIGHTS)):
@@ -259,7 +259,8 @@ def test_soft_spot_cone_edge_matches_the_oracle(pipeline):
     assert abs(float(np.mean(ours - ref))) < 0.004, "biased"
     assert (e > 0.1).mean() <= 0.02
     in_ring = ring[pick]
-    assert in_ring.sum() > 300 and (ours[in_ring] > 0.5).mean() > 0.5, "the soft cone edge lights pixels beyond the centre's cone"
+    assert in_ring.sum() > 300 and (ours[in_ring] > 0.5).mean() > 0.5, \
+        "the soft cone edge lights pixels beyond the centre's cone"
     assert ((ref > 0.05) & (ref < 0.95)).sum() > 100, "the test should see a penumbra"
 
 

@@ -31,7 +31,7 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 
 import stiff_table  # noqa: E402
 from hypothesis import HealthCheck, given, settings  # noqa: E402
-from hypothesis import strategies as st
+from hypothesis import strategies as st  # noqa: E402
 
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene  # noqa: E402
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured  # noqa: E402
@@ -75,7 +75,8 @@ def test_stiff_case_matches_cycles(name, gl_ctx):
     for light, m in res.items():
         assert m["valid"] > 1000, (light, m)
         assert np.sum(m["ref"] < 0.5) > 20, f"{light}: the reference shows no shadow"
-        assert m["mismatch_pct"] <= LIMIT_PCT, f"{name}/{light}: {m['mismatch_pct']:.3f}% ({m['mismatch']}/{m['valid']})"
+        assert m["mismatch_pct"] <= LIMIT_PCT, \
+            f"{name}/{light}: {m['mismatch_pct']:.3f}% ({m['mismatch']}/{m['valid']})"
 
 
 @pytest.mark.cycles

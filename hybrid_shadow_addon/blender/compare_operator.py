@@ -117,7 +117,8 @@ class RENDER_OT_hybrid_shadows_compare(bpy.types.Operator):
         self._pipeline = create_pipeline()
         pipe = self._pipeline
         self._result = {}
-        self._steps = compare_steps(core_scene, self.output, reference=CyclesReferenceProvider(scene, mesh_spheres=self.mesh_spheres),
+        self._steps = compare_steps(core_scene, self.output,
+                                    reference=CyclesReferenceProvider(scene, mesh_spheres=self.mesh_spheres),
                                     resolution=resolution, variants=variants, repeats=self.repeats, pipeline=pipe,
                                     gl_scope=lambda: gl_scope(pipe),
                                     scene_label=f"{scene.name} (frame {scene.frame_current})", result=self._result)
@@ -150,7 +151,7 @@ class RENDER_OT_hybrid_shadows_compare(bpy.types.Operator):
     def execute(self, context):
         try:
             self._start(context)
-            for done, total, label in self._steps:
+            for _done, _total, _label in self._steps:
                 pass
         except HybridShadowError as e:
             self.report({"ERROR"}, str(e))

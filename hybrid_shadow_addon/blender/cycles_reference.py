@@ -404,8 +404,9 @@ class CyclesReferenceProvider:
         """The shadow-casting lights of ``scene`` that are light objects of ``bscene`` visible in
         render (Cycles renders one at a time by hiding the others)."""
         objs = self.bscene.objects
-        return [l.name for l in scene.lights
-                if l.use_shadow and l.name in objs and objs[l.name].type == "LIGHT" and not objs[l.name].hide_render]
+        return [light.name for light in scene.lights
+                if light.use_shadow and light.name in objs and objs[light.name].type == "LIGHT"
+                and not objs[light.name].hide_render]
 
     def visibility(self, scene, light: str, resolution, samples: int):
         """``(visibility, ms)`` of ``light`` alone (see :func:`render_reference`)."""

@@ -19,7 +19,8 @@ from ..core.bake.structures import DEFAULT_STRUCTURE, STRUCTURES
 from ..core.settings import Settings
 
 MODE_ITEMS = (
-    ("RAYTRACE", "Ray Traced", "Exact hard shadows: one shadow ray per pixel and light through the baked grid", "SHADING_RENDERED", 0),
+    ("RAYTRACE", "Ray Traced", "Exact hard shadows: one shadow ray per pixel and light through the baked grid",
+     "SHADING_RENDERED", 0),
     ("SHADOWMAP", "Shadow Map", "Rasterised shadow maps filtered with PCF (fast, may alias or leak)", "LIGHT_SUN", 1),
     ("NONE", "None", "No shadows: every light reaches every surface", "LIGHT", 2),
 )
@@ -50,7 +51,8 @@ CONSERVATIVE_ITEMS = (
     ("ALL", "All Lights", "Conservative occupancy maps for every light (a cube of six maps around point, "
                           "spot and area lights)", 2),
 )
-STRUCTURE_ITEMS = tuple((name.upper(), cls.label, cls.description, i) for i, (name, cls) in enumerate(STRUCTURES.items()))
+STRUCTURE_ITEMS = tuple((name.upper(), cls.label, cls.description, i)
+                        for i, (name, cls) in enumerate(STRUCTURES.items()))
 DEBUG_ITEMS = (
     ("NONE", "None", "Show the lit image", 0),
     ("LIGHT_MASK", "Light Mask", "Show the shadow mask of one light (white lit, black shadowed, blue no geometry)", 1),
@@ -164,7 +166,8 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
                                               "light with a size, a few per redraw (the first redraws filtered)")
     viewport_frame_samples: IntProperty(name="Samples per Redraw", default=4, min=1, max=64,
                                         description="Viewport: shadow rays per pixel and soft light each redraw adds "
-                                                    "(the first redraw after a change: four times as many in the penumbrae)")
+                                                    "(the first redraw after a change: four times as many in the "
+                                                    "penumbrae)")
     use_specular: BoolProperty(name="Specular", default=True,
                                description="Add the specular lobe of the materials to the lighting",
                                update=_tag_viewport)
@@ -199,7 +202,8 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
             slope_bias=float(self.slope_bias), normal_offset=float(self.normal_offset),
             upsample=self.upsample.lower(), specular=bool(self.use_specular),
             conservative=self.conservative_maps.lower(), structure=self.structure.lower(),
-            light_grid=bool(self.use_light_grid), samples=samples, hard=not self.use_soft_shadows, pcss_samples=int(self.pcss_samples), accumulate=viewport, frame_samples=frame_samples,
+            light_grid=bool(self.use_light_grid), samples=samples, hard=not self.use_soft_shadows,
+            pcss_samples=int(self.pcss_samples), accumulate=viewport, frame_samples=frame_samples,
         )
 
 

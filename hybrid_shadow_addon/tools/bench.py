@@ -138,7 +138,7 @@ def run_bench(source: FrameSource, output_dir, *, frames: int = 10, modes=None, 
         scene0 = show(0)
         step(f"bake {bake_ms[0]:.0f} ms")
         for v in variants:  # shader compilation and first-use costs, untimed
-            for k in range(warmup):
+            for _ in range(warmup):
                 pipeline.render(scene0, v.settings, width, height)
                 step(f"{v.name}: warm-up")
         for r in range(repeats):
@@ -163,7 +163,7 @@ def run_bench(source: FrameSource, output_dir, *, frames: int = 10, modes=None, 
         "bpy_version": source.version,
         "triangles": int(scenes[0].triangle_count),
         "instances": len(scenes[0].instances),
-        "shadowed_lights": sum(1 for l in scenes[0].lights if l.use_shadow),
+        "shadowed_lights": sum(1 for light in scenes[0].lights if light.use_shadow),
         "export_ms": [float(x) for x in export_ms],
         "bake_ms": [float(x) for x in bake_ms],
         "update_ms": {"count": len(update_ms), "mean": float(np.mean(update_ms)) if update_ms else 0.0,

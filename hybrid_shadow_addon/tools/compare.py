@@ -151,7 +151,7 @@ def compare_steps(scene, output_dir, *, reference, resolution=None, variants=Non
         from ..core.gpu.pipeline import Pipeline
 
         pipeline = Pipeline()
-    light_index = {l.name: i for i, l in enumerate(scene.lights)}
+    light_index = {light.name: i for i, light in enumerate(scene.lights)}
     rows = []
     # the hard lights' grids from the first frame on (a warm-up frame builds them): the timed
     # frames are the steady state a viewport or an animation reaches, the build is reported apart

@@ -206,7 +206,8 @@ tr.pareto td:first-child {{ font-weight: bold; }}
 </style></head><body>
 <h1>Hybrid Shadows vs Cycles: {e(m['scene'])}</h1>
 <p>Frame {m['frame']}, {w}x{h}, bpy {e(m['bpy_version'])}; {m['triangles']} triangles, {m['instances']} instances;
-bake {m['bake_ms']:.0f} ms, light grids {m.get('light_grid_build_ms', 0.0):.0f} ms (once, in the warm-up). Times: median of {m['repeats']} warm frames after {m['warmup']} warm-up frames.
+bake {m['bake_ms']:.0f} ms, light grids {m.get('light_grid_build_ms', 0.0):.0f} ms (once, in the warm-up). \
+Times: median of {m['repeats']} warm frames after {m['warmup']} warm-up frames.
 Error: pixels valid in the Cycles reference and with geometry in ours; mismatch = |Δ| &gt; {m['threshold']}.
 {_mode_note(m)}
 Interlaced ray tracing: error of the first frame after a change. Bold: on the Pareto front.</p>

@@ -59,7 +59,8 @@ def resolve_variants(names=None) -> list:
             elif re.fullmatch(r"shadowmap-\d+", part):
                 size = int(part.split("-")[1])
                 try:
-                    picked.append(Variant(part, f"shadowmap {size}", Settings(mode="shadowmap", shadowmap_size=size, **HARD)))
+                    picked.append(Variant(part, f"shadowmap {size}",
+                                          Settings(mode="shadowmap", shadowmap_size=size, **HARD)))
                 except ValueError as e:
                     raise HybridShadowError(f"--modes {part}: {e}") from None
             else:

@@ -23,11 +23,11 @@ for i, (x, y, m) in enumerate([(0, 0, unit), (-3, 0, tall), (2, -2, unit), (3, -
 L["add_object"]("Stacked", unit, location=(2.5, -1.5, 1))          # on top of a box: shared face
 L["add_object"]("Floating", unit, location=(-1.5, 1.5, 1))         # bottom face exactly at z = 1
 L["add_object"]("Roof", L["box"]("Roof", (2, 2, 1), base_at_origin=True, materials=[grey]), location=(-4, 3, 2))
-I = ((1, 0, 0), (0, 1, 0), (0, 0, 1))
+IDENTITY = ((1, 0, 0), (0, 1, 0), (0, 0, 1))
 ROT_Y90 = ((0, 0, 1), (0, 1, 0), (-1, 0, 0))   # -Z column -> (-1, 0, 0): shines towards -X
-L["exact_light"]("Sun down", "SUN", I, energy=5.0)
+L["exact_light"]("Sun down", "SUN", IDENTITY, energy=5.0)
 L["exact_light"]("Sun X", "SUN", ROT_Y90, energy=5.0)
 L["exact_light"]("Sun Z0", "SUN", ROT_Y90, parent_euler=(0, 0, math.radians(30)), energy=5.0)
-L["exact_light"]("Sun Y0", "SUN", I, parent_euler=(0, math.radians(-50), 0), energy=5.0)
-L["exact_light"]("Point", "POINT", I, location=(1, 0, 3), energy=800.0)
+L["exact_light"]("Sun Y0", "SUN", IDENTITY, parent_euler=(0, math.radians(-50), 0), energy=5.0)
+L["exact_light"]("Point", "POINT", IDENTITY, location=(1, 0, 3), energy=800.0)
 L["add_camera"](scene, (9, -7, 6), (-0.5, -0.5, 0.5), lens=30)

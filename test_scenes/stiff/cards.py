@@ -13,7 +13,8 @@ scene = L["setup_scene"]("stiff_cards", L["resolution"](PARAMS))
 L["set_world"](scene, (0.05, 0.05, 0.05))
 grey = L["material"]("Grey", (0.6, 0.6, 0.6))
 L["add_object"]("Ground", L["plane"]("Ground", 14.0, materials=[grey]))
-card = L["mesh"]("Card", [(-0.5, -0.3, 0), (0.5, -0.3, 0), (0.5, 0.3, 0), (-0.5, 0.3, 0)], [[0, 1, 2, 3]], materials=[grey])
+card = L["mesh"]("Card", [(-0.5, -0.3, 0), (0.5, -0.3, 0), (0.5, 0.3, 0), (-0.5, 0.3, 0)], [[0, 1, 2, 3]],
+                 materials=[grey])
 rng = np.random.default_rng(int(PARAMS.get("seed", 5)))
 n = int(PARAMS.get("cards", 30))
 for i in range(n):

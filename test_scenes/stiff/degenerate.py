@@ -16,7 +16,8 @@ L["add_object"]("Ground", L["plane"]("Ground", 12.0, materials=[grey]))
 
 # unwelded box: every face has its own 4 vertices (duplicates), plus zero-area triangles along
 # its edges and at a corner
-c = np.array([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0), (-1, -1, 2), (1, -1, 2), (1, 1, 2), (-1, 1, 2)], float) * 0.6
+c = np.array([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0), (-1, -1, 2), (1, -1, 2), (1, 1, 2), (-1, 1, 2)],
+             float) * 0.6
 faces = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
 verts, loops, sizes = [], [], []
 for f in faces:
@@ -41,8 +42,8 @@ L["add_object"]("Twin A", twin, location=(2, -2, 0), rotation=(0, 0, 0.3))
 L["add_object"]("Twin B", twin, location=(2, -2, 0), rotation=(0, 0, 0.3))
 
 # non-manifold: three quads sharing one edge (a 'book'), and a fin on a box edge
-book = L["mesh"]("Book", [(0, -0.6, 0.3), (0, 0.6, 0.3), (0, 0.6, 1.5), (0, -0.6, 1.5), (0.9, 0.6, 0.6), (0.9, -0.6, 0.6),
-                          (-0.9, 0.6, 0.6), (-0.9, -0.6, 0.6)],
+book = L["mesh"]("Book", [(0, -0.6, 0.3), (0, 0.6, 0.3), (0, 0.6, 1.5), (0, -0.6, 1.5), (0.9, 0.6, 0.6),
+                          (0.9, -0.6, 0.6), (-0.9, 0.6, 0.6), (-0.9, -0.6, 0.6)],
                  [0, 1, 2, 3, 0, 1, 4, 5, 0, 1, 6, 7], [4, 4, 4], materials=[grey])
 L["add_object"]("Book", book, location=(-1.5, -2.2, 0))
 L["sun0"]("Sun", 45, 60)

@@ -5,17 +5,18 @@ import runpy
 
 PARAMS = globals().get("PARAMS", {})
 L = runpy.run_path(os.path.join(os.path.dirname(os.path.abspath(__file__)), "_stiff.py"))["lib"]()
-O = (float(PARAMS.get("x", 100000.0)), float(PARAMS.get("y", 20000.0)), float(PARAMS.get("z", 10.0)))
+ORIGIN = (float(PARAMS.get("x", 100000.0)), float(PARAMS.get("y", 20000.0)), float(PARAMS.get("z", 10.0)))
 
 
 def at(x, y, z):
-    return (O[0] + x, O[1] + y, O[2] + z)
+    return (ORIGIN[0] + x, ORIGIN[1] + y, ORIGIN[2] + z)
 
 
 scene = L["setup_scene"]("stiff_far_away", L["resolution"](PARAMS))
 L["set_world"](scene, (0.05, 0.05, 0.05))
 grey = L["material"]("Grey", (0.6, 0.6, 0.6))
-L["add_object"]("Ground", L["heightfield"]("Ground", 16.0, 8, lambda x, y: 0 * x, materials=[grey]), location=at(0, 0, 0))
+L["add_object"]("Ground", L["heightfield"]("Ground", 16.0, 8, lambda x, y: 0 * x, materials=[grey]),
+                location=at(0, 0, 0))
 L["add_object"]("Cube", L["box"]("Cube", (2, 2, 2), materials=[grey]), location=at(0, 0, 1))
 L["add_object"]("Post", L["box"]("Post", (0.3, 0.3, 3), base_at_origin=True, materials=[grey]), location=at(-2.5, 2, 0),
                 rotation=(0, 0, 0.5))

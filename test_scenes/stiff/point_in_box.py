@@ -14,7 +14,8 @@ L["add_object"]("Table", L["box"]("Table", (1.4, 0.8, 0.06), materials=[grey]), 
 leg = L["box"]("Leg", (0.06, 0.06, 0.77), base_at_origin=True, materials=[grey])
 for i, (x, y) in enumerate([(-1.15, 0.15), (0.15, 0.15), (-1.15, 0.85), (0.15, 0.85)]):
     L["add_object"](f"Leg{i}", leg, location=(x, y, 0))
-L["add_object"]("Pillar", L["box"]("Pillar", (0.4, 0.4, 3), base_at_origin=True, materials=[grey]), location=(-1.8, -1.2, 0))
+L["add_object"]("Pillar", L["box"]("Pillar", (0.4, 0.4, 3), base_at_origin=True, materials=[grey]),
+                location=(-1.8, -1.2, 0))
 L["add_object"]("Ball", L["uv_sphere"]("Ball", 0.35, 16, 8, materials=[grey]), location=(1.0, 1.2, 0.35))
 L["point0"]("Bulb", (0.2, 0.1, 2.2), energy=300.0)
 L["sun0"]("Sun", 40, 200)

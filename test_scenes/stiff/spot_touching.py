@@ -15,7 +15,8 @@ L["add_object"]("Ground", L["heightfield"]("Ground", 12.0, 12, lambda x, y: 0 * 
 L["add_object"]("Wall", L["mesh"]("Wall", [(-3, -4, 0), (-3, 4, 0), (-3, 4, 3), (-3, -4, 3)], [[0, 1, 2, 3]],
                                   materials=[grey]))
 L["add_object"]("Box", L["box"]("Box", (0.5, 0.5, 0.5), base_at_origin=True, materials=[grey]), location=(1.5, 0.6, 0))
-L["add_object"]("Post", L["box"]("Post", (0.1, 0.1, 1.2), base_at_origin=True, materials=[grey]), location=(0.5, -1.0, 0))
+L["add_object"]("Post", L["box"]("Post", (0.1, 0.1, 1.2), base_at_origin=True, materials=[grey]),
+                location=(0.5, -1.0, 0))
 L["add_object"]("Crate", L["box"]("Crate", (0.6, 0.6, 0.6), base_at_origin=True, materials=[grey]),
                 location=(-1.2, 1.5, 0), rotation=(0, 0, 0.4))
 L["spot0"]("Ground spot", (-1.0, -0.5, gap), (3.0, 0.5, 0.0), energy=20000.0, spot_size=math.radians(80))

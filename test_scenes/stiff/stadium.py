@@ -18,8 +18,8 @@ for i, (dx, dy, rz) in enumerate([(-0.06, -0.03, 0.0), (-0.03, 0.02, 0.3), (0.0,
                                   (0.06, -0.01, 0.2), (-0.08, 0.05, 0.9), (0.08, 0.06, 0.5), (0.01, 0.08, 0.0)]):
     L["add_object"](f"Cube{i}", cube, location=(C[0] + dx, C[1] + dy, 0), rotation=(0, 0, rz))
 L["add_object"]("Teapot", L["uv_sphere"]("Teapot", 0.015, 16, 8, materials=[grey]), location=(C[0], C[1] + 0.01, 0.015))
-L["add_object"]("Spout", L["box"]("Spout", (0.025, 0.006, 0.006), materials=[grey]), location=(C[0] + 0.02, C[1] + 0.01, 0.018),
-                rotation=(0, -0.6, 0))
+L["add_object"]("Spout", L["box"]("Spout", (0.025, 0.006, 0.006), materials=[grey]),
+                location=(C[0] + 0.02, C[1] + 0.01, 0.018), rotation=(0, -0.6, 0))
 L["add_object"]("Lid", L["box"]("Lid", (0.012, 0.012, 0.006), base_at_origin=True, materials=[grey]),
                 location=(C[0], C[1] + 0.01, 0.029))
 L["sun0"]("Sun", 35, 180)

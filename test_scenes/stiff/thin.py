@@ -36,7 +36,8 @@ blade = L["mesh"]("Blade", [(0.0, -width, 0.0), (0.0, width, 0.0), (0.9, 0.0, 0.
 for i in range(int(PARAMS.get("blades", 24))):
     cx, cy = (-2.0, 2.0) if i % 2 else (2.5, -1.5)
     L["add_object"](f"Blade{i}", blade, location=(cx, cy, 1.2 + 0.02 * i),
-                    rotation=(rng.uniform(-0.4, 0.4), rng.uniform(-0.6, 0.2), 2 * math.pi * i / 24 + rng.uniform(-0.1, 0.1)))
+                    rotation=(rng.uniform(-0.4, 0.4), rng.uniform(-0.6, 0.2),
+                              2 * math.pi * i / 24 + rng.uniform(-0.1, 0.1)))
 L["sun0"]("Sun", 35, 30)
 L["spot0"]("Spot", (-3, -4, 5), (0, 0, 0), energy=3000.0, spot_size=math.radians(80))
 L["point0"]("Point", (1.0, 1.5, 3.2), energy=800.0)

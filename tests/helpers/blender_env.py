@@ -106,7 +106,7 @@ def run(argv: list) -> dict:
                 report["python_errors"] += 1
                 print(f"Error: --python-expr: {type(exc).__name__}: {exc}", file=sys.stderr)
                 if exit_code_on_error:
-                    raise SystemExit(exit_code_on_error)
+                    raise SystemExit(exit_code_on_error) from exc
         elif a in ("-o", "--render-output"):
             bpy.context.scene.render.filepath = value()
         elif a in ("-F", "--render-format"):

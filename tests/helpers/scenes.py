@@ -126,7 +126,8 @@ def alpha_scene(lights=("sun",), card_materials=(0, 1, 2, 3)):
                  Material("ground", color_image=2, uv_transform=np.float32([[3, 0, 0.1], [0, 3, 0]]))]
     cube_v = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float32)
     quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    cube = Model("cube", cube_v, np.array([t for q in quads for t in ((q[0], q[1], q[2]), (q[0], q[2], q[3]))], np.uint32))
+    cube = Model("cube", cube_v,
+                 np.array([t for q in quads for t in ((q[0], q[1], q[2]), (q[0], q[2], q[3]))], np.uint32))
     models = [quad("ground", 6.0), quad("card"), cube]
     mats = [trs((0, 0, 0)), trs((-2.2, 1.5, 1.4), rot_z=0.3, rot_x=0.2), trs((1.8, 1.6, 1.3), rot_z=-0.4),
             trs((-1.8, -1.8, 1.0), scale=(0.8, 0.8, 1)), trs((-1.8, -1.8, 1.5), scale=(0.8, 0.8, 1)),
@@ -159,10 +160,11 @@ LIGHTS = [
 
 def soft_scene(lights=LIGHTS):
     """``basic_scene`` under copies of ``lights`` (extended lights by default)."""
-    return basic_scene(lights=[Light(l.name, l.type, power=l.power, matrix=l.matrix.copy(), radius=l.radius,
-                                     angle=l.angle, size=l.size, size_y=l.size_y, area_shape=l.area_shape,
-                                     spread=l.spread, spot_size=l.spot_size, spot_blend=l.spot_blend)
-                               for l in lights])
+    return basic_scene(lights=[Light(light.name, light.type, power=light.power, matrix=light.matrix.copy(),
+                                     radius=light.radius, angle=light.angle, size=light.size,
+                                     size_y=light.size_y, area_shape=light.area_shape, spread=light.spread,
+                                     spot_size=light.spot_size, spot_blend=light.spot_blend)
+                               for light in lights])
 
 
 def blob_model(rng, n_tri, name="blob", size=1.0):
@@ -218,7 +220,8 @@ def random_scene(rng, n_inst=200, spheres=0.25, area=30.0, tri_counts=(1, 12, 60
 def adversarial_scene(rng):
     """Objects straddling node borders and levels, a node with thousands of objects, and rays
     on node borders, along axes, from outside the grid and from above."""
-    models = [plate_model(2), blob_model(rng, 20), Model("tiny", [[0, 0, 0], [0.05, 0, 0], [0, 0.05, 0.02]], [[0, 1, 2]])]
+    models = [plate_model(2), blob_model(rng, 20),
+              Model("tiny", [[0, 0, 0], [0.05, 0, 0], [0, 0.05, 0.02]], [[0, 1, 2]])]
     parts = []
     # a lattice of plates exactly on integer positions (borders of a unit grid)
     g = np.arange(-8, 9, 2.0)

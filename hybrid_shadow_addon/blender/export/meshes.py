@@ -63,7 +63,7 @@ def mesh_uv_layer(mesh, name: str = ""):
         return None
     if name:
         return layers.get(name)
-    return next((l for l in layers if l.active_render), None) or layers.active or layers[0]
+    return next((layer for layer in layers if layer.active_render), None) or layers.active or layers[0]
 
 
 def mesh_uvs(mesh, layer) -> np.ndarray:

@@ -121,7 +121,8 @@ def build_trees(item_min, item_max, item_start, item_count, leaf_size: int):
 
     # --- nodes: top-down, one numpy pass per depth ----------------------------------------
     node_count = np.where(leaves > 0, 2 * leaves - 1, 0)
-    node_start = np.concatenate([[0], np.cumsum(node_count)[:-1]]).astype(np.int64) if m_count else np.zeros(0, np.int64)
+    node_start = (np.concatenate([[0], np.cumsum(node_count)[:-1]]).astype(np.int64) if m_count
+                  else np.zeros(0, np.int64))
     n_nodes = int(node_count.sum())
     escape = np.zeros(n_nodes, np.int64)
     leaf_start = np.full(n_nodes, -1, np.int64)

@@ -26,7 +26,8 @@ import numpy as np
 from ..errors import GPUError
 from .textures import TextureData, alloc_texture, f32_bits
 
-MAT_TEXELS = 3  # (bits(uv row 0), bits(alpha)), (bits(uv row 1), bits(threshold)), (colour image, alpha image, flags, 0)
+# (bits(uv row 0), bits(alpha)), (bits(uv row 1), bits(threshold)), (colour image, alpha image, flags, 0)
+MAT_TEXELS = 3
 MAX_LEVELS = 16
 FLAG_CLIP = 1
 FLAG_LUMA = 2
@@ -146,8 +147,8 @@ def bake_materials(scene, width: int, layer_size: int = DEFAULT_LAYER_SIZE) -> M
             levels[i] = mip_chain(img.pixels, img.srgb)
         elif alpha_use[i]:
             levels[i] = [img.pixels]
-    rects = [(i, l) for i in sorted(levels) for l in range(len(levels[i]))]
-    sizes = [(levels[i][l].shape[1], levels[i][l].shape[0]) for i, l in rects]
+    rects = [(i, level) for i in sorted(levels) for level in range(len(levels[i]))]
+    sizes = [(levels[i][level].shape[1], levels[i][level].shape[0]) for i, level in rects]
     biggest = max([max(s) for s in sizes], default=1)
     side = 1 << max(0, (max(biggest, 1) - 1).bit_length())
     area = sum(w * h for w, h in sizes)
@@ -155,8 +156,8 @@ def bake_materials(scene, width: int, layer_size: int = DEFAULT_LAYER_SIZE) -> M
     pos = shelf_pack(sizes, side) if rects else np.zeros((0, 3), np.int64)
     n_layers = int(pos[:, 2].max()) + 1 if len(pos) else 1
     atlas = np.zeros((n_layers, side, side, 4), np.uint8)
-    for (i, l), (x, y, lay), (w, h) in zip(rects, pos.tolist(), sizes):
-        atlas[lay, y:y + h, x:x + w] = levels[i][l]
+    for (i, level), (x, y, lay), (w, h) in zip(rects, pos.tolist(), sizes):
+        atlas[lay, y:y + h, x:x + w] = levels[i][level]
     # records: materials, then images
     image_record = np.full(len(images), -1, np.int64)
     nxt = MAT_TEXELS * len(mats)
@@ -179,15 +180,15 @@ def bake_materials(scene, width: int, layer_size: int = DEFAULT_LAYER_SIZE) -> M
                       image_record[m.alpha_image] + 1 if m.alpha_image >= 0 else 0, flags, 0)
         alpha_slot[k] = k + 1 if (m.has_alpha and m.transparent_shadow) else 0
     at = {}
-    for (i, l), p in zip(rects, pos.tolist()):
-        at[(i, l)] = p
+    for (i, level), p in zip(rects, pos.tolist()):
+        at[(i, level)] = p
     for i in sorted(levels):
         img = images[i]
         r = int(image_record[i])
         lin[r] = (len(levels[i]), EXTENSION_CODES[img.extension], INTERP_CODES[img.interpolation], int(bool(img.srgb)))
-        for l, px in enumerate(levels[i]):
-            x, y, lay = at[(i, l)]
-            lin[r + 1 + l] = (x, y, lay, px.shape[1] | (px.shape[0] << 16))
+        for level, px in enumerate(levels[i]):
+            x, y, lay = at[(i, level)]
+            lin[r + 1 + level] = (x, y, lay, px.shape[1] | (px.shape[0] << 16))
     rec.used = nxt
     return MaterialBake(TextureData("atlas", atlas, "f1", n_layers * side * side), rec, image_record, alpha_slot,
                         (time.perf_counter() - t0) * 1e3, material_signature(scene))

@@ -111,7 +111,8 @@ def texture_shape(n_texels: int, width: int) -> tuple[int, int]:
         return 1, rows
     layers = -(-rows // MAX_TEX_SIZE)
     if layers > MAX_LAYERS:
-        raise GPUError(f"scene too large for the GPU textures: {n_texels} texels need {layers} layers (limit {MAX_LAYERS})")
+        raise GPUError(f"scene too large for the GPU textures: {n_texels} texels need {layers} layers "
+                       f"(limit {MAX_LAYERS})")
     return layers, MAX_TEX_SIZE
 
 

@@ -121,7 +121,7 @@ def select_shadowed_lights(scene, settings=None) -> list:
     """Indices of the lights that get a mask: ``use_shadow`` lights; with
     ``settings.max_shadowed_lights`` = N only N of them: suns first (always kept, thesis 3.2),
     then the others nearest to the camera."""
-    idx = [i for i, l in enumerate(scene.lights) if l.use_shadow]
+    idx = [i for i, light in enumerate(scene.lights) if light.use_shadow]
     limit = None if settings is None else settings.max_shadowed_lights
     if settings is not None and settings.mode == "none":
         return idx

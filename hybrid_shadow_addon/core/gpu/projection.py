@@ -6,10 +6,11 @@ import numpy as np
 CUBE_AXES = ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1))
 
 
-def ortho(l, r, b, t, n, f) -> np.ndarray:
+def ortho(left, right, bottom, top, n, f) -> np.ndarray:
     p = np.zeros((4, 4))
-    p[0, 0], p[1, 1], p[2, 2] = 2 / (r - l), 2 / (t - b), -2 / (f - n)
-    p[0, 3], p[1, 3], p[2, 3], p[3, 3] = -(r + l) / (r - l), -(t + b) / (t - b), -(f + n) / (f - n), 1
+    p[0, 0], p[1, 1], p[2, 2] = 2 / (right - left), 2 / (top - bottom), -2 / (f - n)
+    p[0, 3], p[1, 3], p[2, 3], p[3, 3] = (-(right + left) / (right - left), -(top + bottom) / (top - bottom),
+                                          -(f + n) / (f - n), 1)
     return p
 
 

@@ -5,7 +5,8 @@
   The main thread hands it commands through a queue: bake, move instances, update a model,
   reset history (the :class:`~.pipeline.Pipeline` methods the viewport sync calls, so the worker
   stands in for a pipeline there) and render a view. Each takes a :func:`snapshot` of the scene
-  (copy-on-write, no array copied), so the main thread may go on editing its own. Commands run in order; render requests for the
+  (copy-on-write, no array copied), so the main thread may go on editing its own. Commands run in order;
+  render requests for the
   same view coalesce (only the newest pending one runs). A render request carries the fast and
   the full settings: the worker renders the fast pass, then the full-quality frames (four with
   interlacing, more while soft shadows accumulate) as long as nothing newer arrives, one frame

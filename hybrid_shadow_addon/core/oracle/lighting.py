@@ -27,19 +27,19 @@ def light_incident(row: np.ndarray, p: np.ndarray):
     t0, t1, t2, t3 = row[:4]
     code = int(round(t0[3]))
     if code == 0:
-        l = np.broadcast_to(-t1[:3], p.shape)
-        return np.broadcast_to(t2[:3], p.shape), l
+        to_light = np.broadcast_to(-t1[:3], p.shape)
+        return np.broadcast_to(t2[:3], p.shape), to_light
     d = t0[:3] - p
     r2 = np.maximum((d * d).sum(-1), 1e-12)
-    l = d / np.sqrt(r2)[..., None]
+    to_light = d / np.sqrt(r2)[..., None]
     k = 1.0 / r2
-    t = -(l @ t1[:3])
+    t = -(to_light @ t1[:3])
     if code == 2:
         ch, blend = t1[3], t3[0]
         k = k * (_smoothstep01((t - ch) / ((1 - ch) * blend)) if blend > 0 else (t > ch).astype(np.float64))
     elif code == 3:
         k = k * np.maximum(t, 0.0)
-    return t2[:3] * k[..., None], l
+    return t2[:3] * k[..., None], to_light
 
 
 def area_irradiance(row: np.ndarray, p: np.ndarray, n: np.ndarray, order: int = 16) -> np.ndarray:
@@ -76,13 +76,13 @@ def area_irradiance(row: np.ndarray, p: np.ndarray, n: np.ndarray, order: int = 
     return t2[:3] * out.reshape(p.shape[:-1])[..., None]
 
 
-def brdf_cos(n, l, v, albedo, specular, roughness, use_specular=True):
-    c = (n * l).sum(-1)
+def brdf_cos(n, to_light, v, albedo, specular, roughness, use_specular=True):
+    c = (n * to_light).sum(-1)
     f = albedo / math.pi
     if use_specular:
         a = np.maximum(roughness * roughness, 0.03)
         s = np.clip(2 / (a * a) - 2, 1.0, 2048.0)
-        h = l + v
+        h = to_light + v
         h = h / np.linalg.norm(h, axis=-1, keepdims=True)
         nh = np.maximum((n * h).sum(-1), 0.0)
         f = f + (0.08 * specular * (s + 8) / (8 * math.pi) * nh ** s)[..., None]
@@ -114,14 +114,14 @@ def shade(scene, gbuffer: dict, masks: dict | None = None, use_specular: bool = 
     table = light_table(scene.lights)
     masks = masks or {}
     for i in range(len(scene.lights)):
-        e, l = light_incident(table[i], p)
+        e, to_light = light_incident(table[i], p)
         if int(round(table[i][0][3])) == 3 and table[i][4][3] > 0:  # an area light with a size
             contrib = albedo / math.pi * area_irradiance(table[i], p, n)
             if use_specular:
                 contrib = contrib + e * area_of(scene.lights[i]) * (
-                    brdf_cos(n, l, v, np.zeros_like(albedo), mat[..., 0], mat[..., 1], True))
+                    brdf_cos(n, to_light, v, np.zeros_like(albedo), mat[..., 0], mat[..., 1], True))
         else:
-            contrib = e * brdf_cos(n, l, v, albedo, mat[..., 0], mat[..., 1], use_specular)
+            contrib = e * brdf_cos(n, to_light, v, albedo, mat[..., 0], mat[..., 1], use_specular)
         if i in masks:
             m = np.nan_to_num(np.asarray(masks[i], np.float64), nan=1.0)
             contrib = contrib * m[..., None]

@@ -2,7 +2,8 @@
 sees, by many stratified samples of the same light distributions as
 ``shaders/common/soft_light.glsl`` (a sun's disk of directions, a sphere light's cone, an area
 light's rectangle or ellipse) with the same weights (a spot's cone seen from each point of it),
-each traced by ``visibility_brute`` (alpha included). Independent of the GPU's sample sequence: it converges to the exact fraction."""
+each traced by ``visibility_brute`` (alpha included). Independent of the GPU's sample sequence: it
+converges to the exact fraction."""
 from __future__ import annotations
 
 import numpy as np

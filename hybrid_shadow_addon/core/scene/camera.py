@@ -43,9 +43,11 @@ class Camera:
         if not all(np.isfinite(np.asarray(v, np.float64)).all() for v in vals):
             raise SceneError(f"camera '{self.name}' has NaN or infinite values")
         if (np.abs(self.matrix) >= MAX_COORD).any():
-            raise SceneError(f"camera '{self.name}' has an infinite or absurd transform (a value beyond {MAX_COORD:.0e})")
+            raise SceneError(f"camera '{self.name}' has an infinite or absurd transform "
+                             f"(a value beyond {MAX_COORD:.0e})")
         if self.type not in CAMERA_TYPES:
-            raise SceneError(f"camera '{self.name}' has unsupported type {self.type!r} (perspective or orthographic only)")
+            raise SceneError(f"camera '{self.name}' has unsupported type {self.type!r} "
+                             "(perspective or orthographic only)")
         if self.sensor_fit not in SENSOR_FITS:
             raise SceneError(f"camera '{self.name}' has unknown sensor fit {self.sensor_fit!r}")
         if not (0 < self.clip_start < self.clip_end):
@@ -90,22 +92,22 @@ class Camera:
 
     def projection_matrix(self, width: int, height: int) -> np.ndarray:
         """OpenGL clip-from-camera matrix (NDC z in -1..1) matching Blender's render."""
-        l, r, b, t = self.viewplane(width, height)
+        left, right, bottom, top = self.viewplane(width, height)
         n, f = float(self.clip_start), float(self.clip_end)
         p = np.zeros((4, 4))
         if self.type == "ORTHO":
-            p[0, 0] = 2 / (r - l)
-            p[1, 1] = 2 / (t - b)
+            p[0, 0] = 2 / (right - left)
+            p[1, 1] = 2 / (top - bottom)
             p[2, 2] = -2 / (f - n)
-            p[0, 3] = -(r + l) / (r - l)
-            p[1, 3] = -(t + b) / (t - b)
+            p[0, 3] = -(right + left) / (right - left)
+            p[1, 3] = -(top + bottom) / (top - bottom)
             p[2, 3] = -(f + n) / (f - n)
             p[3, 3] = 1
         else:
-            p[0, 0] = 2 * n / (r - l)
-            p[1, 1] = 2 * n / (t - b)
-            p[0, 2] = (r + l) / (r - l)
-            p[1, 2] = (t + b) / (t - b)
+            p[0, 0] = 2 * n / (right - left)
+            p[1, 1] = 2 * n / (top - bottom)
+            p[0, 2] = (right + left) / (right - left)
+            p[1, 2] = (top + bottom) / (top - bottom)
             p[2, 2] = -(f + n) / (f - n)
             p[2, 3] = -2 * f * n / (f - n)
             p[3, 2] = -1
@@ -117,9 +119,9 @@ class Camera:
         Returns ``(origins, directions)``, each (H, W, 3) float64; directions are unit length.
         For an orthographic camera origins lie on the view plane at ``clip_start``.
         """
-        l, r, b, t = self.viewplane(width, height)
-        xs = l + (np.arange(width) + 0.5) * (r - l) / width
-        ys = t - (np.arange(height) + 0.5) * (t - b) / height
+        left, right, bottom, top = self.viewplane(width, height)
+        xs = left + (np.arange(width) + 0.5) * (right - left) / width
+        ys = top - (np.arange(height) + 0.5) * (top - bottom) / height
         X, Y = np.meshgrid(xs, ys)
         cam = self.world_matrix_normalized()
         R, o = cam[:3, :3], cam[:3, 3]

@@ -33,14 +33,16 @@ class Instances:
 
     def __post_init__(self):
         n = len(self.names)
-        self.model_ids = np.zeros(n, np.int32) if self.model_ids is None else np.ascontiguousarray(self.model_ids, np.int32).reshape(n)
+        self.model_ids = (np.zeros(n, np.int32) if self.model_ids is None
+                          else np.ascontiguousarray(self.model_ids, np.int32).reshape(n))
         self.matrices = (np.tile(np.eye(4), (n, 1, 1)) if self.matrices is None
                          else np.ascontiguousarray(self.matrices, np.float64).reshape(n, 4, 4))
         if self.inverse is None:
             self.inverse = affine_inverse(self.matrices)
         else:
             self.inverse = np.ascontiguousarray(self.inverse, np.float64).reshape(n, 4, 4)
-        self.casts_shadow = np.ones(n, bool) if self.casts_shadow is None else np.ascontiguousarray(self.casts_shadow, bool).reshape(n)
+        self.casts_shadow = (np.ones(n, bool) if self.casts_shadow is None
+                             else np.ascontiguousarray(self.casts_shadow, bool).reshape(n))
         self.base_color = (np.tile(np.float32([0.8, 0.8, 0.8, 1.0]), (n, 1)) if self.base_color is None
                            else as_f32(self.base_color, (4,)))
         self.specular = np.full(n, 0.5, np.float32) if self.specular is None else as_f32(self.specular).reshape(n)

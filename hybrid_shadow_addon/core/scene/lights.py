@@ -63,6 +63,7 @@ class Light:
             if not np.isfinite(np.asarray(v, np.float64)).all():
                 raise SceneError(f"light '{self.name}' has a NaN or infinite {label}")
         if (np.abs(self.matrix) >= MAX_COORD).any():
-            raise SceneError(f"light '{self.name}' has an infinite or absurd transform (a value beyond {MAX_COORD:.0e})")
+            raise SceneError(f"light '{self.name}' has an infinite or absurd transform "
+                             f"(a value beyond {MAX_COORD:.0e})")
         if not np.linalg.norm(self.matrix[:3, 2]) > 0:
             raise SceneError(f"light '{self.name}' has a zero-scale matrix (no direction)")

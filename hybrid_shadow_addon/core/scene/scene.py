@@ -128,7 +128,8 @@ class Scene:
                                  f"(a value beyond {MAX_COORD:.0e})")
             bad_i = ~np.isfinite(inst.inverse).all(axis=(1, 2))
             if bad_i.any():
-                raise SceneError(f"object '{inst.names[int(np.argmax(bad_i))]}' has a zero scale (its transform cannot be inverted)")
+                raise SceneError(f"object '{inst.names[int(np.argmax(bad_i))]}' has a zero scale "
+                                 "(its transform cannot be inverted)")
             if inst.material_ids.min() < -1 or inst.material_ids.max() >= len(self.materials):
                 bad = int(np.nonzero((inst.material_ids < -1) | (inst.material_ids >= len(self.materials)))[0][0])
                 raise SceneError(f"object '{inst.names[bad]}' refers to a missing material")
@@ -143,7 +144,8 @@ class Scene:
         if n and self.materials:
             for m in np.unique(inst.model_ids[inst.material_ids >= 0]).tolist():
                 rows = np.nonzero((inst.model_ids == m) & (inst.material_ids >= 0))[0]
-                if self.models[m].uvs is None and any(self.materials[k].textured for k in inst.material_ids[rows].tolist()):
+                if self.models[m].uvs is None and any(self.materials[k].textured
+                                                      for k in inst.material_ids[rows].tolist()):
                     raise SceneError(f"object '{inst.names[int(rows[0])]}' has a textured material but its mesh "
                                      f"'{self.models[m].name}' has no UV map")
         for light in self.lights:
@@ -175,7 +177,7 @@ class Scene:
             "triangles": self.triangle_count,
             "unique_triangles": self.unique_triangle_count,
             "lights": self.lights_by_type(),
-            "shadowed_lights": sum(1 for l in self.lights if l.use_shadow),
+            "shadowed_lights": sum(1 for light in self.lights if light.use_shadow),
             "materials": len(self.materials),
             "images": len(self.images),
             "alpha_models": int(self.alpha_models().sum()),

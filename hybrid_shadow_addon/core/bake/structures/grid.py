@@ -392,7 +392,8 @@ class HierarchicalGrid(GridUpdates, AccelerationStructure):
         """(Re)build the grid and its index list from the instance spheres."""
         cfg, objects, tex = self.config, self.instances, self.tex
         casters = np.nonzero(scene.instances.casts_shadow)[0] if len(scene.instances) else np.zeros(0, np.int64)
-        lay = _grid.plan_grid(objects.center[casters], objects.radius[casters], cfg.base_node_size, cfg.max_level0_nodes)
+        lay = _grid.plan_grid(objects.center[casters], objects.radius[casters], cfg.base_node_size,
+                              cfg.max_level0_nodes)
         node = _grid.place(lay, objects.center[casters], objects.radius[casters])
         n_nodes = lay.n_nodes
         counts = np.bincount(node, minlength=n_nodes).astype(np.int64)

@@ -7,7 +7,8 @@ software rasteriser the walk's code runs for every 8-pixel group, active lanes o
 surface points of each 4x4 block of pixels (bake space, as the rays start from; two per block,
 nearer and farther than the middle of its depths, so that a block on a silhouette does not span
 the gap behind it), and reads them back; :meth:`LightCull.reaches` tests a light's reach,
-widened by a margin, against the bounding sphere of every box. A light it reaches nowhere has no pixel that needs a ray, so its
+widened by a margin, against the bounding sphere of every box. A light it reaches nowhere has no pixel that
+needs a ray, so its
 mask is what every pixel gets without one (``raytrace.glsl`` HS_NO_RAYS): the same mask,
 bit for bit, at the price of one cheap pass per frame for all such lights.
 

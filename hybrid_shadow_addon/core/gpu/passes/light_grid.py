@@ -101,7 +101,8 @@ class LightGridCache:
         """Whether the hard lights of this bake and settings trace grids: the two-level BVH (its
         triangle test and instance records), no alpha-cut casters (their transmittance needs the
         materials and UVs of the tree's leaves)."""
-        return bool(settings.light_grid) and baked is not None and baked.accel.supports_light_grids and not baked.has_alpha
+        return (bool(settings.light_grid) and baked is not None and baked.accel.supports_light_grids
+                and not baked.has_alpha)
 
     def begin_frame(self) -> None:
         self.build_ms = 0.0

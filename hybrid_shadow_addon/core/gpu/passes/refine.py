@@ -104,7 +104,8 @@ class Refiner:
         prog, vao = self.programs.fullscreen("refine_geometry", self._grid_defines())
         unit = gbuffer.bind(prog)
         set_uniforms(prog, {**self._grid_uniforms(gbuffer), "u_plane_tol": float(self.rules["plane_tol"]),
-                            "u_normal_cos": float(self.rules["normal_cos"]), "u_view_cos": float(self.rules["view_cos"])})
+                            "u_normal_cos": float(self.rules["normal_cos"]),
+                            "u_view_cos": float(self.rules["view_cos"])})
         if not interlace:  # (sample_grid() reads the coarse mask's size: a texture of that size)
             self._work.get("cells", *cells).texture.use(unit)
             set_uniforms(prog, {"u_coarse": unit})

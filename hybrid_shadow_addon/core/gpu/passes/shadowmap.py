@@ -38,13 +38,13 @@ def _box_corners(bmin, bmax) -> np.ndarray:
 
 def frustum_corners_rel(cam, far: float) -> np.ndarray:
     """(8, 3) camera frustum corners (camera-relative world) from clip start to ``far``."""
-    l, r, b, t = cam.viewplane
+    left, right, bottom, top = cam.viewplane
     n = cam.clip_start
     pts = []
     for z in (n, far):
         s = 1.0 if cam.ortho else z / n
-        for x in (l, r):
-            for y in (b, t):
+        for x in (left, right):
+            for y in (bottom, top):
                 pts.append((x * s, y * s, -z))
     return np.array(pts) @ cam.cam_rot.T
 

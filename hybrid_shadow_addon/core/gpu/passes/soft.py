@@ -311,7 +311,8 @@ class SoftVisibility(LightVisibility):
     def _packet_defines(self, defines, rays: int) -> dict:
         """``HS_SOFT_PACKET`` (a pixel's soft-shadow rays walk the scene together,
         ``shaders/common/scene_packet.glsl``) for a pass that traces ``rays`` rays per pixel:
-        structures that support them (:attr:`AccelerationStructure.supports_packets`; each ray keeps its own transmittance through alpha-cut casters), from
+        structures that support them (:attr:`AccelerationStructure.supports_packets`; each ray keeps its
+        own transmittance through alpha-cut casters), from
         PACKET_MIN_RAYS rays on (fewer are faster one by one on llvmpipe), unless
         :attr:`RaytraceOptions.packets` is off. With it ``HS_SOFT_FULL``: a refined
         pixel traces all its samples in one walk (cheaper than two halves with the ray-by-ray

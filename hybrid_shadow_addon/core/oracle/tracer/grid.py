@@ -260,7 +260,8 @@ def _walk_level(tex, o, d, tm, t_dda, occ, rays, gx, gy, s, nx, ny, off, stats):
             tx_exit = np.minimum(np.minimum(tx, ty), t_hi[idx])
             delta = EPS16 * (tx_exit - te + slack[idx])
             zlo = np.where(dz[idx] > 0, oz[idx] + dz[idx] * np.maximum(te - delta, F(0)),
-                           np.where(dz[idx] < 0, oz[idx] + dz[idx] * np.minimum(tx_exit + delta, tm[r]), oz[idx])).astype(F)
+                           np.where(dz[idx] < 0, oz[idx] + dz[idx] * np.minimum(tx_exit + delta, tm[r]),
+                                    oz[idx])).astype(F)
             node = off + cy[idx] * nx + cx[idx]
             if stats is not None:
                 stats["dda_steps"] += idx.size

@@ -37,7 +37,8 @@ def light_grid_place(grid, o, d):
             uu = np.clip(uu / z, F(-1), F(1)) + F(1)
             vv = np.clip(vv / z, F(-1), F(1)) + F(1)
         r = F(int(u["hs_lg_dims"][0]))
-        g = np.stack([np.minimum(uu * inv, r - F(1.0 / 256.0)), np.minimum(vv * inv, r - F(1.0 / 256.0)) + face * r], axis=1)
+        g = np.stack([np.minimum(uu * inv, r - F(1.0 / 256.0)),
+                      np.minimum(vv * inv, r - F(1.0 / 256.0)) + face * r], axis=1)
         return np.where(inside[:, None], g, 0).astype(F), (-z).astype(F), inside
     gx = (_dot32(o, u["hs_lg_ux"]) - F(u["hs_lg_base"][0])) * inv
     gy = (_dot32(o, u["hs_lg_uy"]) - F(u["hs_lg_base"][1])) * inv

@@ -123,9 +123,9 @@ def sphere_hit(o, d, c, r, tmax) -> np.ndarray:
     a = (d * d).sum(axis=1, dtype=F)
     b = -(f * d).sum(axis=1, dtype=F)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        l = f + (b / a)[:, None] * d
+        perp = f + (b / a)[:, None] * d
         rr = r * r
-        disc = rr - (l * l).sum(axis=1, dtype=F)
+        disc = rr - (perp * perp).sum(axis=1, dtype=F)
         cc = (f * f).sum(axis=1, dtype=F) - rr
         sq = np.sqrt(np.maximum(a * disc, F(0)))
         q = b + np.where(b >= 0, sq, -sq)
