@@ -17,9 +17,10 @@ import pytest
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.oracle.rays import shadow_rays
-from hybrid_shadow_addon.core.oracle.tracer import bake_space, visibility_brute
+from hybrid_shadow_addon.core.oracle.tracer import visibility_brute
 from hybrid_shadow_addon.core.scene import Camera, Image, Instances, Light, Material, Model, Scene
 from hybrid_shadow_addon.core.settings import Settings
+from tests.helpers.glsl import gl_rays, ray_fragment
 from tests.helpers.scenes import cube_model, look_at, plane_model, trs
 
 pytestmark = [pytest.mark.gpu]
@@ -345,68 +346,11 @@ def test_edit_alpha_mesh_equals_fresh_bake(pipeline, gl_ctx, structure):
 # ------------------------------------------------------------------------------------------
 # GLSL harness: random rays through a crowded grid (several levels, object BVHs)
 # ------------------------------------------------------------------------------------------
-VIS_FRAG = """
-#include "common/scene_data.glsl"
-uniform sampler2D ray_o;
-uniform sampler2D ray_d;
-out float vis;
-void main() {
-    ivec2 p = ivec2(gl_FragCoord.xy);
-    vec4 o = texelFetch(ray_o, p, 0);
-    vec4 d = texelFetch(ray_d, p, 0);
-    vis = hs_visibility(o.xyz, d.xyz, o.w);
-}
-"""
+VIS_FRAG = ray_fragment("hs_visibility(o.xyz, d.xyz, o.w)")
 
 
 def gl_visibility(ctx, baked, origins, dirs, tmax):
-    import moderngl
-
-    from tests.helpers.glsl import VERT, resolve
-
-    defines = dict(baked.defines)
-    prog = ctx.program(vertex_shader=resolve(VERT, defines), fragment_shader=resolve(VIS_FRAG, defines))
-    n = len(origins)
-    W = 256
-    H = -(-n // W)
-    o = np.zeros((H * W, 4), np.float32)
-    d = np.zeros((H * W, 4), np.float32)
-    o[:n, :3] = bake_space(baked, origins)
-    o[:n, 3] = np.minimum(np.broadcast_to(np.asarray(tmax, np.float64), (n,)), 3.0e38)
-    d[:n, :3] = dirs
-    d[n:, 0] = 1.0
-    res = []
-    for k, (name, arr) in enumerate((("ray_o", o), ("ray_d", d))):
-        t = ctx.texture((W, H), 4, arr.tobytes(), dtype="f4")
-        t.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        t.use(k)
-        if name in prog:
-            prog[name] = k
-        res.append(t)
-    unit = 2
-    for name, td in baked.textures.items():
-        t = ctx.texture_array((td.width, td.height, td.layers), td.components, td.data.tobytes(), dtype=td.fmt)
-        t.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        t.use(unit)
-        if baked.samplers[name] in prog:
-            prog[baked.samplers[name]] = unit
-        res.append(t)
-        unit += 1
-    for name, value in baked.uniforms.items():
-        if name in prog:
-            arr = np.asarray(value)
-            prog[name].write((arr.astype(np.float32) if arr.dtype.kind == "f" else arr.astype(np.int32)).tobytes())
-    out = ctx.texture((W, H), 1, dtype="f4")
-    fbo = ctx.framebuffer(color_attachments=[out])
-    vbo = ctx.buffer(np.array([-1, -1, 3, -1, -1, 3], np.float32).tobytes())
-    vao = ctx.vertex_array(prog, [(vbo, "2f", "in_pos")])
-    fbo.use()
-    ctx.viewport = (0, 0, W, H)
-    vao.render(moderngl.TRIANGLES)
-    vis = np.frombuffer(fbo.read(components=1, dtype="f4"), np.float32)[:n].astype(np.float64)
-    for r in res + [out, fbo, vbo, vao, prog]:
-        r.release()
-    return vis
+    return gl_rays(ctx, baked, origins, dirs, tmax, VIS_FRAG).astype(np.float64)
 
 
 def crowded_scene(rng, n=160):

@@ -16,6 +16,7 @@ from hybrid_shadow_addon.core.oracle.tracer.primitives import (
     woop_hit_bary,
     woop_setup,
 )
+from tests.helpers.rays import random_triangle_rays
 
 F = np.float32
 
@@ -104,21 +105,7 @@ def test_floor_skips_the_surface_itself():
 def test_triangle_against_float64():
     """Random rays and triangles, away from the edges, agree with float64 Moller-Trumbore."""
     rng = np.random.default_rng(3)
-    n = 20000
-    v = rng.normal(size=(n, 3, 3))
-    o = rng.normal(size=(n, 3)) * 2
-    d = rng.normal(size=(n, 3))
-    tmax = rng.uniform(0.1, 5, n)
-    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
-    p = np.cross(d, e2)
-    det = (e1 * p).sum(1)
-    s = o - v[:, 0]
-    u = (s * p).sum(1) / det
-    q = np.cross(s, e1)
-    w = (d * q).sum(1) / det
-    t = (e2 * q).sum(1) / det
-    ref = (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0) & (t < tmax)
-    margin = np.minimum.reduce([np.abs(u), np.abs(w), np.abs(1 - u - w), np.abs(t), np.abs(tmax - t)])
+    v, o, d, tmax, ref, margin = random_triangle_rays(rng, 20000)
     clear = margin > 1e-3
     got = _hit(o, d, v, tmax)
     assert ref[clear].sum() > 100

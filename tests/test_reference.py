@@ -6,25 +6,12 @@ from hypothesis import strategies as st
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 from hybrid_shadow_addon.core.oracle.tracer import sphere_hit, trace_brute, trace_structured, woop_hit, woop_setup
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
+from tests.helpers.rays import random_triangle_rays
 
 
 def test_triangle_test_against_float64():
     rng = np.random.default_rng(0)
-    n = 20000
-    v = rng.normal(size=(n, 3, 3))
-    o = rng.normal(size=(n, 3)) * 2
-    d = rng.normal(size=(n, 3))
-    tmax = rng.uniform(0.1, 5, n)
-    # float64 Moller-Trumbore
-    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
-    p = np.cross(d, e2)
-    det = (e1 * p).sum(1)
-    s = o - v[:, 0]
-    u = (s * p).sum(1) / det
-    q = np.cross(s, e1)
-    w = (d * q).sum(1) / det
-    t = (e2 * q).sum(1) / det
-    ref = (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0) & (t < tmax)
+    v, o, d, tmax, ref, _ = random_triangle_rays(rng, 20000)  # float64 Moller-Trumbore
     f = np.float32
     got = woop_hit(o.astype(f), woop_setup(d.astype(f)), v[:, 0].astype(f), v[:, 1].astype(f), v[:, 2].astype(f),
                    tmax.astype(f))

@@ -17,19 +17,25 @@ void main() { gl_Position = vec4(in_pos, 0.0, 1.0); }
 """
 
 
-#: one ray per pixel (origin and tmax, direction) through ``hs_occluded``: 1 hit, 0 miss
-FRAG = """
+def ray_fragment(expression: str) -> str:
+    """A fragment shader for one ray per pixel (origin ``o.xyz`` and tmax ``o.w`` from ``ray_o``,
+    direction ``d.xyz`` from ``ray_d``) that writes the float ``expression``."""
+    return f"""
 #include "common/scene_data.glsl"
 uniform sampler2D ray_o;
 uniform sampler2D ray_d;
-out float hit;
-void main() {
+out float result;
+void main() {{
     ivec2 p = ivec2(gl_FragCoord.xy);
     vec4 o = texelFetch(ray_o, p, 0);
     vec4 d = texelFetch(ray_d, p, 0);
-    hit = hs_occluded(o.xyz, d.xyz, o.w) ? 1.0 : 0.0;
-}
+    result = {expression};
+}}
 """
+
+
+#: through ``hs_occluded``: 1 hit, 0 miss
+FRAG = ray_fragment("hs_occluded(o.xyz, d.xyz, o.w) ? 1.0 : 0.0")
 
 
 def resolve(src: str, defines: dict) -> str:
@@ -49,12 +55,13 @@ def resolve(src: str, defines: dict) -> str:
     return "\n".join(head) + "\n" + body
 
 
-def gl_trace(ctx, baked, origins, dirs, tmax):
-    """Any-hit of each ray (world space) through ``baked`` on the GPU, as a bool array."""
+def gl_rays(ctx, baked, origins, dirs, tmax, fragment: str = FRAG) -> np.ndarray:
+    """One float per ray (world space) from ``fragment`` (one ray per pixel through ``baked``'s
+    textures: ``ray_o`` origin and tmax, ``ray_d`` direction) on the GPU."""
     import moderngl
 
     defines = dict(baked.defines)
-    prog = ctx.program(vertex_shader=resolve(VERT, defines), fragment_shader=resolve(FRAG, defines))
+    prog = ctx.program(vertex_shader=resolve(VERT, defines), fragment_shader=resolve(fragment, defines))
     n = len(origins)
     W = 256
     H = -(-n // W)
@@ -65,17 +72,13 @@ def gl_trace(ctx, baked, origins, dirs, tmax):
     d[:n, :3] = dirs
     d[n:, 0] = 1.0
     res = []
-    tex_o = ctx.texture((W, H), 4, o.tobytes(), dtype="f4")
-    tex_d = ctx.texture((W, H), 4, d.tobytes(), dtype="f4")
-    res += [tex_o, tex_d]
-    unit = 0
-    for t in (tex_o, tex_d):
+    for k, (name, arr) in enumerate((("ray_o", o), ("ray_d", d))):
+        t = ctx.texture((W, H), 4, arr.tobytes(), dtype="f4")
         t.filter = (moderngl.NEAREST, moderngl.NEAREST)
-    tex_o.use(0)
-    tex_d.use(1)
-    for k, name in enumerate(("ray_o", "ray_d")):
+        t.use(k)
         if name in prog:  # an empty scene's walk needs no ray: the compiler may drop them
             prog[name] = k
+        res.append(t)
     unit = 2
     for name, td in baked.textures.items():
         t = ctx.texture_array((td.width, td.height, td.layers), td.components, td.data.tobytes(), dtype=td.fmt)
@@ -101,7 +104,12 @@ def gl_trace(ctx, baked, origins, dirs, tmax):
     fbo.use()
     ctx.viewport = (0, 0, W, H)
     vao.render(moderngl.TRIANGLES)
-    hit = np.frombuffer(fbo.read(components=1, dtype="f4"), np.float32)[:n] > 0.5
+    values = np.frombuffer(fbo.read(components=1, dtype="f4"), np.float32)[:n].copy()
     for r in res + [out, fbo, vbo, vao, prog]:
         r.release()
-    return hit
+    return values
+
+
+def gl_trace(ctx, baked, origins, dirs, tmax):
+    """Any-hit of each ray (world space) through ``baked`` on the GPU, as a bool array."""
+    return gl_rays(ctx, baked, origins, dirs, tmax) > 0.5

@@ -136,3 +136,24 @@ def shadow_rays(frame, scene, li):
         tmax = np.ones(len(o))
     facing = (n * d).sum(axis=1) > 0
     return ok, o, d, tmax, facing
+
+
+def random_triangle_rays(rng, n):
+    """``n`` random triangles ``v`` (n, 3, 3) and rays ``o``, ``d``, ``tmax`` in float64, with the
+    float64 Moller-Trumbore answer ``ref`` and each case's distance from the test's boundaries
+    (barycentrics, t and tmax: ``margin``)."""
+    v = rng.normal(size=(n, 3, 3))
+    o = rng.normal(size=(n, 3)) * 2
+    d = rng.normal(size=(n, 3))
+    tmax = rng.uniform(0.1, 5, n)
+    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+    p = np.cross(d, e2)
+    det = (e1 * p).sum(1)
+    s = o - v[:, 0]
+    u = (s * p).sum(1) / det
+    q = np.cross(s, e1)
+    w = (d * q).sum(1) / det
+    t = (e2 * q).sum(1) / det
+    ref = (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0) & (t < tmax)
+    margin = np.minimum.reduce([np.abs(u), np.abs(w), np.abs(1 - u - w), np.abs(t), np.abs(tmax - t)])
+    return v, o, d, tmax, ref, margin

@@ -12,39 +12,54 @@ from ..alpha import is_opaque, transmittance
 from .primitives import F, prepare_rays, sphere_hit, transform_rays, woop_hit, woop_hit_bary, woop_setup
 
 
+def _casters(scene, o, d, tm, live):
+    """Each shadow caster of ``scene`` with the rays still to test (``live()``: their mask, read
+    anew per caster) in its model space: ``(instance, model, rays, om, dm, sphere)``, ``sphere``
+    the hits of an analytic sphere primitive, else None."""
+    inst = scene.instances
+    if not len(inst):
+        return
+    for i in np.nonzero(inst.casts_shadow)[0].tolist():
+        rays = np.nonzero(live())[0]
+        if not rays.size:
+            return
+        model = scene.models[int(inst.model_ids[i])]
+        rows = np.broadcast_to(inst.inverse[i, :3, :].astype(F).reshape(1, 12), (rays.size, 12))
+        om, dm = transform_rays(rows, o[rays], d[rays])
+        sphere = None
+        if inst.sphere[i]:
+            c = np.broadcast_to(model.sphere_center.astype(F), om.shape)
+            r = np.broadcast_to(f32_up(model.sphere_radius), (rays.size,))
+            sphere = sphere_hit(om, dm, c, r, tm[rays])
+        yield i, model, rays, om, dm, sphere
+
+
+def _pairs(n_rays: int, n_tri: int, chunk: int):
+    """Every (ray, triangle) pair in chunks of about ``chunk``: ``(first ray, rays, ray of each
+    pair, triangle of each pair)``."""
+    per = max(1, chunk // n_tri)
+    for a in range(0, n_rays, per):
+        n = min(per, n_rays - a)
+        yield a, n, np.repeat(np.arange(a, a + n), n_tri), np.tile(np.arange(n_tri), n)
+
+
 def trace_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21) -> np.ndarray:
     """Occlusion of each ray against every shadow caster of ``scene`` (small scenes only)."""
     o, d, tm, valid = prepare_rays(origins, dirs, tmax)
     occ = np.zeros(len(o), bool)
-    inst = scene.instances
-    if not len(inst):
-        return occ
-    for i in np.nonzero(inst.casts_shadow)[0].tolist():
-        rays = np.nonzero(valid & ~occ)[0]
-        if not rays.size:
-            break
-        model = scene.models[int(inst.model_ids[i])]
-        rows = np.broadcast_to(inst.inverse[i, :3, :].astype(F).reshape(1, 12), (rays.size, 12))
-        om, dm = transform_rays(rows, o[rays], d[rays])
-        if inst.sphere[i]:
-            c = np.broadcast_to(model.sphere_center.astype(F), om.shape)
-            r = np.broadcast_to(f32_up(model.sphere_radius), (rays.size,))
-            occ[rays[sphere_hit(om, dm, c, r, tm[rays])]] = True
+    for _i, model, rays, om, dm, sphere in _casters(scene, o, d, tm, lambda: valid & ~occ):
+        if sphere is not None:
+            occ[rays[sphere]] = True
             continue
         T = model.triangle_count
         if T == 0:
             continue
         v = model.vertices[model.triangles]  # (T, 3, 3)
         setup = woop_setup(dm)
-        per = max(1, chunk // T)
-        for a in range(0, rays.size, per):
-            sl = slice(a, a + per)
-            n = min(per, rays.size - a)
-            rr = np.repeat(np.arange(a, a + n), T)
-            tt = np.tile(np.arange(T), n)
+        for a, n, rr, tt in _pairs(rays.size, T, chunk):
             s = tuple(x[rr] for x in setup)
             h = woop_hit(om[rr], s, v[tt, 0], v[tt, 1], v[tt, 2], tm[rays[rr]])
-            occ[rays[sl]] |= h.reshape(n, T).any(axis=1)
+            occ[rays[a:a + n]] |= h.reshape(n, T).any(axis=1)
     return occ
 
 
@@ -60,35 +75,20 @@ def visibility_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21) ->
     (``Model.uvs``). Invalid rays (zero direction, tmax <= 0, NaN) get 1."""
     o, d, tm, valid = prepare_rays(origins, dirs, tmax)
     vis = np.ones(len(o), np.float64)
-    inst = scene.instances
-    if not len(inst):
-        return vis
-    for i in np.nonzero(inst.casts_shadow)[0].tolist():
-        rays = np.nonzero(valid & (vis > 0))[0]
-        if not rays.size:
-            break
-        model = scene.models[int(inst.model_ids[i])]
-        rows = np.broadcast_to(inst.inverse[i, :3, :].astype(F).reshape(1, 12), (rays.size, 12))
-        om, dm = transform_rays(rows, o[rays], d[rays])
-        if inst.sphere[i]:
-            c = np.broadcast_to(model.sphere_center.astype(F), om.shape)
-            r = np.broadcast_to(f32_up(model.sphere_radius), (rays.size,))
-            vis[rays[sphere_hit(om, dm, c, r, tm[rays])]] = 0.0
+    for i, model, rays, om, dm, sphere in _casters(scene, o, d, tm, lambda: valid & (vis > 0)):
+        if sphere is not None:
+            vis[rays[sphere]] = 0.0
             continue
         T = model.triangle_count
         if T == 0:
             continue
-        mid = int(inst.material_ids[i])
+        mid = int(scene.instances.material_ids[i])
         opaque = is_opaque(scene, mid)
         v = model.vertices[model.triangles]  # (T, 3, 3)
         uvs = (model.uvs.astype(np.float64) if model.uvs is not None
                else np.zeros((T, 3, 2), np.float64))
         setup = woop_setup(dm)
-        per = max(1, chunk // T)
-        for a in range(0, rays.size, per):
-            n = min(per, rays.size - a)
-            rr = np.repeat(np.arange(a, a + n), T)
-            tt = np.tile(np.arange(T), n)
+        for a, n, rr, tt in _pairs(rays.size, T, chunk):
             s = tuple(x[rr] for x in setup)
             if opaque:
                 h = woop_hit(om[rr], s, v[tt, 0], v[tt, 1], v[tt, 2], tm[rays[rr]])
@@ -101,4 +101,3 @@ def visibility_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21) ->
             uv = np.einsum("pc,pcj->pj", bary[k], uvs[tt[k]])
             np.multiply.at(vis, rays[rr[k]], transmittance(scene, mid, uv))
     return vis
-

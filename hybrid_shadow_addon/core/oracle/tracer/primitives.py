@@ -154,14 +154,19 @@ def slab_inv(d: np.ndarray) -> np.ndarray:
         return np.where(d != 0, F(1.0) / np.where(d != 0, d, F(1)), SLAB_BIG).astype(F)
 
 
-def slab_hit(o, inv, bmin, bmax, tmax) -> np.ndarray:
-    """Robust slab test (conservative: far t scaled by 1 + 2^-20)."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        t1 = (bmin - o) * inv
-        t2 = (bmax - o) * inv
+def slab_span_hit(t1, t2, tmax) -> np.ndarray:
+    """Whether the ray's span between the slabs' entry and exit ``t1``/``t2`` (N, 3) meets
+    [0, tmax] (conservative: far t scaled by 1 + 2^-20)."""
+    with np.errstate(invalid="ignore"):
         tn = np.minimum(t1, t2).max(axis=1)
         tf = np.maximum(t1, t2).min(axis=1) * TFAR_SCALE
     return np.maximum(tn, F(0)) <= np.minimum(tf, tmax)
+
+
+def slab_hit(o, inv, bmin, bmax, tmax) -> np.ndarray:
+    """Robust slab test of rays ``o`` (reciprocal directions ``inv``) against boxes."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return slab_span_hit((bmin - o) * inv, (bmax - o) * inv, tmax)
 
 
 def ragged_pairs(starts, counts):

@@ -6,12 +6,12 @@ import numpy as np
 
 from ...bake.textures import SPHERE_FLAG
 from .primitives import (
-    TFAR_SCALE,
     F,
     bake_space,
     prepare_rays,
     ragged_pairs,
     slab_inv,
+    slab_span_hit,
     sphere_hit,
     transform_rays,
     woop_hit,
@@ -28,11 +28,7 @@ def _qbox_hit(rlo, rhi, inv, n, tmax) -> np.ndarray:
     blo = np.stack([n[:, 0] & 0xFFFF, n[:, 0] >> 16, n[:, 1] & 0xFFFF], 1).astype(F)
     bhi = np.stack([n[:, 1] >> 16, n[:, 2] & 0xFFFF, n[:, 2] >> 16], 1).astype(F)
     with np.errstate(over="ignore", invalid="ignore"):
-        t1 = (blo - rlo) * inv
-        t2 = (bhi - rhi) * inv
-        tn = np.minimum(t1, t2).max(axis=1)
-        tf = np.maximum(t1, t2).min(axis=1) * TFAR_SCALE
-    return np.maximum(tn, F(0)) <= np.minimum(tf, tmax)
+        return slab_span_hit((blo - rlo) * inv, (bhi - rhi) * inv, tmax)
 
 
 def _l1(v):
