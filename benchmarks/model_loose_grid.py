@@ -10,7 +10,7 @@ border), walked level by level. This script counts what it would cost on the fra
   G-buffer (``core/oracle/rays.py``), at most ``--rays`` of each light (a fixed random sample);
   only the rays that nothing occludes, which walk their whole length in both structures (an
   occluded ray stops at its first hit in either);
-- the BVH: the top-level node steps of the numpy mirror of the walk (``core/oracle/tracer.py``:
+- the BVH: the top-level node steps of the numpy mirror of the walk (``core/oracle/tracer/twolevel.py``:
   one fetch each, the same nodes the shader visits);
 - the loose grid, counted generously: the xy grid of the thesis (levels of cells 2^k times the
   base size, a cell's z range that of its objects), and for each ray only the cells whose grown

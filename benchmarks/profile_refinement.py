@@ -10,7 +10,7 @@ read from the depth buffer. Printed per scene and quality:
   another surface, a crease, a grazing view) or its cell's samples disagree
   (``refine_cells.glsl``); the rest are pixels that graze the light;
 - the lock-step cost of the full-resolution rays, from the numpy mirror of the walk
-  (``core/oracle/tracer.py``: node steps per ray) over 4x2 blocks (each fragment-shader
+  (``core/oracle/tracer/twolevel.py``: node steps per ray) over 4x2 blocks (each fragment-shader
   invocation runs 8 pixels until its slowest lane is done): ``high`` traces every block; the
   trace under the depth test runs each block that holds a mark for its slowest marked lane
   (rule off, and on: the whole block's unknown pixels); a perfectly compacted list would run the

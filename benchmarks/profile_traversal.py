@@ -2,7 +2,7 @@
 
 For each scene (hard lights, ``high``, ``--structure bvh``) the rays the GPU traces are rebuilt
 from the frame's G-buffer (``core/oracle/rays.py``) and walked by the numpy mirror of the shader
-(``core/oracle/tracer.py``, which visits the same nodes in the same order), counting per light:
+(``core/oracle/tracer/twolevel.py``, which visits the same nodes in the same order), counting per light:
 node steps per ray (top level and model trees; occluded and unoccluded rays apart), triangle
 tests, the model trees that take most of the steps, and the lock-step cost of llvmpipe's SIMD
 groups (each fragment-shader invocation runs 8 pixels, a 4x2 block, until its slowest ray is done:

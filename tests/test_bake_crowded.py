@@ -12,9 +12,7 @@ import pytest
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
-from tests.helpers.bake import assert_equal_tracers
-from tests.helpers.bake import assert_report_covers as _assert_report_covers
-from tests.helpers.bake import snapshot as _snapshot
+from tests.helpers.bake import assert_equal_tracers, assert_report_covers, snapshot
 from tests.helpers.rays import random_rays
 from tests.helpers.scenes import blob_model, plate_model, random_matrices
 
@@ -142,13 +140,13 @@ def test_incremental_moves_rebuild_object_bvhs():
          lambda M: np.column_stack([rng.uniform(-40.3, -39.7, (len(M), 2)), rng.uniform(0.1, 0.6, len(M))])),
     ]
     for name, idx, new_t in steps:
-        before = _snapshot(baked)
+        before = snapshot(baked)
         M = scene.instances.matrices[idx].copy()
         M[:, :3, 3] = new_t(M)
         scene.instances.set_matrices(idx, M)
         rep = baked.update_instances(scene, idx)
         assert not rep.regrid, name
-        _assert_report_covers(baked, before, rep)
+        assert_report_covers(baked, before, rep)
         for nd in _obvh_nodes(baked):
             _check_tree(baked, nd)
         o, d, t = crowd_rays(rng, scene, 1200, ((0.0, 0.0), (-40.0, -40.0)))
@@ -163,10 +161,10 @@ def test_incremental_moves_rebuild_object_bvhs():
     M[:, 0, 3] += rng.uniform(-60, 60, go.size)
     M[:, 1, 3] += rng.uniform(-60, 60, go.size)
     scene.instances.set_matrices(go, M)
-    before = _snapshot(baked)
+    before = snapshot(baked)
     rep = baked.update_instances(scene, go)
     if not rep.regrid:
-        _assert_report_covers(baked, before, rep)
+        assert_report_covers(baked, before, rep)
         assert baked.accel.node_count[node] <= 32 and baked.accel.node_obvh[node] == -1
         assert baked.textures["grid"].linear()[node, 3] == 0
     o, d, t = crowd_rays(rng, scene, 1200, ((0.0, 0.0), (-40.0, -40.0)))
@@ -190,11 +188,11 @@ def test_overflow_relocation_and_regrid_with_object_bvhs():
     M[:, :3, 3] = baked.accel.inst_center[members] + baked.origin - M[:, :3, :3] @ scene.models[2].sphere_center
     scene.instances.set_matrices(far, M)
     tail0, bvh0, root0 = baked.accel.index_tail, baked.accel.bvh_tail, baked.accel.node_obvh[node]
-    before = _snapshot(baked)
+    before = snapshot(baked)
     rep = baked.update_instances(scene, far)
     assert not rep.regrid and baked.accel.index_tail > tail0
     assert baked.accel.bvh_tail > bvh0 and baked.accel.node_obvh[node] != root0
-    _assert_report_covers(baked, before, rep)
+    assert_report_covers(baked, before, rep)
     _check_tree(baked, node)
     o, d, t = crowd_rays(rng, scene, 1500)
     assert_equal_tracers(scene, baked, o, d, t)
@@ -205,9 +203,9 @@ def test_overflow_relocation_and_regrid_with_object_bvhs():
         M = scene.instances.matrices[idx].copy()
         M[:, :2, 3] = rng.uniform(-0.5, 0.5, (idx.size, 2)) + rng.choice([0.0, 50.0], (idx.size, 1))
         scene.instances.set_matrices(idx, M)
-        before = _snapshot(baked)
+        before = snapshot(baked)
         rep = baked.update_instances(scene, idx)
-        _assert_report_covers(baked, before, rep)
+        assert_report_covers(baked, before, rep)
         if rep.regrid:
             regrid = True
             ends = baked.accel.model_node_start + baked.accel.model_node_cap
@@ -225,9 +223,9 @@ def test_update_model_in_crowded_node():
     scene = crowded_scene(rng, 1500)
     baked = bake_scene(scene, BakeConfig(structure="grid"))
     scene.models[0] = blob_model(rng, 10, "bigger tiny", size=0.05)  # spheres grow: trees rebuilt
-    before = _snapshot(baked)
+    before = snapshot(baked)
     rep = baked.update_model(scene, 0)
-    _assert_report_covers(baked, before, rep)
+    assert_report_covers(baked, before, rep)
     for nd in _obvh_nodes(baked):
         _check_tree(baked, nd)
     o, d, t = crowd_rays(rng, scene, 1500)

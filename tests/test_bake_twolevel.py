@@ -9,9 +9,7 @@ from hybrid_shadow_addon.core.bake.structures.blas import LEAF_FLAG, build_blas
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 from hybrid_shadow_addon.core.settings import Settings
-from tests.helpers.bake import assert_equal_tracers
-from tests.helpers.bake import assert_report_covers as _assert_report_covers
-from tests.helpers.bake import snapshot as _snapshot
+from tests.helpers.bake import assert_equal_tracers, assert_report_covers, snapshot
 from tests.helpers.rays import random_rays
 from tests.helpers.scenes import adversarial_scene, blob_model, plate_model, random_scene
 
@@ -174,7 +172,7 @@ def test_move_instances_refits_and_reports_rows():
     scene = random_scene(rng, n_inst=250, tri_counts=(1, 12, 40))
     baked = bake_scene(scene, BVH)
     for step in range(4):
-        before = _snapshot(baked)
+        before = snapshot(baked)
         idx = rng.choice(len(scene.instances), 12, replace=False)
         M = scene.instances.matrices[idx].copy()
         M[:, :3, 3] += rng.normal(scale=[3, 3, 0.5], size=(12, 3))
@@ -182,7 +180,7 @@ def test_move_instances_refits_and_reports_rows():
             M[:, :3, :3] *= rng.uniform(0.5, 3.0, (12, 1, 1))
         scene.instances.set_matrices(idx, M)
         rep = baked.update_instances(scene, idx)
-        _assert_report_covers(baked, before, rep)
+        assert_report_covers(baked, before, rep)
         assert rep.objects == 12
         o, d, t = random_rays(rng, scene, 600)
         assert_equal_tracers(scene, baked, o, d, t)
@@ -194,13 +192,13 @@ def test_move_far_rebuilds_top_level_and_caster_flag():
     rng = np.random.default_rng(4)
     scene = random_scene(rng, n_inst=120, tri_counts=(1, 12, 40))
     baked = bake_scene(scene, BVH)
-    before = _snapshot(baked)
+    before = snapshot(baked)
     M = scene.instances.matrices[:3].copy()
     M[:, :3, 3] += [500.0, 0.0, 0.0]  # outside the top level's quantisation frame
     scene.instances.set_matrices(np.arange(3), M)
     rep = baked.update_instances(scene, np.arange(3))
     assert rep.regrid and rep.uniforms_changed
-    _assert_report_covers(baked, before, rep)
+    assert_report_covers(baked, before, rep)
     scene.instances.casts_shadow[5:9] = False
     rep = baked.update_instances(scene, np.arange(5, 9))
     assert rep.regrid
@@ -215,9 +213,9 @@ def test_update_model_rebuilds_that_model_only():
     # smaller mesh: in place; bigger: appended; a new model
     for n_tri in (2, 400):
         scene.models[0] = blob_model(rng, n_tri, size=1.5)
-        before = _snapshot(baked)
+        before = snapshot(baked)
         rep = baked.update_model(scene, 0)
-        _assert_report_covers(baked, before, rep)
+        assert_report_covers(baked, before, rep)
         o, d, t = random_rays(rng, scene, 1000)
         assert_equal_tracers(scene, baked, o, d, t)
     scene.models.append(blob_model(rng, 50, name="new"))

@@ -4,9 +4,7 @@ import numpy as np
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 from hybrid_shadow_addon.core.oracle.tracer import trace_structured
 from hybrid_shadow_addon.core.scene import Model
-from tests.helpers.bake import assert_equal_tracers
-from tests.helpers.bake import assert_report_covers as _assert_report_covers
-from tests.helpers.bake import snapshot as _snapshot
+from tests.helpers.bake import assert_equal_tracers, assert_report_covers, snapshot
 from tests.helpers.rays import random_rays
 from tests.helpers.scenes import blob_model, random_scene
 
@@ -16,7 +14,7 @@ def test_move_instances_matches_brute_and_touches_only_moved():
     scene = random_scene(rng, n_inst=250, tri_counts=(1, 12, 40))
     baked = bake_scene(scene, BakeConfig(structure="grid"))
     for step in range(4):
-        before = _snapshot(baked)
+        before = snapshot(baked)
         idx = rng.choice(len(scene.instances), 12, replace=False)
         M = scene.instances.matrices[idx].copy()
         M[:, :3, 3] += rng.normal(scale=[8, 8, 1], size=(12, 3))
@@ -27,7 +25,7 @@ def test_move_instances_matches_brute_and_touches_only_moved():
         assert not rep.regrid
         for name in ("model", "bvh", "tri"):
             assert np.array_equal(before[name], baked.textures[name].data)
-        _assert_report_covers(baked, before, rep)
+        assert_report_covers(baked, before, rep)
         assert rep.objects == 12 and rep.nodes_changed <= 24
         o, d, t = random_rays(rng, scene, 600)
         assert_equal_tracers(scene, baked, o, d, t)
@@ -49,10 +47,10 @@ def test_crowding_relocates_to_tail_and_leaving_grid_goes_outside():
     M[:, :3, :3] = np.eye(3) * 0.1
     scene.instances.set_matrices(idx, M)
     tail0 = baked.accel.index_tail
-    before = _snapshot(baked)
+    before = snapshot(baked)
     rep = baked.update_instances(scene, idx)
     assert baked.accel.index_tail > tail0 and not rep.regrid
-    _assert_report_covers(baked, before, rep)
+    assert_report_covers(baked, before, rep)
     o, d, t = random_rays(rng, scene, 1500)
     assert_equal_tracers(scene, baked, o, d, t)
     # move a few far outside the grid: they go to the outside node, still traced
@@ -104,7 +102,7 @@ def test_update_model_rebuilds_that_model_only():
     scene = random_scene(rng, n_inst=200, tri_counts=(1, 12, 40))
     baked = bake_scene(scene, BakeConfig(structure="grid"))
     m = 2
-    before = _snapshot(baked)
+    before = snapshot(baked)
     other = [k for k in range(len(scene.models)) if k != m]
     old_rows = {k: (baked.accel.model_node_start[k], baked.accel.model_node_count[k]) for k in other}
     scene.models[m] = blob_model(rng, 200, "edited", size=2.0)  # bigger: appended
@@ -114,16 +112,16 @@ def test_update_model_rebuilds_that_model_only():
         assert baked.accel.model_node_start[k] == s and baked.accel.model_node_count[k] == c
         a = before["bvh"].reshape(-1, 4)[2 * s:2 * (s + c)]
         assert np.array_equal(a, baked.textures["bvh"].linear()[2 * s:2 * (s + c)])
-    _assert_report_covers(baked, before, rep)
+    assert_report_covers(baked, before, rep)
     o, d, t = random_rays(rng, scene, 1500)
     assert_equal_tracers(scene, baked, o, d, t)
     # smaller edit: in place
     start = baked.accel.model_node_start[m]
     scene.models[m] = blob_model(rng, 30, "edited2")
-    before = _snapshot(baked)
+    before = snapshot(baked)
     rep = baked.update_model(scene, m)
     assert baked.accel.model_node_start[m] == start and not ({"bvh", "tri"} & rep.resized)
-    _assert_report_covers(baked, before, rep)
+    assert_report_covers(baked, before, rep)
     assert_equal_tracers(scene, baked, o, d, t)
     # a new model appended to the scene
     scene.models.append(Model("new", [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]]))

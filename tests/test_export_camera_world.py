@@ -3,8 +3,7 @@ import bpy
 import numpy as np
 import pytest
 
-from tests.helpers.export_scenes import empty_scene
-from tests.helpers.export_scenes import export_scene as _export
+from tests.helpers.export_scenes import empty_scene, export_scene
 
 pytestmark = [pytest.mark.blender]
 
@@ -28,11 +27,11 @@ def test_camera_world_and_resolution(scene):
     world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.2, 0.4, 0.6, 1)
     world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.5
     scene.world = world
-    s = _export()
+    s = export_scene()
     c = s.camera
     assert (c.type, c.ortho_scale, c.sensor_fit, c.shift_x) == ("ORTHO", 12.0, "VERTICAL", pytest.approx(0.1))
     assert (c.clip_start, c.clip_end) == (0.5, 300.0)
     np.testing.assert_allclose(c.matrix, np.array(scene.camera.matrix_world))
     assert s.resolution == (500, 250)
-    assert _export(resolution=(64, 32)).resolution == (64, 32)
+    assert export_scene(resolution=(64, 32)).resolution == (64, 32)
     np.testing.assert_allclose(s.world_color, (0.1, 0.2, 0.3), rtol=1e-6)

@@ -4,9 +4,7 @@ import numpy as np
 import pytest
 
 from hybrid_shadow_addon.core.errors import SceneError
-from tests.helpers.export_scenes import add_object as _add
-from tests.helpers.export_scenes import empty_scene
-from tests.helpers.export_scenes import export_scene as _export
+from tests.helpers.export_scenes import add_object, empty_scene, export_scene
 
 pytestmark = [pytest.mark.blender]
 
@@ -33,10 +31,10 @@ def test_lights_of_every_type(scene):
         light.energy, light.color = 10.0 * (i + 1), (1, 0.5, 0.25)
         for k, v in props.items():
             setattr(light, k, v)
-        ob = _add(name, light, location=(i, 2 * i, 3 * i))
+        ob = add_object(name, light, location=(i, 2 * i, 3 * i))
         ob.rotation_euler = (0.3 * i, 0.1, 0.2)
     bpy.data.lights["Point"].use_shadow = False
-    s = _export()
+    s = export_scene()
     got = {light.name: light for light in s.lights}
     assert s.lights_by_type() == {"SUN": 1, "POINT": 1, "SPOT": 1, "AREA": 2}
     for name, (kind, _props) in specs.items():
@@ -53,6 +51,6 @@ def test_lights_of_every_type(scene):
 
 
 def test_nan_light_transform_is_rejected(scene):
-    _add("Lamp", bpy.data.lights.new("Lamp", "POINT")).location = (0, float("nan"), 0)
+    add_object("Lamp", bpy.data.lights.new("Lamp", "POINT")).location = (0, float("nan"), 0)
     with pytest.raises(SceneError, match="light 'Lamp'"):
-        _export()
+        export_scene()

@@ -12,10 +12,7 @@ import pytest
 from hybrid_shadow_addon.blender import export
 from hybrid_shadow_addon.blender.export import ExportWarning, blend_settings, export_depsgraph
 from hybrid_shadow_addon.blender.load import load_scene, open_scene
-from tests.helpers.export_scenes import add_object as _add
-from tests.helpers.export_scenes import cube_mesh as _cube_mesh
-from tests.helpers.export_scenes import empty_scene
-from tests.helpers.export_scenes import export_scene as _export
+from tests.helpers.export_scenes import add_object, cube_mesh, empty_scene, export_scene
 from tests.helpers.export_scenes import row as _row
 
 pytestmark = [pytest.mark.blender]
@@ -83,7 +80,7 @@ def _export_warnings(fn):
 # plain materials
 # --------------------------------------------------------------------------------------------
 def test_material_colours(scene):
-    me_red = _cube_mesh("red")
+    me_red = cube_mesh("red")
     mat = bpy.data.materials.new("Red")
     mat.use_nodes = True
     bsdf = mat.node_tree.nodes["Principled BSDF"]
@@ -91,11 +88,11 @@ def test_material_colours(scene):
     bsdf.inputs["Specular IOR Level"].default_value = 0.25
     bsdf.inputs["Roughness"].default_value = 0.7
     me_red.materials.append(mat)
-    _add("Red", me_red)
-    plain = _cube_mesh("plain")
-    _add("Grey", plain)
-    _add("Tinted", plain).color = (0.1, 0.2, 0.3, 1)
-    s = _export()
+    add_object("Red", me_red)
+    plain = cube_mesh("plain")
+    add_object("Grey", plain)
+    add_object("Tinted", plain).color = (0.1, 0.2, 0.3, 1)
+    s = export_scene()
     rows = {n: i for i, n in enumerate(s.instances.names)}
     inst = s.instances
     np.testing.assert_allclose(inst.base_color[rows["Red"]], (0.9, 0.1, 0.05, 1), rtol=1e-6)
@@ -217,8 +214,8 @@ def test_colour_and_alpha_images(scene):
     mat, _ = _textured("Both", img)
     me = _quad("q")
     me.materials.append(mat)
-    _add("Q", me)
-    s, warned = _export_warnings(_export)
+    add_object("Q", me)
+    s, warned = _export_warnings(export_scene)
     s.validate()
     assert warned == []
     (m,) = s.materials
@@ -236,8 +233,8 @@ def test_alpha_from_the_colour_output_is_luma(scene):
     mat.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.2, 0.3, 0.4, 1)
     me = _quad("q")
     me.materials.append(mat)
-    _add("Q", me)
-    s = _export().validate()
+    add_object("Q", me)
+    s = export_scene().validate()
     (m,) = s.materials
     assert (m.color_image, m.alpha_image, m.alpha_channel) == (-1, 0, "LUMA")
     np.testing.assert_allclose(s.instances.base_color[0], (0.2, 0.3, 0.4, 1), rtol=1e-6)
@@ -249,8 +246,8 @@ def test_constant_alpha_is_a_material_without_images_or_uvs(scene):
     mat.node_tree.nodes["Principled BSDF"].inputs["Alpha"].default_value = 0.25
     me = _quad("q")
     me.materials.append(mat)
-    _add("Q", me)
-    s = _export().validate()
+    add_object("Q", me)
+    s = export_scene().validate()
     (m,) = s.materials
     assert m.alpha == pytest.approx(0.25) and not m.textured and m.has_alpha
     assert s.images == [] and s.models[0].uvs is None
@@ -276,8 +273,8 @@ def test_mapping_nodes_become_the_uv_transform(scene):
     for i, kind in enumerate(("POINT", "TEXTURE")):
         me = _quad(f"q{kind}")
         me.materials.append(mapped(kind, kind))
-        _add(kind, me, location=(3 * i, 0, 0))
-    s = _export().validate()
+        add_object(kind, me, location=(3 * i, 0, 0))
+    s = export_scene().validate()
     c, sn = math.cos(0.5), math.sin(0.5)
     point = np.array([[c * 2, -sn * 3, 0.3], [sn * 2, c * 3, -0.2]])
     np.testing.assert_allclose(_material_of(s, "POINT").uv_transform, point, rtol=1e-5, atol=1e-6)
@@ -294,8 +291,8 @@ def test_uv_map_node_selects_its_layer(scene):
     mat.node_tree.links.new(uvmap.outputs["UV"], n["tex"].inputs["Vector"])
     me = _quad("q", layers=("UVMap", "Second"))
     me.materials.append(mat)
-    _add("Q", me)
-    s = _export().validate()
+    add_object("Q", me)
+    s = export_scene().validate()
     np.testing.assert_array_equal(s.models[0].uvs, _bpy_uvs("q", "Second"))
     assert s.models[0].uvs[..., 0].min() == 1.0  # the second layer is shifted by 1 in u
 
@@ -313,8 +310,8 @@ def test_unsupported_node_warns_once_naming_it_and_falls_back(scene):
     me = _quad("q")
     me.materials.append(mat)
     for i in range(5):
-        _add(f"Q{i}", me, location=(2 * i, 0, 0))
-    s, warned = _export_warnings(_export)
+        add_object(f"Q{i}", me, location=(2 * i, 0, 0))
+    s, warned = _export_warnings(export_scene)
     s.validate()
     assert len(warned) == 1, warned
     assert "'Mixed'" in warned[0] and "'Tint mix'" in warned[0] and "Base Color" in warned[0]
@@ -332,8 +329,8 @@ def test_unsupported_alpha_node_falls_back_to_the_alpha_value(scene):
     n["bsdf"].inputs["Alpha"].default_value = 0.4
     me = _quad("q")
     me.materials.append(mat)
-    _add("Q", me)
-    s, warned = _export_warnings(_export)
+    add_object("Q", me)
+    s, warned = _export_warnings(export_scene)
     s.validate()
     assert len(warned) == 1 and "'Scaled alpha'" in warned[0] and "Alpha" in warned[0]
     (m,) = s.materials
@@ -351,8 +348,8 @@ def test_math_greater_than_is_alpha_clip(scene):
     mat.node_tree.links.new(gt.outputs[0], n["bsdf"].inputs["Alpha"])
     me = _quad("q")
     me.materials.append(mat)
-    _add("Q", me)
-    s, warned = _export_warnings(_export)
+    add_object("Q", me)
+    s, warned = _export_warnings(export_scene)
     s.validate()
     assert warned == []
     (m,) = s.materials
@@ -379,8 +376,8 @@ def test_transparent_shadow_off(scene):
     mat.use_transparent_shadow = False
     me = _quad("q")
     me.materials.append(mat)
-    _add("Q", me)
-    s = _export().validate()
+    add_object("Q", me)
+    s = export_scene().validate()
     (m,) = s.materials
     assert m.transparent_shadow is False and m.has_alpha
     assert not s.alpha_models().any()
@@ -394,8 +391,8 @@ def test_missing_image_warns_and_falls_back(scene):
     n["bsdf"].inputs["Base Color"].default_value = (0.3, 0.2, 0.1, 1)
     me = _quad("q")
     me.materials.append(mat)
-    _add("Q", me)
-    s, warned = _export_warnings(_export)
+    add_object("Q", me)
+    s, warned = _export_warnings(export_scene)
     s.validate()
     assert len(warned) == 1 and "'gone'" in warned[0] and "'Lost'" in warned[0]
     assert s.materials == [] and s.images == [] and s.models[0].uvs is None
@@ -408,9 +405,9 @@ def test_textured_mesh_without_uvs_drops_the_material(scene):
     n["bsdf"].inputs["Base Color"].default_value = (0.7, 0.1, 0.1, 1)
     me = _quad("bare", layers=())
     me.materials.append(mat)
-    _add("Bare", me)
-    _add("Bare.001", me, location=(3, 0, 0))
-    s, warned = _export_warnings(_export)
+    add_object("Bare", me)
+    add_object("Bare.001", me, location=(3, 0, 0))
+    s, warned = _export_warnings(export_scene)
     s.validate()
     assert len(warned) == 1 and "'Bare" in warned[0] and "UV" in warned[0]
     assert (s.instances.material_ids == -1).all() and s.models[0].uvs is None
@@ -423,17 +420,17 @@ def test_one_mesh_with_and_without_a_textured_material(scene):
     plain = bpy.data.materials.new("Plain")
     me = _quad("shared")
     me.materials.append(tex_mat)
-    a = _add("A plain", me)
+    a = add_object("A plain", me)
     a.material_slots[0].link = "OBJECT"
     a.material_slots[0].material = plain
-    _add("B textured", me, location=(3, 0, 0))
+    add_object("B textured", me, location=(3, 0, 0))
     for _ in range(2):  # whichever comes first
-        s = _export().validate()
+        s = export_scene().validate()
         assert len(s.models) == 1 and s.models[0].uvs is not None
         assert _material_of(s, "A plain") is None
         assert _material_of(s, "B textured").name == "Textured"
         bpy.data.objects.remove(a)
-        a = _add("A plain", me)
+        a = add_object("A plain", me)
         a.material_slots[0].link = "OBJECT"
         a.material_slots[0].material = plain
 
@@ -451,8 +448,8 @@ def test_image_colour_spaces_and_settings(scene):
         n["tex"].extension = ("EXTEND", "MIRROR", "CLIP", "REPEAT")[i]
         me = _quad(f"q{i}")
         me.materials.append(mat)
-        _add(f"Q{i}", me, location=(2 * i, 0, 0))
-    s = _export().validate()
+        add_object(f"Q{i}", me, location=(2 * i, 0, 0))
+    s = export_scene().validate()
     imgs = {i.name: i for i in s.images}
     assert {n: (i.srgb, i.interpolation, i.extension) for n, i in imgs.items()} == {
         "byte": (True, "Linear", "EXTEND"), "data": (False, "Closest", "MIRROR"),

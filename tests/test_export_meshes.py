@@ -3,10 +3,7 @@ import bpy
 import numpy as np
 import pytest
 
-from tests.helpers.export_scenes import add_object as _add
-from tests.helpers.export_scenes import cube_mesh as _cube_mesh
-from tests.helpers.export_scenes import empty_scene
-from tests.helpers.export_scenes import export_scene as _export
+from tests.helpers.export_scenes import add_object, cube_mesh, empty_scene, export_scene
 
 pytestmark = [pytest.mark.blender]
 
@@ -24,11 +21,11 @@ def _bpy_triangles(name):
 # meshes
 # --------------------------------------------------------------------------------------------
 def test_modifiers_are_applied(scene):
-    sub = _add("Sub", _cube_mesh("a"))
+    sub = add_object("Sub", cube_mesh("a"))
     sub.modifiers.new("S", "SUBSURF").levels = 2
-    arr = _add("Arr", _cube_mesh("b"), location=(0, 10, 0))
+    arr = add_object("Arr", cube_mesh("b"), location=(0, 10, 0))
     arr.modifiers.new("A", "ARRAY").count = 4
-    s = _export()
+    s = export_scene()
     assert _bpy_triangles("Sub") == 192 and _bpy_triangles("Arr") == 48
     assert s.triangle_count == 192 + 48
     assert sorted(m.triangle_count for m in s.models) == [48, 192]
@@ -38,25 +35,25 @@ def test_simplify_limits_subdivision(scene):
     """Render ▸ Simplify (shown for this engine) reaches the export through the evaluated mesh."""
     from hybrid_shadow_addon.blender import ui
 
-    ob = _add("Sub", _cube_mesh())
+    ob = add_object("Sub", cube_mesh())
     mod = ob.modifiers.new("sub", "SUBSURF")
     mod.levels = 2
-    full = _export().triangle_count
+    full = export_scene().triangle_count
     scene.render.use_simplify = True
     scene.render.simplify_subdivision = 0
-    assert _export().triangle_count == 12 < full
+    assert export_scene().triangle_count == 12 < full
     assert bpy.types.RENDER_PT_simplify in ui.get_panels()
 
 
 def test_smooth_shading_normals_are_exported(scene):
-    flat = _cube_mesh("flat")
+    flat = cube_mesh("flat")
     flat.polygons.foreach_set("use_smooth", np.zeros(len(flat.polygons), bool))
-    smooth = _cube_mesh("smooth")
+    smooth = cube_mesh("smooth")
     smooth.polygons.foreach_set("use_smooth", np.ones(len(smooth.polygons), bool))
     smooth.update()
-    _add("Flat", flat)
-    _add("Smooth", smooth, location=(5, 0, 0))
-    s = _export()
+    add_object("Flat", flat)
+    add_object("Smooth", smooth, location=(5, 0, 0))
+    s = export_scene()
     by_name = {m.name: m for m in s.models}
     assert by_name["flat"].normals is None
     n = by_name["smooth"].normals

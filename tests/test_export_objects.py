@@ -8,12 +8,7 @@ from hybrid_shadow_addon.blender import export
 from hybrid_shadow_addon.blender.load import open_scene
 from hybrid_shadow_addon.core.errors import SceneError
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene, affine_inverse
-from tests.helpers.export_scenes import add_object as _add
-from tests.helpers.export_scenes import cube_mesh as _cube_mesh
-from tests.helpers.export_scenes import empty_scene
-from tests.helpers.export_scenes import export_scene as _export
-from tests.helpers.export_scenes import gn_instancer as _gn_instancer
-from tests.helpers.export_scenes import object_info as _object_info
+from tests.helpers.export_scenes import add_object, cube_mesh, empty_scene, export_scene, gn_instancer, object_info
 
 pytestmark = [pytest.mark.blender]
 
@@ -37,10 +32,10 @@ def _reference_counts():
 # instancing
 # --------------------------------------------------------------------------------------------
 def test_linked_duplicates_share_one_model(scene):
-    me = _cube_mesh()
+    me = cube_mesh()
     for i in range(5):
-        _add(f"C{i}", me, location=(3 * i, 0, 0))
-    s = _export()
+        add_object(f"C{i}", me, location=(3 * i, 0, 0))
+    s = export_scene()
     assert len(s.instances) == 5 and len(s.models) == 1
     assert s.triangle_count == 60 and s.unique_triangle_count == 12
     np.testing.assert_allclose(sorted(s.instances.matrices[:, 0, 3]), [0, 3, 6, 9, 12])
@@ -48,11 +43,11 @@ def test_linked_duplicates_share_one_model(scene):
 
 def test_collection_instances_share_one_model(scene):
     coll = bpy.data.collections.new("Src")
-    _add("InColl", _cube_mesh(), coll, location=(1, 0, 0))
+    add_object("InColl", cube_mesh(), coll, location=(1, 0, 0))
     for i in range(3):
-        e = _add(f"E{i}", None, location=(0, 5 * i, 0))
+        e = add_object(f"E{i}", None, location=(0, 5 * i, 0))
         e.instance_type, e.instance_collection = "COLLECTION", coll
-    s = _export()
+    s = export_scene()
     assert len(s.instances) == 3 and len(s.models) == 1
     np.testing.assert_allclose(sorted(s.instances.matrices[:, 1, 3]), [0, 5, 10])
     np.testing.assert_allclose(s.instances.matrices[:, 0, 3], 1)
@@ -60,12 +55,12 @@ def test_collection_instances_share_one_model(scene):
 
 @pytest.mark.parametrize("as_instance", [False, True])
 def test_geometry_nodes_instances_share_one_model(scene, as_instance):
-    src = _add("Src", _cube_mesh(), location=(0, 0, 50))
+    src = add_object("Src", cube_mesh(), location=(0, 0, 50))
     src.hide_render = True  # the source does not render; its instances do
     points = np.random.default_rng(0).uniform(-20, 20, (200, 3))
-    gn = _gn_instancer("GN", points, _object_info(src, as_instance))
+    gn = gn_instancer("GN", points, object_info(src, as_instance))
     gn.location = (1, 2, 3)
-    s = _export()
+    s = export_scene()
     assert len(s.instances) == 200 and len(s.models) == 1
     assert s.triangle_count == 200 * 12
     np.testing.assert_allclose(np.sort(s.instances.matrices[:, :3, 3], axis=0), np.sort(points + (1, 2, 3), axis=0),
@@ -77,9 +72,9 @@ def test_geometry_nodes_instances_share_one_model(scene, as_instance):
 
 def test_vectorised_and_iterated_geometry_nodes_instances_agree(monkeypatch):
     open_scene("scaling:triangles=3000,instances=150,models=3")
-    fast = _export()
+    fast = export_scene()
     monkeypatch.setattr(export.SceneExporter, "_vectorise", lambda self, ob: False)
-    slow = _export()
+    slow = export_scene()
     assert len(fast.instances) == len(slow.instances) == 151
     assert sorted(m.triangle_count for m in fast.models) == sorted(m.triangle_count for m in slow.models)
     order_f = np.lexsort(fast.instances.matrices.reshape(-1, 16).T)
@@ -91,18 +86,18 @@ def test_vectorised_and_iterated_geometry_nodes_instances_agree(monkeypatch):
 
 def test_nested_and_collection_geometry_nodes_instances(scene):
     coll = bpy.data.collections.new("Pair")
-    me = _cube_mesh()
-    _add("P1", me, coll, location=(0, 0, 0))
-    _add("P2", me, coll, location=(0, 0, 3))
+    me = cube_mesh()
+    add_object("P1", me, coll, location=(0, 0, 0))
+    add_object("P2", me, coll, location=(0, 0, 3))
 
     def collection_info(tree):
         node = tree.nodes.new("GeometryNodeCollectionInfo")
         node.inputs["Collection"].default_value = coll
         return node.outputs[0]
-    inner = _gn_instancer("Inner", [(0, 0, 0), (5, 0, 0)], collection_info)
+    inner = gn_instancer("Inner", [(0, 0, 0), (5, 0, 0)], collection_info)
     inner.hide_render = True
-    _gn_instancer("Outer", [(0, 0, 0), (0, 10, 0), (0, 20, 0)], _object_info(inner, True))
-    s = _export()
+    gn_instancer("Outer", [(0, 0, 0), (0, 10, 0), (0, 20, 0)], object_info(inner, True))
+    s = export_scene()
     n, tris = _reference_counts()
     assert (len(s.instances), s.triangle_count) == (n, tris) == (12, 144)
     assert len(s.models) == 1
@@ -114,10 +109,10 @@ def test_geometry_nodes_instancing_a_curve_counts_once(scene):
     spline = curve.splines.new("POLY")
     spline.points.add(1)
     spline.points[1].co = (2, 0, 0, 1)
-    src = _add("Crv", curve)
+    src = add_object("Crv", curve)
     src.hide_render = True
-    _gn_instancer("GN", [(0, 0, 0), (0, 5, 0)], _object_info(src, True))
-    s = _export()
+    gn_instancer("GN", [(0, 0, 0), (0, 5, 0)], object_info(src, True))
+    s = export_scene()
     n, tris = _reference_counts()
     assert (len(s.instances), s.triangle_count) == (n, tris)
     assert n == 2 and tris > 0
@@ -126,11 +121,11 @@ def test_geometry_nodes_instancing_a_curve_counts_once(scene):
 def test_non_mesh_objects_are_triangulated_once(scene):
     text = bpy.data.curves.new("Txt", "FONT")
     text.body, text.extrude = "Hi", 0.1
-    _add("Text", text)
+    add_object("Text", text)
     ball = bpy.data.metaballs.new("Meta")
     ball.elements.new().radius = 1
-    _add("Meta", ball, location=(5, 0, 0))
-    s = _export()
+    add_object("Meta", ball, location=(5, 0, 0))
+    s = export_scene()
     dg = bpy.context.evaluated_depsgraph_get()
     expected = 0
     for name in ("Text", "Meta"):
@@ -145,16 +140,16 @@ def test_non_mesh_objects_are_triangulated_once(scene):
 # visibility and flags
 # --------------------------------------------------------------------------------------------
 def test_hide_render_objects_and_collections_are_excluded(scene):
-    me = _cube_mesh()
-    _add("Shown", me)
-    _add("Hidden", me).hide_render = True
+    me = cube_mesh()
+    add_object("Shown", me)
+    add_object("Hidden", me).hide_render = True
     coll = bpy.data.collections.new("HiddenColl")
     scene.collection.children.link(coll)
     coll.hide_render = True
-    _add("InHidden", me, coll)
-    light = _add("HiddenLamp", bpy.data.lights.new("L", "POINT"))
+    add_object("InHidden", me, coll)
+    light = add_object("HiddenLamp", bpy.data.lights.new("L", "POINT"))
     light.hide_render = True
-    s = _export()
+    s = export_scene()
     assert s.instances.names == ["Shown"]
     assert s.lights == []
 
@@ -163,25 +158,25 @@ def test_the_viewport_shows_objects_hidden_from_render(scene):
     """As Cycles' and EEVEE's rendered viewports: hidden from render is still drawn there."""
     from hybrid_shadow_addon.blender.viewport import ViewportSync
 
-    me = _cube_mesh()
-    _add("Shown", me)
-    _add("Hidden", me).hide_render = True
-    light = _add("HiddenLamp", bpy.data.lights.new("L", "POINT"))
+    me = cube_mesh()
+    add_object("Shown", me)
+    add_object("Hidden", me).hide_render = True
+    light = add_object("HiddenLamp", bpy.data.lights.new("L", "POINT"))
     light.hide_render = True
     sync = ViewportSync()
     sync.full_export(bpy.context.evaluated_depsgraph_get())
     assert sorted(sync.scene.instances.names) == ["Hidden", "Shown"]
     assert [light.name for light in sync.scene.lights] == ["HiddenLamp"]
-    assert _export().instances.names == ["Shown"]  # what F12 renders
+    assert export_scene().instances.names == ["Shown"]  # what F12 renders
 
 
 def test_the_viewport_in_local_view_shows_only_its_objects(scene):
     from hybrid_shadow_addon.blender.viewport import ViewportSync
 
-    me = _cube_mesh()
-    _add("A", me)
-    _add("B", me)
-    _add("Lamp", bpy.data.lights.new("L", "POINT"))
+    me = cube_mesh()
+    add_object("A", me)
+    add_object("B", me)
+    add_object("Lamp", bpy.data.lights.new("L", "POINT"))
     dg = bpy.context.evaluated_depsgraph_get()
     sync = ViewportSync()
     sync.full_export(dg)
@@ -194,11 +189,11 @@ def test_the_viewport_in_local_view_shows_only_its_objects(scene):
 
 
 def test_visible_shadow_and_sphere_flags(scene):
-    me = _cube_mesh()
-    _add("Caster", me)
-    _add("NoShadow", me, location=(3, 0, 0)).visible_shadow = False
-    _add("Ball", me, location=(6, 0, 0))["hybrid_sphere"] = True
-    s = _export()
+    me = cube_mesh()
+    add_object("Caster", me)
+    add_object("NoShadow", me, location=(3, 0, 0)).visible_shadow = False
+    add_object("Ball", me, location=(6, 0, 0))["hybrid_sphere"] = True
+    s = export_scene()
     flags = dict(zip(s.instances.names, zip(s.instances.casts_shadow, s.instances.sphere)))
     assert flags == {"Caster": (True, False), "NoShadow": (False, False), "Ball": (True, True)}
 
@@ -220,10 +215,10 @@ def test_affine_inverse():
 
 
 def test_nan_transform_is_rejected_naming_the_object(scene):
-    _add("Fine", _cube_mesh())
-    _add("Broken", _cube_mesh("b")).location = (float("nan"), 0, 0)
+    add_object("Fine", cube_mesh())
+    add_object("Broken", cube_mesh("b")).location = (float("nan"), 0, 0)
     with pytest.raises(SceneError, match="'Broken'.*NaN"):
-        _export()
+        export_scene()
 
 
 def test_core_scene_rejects_infinite_transform():

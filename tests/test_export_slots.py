@@ -10,8 +10,7 @@ import pytest
 from hybrid_shadow_addon.blender import export
 from hybrid_shadow_addon.blender.export import export_depsgraph, slot_name, slot_owner
 from hybrid_shadow_addon.blender.load import open_scene
-from tests.helpers.export_scenes import add_object as _add
-from tests.helpers.export_scenes import empty_scene, gn_instancer, object_info
+from tests.helpers.export_scenes import add_object, empty_scene, gn_instancer, object_info
 from tests.helpers.export_scenes import row as _row
 
 pytestmark = [pytest.mark.blender]
@@ -147,7 +146,7 @@ def test_slot_names_round_trip():
 # one object
 # --------------------------------------------------------------------------------------------
 def test_two_slots_become_two_models_and_two_instances(scene):
-    ob = _add("Tree", _tree_mesh(), location=(1, 2, 0))
+    ob = add_object("Tree", _tree_mesh(), location=(1, 2, 0))
     ob.rotation_euler = (0.1, 0.2, 0.3)
     ob.visible_shadow = False
     s = _export()
@@ -181,7 +180,7 @@ def test_two_slots_become_two_models_and_two_instances(scene):
 def test_smooth_normals_follow_their_triangles(scene):
     me = _tree_mesh()
     me.shade_smooth()
-    _add("Tree", me)
+    add_object("Tree", me)
     s = _export()
     full = export.smooth_normals(bpy.data.objects["Tree"].evaluated_get(bpy.context.evaluated_depsgraph_get()).data)
     index = np.array([t.material_index for t in me.loop_triangles])
@@ -193,7 +192,7 @@ def test_smooth_normals_follow_their_triangles(scene):
 def test_linked_duplicates_share_the_slot_models_and_names_stay_stable(scene):
     me = _tree_mesh()
     for i in range(3):
-        _add(f"Tree.{i}", me, location=(3 * i, 0, 0))
+        add_object(f"Tree.{i}", me, location=(3 * i, 0, 0))
     first = _export()
     assert len(first.models) == 2 and len(first.instances) == 6
     assert len(set(first.instances.names)) == 6
@@ -212,10 +211,10 @@ def test_object_linked_slot_materials(scene):
     me = _tree_mesh()
     red = _plain("Red", (1, 0, 0, 1))
     blue = _plain("Blue", (0, 0, 1, 1))
-    a = _add("A", me)
+    a = add_object("A", me)
     a.material_slots[1].link = "OBJECT"
     a.material_slots[1].material = red  # the leaves of A are plain red
-    b = _add("B", me, location=(4, 0, 0))
+    b = add_object("B", me, location=(4, 0, 0))
     b.material_slots[0].link = "OBJECT"
     b.material_slots[0].material = blue  # the bark of B is blue, its leaves the data's
     s = _export()
@@ -234,7 +233,7 @@ def test_empty_slots_and_out_of_range_indices(scene):
     me.materials[0] = None  # empty slot 0: the object's colour (or grey)
     me.polygons[0].material_index = 7  # past the last slot: renders with the last one
     leaf_polys = sum(p.material_index >= 1 for p in me.polygons)
-    ob = _add("Tree", me)
+    ob = add_object("Tree", me)
     ob.color = (0.1, 0.9, 0.1, 1)
     s = _export()
     np.testing.assert_allclose(s.instances.base_color[0], (0.1, 0.9, 0.1, 1), rtol=1e-6)
@@ -247,7 +246,7 @@ def test_a_mesh_using_one_of_its_slots(scene):
     me = _tree_mesh()
     me.polygons.foreach_set("material_index", [0] * len(me.polygons))
     me.update()
-    _add("Tree", me)
+    add_object("Tree", me)
     s = _export()
     assert [m.name for m in s.models] == ["tree"] and s.instances.names == ["Tree"]
     assert s.models[0].triangle_count == 2 * len(me.polygons) and s.models[0].uvs is None
@@ -267,7 +266,7 @@ def test_slot_zero_unused(scene):
     index[index == 0] = 2
     me.polygons.foreach_set("material_index", index.tolist())
     me.update()
-    _add("Tree", me)
+    add_object("Tree", me)
     s = _export()
     assert s.instances.names == ["Tree", "Tree [slot 2]"]  # the lowest used slot keeps the name
     assert [m.name for m in s.models] == ["tree [slot 1]", "tree [slot 2]"]
@@ -276,7 +275,7 @@ def test_slot_zero_unused(scene):
 
 
 def test_modifiers_and_curves_split_too(scene):
-    ob = _add("Tree", _tree_mesh())
+    ob = add_object("Tree", _tree_mesh())
     ob.modifiers.new("Sub", "SUBSURF").levels = 1
     curve = bpy.data.curves.new("Crv", "CURVE")
     curve.dimensions, curve.bevel_depth = "3D", 0.1
@@ -288,7 +287,7 @@ def test_modifiers_and_curves_split_too(scene):
         spline.points[0].co = (0, k, 0, 1)
         spline.points[1].co = (2, k, 0, 1)
         spline.material_index = k
-    _add("Crv", curve, location=(0, 5, 0))
+    add_object("Crv", curve, location=(0, 5, 0))
     s = _export()
     names = s.instances.names
     assert names.count("Tree") == names.count("Tree [slot 1]") == 1
@@ -313,7 +312,7 @@ def test_converted_objects_split_by_slot(scene):
         spline.points.add(1)
         spline.points[1].co = (2, k, 0, 1)
         spline.material_index = k
-    ob = _add("Crv", curve).evaluated_get(bpy.context.evaluated_depsgraph_get())
+    ob = add_object("Crv", curve).evaluated_get(bpy.context.evaluated_depsgraph_get())
     ex = export.SceneExporter(bpy.context.evaluated_depsgraph_get())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", export.ExportWarning)  # the bevel has UVs only when asked
@@ -342,7 +341,7 @@ def _summary(s):
 
 @pytest.mark.parametrize("as_instance", [True, False])
 def test_geometry_nodes_instances_split_by_slot(scene, monkeypatch, as_instance):
-    src = _add("Tree", _tree_mesh(), location=(0, 0, 50))
+    src = add_object("Tree", _tree_mesh(), location=(0, 0, 50))
     src.hide_render = True
     red = _plain("Red", (1, 0, 0, 1))
     src.material_slots[0].link = "OBJECT"
@@ -376,9 +375,9 @@ def test_geometry_nodes_instances_split_by_slot(scene, monkeypatch, as_instance)
 
 def test_collection_instances_split_by_slot(scene):
     coll = bpy.data.collections.new("Grove")
-    _add("Tree", _tree_mesh(), coll, location=(1, 0, 0))
+    add_object("Tree", _tree_mesh(), coll, location=(1, 0, 0))
     for i in range(3):
-        e = _add(f"E{i}", None, location=(0, 5 * i, 0))
+        e = add_object(f"E{i}", None, location=(0, 5 * i, 0))
         e.instance_type, e.instance_collection = "COLLECTION", coll
     s = _export()
     assert len(s.models) == 2 and len(s.instances) == 6
@@ -431,8 +430,8 @@ def test_viewport_rebuilds_only_slot_zero_meshes(scene):
     from hybrid_shadow_addon.blender.viewport import ViewportSync
 
     me = _tree_mesh()
-    ob = _add("Tree", me)
-    plain = _add("Plain", _tree_mesh("plain"), location=(5, 0, 0))
+    ob = add_object("Tree", me)
+    plain = add_object("Plain", _tree_mesh("plain"), location=(5, 0, 0))
     plain.data.polygons.foreach_set("material_index", [0] * len(plain.data.polygons))
     plain.data.update()
     sync = ViewportSync()

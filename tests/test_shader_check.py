@@ -85,6 +85,16 @@ def test_companions_follow_requirements():
     assert "HS_LIGHT_LOCAL" not in shader_check.with_companions({}, "HS_SOFT_SHAPE", 0)
 
 
+def test_each_set_names_one_structure():
+    """A program that reads the scene is tried under exactly one acceleration structure: the
+    default where the define under test is not one, else the one under test."""
+    cache = ProgramCache(None, programs.default_shader_dir())
+    sets = shader_check.single_define_sets(cache, "raytrace")
+    group = set(shader_check.ONE_OF[0])
+    assert all(len(group & set(s)) == 1 for s in sets)
+    assert any("HS_STRUCTURE_GRID" in s for s in sets) and any("HS_STRUCTURE_BVH" in s for s in sets)
+
+
 def _failures(root, **kwargs):
     lines = []
     failures = shader_check.run_check(root, out=lines.append, **kwargs)

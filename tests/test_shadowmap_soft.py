@@ -8,7 +8,7 @@ import pytest
 from hybrid_shadow_addon.core.oracle.soft import soft_visibility
 from hybrid_shadow_addon.core.scene import Light
 from hybrid_shadow_addon.core.settings import Settings
-from tests.helpers.rays import shadow_rays as _shadow_rays
+from tests.helpers.rays import shadow_rays
 from tests.helpers.scenes import LIGHTS, basic_scene, soft_scene, trs
 
 pytestmark = [pytest.mark.gpu]
@@ -42,7 +42,7 @@ def oracle(pipeline):
     out = []
     nrm = f.gbuffer.read("normal")[..., :3]
     for li in range(len(sc.lights)):
-        ok, o, d, tmax, facing = _shadow_rays(f, sc, li)
+        ok, o, d, tmax, facing = shadow_rays(f, sc, li)
         pick = np.sort(rng.choice(len(o), min(PIXELS, len(o)), replace=False))
         rows, cols = np.nonzero(ok)
         out.append((rows[pick], cols[pick], soft_visibility(sc, li, o[pick], nrm[ok][pick], samples=ORACLE_SAMPLES)))

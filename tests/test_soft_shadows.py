@@ -12,7 +12,7 @@ from hybrid_shadow_addon.core.oracle.soft import light_samples, soft_visibility
 from hybrid_shadow_addon.core.scene import Light
 from hybrid_shadow_addon.core.scene_sync import sync_scene
 from hybrid_shadow_addon.core.settings import Settings
-from tests.helpers.rays import shadow_rays as _shadow_rays
+from tests.helpers.rays import shadow_rays
 from tests.helpers.scenes import LIGHTS, alpha_scene, soft_scene, trs
 
 pytestmark = [pytest.mark.gpu]
@@ -34,7 +34,7 @@ def oracle(pipeline):
     out = []
     rng = np.random.default_rng(3)
     for li in range(len(sc.lights)):
-        ok, o, d, tmax, facing = _shadow_rays(f, sc, li)
+        ok, o, d, tmax, facing = shadow_rays(f, sc, li)
         n = f.gbuffer.read("normal")[..., :3][ok]
         pick = np.sort(rng.choice(len(o), min(PIXELS, len(o)), replace=False))
         rows, cols = np.nonzero(ok)
@@ -159,7 +159,7 @@ def test_soft_shadows_through_alpha_cards(pipeline):
     sc = alpha_scene(lights=("sun",))
     sc.lights[0].angle = np.radians(6)
     f = frame_of(pipeline, sc)
-    ok, o, d, tmax, facing = _shadow_rays(f, sc, 0)
+    ok, o, d, tmax, facing = shadow_rays(f, sc, 0)
     n = f.gbuffer.read("normal")[..., :3][ok]
     pick = np.sort(np.random.default_rng(5).choice(len(o), min(PIXELS, len(o)), replace=False))
     ref = soft_visibility(sc, 0, o[pick], n[pick], samples=144)
@@ -241,7 +241,7 @@ def test_soft_spot_cone_edge_matches_the_oracle(pipeline):
                  spot_size=np.radians(50.0), spot_blend=0.2)
     sc = soft_scene([spot])
     f = frame_of(pipeline, sc, samples=256)  # (most of the cone is penumbra: fewer would be noise)
-    ok, o, d, tmax, facing = _shadow_rays(f, sc, 0)
+    ok, o, d, tmax, facing = shadow_rays(f, sc, 0)
     n = f.gbuffer.read("normal")[..., :3][ok]
     light = sc.lights[0]
     centre_cos = (-d / np.linalg.norm(d, axis=1, keepdims=True)) @ light.direction
@@ -314,7 +314,7 @@ def test_area_light_spread_lighting_and_shadow(pipeline):
     lit = ref[..., :3].mean(axis=-1) > 0.05 * ref[..., :3].max()
     rel = np.abs(img[lit] - ref[..., :3][lit]) / np.maximum(ref[..., :3][lit], 1e-6)
     assert lit.sum() > 500 and np.median(rel) < 0.01, np.median(rel)
-    ok, o, d, tmax, facing = _shadow_rays(f, sc, 0)
+    ok, o, d, tmax, facing = shadow_rays(f, sc, 0)
     n = f.gbuffer.read("normal")[..., :3][ok]
     # the spread narrows the lit patch against the same light at 180 degrees
     wide = soft_scene([spread])

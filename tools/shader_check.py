@@ -46,8 +46,10 @@ VALUES = {
 #: that value alone): the check adds these companions, recursively, when it tries the key on its
 #: own. A soft light's sub-passes are variants of raytrace.py's soft program, which always carries
 #: HS_SOFT; packets walk the two-level BVH only (raytrace.py's _soft_defines); soft shapes 1 and 2
-#: (sphere, area) are local lights, shape 0 the sun (soft_light.glsl).
+#: (sphere, area) are local lights, shape 0 the sun (soft_light.glsl); a bake has alpha-cut
+#: casters only where some mesh caster has triangles (AccelerationStructure.has_alpha).
 REQUIRES = {
+    "HS_HAS_ALPHA": ("HS_HAS_MESHES",),
     "HS_SOFT_SHAPE": ("HS_SOFT",),
     "HS_SOFT_SHAPE=1": ("HS_SOFT", "HS_LIGHT_LOCAL"),
     "HS_SOFT_SHAPE=2": ("HS_SOFT", "HS_LIGHT_LOCAL"),
@@ -58,6 +60,11 @@ REQUIRES = {
     "HS_SOFT_PACKET": ("HS_SOFT", "HS_STRUCTURE_BVH"),
     "HS_PACKET_PLANES": ("HS_SOFT_PACKET",),
 }
+
+#: Defines of which the code always gives exactly one (the first: when the program tests the group
+#: but the set under test names none): a program that reads the scene is compiled for one
+#: acceleration structure (BakedScene.defines; scene_data.glsl stops with #error without one).
+ONE_OF = (("HS_STRUCTURE_BVH", "HS_STRUCTURE_GRID"),)
 
 #: Mode defines: a program that tests one is built only in one of its modes (soft_accumulate.glsl
 #: has a ``main`` per mode), so its set without any of them is not compiled.
@@ -155,8 +162,13 @@ def mentioned_values(cache: _programs.ProgramCache, name: str) -> dict:
 
 def with_companions(base: dict, key: str, value) -> dict:
     """``base`` with ``key`` set to ``value`` and the companions :data:`REQUIRES` names for it
-    (and for them)."""
+    (and for them); ``key`` replaces the other members of its :data:`ONE_OF` group."""
     out = {**base, key: value}
+    for group in ONE_OF:
+        if key in group:
+            for other in group:
+                if other != key:
+                    out.pop(other, None)
     todo = [(key, value)]
     while todo:
         name, val = todo.pop()
@@ -171,6 +183,9 @@ def single_define_sets(cache: _programs.ProgramCache, name: str) -> list[dict]:
     """(b): the base set, then each optional define on its own, then each decisive value."""
     base = mentioned_values(cache, name)
     flags, values = optional_defines(cache, name)
+    for group in ONE_OF:
+        if set(group) & set(flags):
+            base[group[0]] = 1
     sets = [] if set(flags) & set(MODES) else [dict(base)]
     for flag in flags:
         sets.append(with_companions(base, flag, VALUES.get(flag, 1)))

@@ -1,7 +1,7 @@
 /* scene_bvh.glsl -- the two-level BVH (HS_STRUCTURE_BVH, structure "bvh"): its textures and
  * the walk that reads them; included by scene_data.glsl (shared fetches and tests).
  * Packer: hybrid_shadow_addon/core/bake/structures/twolevel.py, blas.py, tlas.py (TwoLevelBVH).
- * Oracle: hybrid_shadow_addon/core/oracle/tracer.py (_trace_bvh mirrors this file step by step).
+ * Oracle: hybrid_shadow_addon/core/oracle/tracer/twolevel.py (trace_twolevel mirrors this file step by step).
  *
  * ============================== BVH TEXTURE LAYOUT =======================================
  * [node]  RGBA32UI "hs_node_tex", 1 texel per node: every model tree (BLAS), then the top-level

@@ -3,7 +3,7 @@
  *
  * #version-less: the loader adds "#version 410 core" and the #defines of BakedScene.defines.
  * Packer: hybrid_shadow_addon/core/bake/structures (one AccelerationStructure per file below).
- * Oracle:  hybrid_shadow_addon/core/oracle/tracer.py (trace_structured mirrors the walks step by step).
+ * Oracle:  hybrid_shadow_addon/core/oracle/tracer/ (primitives.py mirrors the tests here; each walk its own module).
  * The structure (BakeConfig.structure / Settings.structure) picks its file by its define:
  *     HS_STRUCTURE_BVH   "bvh", common/scene_bvh.glsl  (textures [node], [leaf])
  *     HS_STRUCTURE_GRID  "grid", common/scene_grid.glsl (textures [grid] .. [tri])

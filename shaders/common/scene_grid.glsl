@@ -1,7 +1,7 @@
 /* scene_grid.glsl -- the thesis' hierarchical grid (HS_STRUCTURE_GRID, structure "grid"): its
  * textures and the walk that reads them; included by scene_data.glsl (shared fetches and tests).
  * Packer: hybrid_shadow_addon/core/bake/structures/grid.py, grid_update.py (HierarchicalGrid).
- * Oracle:  hybrid_shadow_addon/core/oracle/tracer.py (trace_structured mirrors this file step by step).
+ * Oracle:  hybrid_shadow_addon/core/oracle/tracer/grid.py (trace_grid mirrors this file step by step).
  *
  * ============================== GRID TEXTURE LAYOUT ======================================
  * [grid]  RGBA32UI "hs_grid_tex", 1 texel per node. Node ids are global: level l starts at

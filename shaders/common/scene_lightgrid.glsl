@@ -1,6 +1,6 @@
 /* scene_lightgrid.glsl -- a hard light's light-space grid (HS_LIGHT_GRID), on the two-level
  * BVH's scene (its triangle test and instance records). Bake and layout: core/bake/lightgrid.py;
- * numpy mirror: core/oracle/tracer.py trace_light_grid. Defines: HS_LG_LOCAL (a point, spot or
+ * numpy mirror: core/oracle/tracer/lightgrid.py trace_light_grid. Defines: HS_LG_LOCAL (a point, spot or
  * hard area light: a cube of directions; else a sun: a plane across it), HS_LG_TRIS (triangles
  * present), HS_LG_SPHERES (analytic sphere instances present).
  *

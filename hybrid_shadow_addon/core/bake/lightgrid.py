@@ -15,7 +15,7 @@ finds every caster it can meet.
   ``o`` (depth ``z_o`` along the axis) can meet only casters whose key lies above ``-z_o``.
 
 A ray walks its cell's list in one flat loop (``shaders/common/scene_lightgrid.glsl``; numpy
-mirror ``core/oracle/tracer.py`` :func:`trace_light_grid`) until the first hit or the first key at
+mirror ``core/oracle/tracer/lightgrid.py`` :func:`trace_light_grid`) until the first hit or the first key at
 or below its own. Each entry also holds its caster's box within the cell (1/255 of the cell,
 rounded outward): a ray outside it skips the caster's fetches.
 

@@ -1,7 +1,7 @@
 """Reference shadow-ray tracers in numpy: the oracle for the GLSL tracer.
 
 - :mod:`.primitives`: the float32 ray, triangle, sphere and box tests every walk shares.
-- :mod:`.grid`: the hierarchical grid walk of ``scene_data.glsl`` over a grid bake's textures.
+- :mod:`.grid`: the hierarchical grid walk of ``scene_grid.glsl`` over a grid bake's textures.
 - :mod:`.twolevel`: the two-level BVH walk of ``scene_bvh.glsl`` over a BVH bake's textures.
 - :mod:`.brute`: every caster of a :class:`Scene` (occlusion, and visibility through alpha).
 - :mod:`.lightgrid`: a hard light's light-space grid walk.

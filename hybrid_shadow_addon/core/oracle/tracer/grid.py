@@ -1,4 +1,4 @@
-"""The hierarchical grid walk of ``shaders/common/scene_data.glsl``, reading only the baked textures.
+"""The hierarchical grid walk of ``shaders/common/scene_grid.glsl``, reading only the baked textures.
 
 It tests the outside node, then walks each non-empty grid level with the DDA (node max-height
 culling, the object BVH of crowded nodes, else the flat node list), and for each object the
