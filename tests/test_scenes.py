@@ -21,6 +21,7 @@ SMALL = {
     "animated": "animated",
     "alpha_cards": "alpha_cards",
     "soft_lights": "soft_lights",
+    "smooth_shapes": "smooth_shapes",
 }
 
 

@@ -27,7 +27,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 SCENES = [
     "cube_on_plane", "forest", "clusters", "city:blocks=4", "scaling:triangles=20000,instances=200",
-    "animated", "alpha_cards", "soft_lights",
+    "animated", "alpha_cards", "soft_lights", "smooth_shapes",
     "stiff/axis_aligned", "stiff/cards", "stiff/clip_range", "stiff/crowd", "stiff/degenerate",
     "stiff/far_away", "stiff/grazing", "stiff/instance_scales", "stiff/ortho", "stiff/point_in_box",
     "stiff/spot_touching", "stiff/stadium", "stiff/thin",
