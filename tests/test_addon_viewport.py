@@ -294,9 +294,8 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
         bpy.ops.render.render()
         scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = rx, ry, pc
         scene.render.engine = "HYBRID_SHADOWS"
-        from mathutils import Matrix
-
         import gpu
+        from mathutils import Matrix
 
         off = gpu.types.GPUOffScreen(w, h, format="RGBA32F")
         display = ViewportDisplay()

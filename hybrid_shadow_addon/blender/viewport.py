@@ -423,9 +423,8 @@ class ViewportDisplay:
         """Draw the texture over ``width`` x ``height`` pixels, alpha premultiplied, through the
         scene's view transform (``engine.bind_display_space_shader``; without an engine, as in
         the headless tests, the plain image shader draws it)."""
-        from gpu_extras.presets import draw_texture_2d
-
         import gpu
+        from gpu_extras.presets import draw_texture_2d
 
         if self.texture is None:
             return
