@@ -228,7 +228,7 @@ class ViewportSync:
             if ob is None:
                 continue
             rows = self.rows[name]
-            m = export._matrix(ob.matrix_world)
+            m = export.to_matrix(ob.matrix_world)
             index.append(rows)
             mats.append(np.broadcast_to(m, (len(rows), 4, 4)))
         if not index:
@@ -271,7 +271,7 @@ class ViewportSync:
         self.scene.models[mid] = Model(name=old.name, vertices=verts, triangles=tris,
                                        normals=export.smooth_normals(ob.data), uvs=uvs)
         writable_matrices(self.scene.instances)
-        self.scene.instances.set_matrices(rows, export._matrix(ob.matrix_world)[None])
+        self.scene.instances.set_matrices(rows, export.to_matrix(ob.matrix_world)[None])
         if self.pipeline is not None and self.baked:
             self.pipeline.update_model(self.scene, mid)
         self.log.append(("model", name))

@@ -41,9 +41,6 @@ from .shading import ShadingTable
 from .visibility import RenderVisibility
 from .world import world_background, world_color
 
-#: The viewport's name for :func:`to_matrix`.
-_matrix = to_matrix
-
 
 def export_depsgraph(depsgraph, *, resolution=None, render_visibility: bool | None = None) -> Scene:
     """The scene of an evaluated depsgraph at its current frame.

@@ -111,6 +111,11 @@ class AccelerationStructure(ABC):
             rep.merge(self.update_instances(scene, users))
         if self.defines != old_defines:
             rep.defines_changed = True
+        return self.finish_update(rep)
+
+    def finish_update(self, rep: UpdateReport) -> UpdateReport:
+        """``rep`` with its row ranges merged, less those of textures resized whole (uploaded
+        whole), and :attr:`stats` refreshed: the last step of every update."""
         rep.ranges = merge_ranges([r for r in rep.ranges if r[0] not in rep.resized])
         self.refresh_stats()
         return rep

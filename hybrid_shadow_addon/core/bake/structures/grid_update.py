@@ -30,7 +30,6 @@ from ..textures import (
     f32_down,
     f32_up,
     grow_texture,
-    merge_ranges,
     rows_of_texels,
     texel_rows,
 )
@@ -102,9 +101,7 @@ class GridUpdates:
             rep.defines_changed = True
         if self.scene_max_height != old_maxh:
             rep.uniforms_changed = True
-        rep.ranges = merge_ranges([r for r in rep.ranges if r[0] not in rep.resized])
-        self.refresh_stats()
-        return rep
+        return self.finish_update(rep)
 
     def move_casters(self, obj, old, new, rep) -> bool:
         """Move casters ``obj`` from nodes ``old`` to ``new`` (-1: none). False: index list full."""

@@ -26,7 +26,6 @@ from ..textures import (
     f32_bits,
     f32_up,
     grow_texture,
-    merge_ranges,
     rows_of_texels,
     texel_rows,
 )
@@ -336,9 +335,7 @@ class TwoLevelBVH(AccelerationStructure):
             rep.uniforms_changed = True
         if self.defines != old_defines:
             rep.defines_changed = True
-        rep.ranges = merge_ranges([r for r in rep.ranges if r[0] not in rep.resized])
-        self.refresh_stats()
-        return rep
+        return self.finish_update(rep)
 
     def append_model(self, rep: UpdateReport) -> None:
         self.models.append()
