@@ -23,6 +23,8 @@
 // | (+ HS_LG_*)      | (common/scene_lightgrid.glsl) instead of walking the BVH         | light_grid.py     |
 // | HS_NO_RAYS       | the prelude's answers alone: a light that reaches no pixel       | raytrace.py       |
 // |                  | (light_cull.py)                                                  |                   |
+// | HS_TERMINATOR    | smooth-shaded models: origins near their shadow terminator rise  | trace.py          |
+// |                  | as Cycles' (common/shadow_ray.glsl, shadow_ray_origin)           |                   |
 // | HS_SOFT          | an extended light: u_samples rays towards points on it           | trace.py          |
 // | HS_SOFT_SHAPE    | its shape (common/soft_light.glsl); the mask is the weighted     | trace.py          |
 // |                  | share of the light the pixel sees                                |                   |
@@ -90,9 +92,9 @@ void trace_main()
 #else
     ivec2 px = mask_source_pixel(mt, u_scale, u_full_size);
 #endif
-    vec3 p, n, to_light;
+    vec3 p, n, ns, to_light;
     float depth;
-    float known = shadow_ray_prelude(px, p, n, depth, to_light);
+    float known = shadow_ray_prelude(px, p, n, ns, depth, to_light);
 #ifdef HS_NO_RAYS
     // a light no pixel needs a ray of (passes/light_cull.py): the answers without one, no walk
     o_mask = max(known, 0.0);
@@ -100,14 +102,14 @@ void trace_main()
 #endif
     if (known >= 0.0) { o_mask = known; return; }
 
-    vec3 o = offset_origin(p, n, depth * 3.0e-6);
+    vec3 o = shadow_ray_origin(px, p, n, ns, depth, to_light);
 #ifdef HS_SOFT
     // the light's highest point above o's horizon: when even it is below, the whole light is
     // (unlit, no ray, known); it also decides a pixel none of whose samples has a weight
     vec3 top_d;
     float top_tmax, top_w;
-    hs_light_top(o, n, top_d, top_tmax, top_w);
-    if (top_w == 0.0 && !(dot(n, top_d) > 0.0)) { o_mask = 0.0; return; }
+    hs_light_top(o, ns, top_d, top_tmax, top_w);
+    if (top_w == 0.0 && !(dot(ns, top_d) > 0.0)) { o_mask = 0.0; return; }
     // an extended light: the weighted share of u_samples points on it that o sees
 #ifdef HS_SOFT_PROBE
     int n_samples = min(u_samples, HS_PROBES);
@@ -173,7 +175,7 @@ void trace_main()
             fill[g] += 1;
             vec3 sd;
             float stm, w;
-            hs_light_sample(o, n, xi, sd, stm, w);
+            hs_light_sample(o, ns, xi, sd, stm, w);
 #ifdef HS_MAX_DISTANCE
             stm = min(stm, u_max_distance / length(sd));
 #endif
@@ -206,7 +208,7 @@ void trace_main()
     for (int k = k0; k < n_samples; ++k) {
         vec3 sd;
         float stm, w;
-        hs_light_sample(o, n, hs_sample2(px, u_sample_base + k), sd, stm, w);
+        hs_light_sample(o, ns, hs_sample2(px, u_sample_base + k), sd, stm, w);
 #ifdef HS_MAX_DISTANCE
         stm = min(stm, u_max_distance / length(sd));
 #endif

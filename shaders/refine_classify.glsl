@@ -37,9 +37,9 @@ layout(location = 0) out float o_mask;
 void main()
 {
     ivec2 pix = ivec2(gl_FragCoord.xy);
-    vec3 p, n, to_light;
+    vec3 p, n, ns, to_light;
     float depth;
-    float value = shadow_ray_prelude(pix, p, n, depth, to_light);
+    float value = shadow_ray_prelude(pix, p, n, ns, depth, to_light);
     if (value < 0.0) {
 #ifdef HS_INTERLACE
         value = texelFetch(u_coarse, pix, 0).r;            // this frame's ray or history

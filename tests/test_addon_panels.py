@@ -90,6 +90,33 @@ def test_light_panel_draws_what_the_export_reads(empty, kind, expected):
         ui.DATA_PT_hybrid_shadows_light, Ctx(light=light))
 
 
+def test_object_panel_draws_the_shadow_terminator_the_export_reads(empty):
+    """The Object tab shows Cycles' Shadow Terminator offsets; the Geometry Offset reaches the
+    exported instance, the Shading Offset (not applied) is reported."""
+    import warnings
+
+    from hybrid_shadow_addon.blender.export import export_depsgraph
+    from hybrid_shadow_addon.blender.export.common import ExportWarning
+
+    bpy.ops.mesh.primitive_uv_sphere_add()
+    ob = bpy.context.object
+    drawn = draw(ui.OBJECT_PT_hybrid_shadows_terminator, Ctx(object=ob))
+    assert {"shadow_terminator_geometry_offset", "shadow_terminator_shading_offset"} <= {n for _, n in drawn}
+    assert not ui.OBJECT_PT_hybrid_shadows_terminator.poll(Ctx(engine="CYCLES", object=ob))
+    ob.shadow_terminator_geometry_offset = 0.35
+    bpy.ops.object.camera_add(location=(0, -5, 0), rotation=(math.pi / 2, 0, 0))
+    bpy.context.scene.camera = bpy.context.object
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scene = export_depsgraph(bpy.context.evaluated_depsgraph_get())
+    row = scene.instances.names.index(ob.name)
+    assert scene.instances.terminator[row] == pytest.approx(0.35)
+    assert not [w for w in caught if issubclass(w.category, ExportWarning)]
+    ob.shadow_terminator_shading_offset = 0.2
+    with pytest.warns(ExportWarning, match="Shading Offset"):
+        export_depsgraph(bpy.context.evaluated_depsgraph_get())
+
+
 def test_material_panels(empty):
     bpy.ops.mesh.primitive_cube_add()
     ob = bpy.context.object

@@ -77,9 +77,12 @@ def test_top_row_is_top_and_moving_reuses_model_buffers(gpass):
     assert not np.array_equal(pos, pos2)
 
 
-def test_smooth_shading_normals(gpass):
-    """A model with corner normals shades smoothly (shading normal interpolated, on the
-    geometric normal's side); flat models keep shading == geometric normal."""
+@pytest.mark.parametrize("wound", ["outwards", "inwards"])
+def test_smooth_shading_normals(gpass, wound):
+    """A model with corner normals shades smoothly (shading normal interpolated); flat models keep
+    shading == geometric normal. A ball wound inwards (the camera sees its triangles' backs) with
+    outward corner normals gets them turned over with the geometric normal, as Cycles turns N
+    and Ng of a back-facing hit: they point into the ball."""
     from hybrid_shadow_addon.core.scene import Model
 
     scene = basic_scene()
@@ -89,6 +92,8 @@ def test_smooth_shading_normals(gpass):
     j = np.arange(11)[:, None] * 24 + (np.arange(24)[None, :] + 1) % 24
     quads = np.stack([i, j, j + 24, i + 24], -1).reshape(-1, 4)
     tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    if wound == "outwards":
+        tris = tris[:, ::-1]
     ball = Model("smooth ball", verts, tris, normals=verts[tris])
     scene.models.append(ball)
     scene.instances.model_ids[2] = 2  # the rotated box becomes a smooth ball
@@ -103,7 +108,8 @@ def test_smooth_shading_normals(gpass):
     assert on_ball.sum() > 200
     true_n = pos[on_ball] - (1.5, -1.5, 1.0)
     true_n /= np.linalg.norm(true_n, axis=1, keepdims=True)
-    err_shade = np.degrees(np.arccos(np.clip((shade[on_ball] * true_n).sum(1), -1, 1)))
+    sign = 1.0 if wound == "outwards" else -1.0
+    err_shade = np.degrees(np.arccos(np.clip((shade[on_ball] * sign * true_n).sum(1), -1, 1)))
     err_geo = np.degrees(np.arccos(np.clip((geo[on_ball] * true_n).sum(1), -1, 1)))
     assert np.percentile(err_shade, 95) < 2.0 < np.percentile(err_geo, 95)
     flat = gb.coverage() & (np.round(inst) == 1)

@@ -29,7 +29,7 @@ def reference_mask(frame, scene, baked, li, pixels):
 
 
 @pytest.mark.parametrize("structure", ["grid", "bvh"])
-@pytest.mark.parametrize("name", list(TEST_SCENES))
+@pytest.mark.parametrize("name", list(TEST_SCENES) + ["smooth_shapes"])
 def test_glsl_masks_equal_numpy_reference(name, structure, pipeline, loaded):
     scene = loaded(name)
     pipeline.set_scene(scene, structure)

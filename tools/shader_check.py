@@ -237,7 +237,7 @@ def check_glslang(cache: _programs.ProgramCache, name: str, defines: dict, valid
     """Compile each stage with glslangValidator (``#version 410 core``, no extensions assumed)."""
     text = cache._path(name).read_text(encoding="utf-8")
     failures = []
-    for stage in _programs.program_stages(text):
+    for stage in _programs.program_stages(text, _frozen(defines)):
         source, files = cache.source(name, stage, _frozen(defines))
         path = workdir / f"{name.replace('/', '_')}.{_STAGE_SUFFIX[stage]}"
         path.write_text(source, encoding="utf-8")

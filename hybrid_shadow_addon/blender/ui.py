@@ -184,6 +184,27 @@ class OBJECT_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         layout.prop(ob, "hybrid_sphere")
 
 
+class OBJECT_PT_hybrid_shadows_terminator(HybridShadowsPanel, bpy.types.Panel):
+    """Cycles' object settings that move the shadow rays of smooth-shaded triangles near the
+    terminator, as Cycles' Shading > Shadow Terminator panel shows them: the Geometry Offset
+    decides the shadows (read by the export); the Shading Offset only softens Cycles' shading,
+    which the preview's lighting does not apply (the export reports it when set)."""
+
+    bl_label = "Shadow Terminator"
+    bl_context = "object"
+    bl_parent_id = "OBJECT_PT_hybrid_shadows"
+
+    @classmethod
+    def poll(cls, context):
+        return OBJECT_PT_hybrid_shadows.poll(context)
+
+    def draw(self, context):
+        layout = self.split_layout()
+        ob = context.object
+        layout.prop(ob, "shadow_terminator_geometry_offset", text="Geometry Offset")
+        layout.prop(ob, "shadow_terminator_shading_offset", text="Shading Offset")
+
+
 class LightPanel(HybridShadowsPanel):
     """A panel of the Light tab (Object Data of a light)."""
 
@@ -357,7 +378,8 @@ CLASSES = (
     RENDER_PT_hybrid_shadows, RENDER_PT_hybrid_shadows_limits, RENDER_PT_hybrid_shadows_viewport,
     RENDER_PT_hybrid_shadows_shadowmap, RENDER_PT_hybrid_shadows_lighting, RENDER_PT_hybrid_shadows_advanced,
     RENDER_PT_hybrid_shadows_debug,
-    VIEWLAYER_PT_hybrid_shadows_passes, OBJECT_PT_hybrid_shadows, DATA_PT_hybrid_shadows_light_settings,
+    VIEWLAYER_PT_hybrid_shadows_passes, OBJECT_PT_hybrid_shadows, OBJECT_PT_hybrid_shadows_terminator,
+    DATA_PT_hybrid_shadows_light_settings,
     DATA_PT_hybrid_shadows_light, MATERIAL_PT_hybrid_shadows_context, MATERIAL_PT_hybrid_shadows_surface,
     WORLD_PT_hybrid_shadows,
 )

@@ -2,7 +2,8 @@
 // it) and refine_classify.glsl (which decides whether the pixel needs it), so both see the very
 // same surface point, normal and facing/reach tests. Needs common/camera.glsl, common/gbuffer.glsl.
 // Defines: HS_LIGHT_SUN or HS_LIGHT_LOCAL, HS_MAX_DISTANCE, HS_SOFT (no facing test: an
-// extended light's samples weigh the horizon themselves).
+// extended light's samples weigh the horizon themselves), HS_TERMINATOR (the scene has smooth-shaded
+// models: their shadow terminator moves the origins, shadow_ray_origin).
 
 uniform vec3 u_light_vec;       // sun: unit direction towards it; else the light's position
                                 // (bake space: world - the bake's origin)
@@ -49,11 +50,14 @@ vec3 surface_point(ivec2 px, float depth)
     return u_cam_bake + p_rel;
 }
 
-// What pixel px gets without a ray: 1 (background, beyond the max distance), 0 (faces away
-// from the light, out of its reach), or -1: it needs a ray; p, n, depth and to_light are then set.
-float shadow_ray_prelude(ivec2 px, out vec3 p, out vec3 n, out float depth, out vec3 to_light)
+// What pixel px gets without a ray: 1 (background, beyond the max distance), 0 (its shading
+// normal faces away from the light, out of its reach), or -1: it needs a ray; p, n (geometric,
+// towards the camera), ns (shading), depth and to_light are then set. Light arrives where the
+// shading normal faces it, as a diffuse closure evaluates it in Cycles (closure/bsdf_diffuse.h:
+// the geometric normal does not decide; a smooth surface is lit past its facets' terminator).
+float shadow_ray_prelude(ivec2 px, out vec3 p, out vec3 n, out vec3 ns, out float depth, out vec3 to_light)
 {
-    p = vec3(0.0); n = vec3(0.0); depth = 0.0; to_light = vec3(0.0);
+    p = vec3(0.0); n = vec3(0.0); ns = vec3(0.0); depth = 0.0; to_light = vec3(0.0);
     vec4 nw = texelFetch(u_gb_normal, px, 0);
     if (nw.w == 0.0) return 1.0;
     depth = texelFetch(u_gb_depth, px, 0).r;
@@ -62,13 +66,14 @@ float shadow_ray_prelude(ivec2 px, out vec3 p, out vec3 n, out float depth, out 
     if (distance(p, u_cam_bake) > u_max_distance) return 1.0;
 #endif
     n = nw.xyz;
+    ns = texelFetch(u_gb_shading, px, 0).xyz;
 #ifdef HS_LIGHT_LOCAL
     to_light = u_light_vec - p;
 #else
     to_light = u_light_vec;
 #endif
 #ifndef HS_SOFT
-    float facing = dot(n, to_light);
+    float facing = dot(ns, to_light);
     if (facing <= 0.0) return 0.0;    // faces away: unlit, no ray
 #endif                                // (an extended light can be partly above the horizon)
 #ifdef HS_LIGHT_LOCAL
@@ -84,4 +89,34 @@ float shadow_ray_prelude(ivec2 px, out vec3 p, out vec3 n, out float depth, out 
     if (dot(-normalize(to_light), u_light_axis) <= reach) return 0.0;  // out of reach
 #endif
     return -1.0;
+}
+
+// The origin of pixel px's shadow ray towards to_light (p, n, ns, depth: shadow_ray_prelude's),
+// as Cycles' shadow_ray_offset (light/sample.h) decides it. On a smooth-shaded triangle whose
+// shading or geometric normal is within the object's geometry offset (cosine) of the
+// terminator, the origin rises towards the smooth surface by a share of the G-buffer's lift
+// (HS_TERMINATOR: gbuffer.glsl's TERMINATOR writes it). Cycles' ray skips its own triangle
+// unless that lift applied while the geometric normal faces away from the light: the ray is then
+// meant to be able to hit its own surface. Pushing the origin off the plane along n stands for
+// the skip; the other case starts at the lifted point itself.
+vec3 shadow_ray_origin(ivec2 px, vec3 p, vec3 n, vec3 ns, float depth, vec3 to_light)
+{
+#ifdef HS_TERMINATOR
+    vec4 lift = texelFetch(u_gb_terminator, px, 0);
+    float cutoff = lift.w;
+    if (cutoff > 0.0) {
+        // (an extended light: towards its centre, for all its samples; those below the shading
+        // horizon, the only ones Cycles lifts from the far side, carry no light)
+        vec3 l = normalize(to_light);
+        float nl = dot(ns, l);
+        float ngl = dot(n, l);
+        float amount = nl < cutoff ? clamp(2.0 - (ngl + nl) / cutoff, 0.0, 1.0)
+                                   : clamp(1.0 - ngl / cutoff, 0.0, 1.0);
+        if (amount > 0.0) {
+            p += lift.xyz * amount;
+            if (!(ngl > 0.0)) return p;       // meant to be able to hit its own surface
+        }
+    }
+#endif
+    return offset_origin(p, n, depth * 3.0e-6);
 }

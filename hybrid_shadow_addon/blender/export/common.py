@@ -42,3 +42,15 @@ def is_sphere_primitive(ob) -> bool:
     if value is None:
         value = ob.get(SPHERE_PROPERTY, False)
     return bool(value)
+
+
+def terminator_offset(ob) -> float:
+    """The object's Shadow Terminator Geometry Offset (Cycles' object setting, 0..1), which moves
+    the shadow rays of its smooth-shaded triangles near the terminator as Cycles does. Its Shading
+    Offset, which only softens Cycles' shading there, is reported once per object when set: the
+    preview's lighting does not apply it."""
+    shading = float(getattr(ob, "shadow_terminator_shading_offset", 0.0))
+    if shading > 0.0:
+        warn_export(f"object '{ob.name}': Shadow Terminator Shading Offset {shading:g} is not applied "
+                    f"(the shading near its terminator is Cycles' without the offset)")
+    return float(getattr(ob, "shadow_terminator_geometry_offset", 0.1))

@@ -162,6 +162,7 @@ class SceneExporter:
             specular=np.array([a[3] for a in attrs], np.float32),
             roughness=np.array([a[4] for a in attrs], np.float32),
             material_ids=np.array([a[5] for a in attrs], np.int32),
+            terminator=np.array([a[7] for a in attrs], np.float32),
         )
 
     # -- geometry-nodes instances, vectorised -------------------------------------------------
@@ -188,7 +189,7 @@ class SceneExporter:
             for j, (k, mid) in enumerate(models):
                 aid = self.shading.attributes(owner, self._slot_material(slots, k))
                 aid = self.shading.checked(aid, mid, mesh, source.name if source is not None else prefix)
-                shadow, sphere, rgba, spec, rough, material_id, _ = self.shading.attrs[aid]
+                shadow, sphere, rgba, spec, rough, material_id, _, terminator = self.shading.attrs[aid]
                 if inverse is None:
                     inverse = affine_inverse(matrices)
                 suffix = "" if j == 0 else slot_name("", k)
@@ -203,6 +204,7 @@ class SceneExporter:
                     specular=np.full(n, spec, np.float32),
                     roughness=np.full(n, rough, np.float32),
                     material_ids=np.full(n, material_id, np.int32),
+                    terminator=np.full(n, terminator, np.float32),
                 ))
         return True
 

@@ -4,7 +4,7 @@ image read once per export."""
 from __future__ import annotations
 
 from ...core.scene import Image, Material
-from .common import is_sphere_primitive, warn_export
+from .common import is_sphere_primitive, terminator_offset, warn_export
 from .images import image_pixels
 from .materials import IDENTITY_UV, TextureLink, material_surface, read_material
 from .meshes import ModelTable, mesh_uv_layer, mesh_uvs
@@ -12,7 +12,7 @@ from .meshes import ModelTable, mesh_uv_layer, mesh_uvs
 
 class ShadingTable:
     """Rows of per-instance attributes ``(casts_shadow, sphere, rgba, specular, roughness,
-    material id, fallback rgba)``, one per object and material, with the scene's materials and
+    material id, fallback rgba, shadow terminator geometry offset)``, one per object and material, with the scene's materials and
     images. A textured material gives the models it shows their UVs (from ``models``).
 
     Plain materials stay ``material id = -1``, so an opaque scene has no materials, images or
@@ -46,7 +46,8 @@ class ShadingTable:
                     surface = self._material(material)
                     self.surface_of[skey] = surface
             aid = len(self.attrs)
-            self.attrs.append((bool(ob.visible_shadow), is_sphere_primitive(ob)) + surface)
+            self.attrs.append((bool(ob.visible_shadow), is_sphere_primitive(ob)) + surface
+                              + (terminator_offset(ob),))
             self.attr_of[key] = aid
         return aid
 
@@ -141,9 +142,9 @@ class ShadingTable:
             return aid
         dropped = self.dropped_of.get(aid)
         if dropped is None:
-            shadow, sphere, _, spec, rough, _, fallback = self.attrs[aid]
+            shadow, sphere, _, spec, rough, _, fallback, terminator = self.attrs[aid]
             dropped = self.dropped_of[aid] = len(self.attrs)
-            self.attrs.append((shadow, sphere, fallback, spec, rough, -1, fallback))
+            self.attrs.append((shadow, sphere, fallback, spec, rough, -1, fallback, terminator))
         return dropped
 
     def needs_uvs(self, aid: int, mid: int) -> bool:

@@ -14,13 +14,15 @@ from .targets import read_texture, set_uniforms
 GBUFFER_TARGETS = (
     ("position", 4, "f4"),
     ("normal", 4, "f4"),
-    ("shading_normal", 4, "f2"),
+    ("shading_normal", 4, "f4"),
     ("albedo", 4, "f2"),
     ("material", 4, "f4"),
     ("depth", 1, "f4"),
+    ("terminator", 4, "f4"),
 )
 GB_SAMPLERS = {"position": "u_gb_position", "normal": "u_gb_normal", "shading_normal": "u_gb_shading",
-               "albedo": "u_gb_albedo", "material": "u_gb_material", "depth": "u_gb_depth"}
+               "albedo": "u_gb_albedo", "material": "u_gb_material", "depth": "u_gb_depth",
+               "terminator": "u_gb_terminator"}
 
 
 @dataclass
@@ -64,9 +66,12 @@ class GBuffer:
     """The G-buffer textures (owned by the pass, overwritten by its next render).
 
     ``position`` RGBA32F world xyz, w = 1 on geometry and 0 on background; ``normal`` RGBA32F
-    unit geometric (face) normal turned towards the camera; ``shading_normal`` RGBA16F;
+    unit geometric (face) normal turned towards the camera; ``shading_normal`` RGBA32F (the
+    smooth normal, turned over with the geometric one where the camera sees a triangle's back);
     ``albedo`` RGBA16F linear base colour; ``material`` RGBA32F (specular, roughness, instance
-    index, 1); ``depth`` R32F view depth in metres (0 on background); ``depth_buffer`` the
+    index, 1); ``depth`` R32F view depth in metres (0 on background); ``terminator`` RGBA32F
+    (the smooth-surface lift of Cycles' shadow terminator in the world, the object's geometry
+    offset; zero on flat models); ``depth_buffer`` the
     depth attachment. Arrays from :meth:`read` have row 0 = top row of the image.
     """
 

@@ -42,9 +42,16 @@ class ShaderError(GPUError):
     """A shader is missing or does not compile/link."""
 
 
-def program_stages(text: str) -> list[str]:
-    """The stages built from a program file's text: those whose name appears in it."""
-    return [stage for stage in STAGES if stage in text]
+_ONLY_WITH = re.compile(r"^//\s*(\w+_SHADER) only with (\w+)", re.MULTILINE)
+
+
+def program_stages(text: str, defines=()) -> list[str]:
+    """The stages built from a program file's text under ``defines`` (names or ``(name, value)``
+    pairs): those whose name appears in it, except a stage the file builds only with a define
+    (a line ``// GEOMETRY_SHADER only with NAME``) while that define is absent."""
+    names = {d[0] if isinstance(d, tuple) else d for d in defines}
+    only = {stage: define for stage, define in _ONLY_WITH.findall(text)}
+    return [stage for stage in STAGES if stage in text and (stage not in only or only[stage] in names)]
 
 
 _recorded: set = set()
@@ -152,7 +159,7 @@ class ProgramCache:
         text = path.read_text(encoding="utf-8")
         stages = {}
         files = []
-        for stage in program_stages(text):
+        for stage in program_stages(text, defines):
             stages[stage], files = self.source(name, stage, defines)
         if "VERTEX_SHADER" not in stages:
             raise ShaderError(f"shader '{name}' has no VERTEX_SHADER section")

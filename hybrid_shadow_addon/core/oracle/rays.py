@@ -37,26 +37,51 @@ def surface_points(camera, rows, cols, depth) -> np.ndarray:
     return (local @ R.T) * (depth / cs)[:, None]
 
 
+def terminator_origins(p, n, ns, lift, to_light, slack) -> np.ndarray:
+    """numpy mirror of ``shadow_ray_origin`` in ``shaders/common/shadow_ray.glsl`` (Cycles'
+    ``shadow_ray_offset``, light/sample.h): points ``p`` (N, 3) bake space, geometric normals
+    ``n`` towards the camera, shading normals ``ns``, the G-buffer's ``lift`` (N, 4: the smooth
+    surface's lift, the geometry offset; 0 on flat models), ``to_light`` (N, 3). Where the lift
+    applies, the origin rises by its share; it is then pushed off the plane (standing for Cycles'
+    skip of its own triangle) unless the geometric normal faces away from the light."""
+    f = np.float32
+    p, n, ns = (np.asarray(a, f) for a in (p, n, ns))
+    lift = np.asarray(lift, f)
+    cutoff = lift[:, 3]
+    l = np.asarray(to_light, f)
+    l = l / np.linalg.norm(l, axis=1, keepdims=True).astype(f)
+    nl = (ns * l).sum(axis=1)
+    ngl = (n * l).sum(axis=1)
+    safe = np.where(cutoff > 0, cutoff, f(1))
+    amount = np.where(nl < cutoff, np.clip(f(2) - (ngl + nl) / safe, 0, 1), np.clip(f(1) - ngl / safe, 0, 1))
+    amount = np.where(cutoff > 0, amount, f(0)).astype(f)
+    lifted = (p + lift[:, :3] * amount[:, None]).astype(f)
+    own = (amount > 0) & ~(ngl > 0)  # (the ray may hit its own surface: no push)
+    return np.where(own[:, None], lifted, offset_origins(lifted, n, slack))
+
+
 def shadow_rays(gbuffer, pixels, light, origin=(0.0, 0.0, 0.0)):
     """The rays ``shaders/raytrace.glsl`` traces for G-buffer pixels ``(rows, cols)``:
     ``(origins, dirs, tmax, facing)``. Origins are world space (float64: the shader's float32
-    bake-space origins plus the bake's ``origin``); samples with ``facing`` False are not traced
-    (mask 0)."""
+    bake-space origins plus the bake's ``origin``); samples with ``facing`` False (the shading
+    normal turned from the light, out of its reach) are not traced (mask 0)."""
     rows, cols = pixels
     origin = np.asarray(origin, np.float64)
     cam = gbuffer.camera
     depth = gbuffer.read("depth")[rows, cols]
     n = gbuffer.read("normal")[rows, cols, :3].astype(np.float32)
+    ns = gbuffer.read("shading_normal")[rows, cols, :3].astype(np.float32)
+    lift = gbuffer.read("terminator")[rows, cols].astype(np.float32)
     p = (cam.cam_pos - origin).astype(np.float32) + surface_points(cam, rows, cols, depth)
     local, vec = light_ray_uniforms(light, origin)
     vec = np.asarray(vec, np.float32)  # (as the shader's uniform)
     to_light = vec - p if local else np.broadcast_to(vec, p.shape)
-    facing = (n * to_light).sum(axis=1) > 0
+    facing = (ns * to_light).sum(axis=1) > 0
     if local:
         axis, cone = light_cone(light)
         unit = to_light / np.linalg.norm(to_light, axis=1, keepdims=True)
         facing &= (-unit @ np.asarray(axis, np.float32)) > np.float32(cone)
-    o = offset_origins(p, n, depth * np.float32(3.0e-6))
+    o = terminator_origins(p, n, ns, lift, to_light, depth * np.float32(3.0e-6))
     if local:
         d = vec - o
         tmax = np.ones(len(o), np.float32)

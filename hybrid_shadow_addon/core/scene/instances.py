@@ -9,6 +9,9 @@ import numpy as np
 
 from .arrays import as_f32
 
+#: Cycles' default Shadow Terminator Geometry Offset of an object
+DEFAULT_TERMINATOR = 0.1
+
 
 @dataclass
 class Instances:
@@ -17,7 +20,9 @@ class Instances:
     ``matrices`` are world matrices; ``inverse`` their inverses (derived when not given).
     ``model_ids`` index ``Scene.models``. ``sphere`` marks analytic sphere primitives: the
     instance is traced as its model's bounding sphere (model space, then the world matrix),
-    with no triangles.
+    with no triangles. ``terminator`` is the object's Shadow Terminator Geometry Offset (Cycles'
+    ``Object.shadow_terminator_geometry_offset``): on smooth-shaded triangles, shadow rays towards
+    lights within that cosine of the terminator start lifted towards the smooth surface.
     """
 
     names: list = field(default_factory=list)  # list[str], len N
@@ -30,6 +35,7 @@ class Instances:
     roughness: np.ndarray = None  # (N,) float32
     sphere: np.ndarray = None  # (N,) bool
     material_ids: np.ndarray = None  # (N,) int32 index into Scene.materials; -1: plain colour
+    terminator: np.ndarray = None  # (N,) float32 shadow terminator geometry offset, 0..1 (Cycles: 0.1)
 
     def __post_init__(self):
         n = len(self.names)
@@ -50,6 +56,8 @@ class Instances:
         self.sphere = np.zeros(n, bool) if self.sphere is None else np.ascontiguousarray(self.sphere, bool).reshape(n)
         self.material_ids = (np.full(n, -1, np.int32) if self.material_ids is None
                              else np.ascontiguousarray(self.material_ids, np.int32).reshape(n))
+        self.terminator = (np.full(n, DEFAULT_TERMINATOR, np.float32) if self.terminator is None
+                           else as_f32(self.terminator).reshape(n))
 
     def __len__(self) -> int:
         return len(self.names)
@@ -71,6 +79,7 @@ class Instances:
             roughness=np.concatenate([p.roughness for p in parts]),
             sphere=np.concatenate([p.sphere for p in parts]),
             material_ids=np.concatenate([p.material_ids for p in parts]),
+            terminator=np.concatenate([p.terminator for p in parts]),
         )
 
     def take(self, rows) -> Instances:
@@ -80,7 +89,7 @@ class Instances:
                          matrices=self.matrices[rows], inverse=self.inverse[rows],
                          casts_shadow=self.casts_shadow[rows], base_color=self.base_color[rows],
                          specular=self.specular[rows], roughness=self.roughness[rows], sphere=self.sphere[rows],
-                         material_ids=self.material_ids[rows])
+                         material_ids=self.material_ids[rows], terminator=self.terminator[rows])
 
     def max_scale(self) -> np.ndarray:
         """(N,) largest axis scale of each world matrix (length of the 3x3 columns)."""

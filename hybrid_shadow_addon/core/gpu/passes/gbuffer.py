@@ -43,7 +43,7 @@ from ..geometry import (
 from ..targets import create_texture
 from .base import Pass
 
-INSTANCE_FORMAT = "4f 4f 4f 3f 3f 3f 4f 3f/i"
+INSTANCE_FORMAT = "4f 4f 4f 3f 3f 3f 4f 4f/i"
 INSTANCE_ATTRS = ("in_m0", "in_m1", "in_m2", "in_n0", "in_n1", "in_n2", "in_color", "in_material")
 SPHERE_FORMAT = INSTANCE_FORMAT.replace("/i", "") + " 4f 4f 4f 4f/i"
 TEXTURED_FORMAT = INSTANCE_FORMAT.replace("/i", "") + " 1f/i"  # + the material (-1: none)
@@ -137,6 +137,7 @@ class GBufferPass(Pass):
         self.culled = 0  # instances of the last render outside the view frustum (not drawn)
         self.chunked = True  # draw big models by chunks, leaving out those outside the view (tests compare)
         self.triangles = 0  # triangles drawn by the last render (instances x triangles of each draw)
+        self._frame_programs: dict = {}  # smooth -> (program, textured program): this render's
 
     # -- targets -------------------------------------------------------------------------------
     def _targets(self, width, height) -> GBuffer:
@@ -167,7 +168,8 @@ class GBufferPass(Pass):
         nmat = np.transpose(inst.inverse[rows, :3, :3], (0, 2, 1))
         cols = [m[:, 0, :], m[:, 1, :], m[:, 2, :], nmat[:, 0, :], nmat[:, 1, :], nmat[:, 2, :],
                 inst.base_color[rows].astype(np.float64),
-                np.stack([inst.specular[rows], inst.roughness[rows], rows.astype(np.float64)], axis=1)]
+                np.stack([inst.specular[rows], inst.roughness[rows], rows.astype(np.float64),
+                          inst.terminator[rows]], axis=1)]
         if spheres:
             inv = inst.inverse[rows].copy()
             # inverse of (T(-cam) @ M) = M^-1 @ T(cam): translation += M^-1[:3,:3] @ cam
@@ -189,6 +191,25 @@ class GBufferPass(Pass):
         return self._batch(key).upload(data, prog, vbo, INDEXED_FORMAT_NO_UV, INDEXED_ATTRS_NO_UV,
                                        INSTANCE_FORMAT, INSTANCE_ATTRS, index_buffer=ibo)
 
+    def _programs(self, scene, cam, smooth: bool):
+        """``(plain program, textured program or None)`` for a model, with ``TERMINATOR`` where
+        it has smooth corner normals (the shadow terminator's lift: a geometry stage), set up for
+        this frame."""
+        got = self._frame_programs.get(smooth)
+        if got is not None:
+            return got
+        base = {"TERMINATOR": 1} if smooth else {}
+        progs = [self.programs.get("gbuffer", base)]
+        if scene.materials:
+            progs.append(self.programs.get("gbuffer", {**base, "TEXTURED": 1}))
+        for prog in progs:
+            cam.apply(prog)
+            prog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
+        if len(progs) > 1:
+            self.gpu.bind_materials(progs[1], scene)
+        got = self._frame_programs[smooth] = (progs[0], progs[1] if len(progs) > 1 else None)
+        return got
+
     # -- render ----------------------------------------------------------------------------------
     def render(self, job) -> GBuffer:
         scene = job.scene
@@ -207,29 +228,21 @@ class GBufferPass(Pass):
         ctx.depth_func = "<"
         self.draw_calls = 0
         self.triangles = 0
+        self._frame_programs = {}
         self.models.prune(scene.models)
         inst = scene.instances
         planes = frustum_planes(cam.clip_from_rel)
         visible = frustum_visible(scene, cam.clip_from_rel, cam.cam_pos)
         self.culled = int(len(visible) - np.count_nonzero(visible))
         if visible.any():
-            prog = self.programs.get("gbuffer")
-            cam.apply(prog)
-            prog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
             order = np.argsort(inst.model_ids, kind="stable")
             tri_rows = order[~inst.sphere[order] & visible[order]]
             bounds = np.searchsorted(inst.model_ids[tri_rows], np.arange(len(scene.models) + 1))
-            tprog = None
-            if scene.materials:
-                tprog = self.programs.get("gbuffer", {"TEXTURED": 1})
-                cam.apply(tprog)
-                tprog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
-            if tprog is not None:
-                self.gpu.bind_materials(tprog, scene)
             for mi, model in enumerate(scene.models):
                 rows = tri_rows[bounds[mi]:bounds[mi + 1]]
                 if not len(rows) or not model.triangle_count:
                     continue
+                prog, tprog = self._programs(scene, cam, model.normals is not None)
                 vbo, ibo, nidx = self.models.indexed(model)
                 chunks = self.models.chunks(model) if self.chunked else None
                 if chunks is None:

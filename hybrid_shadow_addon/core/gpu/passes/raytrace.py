@@ -125,6 +125,7 @@ class RaytracePass(ShadowPass):
         no_rays = None
         self._soft_samples = 1
         self.trace.scene_frame = int(getattr(scene, "frame", 1))
+        self.trace.smooth = any(m.normals is not None for m in scene.models)
         masks = {}
         for li in lights:
             job.light_started(li)

@@ -101,6 +101,7 @@ class TraceProgram:
         self.programs = gpu.programs
         self.scene_textures = gpu.scene_textures
         self.scene_frame = 1  # the animation frame being rendered (seeds the sample patterns)
+        self.smooth = False  # the scene has smooth-shaded models: their terminator moves origins
 
     def defines(self, settings, local: bool, soft: dict | None = None) -> dict:
         d = dict(self.scene_textures.baked.defines)
@@ -115,6 +116,8 @@ class TraceProgram:
             d["HS_MAX_DISTANCE"] = 1
         if settings.interlace:
             d["HS_INTERLACE"] = 1
+        if self.smooth:
+            d["HS_TERMINATOR"] = 1
         return d
 
     def bind(self, defines, ray: LightRay, gbuffer, settings, scale: int, sample_base: int = 0,
