@@ -505,8 +505,8 @@ def test_image_colour_spaces_and_settings(scene):
     s = export_scene().validate()
     imgs = {i.name: i for i in s.images}
     assert {n: (i.srgb, i.interpolation, i.extension) for n, i in imgs.items()} == {
-        "byte": (True, "Linear", "EXTEND"), "data": (False, "Closest", "MIRROR"),
-        "float": (False, "Linear", "CLIP"), "no alpha": (True, "Linear", "REPEAT")}
+        "byte": (True, "Cubic", "EXTEND"), "data": (False, "Closest", "MIRROR"),
+        "float": (False, "Linear", "CLIP"), "no alpha": (True, "Cubic", "REPEAT")}  # Smart: Cycles' cubic
     np.testing.assert_array_equal(imgs["float"].pixels, (np.clip(fpx, 0, 1) * 255 + 0.5).astype(np.uint8))
     assert (imgs["no alpha"].pixels[..., 3] == 255).all()
 

@@ -9,6 +9,8 @@ from .images import image_pixels
 from .materials import IDENTITY_UV, TextureLink, material_surface, read_material
 from .meshes import ModelTable, mesh_uv_layer, mesh_uvs
 
+#: The scene model's interpolation of an Image Texture node's (Cycles reads Smart as Cubic).
+INTERPOLATIONS = {"Linear": "Linear", "Closest": "Closest", "Cubic": "Cubic", "Smart": "Cubic"}
 #: The export report's line for a material whose BSDF normal a Normal Map or Bump node bends.
 NORMAL_MAP_NOT_READ = "normal map not read (facing decided by the mesh's own normals)"
 
@@ -94,7 +96,7 @@ class ShadingTable:
         it has no pixels."""
         node = link.node
         image = node.image
-        interp = node.interpolation if node.interpolation in ("Linear", "Closest") else "Linear"
+        interp = INTERPOLATIONS.get(node.interpolation, "Linear")
         key = (image.as_pointer(), node.extension, interp)
         idx = self.image_of.get(key)
         if idx is None:
