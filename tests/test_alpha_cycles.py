@@ -28,6 +28,7 @@ import pytest
 
 from hybrid_shadow_addon.core.settings import Settings
 from hybrid_shadow_addon.tools.metrics import mask_error
+from tests.helpers import rays
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu, pytest.mark.cycles]
 
@@ -78,29 +79,11 @@ _mixed = {}
 
 
 def mixed_pixels(scene, frame) -> np.ndarray:
-    """(H, W) bool, row 0 = top: covered pixels whose camera ray (camera to the G-buffer's
-    surface point at the pixel centre) crosses a surface of fractional alpha before it, or whose
-    surface itself has alpha < 1 there: where Cycles blends two surfaces into the pixel. From the
-    numpy oracle (``visibility_brute``: the product of the transmittances the ray crosses); once
-    per scene (the G-buffer does not depend on the structure)."""
+    """:func:`tests.helpers.rays.mixed_pixels`, once per scene (the G-buffer does not depend on
+    the structure)."""
     if id(scene) not in _mixed:
-        _mixed[id(scene)] = _mixed_pixels(scene, frame)
+        _mixed[id(scene)] = rays.mixed_pixels(scene, frame)
     return _mixed[id(scene)]
-
-
-def _mixed_pixels(scene, frame) -> np.ndarray:
-    from hybrid_shadow_addon.core.oracle.tracer import visibility_brute
-
-    pos = frame.gbuffer.read("position")
-    cov = pos[..., 3] > 0.5
-    p = pos[..., :3][cov].astype(np.float64)
-    cam = np.broadcast_to(scene.camera.matrix[:3, 3].astype(np.float64), p.shape)
-    front = visibility_brute(scene, cam, p - cam, 1.0 - 1e-4)  # surfaces before the point
-    through = visibility_brute(scene, cam, p - cam, 1.0 + 1e-4)  # ... and the point's own
-    own_alpha = np.where(front > 0, 1.0 - through / np.maximum(front, 1e-12), 1.0)
-    out = np.zeros(cov.shape, bool)
-    out[cov] = (front < 0.999) | (own_alpha < 0.999)
-    return out
 
 
 def interior(mask: np.ndarray) -> np.ndarray:

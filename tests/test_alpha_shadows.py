@@ -10,7 +10,7 @@ from hybrid_shadow_addon.core.bake.materials import bake_materials, mip_chain, s
 from hybrid_shadow_addon.core.oracle.alpha import albedo as oracle_albedo
 from hybrid_shadow_addon.core.oracle.alpha import material_alpha
 from hybrid_shadow_addon.core.oracle.tracer import visibility_brute
-from hybrid_shadow_addon.core.scene import Instances, Scene
+from hybrid_shadow_addon.core.scene import Image, Instances, Scene
 from hybrid_shadow_addon.core.scene_sync import FULL, sync_scene
 from hybrid_shadow_addon.core.settings import Settings
 from tests.helpers.rays import shadow_rays
@@ -92,6 +92,35 @@ def test_gbuffer_albedo_and_cut_match_the_oracle(pipeline, scene):
         thr = scene.materials[int(scene.instances.material_ids[row])].alpha_threshold \
             if scene.materials[int(scene.instances.material_ids[row])].alpha_mode == "CLIP" else 0.5
         assert (a < thr - 0.02).mean() < 0.01
+
+
+def test_cubic_images_cut_as_the_oracle(pipeline):
+    """Cubic images (Cycles' Cubic and Smart) cut shadow rays and the G-buffer with the cubic
+    B-spline at level 0, as the oracle reads them: a card of random binary texels (whose lone
+    opaque texels the B-spline lowers to alpha 4/9) casts another shadow and shows other pixels
+    than when read bilinearly."""
+    dots = np.full((8, 8, 4), 200, np.uint8)
+    dots[..., 3] = (np.random.default_rng(4).random((8, 8)) < 0.4) * 255
+    masks, kept = {}, {}
+    for interp in ("Cubic", "Linear"):
+        sc = alpha_scene()
+        sc.images[0] = Image("dots", dots, interpolation=interp)  # the checker card's image
+        f = render(pipeline, sc)
+        ok, o, d, tmax, facing = shadow_rays(f, sc, 0)
+        ref = visibility_brute(sc, o, d, tmax)
+        diff = np.abs(f.mask_array(0)[ok][facing] - ref[facing])
+        assert (diff > 0.02).mean() < 0.002 and diff.mean() < 0.002, (interp, (diff > 0.02).sum())
+        masks[interp] = f.mask_array(0)
+        # the card's visible pixels: alpha >= 0.5 there, as the oracle samples it
+        pos = f.gbuffer.read("position")
+        sel = (pos[..., 3] > 0) & (np.round(f.gbuffer.read("material")[..., 2]).astype(int) == 1)
+        local = (np.linalg.inv(sc.instances.matrices[1]) @ np.c_[pos[..., :3][sel], np.ones(sel.sum())].T).T
+        a = material_alpha(sc, 0, (local[:, :2] + 1.0) / 2.0)
+        assert sel.sum() > 30 and (a < 0.5 - 1e-3).mean() < 0.01, (interp, (a < 0.5 - 1e-3).sum())
+        kept[interp] = sel
+    both = np.isfinite(masks["Cubic"]) & np.isfinite(masks["Linear"])
+    assert (np.abs(masks["Cubic"] - masks["Linear"])[both] > 0.1).sum() > 100
+    assert (kept["Cubic"] != kept["Linear"]).sum() > 30
 
 
 def test_shadow_maps_cut_the_alpha_too(pipeline):

@@ -337,6 +337,59 @@ def test_unsupported_alpha_node_falls_back_to_the_alpha_value(scene):
     assert m.alpha_image == -1 and m.alpha == pytest.approx(0.4)
 
 
+def _normal_mapped(name, kind="ShaderNodeNormalMap", shader=None, via_reroute=False):
+    """A material whose BSDF (the Principled, or a new node of type ``shader``) has its Normal
+    fed by a ``kind`` node (Normal Map: its Color from an image; Bump: its Height from the
+    image's alpha)."""
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    bsdf = nodes["Principled BSDF"]
+    if shader is not None:
+        nodes.remove(bsdf)
+        bsdf = nodes.new(shader)
+        links.new(bsdf.outputs[0], nodes["Material Output"].inputs["Surface"])
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = _image(f"{name} normals")[0]
+    bender = nodes.new(kind)
+    links.new(tex.outputs["Color" if kind == "ShaderNodeNormalMap" else "Alpha"],
+              bender.inputs["Color" if kind == "ShaderNodeNormalMap" else "Height"])
+    out = bender.outputs["Normal"]
+    if via_reroute:
+        reroute = nodes.new("NodeReroute")
+        links.new(out, reroute.inputs[0])
+        out = reroute.outputs[0]
+    links.new(out, bsdf.inputs["Normal"])
+    return mat, bender
+
+
+def test_normal_maps_are_listed_once_per_material(scene):
+    """A Normal Map (or Bump) node feeding a BSDF's Normal: the export report lists the material
+    once, however many objects show it; materials without one, a muted one, or one left
+    unconnected are not listed."""
+    mapped, _ = _normal_mapped("Bricks")
+    bumped, _ = _normal_mapped("Bumpy", kind="ShaderNodeBump", shader="ShaderNodeBsdfDiffuse",
+                                via_reroute=True)
+    muted, node = _normal_mapped("Muted")
+    node.mute = True
+    loose, node = _normal_mapped("Loose")
+    loose.node_tree.links.remove(loose.node_tree.nodes["Principled BSDF"].inputs["Normal"].links[0])
+    plain = bpy.data.materials.new("Plain")
+    plain.use_nodes = True
+    for i, mat in enumerate((mapped, mapped, bumped, muted, loose, plain)):
+        me = cube_mesh(f"m{i}")
+        me.materials.append(mat)
+        add_object(f"O{i}", me, location=(3 * i, 0, 0))
+    s, warned = _export_warnings(export_scene)
+    s.validate()
+    listed = sorted(w for w in warned if "normal map not read (facing decided by the mesh's own normals)" in w)
+    assert len(listed) == 2, warned
+    assert "'Bricks'" in listed[0] and "'Normal Map'" in listed[0] and "'Principled BSDF'" in listed[0]
+    assert "'Bumpy'" in listed[1] and "'Bump'" in listed[1] and "'Diffuse BSDF'" in listed[1]
+    assert not any(n in w for w in warned for n in ("'Muted'", "'Loose'", "'Plain'")), warned
+    assert s.materials == [] and s.images == []
+
+
 def test_math_greater_than_is_alpha_clip(scene):
     """Blender 4.2 turns an old Alpha Clip material into alpha > threshold (a Math node)."""
     img, _ = _image()
@@ -452,8 +505,8 @@ def test_image_colour_spaces_and_settings(scene):
     s = export_scene().validate()
     imgs = {i.name: i for i in s.images}
     assert {n: (i.srgb, i.interpolation, i.extension) for n, i in imgs.items()} == {
-        "byte": (True, "Linear", "EXTEND"), "data": (False, "Closest", "MIRROR"),
-        "float": (False, "Linear", "CLIP"), "no alpha": (True, "Linear", "REPEAT")}
+        "byte": (True, "Cubic", "EXTEND"), "data": (False, "Closest", "MIRROR"),
+        "float": (False, "Linear", "CLIP"), "no alpha": (True, "Cubic", "REPEAT")}  # Smart: Cycles' cubic
     np.testing.assert_array_equal(imgs["float"].pixels, (np.clip(fpx, 0, 1) * 255 + 0.5).astype(np.uint8))
     assert (imgs["no alpha"].pixels[..., 3] == 255).all()
 

@@ -38,6 +38,37 @@ def test_texel_centres_exact(ext, interp):
     assert got.shape == (W * H, 4) and got.dtype == np.float64
 
 
+def test_cubic_is_cycles_bspline():
+    """Cubic (Cycles' Cubic and Smart): the uniform cubic B-spline over the 4x4 nearest texels
+    (weights 1/6, 2/3, 1/6 at a texel centre; 1/48, 23/48, 23/48, 1/48 half-way), constant
+    images stay constant, and each extension rule applies to every texel index."""
+    one = np.zeros((8, 8, 4), np.uint8)
+    one[4, 3] = 255  # texel (3, 4)
+    img = Image("dot", one, srgb=False, interpolation="Cubic")
+    centre = lambda i, j: [(i + 0.5) / 8, (j + 0.5) / 8]  # noqa: E731
+    got = sample_image(img, [centre(3, 4), centre(4, 4), centre(4, 5), centre(5, 4), [0.5, 4.5 / 8]])[:, 3]
+    np.testing.assert_allclose(got, [4 / 9, 1 / 9, 1 / 36, 0.0, 23 / 48 * 2 / 3], rtol=0, atol=1e-12)
+    flat = Image("flat", np.full((3, 5, 4), 90, np.uint8), extension="CLIP", interpolation="Cubic")
+    inner = sample_image(flat, [[0.5, 0.5]])[0]
+    np.testing.assert_allclose(inner, 90 / 255, rtol=0, atol=1e-12)
+    for ext in ("REPEAT", "EXTEND", "MIRROR"):
+        uv = np.random.default_rng(1).uniform(-2, 3, (50, 2))
+        np.testing.assert_allclose(sample_image(Image("f", flat.pixels, extension=ext, interpolation="Cubic"), uv),
+                                   90 / 255, rtol=0, atol=1e-12)
+    # CLIP: texels beyond the image are transparent black, so the edge fades
+    assert sample_image(flat, [[0.5 / 5, 0.5]])[0, 3] == pytest.approx(5 / 6 * 90 / 255)
+    # REPEAT wraps: the dot seen across the seam equals the dot seen from inside
+    dot = Image("dot", np.roll(one, (-4, -3), axis=(0, 1)), srgb=False, interpolation="Cubic")
+    np.testing.assert_allclose(sample_image(dot, [[0.5 / 8 - 1 / 16, 0.5 / 8]])[:, 3],
+                               sample_image(img, [[3.5 / 8 - 1 / 16, 4.5 / 8]])[:, 3], rtol=0, atol=1e-12)
+    # the albedo reads a Cubic colour image bilinearly (the G-buffer's mip-mapped colour)
+    sc = Scene(models=[], instances=Instances(names=["a"], model_ids=[0], matrices=np.eye(4)[None],
+                                              material_ids=[0], base_color=[(1, 1, 1, 1)]),
+               materials=[Material("m", color_image=0)], images=[img])
+    lin = sample_image(img, [[0.5, 4.5 / 8]], "Linear")[0, :3]
+    np.testing.assert_allclose(albedo(sc, [0], [[0.5, 4.5 / 8]])[0], lin, rtol=0, atol=1e-12)
+
+
 def test_row_zero_is_bottom():
     got = sample_image(_img(), [[0.125, 0.01 + 0.115], [0.125, 0.875]])
     np.testing.assert_array_equal(got[0], P[0, 0])

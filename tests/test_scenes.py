@@ -22,6 +22,7 @@ SMALL = {
     "alpha_cards": "alpha_cards",
     "soft_lights": "soft_lights",
     "smooth_shapes": "smooth_shapes",
+    "fence_far": "fence_far",
 }
 
 

@@ -10,13 +10,16 @@
  *     3k+2  .x 1 + colour image record (0: none), .y 1 + alpha image record (0: none),
  *           .z flags (1: CLIP, 2: LUMA alpha, 4: transparent shadow), .w 0
  *   image record r: texel r = (levels, extension 0 REPEAT 1 EXTEND 2 CLIP 3 MIRROR,
- *           interpolation 0 Linear 1 Closest, sRGB), texel r + 1 + l = mip level l:
+ *           interpolation 0 Linear 1 Closest 2 Cubic, sRGB), texel r + 1 + l = mip level l:
  *           (x, y, layer, width | height << 16) of its rectangle in the atlas
  * [atlas] RGBA8 "hs_atlas_tex" (sampler2DArray, normalised): the images' stored bytes.
  *
- * Sampling (core/scene.py Image): texel (i, j) centred at ((i + .5) / W, (j + .5) / H); Linear
- * blends the 4 nearest texels, Closest takes floor(uv * size); the extension applies to each
- * texel index (CLIP: a UV outside [0, 1) reads 0, texels outside the image are 0).
+ * Sampling (core/scene/materials.py Image): texel (i, j) centred at ((i + .5) / W, (j + .5) / H);
+ * Linear blends the 4 nearest texels, Closest takes floor(uv * size), Cubic weighs the 4x4 nearest
+ * with Cycles' cubic B-spline; the extension applies to each texel index (CLIP: a UV outside
+ * [0, 1) reads 0, texels outside the image are 0). An alpha (the G-buffer's coverage, a shadow
+ * ray's cut) reads level 0 with the image's own interpolation, as Cycles reads the image at a
+ * hit; colour reads the mip levels, bilinear in place of cubic.
  */
 #ifndef HS_ALPHA_GLSL
 #define HS_ALPHA_GLSL
@@ -58,6 +61,33 @@ vec4 hs_img_texel(uvec4 lvl, ivec2 size, int i, int j, uint ext)
     return texelFetch(hs_atlas_tex, ivec3(int(lvl.x) + x, int(lvl.y) + y, int(lvl.z)), 0);
 }
 
+// Cycles' cubic B-spline weights of the 4 texels around a sample t of the way past the second.
+vec4 hs_bspline(float t)
+{
+    return vec4((((-1.0 / 6.0) * t + 0.5) * t - 0.5) * t + (1.0 / 6.0),
+                ((0.5 * t - 1.0) * t) * t + (2.0 / 3.0),
+                ((-0.5 * t + 0.5) * t + 0.5) * t + (1.0 / 6.0),
+                (1.0 / 6.0) * t * t * t);
+}
+
+// Cubic B-spline over the 4x4 texels around texel coordinate st (Cycles' Cubic and Smart).
+vec4 hs_sample_cubic(uvec4 lvl, ivec2 size, vec2 st, uint ext)
+{
+    vec2 f = st - 0.5;
+    vec2 fl = floor(f);
+    vec4 wx = hs_bspline(f.x - fl.x), wy = hs_bspline(f.y - fl.y);
+    ivec2 i0 = ivec2(fl) - 1;
+    vec4 acc = vec4(0.0);
+    for (int j = 0; j < 4; ++j) {
+        vec4 row = wx.x * hs_img_texel(lvl, size, i0.x, i0.y + j, ext)
+                 + wx.y * hs_img_texel(lvl, size, i0.x + 1, i0.y + j, ext)
+                 + wx.z * hs_img_texel(lvl, size, i0.x + 2, i0.y + j, ext)
+                 + wx.w * hs_img_texel(lvl, size, i0.x + 3, i0.y + j, ext);
+        acc += wy[j] * row;
+    }
+    return acc;
+}
+
 // Sample level lvl (its record texel) of the image whose header texel is head, stored values.
 vec4 hs_sample_rec(uvec4 head, uvec4 lvl, vec2 uv)
 {
@@ -65,6 +95,7 @@ vec4 hs_sample_rec(uvec4 head, uvec4 lvl, vec2 uv)
     if (ext == 2u && (uv.x < 0.0 || uv.x >= 1.0 || uv.y < 0.0 || uv.y >= 1.0)) return vec4(0.0);
     ivec2 size = ivec2(int(lvl.w & 0xFFFFu), int(lvl.w >> 16u));
     vec2 st = uv * vec2(size);
+    if (head.z == 2u) return hs_sample_cubic(lvl, size, st, ext);
     if (head.z == 1u) {
         ivec2 ij = ivec2(floor(st));
         return hs_img_texel(lvl, size, ij.x, ij.y, ext);
@@ -80,11 +111,14 @@ vec4 hs_sample_rec(uvec4 head, uvec4 lvl, vec2 uv)
     return mix(mix(c00, c10, w.x), mix(c01, c11, w.x), w.y);
 }
 
-// Image record rec (texel index) at mip level (clamped to its levels), stored values.
-vec4 hs_sample_image(int rec, vec2 uv, int level)
+// Image record rec (texel index) at mip level (clamped to its levels), stored values; exact:
+// with the image's interpolation, else bilinear in place of cubic (the colour's mip levels).
+vec4 hs_sample_image(int rec, vec2 uv, int level, bool exact)
 {
     uvec4 head = hs_mat(rec);
-    return hs_sample_rec(head, hs_mat(rec + 1 + clamp(level, 0, int(head.x) - 1)), uv);
+    uvec4 lvl = hs_mat(rec + 1 + clamp(level, 0, int(head.x) - 1));
+    if (!exact && head.z == 2u) head.z = 0u;
+    return hs_sample_rec(head, lvl, uv);
 }
 
 bool hs_image_srgb(int rec) { return hs_mat(rec).w != 0u; }
@@ -103,7 +137,7 @@ vec2 hs_material_uv(int mat, vec2 uv)
     return vec2(dot(r0, p), dot(r1, p));
 }
 
-// Alpha of material mat at mesh UV uv (level 0: as Cycles' rays see it).
+// Alpha of material mat at mesh UV uv (level 0, the image's interpolation: as Cycles' rays see it).
 float hs_material_alpha(int mat, vec2 uv)
 {
     uvec4 t0 = hs_mat(HS_MAT_TEXELS * mat);
@@ -111,7 +145,7 @@ float hs_material_alpha(int mat, vec2 uv)
     float a = uintBitsToFloat(t0.w);
     if (t2.y != 0u) {
         int rec = int(t2.y) - 1;
-        vec4 c = hs_sample_image(rec, hs_material_uv(mat, uv), 0);
+        vec4 c = hs_sample_image(rec, hs_material_uv(mat, uv), 0, true);
         if ((t2.z & HS_MAT_LUMA) != 0u) {
             vec3 rgb = hs_image_srgb(rec) ? hs_srgb_decode(c.rgb) : c.rgb;
             a *= dot(rgb, vec3(0.2126, 0.7152, 0.0722));
@@ -181,7 +215,7 @@ bool hs_alpha_keeps(int mat, vec2 uv)
 }
 
 // Linear base colour factor of material mat's colour image at mesh UV uv and mip level lod
-// (trilinear), white without one.
+// (trilinear, Cubic images too), white without one.
 vec3 hs_material_color(int mat, vec2 uv, float lod)
 {
     uvec4 t2 = hs_mat(HS_MAT_TEXELS * mat + 2);
@@ -190,9 +224,9 @@ vec3 hs_material_color(int mat, vec2 uv, float lod)
     vec2 tuv = hs_material_uv(mat, uv);
     lod = max(lod, 0.0);
     int l0 = int(floor(lod));
-    vec4 c = hs_sample_image(rec, tuv, l0);
+    vec4 c = hs_sample_image(rec, tuv, l0, false);
     float f = lod - float(l0);
-    if (f > 0.0) c = mix(c, hs_sample_image(rec, tuv, l0 + 1), f);
+    if (f > 0.0) c = mix(c, hs_sample_image(rec, tuv, l0 + 1, false), f);
     return hs_image_srgb(rec) ? hs_srgb_decode(c.rgb) : c.rgb;
 }
 

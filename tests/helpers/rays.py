@@ -1,5 +1,6 @@
 """Rays for the tests: seeded random and border-hugging rays, an exact float64 ray caster, the
-shadow rays of a frame's G-buffer, and the pixels away from silhouettes."""
+shadow rays of a frame's G-buffer, the pixels whose camera ray crosses fractional alpha, and the
+pixels away from silhouettes."""
 import numpy as np
 
 
@@ -136,6 +137,25 @@ def shadow_rays(frame, scene, li):
         tmax = np.ones(len(o))
     facing = (n * d).sum(axis=1) > 0
     return ok, o, d, tmax, facing
+
+
+def mixed_pixels(scene, frame) -> np.ndarray:
+    """(H, W) bool, row 0 = top: covered pixels whose camera ray (camera to the G-buffer's
+    surface point at the pixel centre) crosses a surface of fractional alpha before it, or whose
+    surface itself has alpha < 1 there: where Cycles blends two surfaces into the pixel. From the
+    numpy oracle (``visibility_brute``: the product of the transmittances the ray crosses)."""
+    from hybrid_shadow_addon.core.oracle.tracer import visibility_brute
+
+    pos = frame.gbuffer.read("position")
+    cov = pos[..., 3] > 0.5
+    p = pos[..., :3][cov].astype(np.float64)
+    cam = np.broadcast_to(scene.camera.matrix[:3, 3].astype(np.float64), p.shape)
+    front = visibility_brute(scene, cam, p - cam, 1.0 - 1e-4)  # surfaces before the point
+    through = visibility_brute(scene, cam, p - cam, 1.0 + 1e-4)  # ... and the point's own
+    own_alpha = np.where(front > 0, 1.0 - through / np.maximum(front, 1e-12), 1.0)
+    out = np.zeros(cov.shape, bool)
+    out[cov] = (front < 0.999) | (own_alpha < 0.999)
+    return out
 
 
 def random_triangle_rays(rng, n):

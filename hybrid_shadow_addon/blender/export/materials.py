@@ -4,7 +4,8 @@ Texture nodes feeding its Base Color and Alpha.
 A Base Color and/or Alpha fed by an Image Texture node (directly, or through Mapping nodes fed by
 a UV Map node or a Texture Coordinate's UV output; a Math "Greater Than" on the alpha, as Blender
 4.2 writes for old Alpha Clip materials, is the CLIP mode) is read as a texture link; any other
-link is listed as a problem and read as the socket's default value.
+link is listed as a problem and read as the socket's default value. A Normal Map or Bump node
+feeding a BSDF's Normal is not read: :func:`mapped_normal` names it for the export report.
 """
 from __future__ import annotations
 
@@ -69,7 +70,8 @@ class MaterialReading:
 
     ``rgba``, ``specular``, ``roughness``: :func:`material_surface` (the unlinked values);
     ``color``/``alpha_texture``: the supported image links of Base Color / Alpha; ``alpha``: the
-    constant alpha (1 when Alpha is an image); ``problems``: the links read as their defaults."""
+    constant alpha (1 when Alpha is an image); ``problems``: the links read as their defaults;
+    ``normal_map``: :func:`mapped_normal` (the node that bends a BSDF's normal, "" for none)."""
 
     name: str
     rgba: tuple
@@ -82,6 +84,7 @@ class MaterialReading:
     alpha_threshold: float = 0.5
     transparent_shadow: bool = True
     problems: list = field(default_factory=list)
+    normal_map: str = ""
 
 
 def _link_source(socket):
@@ -207,6 +210,24 @@ def _image_link(socket, label: str, problems: list, outputs=("Color",)):
     return TextureLink(node=node, output=out.identifier, uv_map=uv[0], uv_affine=uv[1])
 
 
+#: Node types that bend the shading normal a BSDF is lit with.
+NORMAL_BENDERS = ("NORMAL_MAP", "BUMP")
+
+
+def mapped_normal(tree) -> str:
+    """A description of the first Normal Map or Bump node (through reroutes, not muted) feeding
+    the Normal input of a shader node of ``tree``, "" when none: Cycles lights that shader with
+    the bent normal, which the export does not read."""
+    for node in tree.nodes:
+        normal = node.inputs.get("Normal")
+        if node.mute or normal is None or not any(o.type == "SHADER" for o in node.outputs):
+            continue
+        src = _link_source(normal)
+        if src is not None and src[0].type in NORMAL_BENDERS and not src[0].mute:
+            return f"{_describe(src[0])} feeds the Normal of {_describe(node)}"
+    return ""
+
+
 def blend_settings(material) -> tuple:
     """``(alpha_mode, alpha_threshold, transparent_shadow)`` from a material's settings: "CLIP"
     for the Alpha Clip blend method (before Blender 4.2, which turns it into a Math node on the
@@ -230,6 +251,8 @@ def read_material(material) -> MaterialReading | None:
     mode, threshold, transparent = blend_settings(material)
     r = MaterialReading(name=material.name, rgba=rgba, specular=spec, roughness=rough, alpha=float(rgba[3]),
                         alpha_mode=mode, alpha_threshold=threshold, transparent_shadow=transparent)
+    if material.use_nodes and material.node_tree:
+        r.normal_map = mapped_normal(material.node_tree)
     node = principled_node(material.node_tree) if material.use_nodes and material.node_tree else None
     if node is None:
         return r

@@ -9,6 +9,11 @@ from .images import image_pixels
 from .materials import IDENTITY_UV, TextureLink, material_surface, read_material
 from .meshes import ModelTable, mesh_uv_layer, mesh_uvs
 
+#: The scene model's interpolation of an Image Texture node's (Cycles reads Smart as Cubic).
+INTERPOLATIONS = {"Linear": "Linear", "Closest": "Closest", "Cubic": "Cubic", "Smart": "Cubic"}
+#: The export report's line for a material whose BSDF normal a Normal Map or Bump node bends.
+NORMAL_MAP_NOT_READ = "normal map not read (facing decided by the mesh's own normals)"
+
 
 class ShadingTable:
     """Rows of per-instance attributes ``(casts_shadow, sphere, rgba, specular, roughness,
@@ -55,7 +60,8 @@ class ShadingTable:
         """``(rgba, specular, roughness, material id, fallback rgba)`` of a Blender material: a
         new entry of ``self.materials`` when it is textured or its alpha is below 1 (id -1
         otherwise); the fallback colour is the unlinked Base Color and Alpha (the material
-        without its textures). Warns once for what it reads as defaults."""
+        without its textures). Warns once for what it reads as defaults, and once for a normal
+        map it does not read."""
         r = read_material(material)
         problems = r.problems
         fallback = tuple(r.rgba)
@@ -68,6 +74,8 @@ class ShadingTable:
             color_img = -1
         link = r.alpha_texture if alpha_img >= 0 else r.color if color_img >= 0 else None
         rgb = (1.0, 1.0, 1.0) if color_img >= 0 else tuple(fallback[:3])
+        if r.normal_map:
+            warn_export(f"material '{material.name}': {NORMAL_MAP_NOT_READ}: {r.normal_map}")
         if problems:
             warn_export(f"material '{material.name}': {'; '.join(problems)}: the export uses the default "
                         f"value{'s' if len(problems) > 1 else ''} instead")
@@ -89,7 +97,7 @@ class ShadingTable:
         it has no pixels."""
         node = link.node
         image = node.image
-        interp = node.interpolation if node.interpolation in ("Linear", "Closest") else "Linear"
+        interp = INTERPOLATIONS.get(node.interpolation, "Linear")
         key = (image.as_pointer(), node.extension, interp)
         idx = self.image_of.get(key)
         if idx is None:

@@ -33,7 +33,7 @@ FLAG_CLIP = 1
 FLAG_LUMA = 2
 FLAG_TRANSPARENT_SHADOW = 4
 EXTENSION_CODES = {"REPEAT": 0, "EXTEND": 1, "CLIP": 2, "MIRROR": 3}
-INTERP_CODES = {"Linear": 0, "Closest": 1}
+INTERP_CODES = {"Linear": 0, "Closest": 1, "Cubic": 2}
 DEFAULT_LAYER_SIZE = 4096
 
 

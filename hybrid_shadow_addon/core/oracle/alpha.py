@@ -6,16 +6,18 @@ Everything follows the rules documented on :class:`core.scene.Image` and
 
 - :func:`sample_image`: texel (i, j) has its centre at ``((i + 0.5) / W, (j + 0.5) / H)``, row 0
   is v near 0 (the bottom); ``"Linear"`` blends the 4 nearest texels bilinearly (the extension
-  rule applied to each texel index), ``"Closest"`` takes ``floor(u W), floor(v H)``.
+  rule applied to each texel index), ``"Closest"`` takes ``floor(u W), floor(v H)``, ``"Cubic"``
+  weighs the 4x4 nearest with Cycles' cubic B-spline (``kernel/device/cpu/image.h``).
   ``REPEAT`` wraps the index, ``EXTEND`` clamps it, ``MIRROR`` reflects it (period 2W),
-  ``CLIP`` gives (0, 0, 0, 0) for a UV outside [0, 1) and, for ``"Linear"``, reads texels
-  beyond the image as transparent black. Values are the stored bytes / 255 (no colour-space
+  ``CLIP`` gives (0, 0, 0, 0) for a UV outside [0, 1) and, for ``"Linear"`` and ``"Cubic"``,
+  reads texels beyond the image as transparent black. Values are the stored bytes / 255 (no colour-space
   decoding; a non-finite UV samples (0, 0, 0, 0)).
 - :func:`material_alpha`: the material's alpha at mesh UVs (its ``uv_transform`` applied).
 - :func:`transmittance`: what a shadow ray keeps crossing the surface: 0 when opaque (no
   material, a material without alpha, or ``transparent_shadow`` off); BLEND ``1 - alpha``;
   CLIP ``1 if alpha < alpha_threshold else 0``.
-- :func:`albedo`: instance base colour x the colour image's (decoded) RGB.
+- :func:`albedo`: instance base colour x the colour image's (decoded) RGB, bilinear in place of
+  cubic (as the G-buffer's mip-mapped colour).
 
 Colour-space order: the sRGB decoding is applied to the *filtered* sample (as Cycles does for
 byte sRGB images: interpolate the stored values, then convert to scene linear).
@@ -48,15 +50,25 @@ def _wrap(i: np.ndarray, n: int, extension: str):
     raise ValueError(f"unsupported image extension {extension!r}")
 
 
-def sample_image(image, uv) -> np.ndarray:
+def _bspline(t: np.ndarray) -> np.ndarray:
+    """(N, 4) Cycles' cubic B-spline weights of the 4 texels around samples ``t`` (N,) of the way
+    past the second."""
+    return np.stack([(((-1.0 / 6.0) * t + 0.5) * t - 0.5) * t + 1.0 / 6.0,
+                     ((0.5 * t - 1.0) * t) * t + 2.0 / 3.0,
+                     ((-0.5 * t + 0.5) * t + 0.5) * t + 1.0 / 6.0,
+                     t ** 3 / 6.0], axis=1)
+
+
+def sample_image(image, uv, interpolation=None) -> np.ndarray:
     """(N, 4) float64 RGBA of ``image`` (a :class:`core.scene.Image`) at ``uv`` (N, 2), the
-    stored values / 255 (sRGB colour channels are *not* decoded here)."""
+    stored values / 255 (sRGB colour channels are *not* decoded here), with the image's
+    interpolation or ``interpolation``."""
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
     px = np.asarray(image.pixels)
     H, W = int(px.shape[0]), int(px.shape[1])
     tex = px.reshape(H * W, -1).astype(np.float64) / 255.0
     ext = str(image.extension).upper()
-    interp = str(image.interpolation).capitalize()
+    interp = str(interpolation or image.interpolation).capitalize()
     n = len(uv)
     out = np.zeros((n, 4), np.float64)
     if n == 0:
@@ -76,13 +88,23 @@ def sample_image(image, uv) -> np.ndarray:
         j, _ = _wrap(j, H, ext)
         out[sel] = tex[j * W + i]
         return out
-    if interp != "Linear":
+    if interp not in ("Linear", "Cubic"):
         raise ValueError(f"unsupported image interpolation {interp!r}")
     x = u * W - 0.5
     y = v * H - 0.5
     x0, y0 = np.floor(x), np.floor(y)
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
     x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+    if interp == "Cubic":
+        wx, wy = _bspline(fx[:, 0]), _bspline(fy[:, 0])
+        acc = np.zeros((len(sel), 4), np.float64)
+        for b in range(4):
+            j, okj = _wrap(y0 - 1 + b, H, ext)
+            for a in range(4):
+                i, oki = _wrap(x0 - 1 + a, W, ext)
+                acc += (wx[:, a] * wy[:, b] * (oki & okj))[:, None] * tex[j * W + i]
+        out[sel] = acc
+        return out
     ia, oka = _wrap(x0, W, ext)
     ib, okb = _wrap(x0 + 1, W, ext)
     ja, okc = _wrap(y0, H, ext)
@@ -167,8 +189,8 @@ def transmittance(scene, material_index: int, uv) -> np.ndarray:
 def albedo(scene, instance_rows, uv) -> np.ndarray:
     """(N, 3) float64 albedo of instances ``instance_rows`` (N,) at mesh UVs ``uv`` (N, 2):
     the instance's linear base colour RGB x its material's colour image RGB (sampled at the
-    transformed UV, mip level 0, sRGB-decoded when the image is sRGB). Rows with no material or
-    no colour image get the base colour alone."""
+    transformed UV, mip level 0, bilinear in place of cubic, sRGB-decoded when the image is
+    sRGB). Rows with no material or no colour image get the base colour alone."""
     rows = np.asarray(instance_rows, np.int64).reshape(-1)
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
     inst = scene.instances
@@ -180,7 +202,8 @@ def albedo(scene, instance_rows, uv) -> np.ndarray:
             continue
         img = scene.images[int(mat.color_image)]
         sel = np.nonzero(mids == k)[0]
-        rgb = sample_image(img, apply_uv_transform(mat, uv[sel]))[:, :3]
+        rgb = sample_image(img, apply_uv_transform(mat, uv[sel]), "Closest" if img.interpolation == "Closest"
+                           else "Linear")[:, :3]
         if img.srgb:
             rgb = srgb_to_linear(rgb)
         out[sel] *= rgb

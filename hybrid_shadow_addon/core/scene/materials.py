@@ -9,7 +9,7 @@ from ..errors import SceneError
 from .arrays import as_f32
 
 IMAGE_EXTENSIONS = ("REPEAT", "EXTEND", "CLIP", "MIRROR")
-IMAGE_INTERPOLATIONS = ("Linear", "Closest")
+IMAGE_INTERPOLATIONS = ("Linear", "Closest", "Cubic")
 ALPHA_MODES = ("BLEND", "CLIP")
 ALPHA_CHANNELS = ("A", "LUMA")
 #: Rec. 709 luminance (Blender's default scene-linear space): a Color socket linked to a float one
@@ -24,8 +24,11 @@ class Image:
 
     Sampling rule (the GPU and the numpy oracle both follow it): texel (i, j) has its centre at
     ``((i + 0.5) / W, (j + 0.5) / H)``; ``"Linear"`` blends the 4 nearest texels bilinearly,
-    ``"Closest"`` takes ``floor(u W), floor(v H)``; outside [0, 1) ``"REPEAT"`` wraps, ``"EXTEND"``
-    clamps to the edge texel, ``"MIRROR"`` reflects, ``"CLIP"`` reads transparent black.
+    ``"Closest"`` takes ``floor(u W), floor(v H)``, ``"Cubic"`` weighs the 4x4 nearest with
+    Cycles' cubic B-spline (its Cubic and Smart); outside [0, 1) ``"REPEAT"`` wraps, ``"EXTEND"``
+    clamps to the edge texel, ``"MIRROR"`` reflects, ``"CLIP"`` reads transparent black. Alpha
+    is read so, at level 0 (Cycles reads the image itself at a hit); the albedo is mip mapped,
+    bilinear in place of cubic.
     """
 
     name: str
