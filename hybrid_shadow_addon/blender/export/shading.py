@@ -18,7 +18,8 @@ NORMAL_MAP_NOT_READ = "normal map not read (facing decided by the mesh's own nor
 class ShadingTable:
     """Rows of per-instance attributes ``(casts_shadow, sphere, rgba, specular, roughness,
     material id, fallback rgba, shadow terminator geometry offset)``, one per object and
-    material, with the scene's materials and images. A textured material gives the models it shows their UVs (from ``models``).
+    material, with the scene's materials and images. A textured material gives the models it
+    shows their UVs (from ``models``).
 
     Plain materials stay ``material id = -1``, so an opaque scene has no materials, images or
     UVs."""
