@@ -18,7 +18,8 @@
 // caster nearer than the receiver less the usual constant + slope bias, or nearer than the
 // receiver's plane where that plane comes closer to the light at the tap (one-sided receiver-
 // plane depth bias: wide kernels on sloped receivers do not shadow themselves).
-// Without HS_PCSS the shader is the hard PCF below, unchanged.
+// Without HS_PCSS the shader is the hard PCF below, unchanged; a pixel whose shading normal faces
+// away from the light is 0 there, as in the ray-traced masks.
 #include "common/camera.glsl"
 #include "common/gbuffer.glsl"
 
@@ -254,6 +255,10 @@ void main() {
     vec3 n = texelFetch(u_gb_normal, pix, 0).xyz;
     vec3 to_light = (u_ortho_light == 1) ? -u_light_dir : u_light_pos_rel - p;
     vec3 l = normalize(to_light);
+#ifndef HS_PCSS
+    // as the ray-traced masks (common/shadow_ray.glsl): unlit where the shading normal faces away
+    if (dot(texelFetch(u_gb_shading, pix, 0).xyz, to_light) <= 0.0) { o_mask = 0.0; return; }
+#endif
     int view = 0;
     if (u_cube == 1) {
         vec3 d = -to_light;

@@ -61,6 +61,22 @@ def test_shadow_map_matches_ray_cast(passes, light_index):
     assert agree.mean() > 0.995, agree.mean()
 
 
+@pytest.mark.parametrize("light_index", [0, 1, 2])
+def test_shadow_map_is_dark_where_the_shading_normal_faces_away(passes, light_index):
+    """As the ray-traced masks: 0 wherever the shading normal turns from a hard light."""
+    scene = basic_scene(lights=all_lights())
+    gb = passes.gbuffer(scene, W, H)
+    m = read_mask(passes.shadowmap(scene, gb, Settings(mode="shadowmap", shadowmap_size=1024),
+                                   lights=[light_index])[light_index], gb)
+    light = scene.lights[light_index]
+    p = gb.read("position")[..., :3].astype(np.float64)
+    to_light = np.broadcast_to(-light.direction, p.shape) if light.type == "SUN" else light.position - p
+    away = (gb.read("shading_normal")[..., :3] * to_light).sum(-1) <= 0
+    away &= gb.coverage()
+    assert away.sum() > 200
+    assert (m[away] == 0).all()
+
+
 def test_cube_on_plane_under_sun_is_shadowed_behind(passes):
     rig = passes
     scene = basic_scene(lights=all_lights()[:1])
