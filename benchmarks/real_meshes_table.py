@@ -55,7 +55,8 @@ def reference(bscene, scene) -> dict:
 def evaluate_scene(arg: str, mode: str = "raytrace-high", *, ctx=None, keep_masks: bool = False) -> dict:
     """Load the scene ``arg``, render it in ``mode`` (hard lights, their grids built at once) and
     measure each light's mask against Cycles: ``{light: MaskError.to_dict()}`` (plus ``ours``
-    and ``ref`` arrays with ``keep_masks``) and ``'_scene'``, the exported core scene."""
+    and ``ref`` arrays with ``keep_masks``), ``'_scene'``, the exported core scene, and with
+    ``keep_masks`` ``'_instance'``, the G-buffer's instance index per pixel (-1: background)."""
     import bpy
 
     from hybrid_shadow_addon.blender.export import export_depsgraph
@@ -86,6 +87,10 @@ def evaluate_scene(arg: str, mode: str = "raytrace-high", *, ctx=None, keep_mask
             if keep_masks:
                 m["ours"], m["ref"] = ours, ref[name]
             out[name] = m
+        if keep_masks:
+            gb = frame.gbuffer
+            inst = gb.read("material")[..., 2]
+            out["_instance"] = np.where(gb.read("position")[..., 3] > 0.5, np.rint(inst), -1).astype(np.int64)
     finally:
         pipe.release()
     return out

@@ -5,7 +5,9 @@
 - ``stage(name, PARAMS)``: the scene (320x240 by default), a dark world, a grey material and a
   flat 14 m ground; returns ``(scene, grey)``;
 - ``from_bmesh(name, build, material, smooth=True, flip=False)``: a mesh built by
-  ``build(bm)``, shaded smooth (or flat), faces reversed if ``flip``;
+  ``build(bm)``, shaded smooth (or flat), faces reversed if ``flip`` (triangulated first, along
+  fixed diagonals: Blender's own split of a reversed quad whose diagonals are equally long varies
+  from run to run, and with it the interpolated normals);
 - ``torus(bm, ...)``, ``slab(bm, ...)``: bmesh builders the stock operators lack;
 - ``set_custom_normals(me, fn)``: custom corner normals ``fn(positions, smooth_normals)``
   (both (L, 3), per loop) through ``Mesh.normals_split_custom_set``;
@@ -43,6 +45,7 @@ def lib():
         bm = bmesh.new()
         build(bm)
         if flip:
+            bmesh.ops.triangulate(bm, faces=bm.faces, quad_method="FIXED", ngon_method="EAR_CLIP")
             bmesh.ops.reverse_faces(bm, faces=bm.faces)
         me = bpy.data.meshes.new(name)
         bm.to_mesh(me)

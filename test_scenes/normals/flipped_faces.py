@@ -29,8 +29,16 @@ def shell(bm, radius=1.0, height=1.4, segments=10, arc=1.4 * math.pi):
 
 
 def checker_sphere(bm):
+    """A UV sphere, every other face of each ring reversed (picked by position: the operator's
+    face order varies from run to run)."""
     bmesh.ops.create_uvsphere(bm, u_segments=10, v_segments=8, radius=0.8)
-    bmesh.ops.reverse_faces(bm, faces=[f for f in bm.faces if f.index % 2])
+    bmesh.ops.triangulate(bm, faces=bm.faces, quad_method="FIXED")  # (see _normals.from_bmesh)
+
+    def odd(f):
+        c = f.calc_center_median()
+        return (math.floor(5 * math.atan2(c.y, c.x) / math.pi) + math.floor(8 * math.acos(c.z / c.length) / math.pi)) % 2
+
+    bmesh.ops.reverse_faces(bm, faces=[f for f in bm.faces if odd(f)])
 
 
 def banner(bm):

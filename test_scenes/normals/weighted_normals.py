@@ -1,5 +1,5 @@
 """Custom normals from Weighted Normal modifiers: a chamfered box (face-area weights, sharp edges
-kept), a 12-sided capped cylinder, a 12x8 torus (corner-angle weights) and a low-poly rock (an
+kept), a 12-sided capped cylinder (area weights at full bias), a 12x8 torus (corner-angle weights) and a low-poly rock (an
 icosphere with jittered vertices, area-and-angle weights), under a sun 12° high and a point
 light; 320x240.
 
@@ -38,7 +38,8 @@ def weighted(ob, mode="FACE_AREA", keep_sharp=True, weight=50):
 
 weighted(add("Box", mesh("Box", chamfered_box, grey), location=(-2.6, 1.4, 0.8), rotation=(0, 0, 0.5)))
 weighted(add("Cylinder", mesh("Cylinder", lambda bm: bmesh.ops.create_cone(
-    bm, cap_ends=True, segments=12, radius1=0.7, radius2=0.7, depth=1.8), grey), location=(0.4, 2.2, 0.9)))
+    bm, cap_ends=True, segments=12, radius1=0.7, radius2=0.7, depth=1.8), grey), location=(0.4, 2.2, 0.9)),
+         keep_sharp=False, weight=100)
 weighted(add("Torus", mesh("Torus", lambda bm: L["torus"](bm, 1.0, 0.35, 12, 8), grey), location=(-0.8, -1.2, 0.8),
              rotation=(1.1, 0.0, 0.3)), mode="CORNER_ANGLE", keep_sharp=False, weight=100)
 weighted(add("Rock", mesh("Rock", rock, grey), location=(2.5, -0.4, 0.6)), mode="FACE_AREA_WITH_ANGLE", weight=80)
