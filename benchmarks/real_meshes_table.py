@@ -3,7 +3,8 @@ Cycles: one markdown table of every scene x light with the mismatch (% of valid 
 |ours - Cycles| > 0.5), how many of those we shadow where Cycles lights ("false") and the reverse
 ("missed"), and the set's total. The lead pastes the output into BENCHMARKS.md.
 
-    .venv/bin/python benchmarks/real_meshes_table.py [--scenes normals/custom_split,models/avocado] [--mode raytrace-high]
+    .venv/bin/python benchmarks/real_meshes_table.py [--scenes normals/custom_split,models/avocado]
+        [--mode raytrace-high]
 
 The scenes are ``test_scenes/normals/*.py`` and ``test_scenes/models/*.py``; the references are
 Cycles' per-light hard visibility at the scene's resolution, cached as ``compare`` caches them.

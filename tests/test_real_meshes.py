@@ -151,7 +151,7 @@ def gltf_normals(path: Path) -> tuple:
             np.concatenate([accessor(p["attributes"]["NORMAL"]) for p in prims]))
 
 
-def file_normals_kept(model, positions, normals, cos_tol=np.cos(np.radians(2.0))) -> float:
+def file_normals_kept(model, positions, normals, tolerance_deg: float = 2.0) -> float:
     """Share of ``model``'s corners whose normal is (within 2°) the normal of a file vertex at the
     same position: 1.0 when the importer kept the file's normals."""
     key = np.round(positions, 5)
@@ -160,6 +160,7 @@ def file_normals_kept(model, positions, normals, cos_tol=np.cos(np.radians(2.0))
         lookup.setdefault(k, []).append(nrm)
     v = model.vertices.astype(np.float64)[model.triangles.astype(np.int64)].reshape(-1, 3)
     corner = model.normals.astype(np.float64).reshape(-1, 3)
+    cos_tol = np.cos(np.radians(tolerance_deg))
     ok = [max((float(np.dot(c, f)) for f in lookup.get(k, ())), default=-1.0) >= cos_tol
           for k, c in zip(map(tuple, np.round(v, 5)), corner)]
     return float(np.mean(ok))
@@ -274,8 +275,8 @@ def test_masks_match_cycles(name, gl_ctx):
     for light, m in lights.items():
         shadowed = m["ref"] < 0.5  # (NaN: invalid, never shadowed)
         assert m["valid_pixels"] > 10_000, (light, m["valid_pixels"])
-        assert (shadowed & (inst == ground)).sum() > 100, f"{light}: the reference shows no shadow on the ground"
-        assert (shadowed & (inst >= 0) & (inst != ground)).sum() > 100, \
+        assert (shadowed & (inst == ground)).sum() > 500, f"{light}: the reference shows no shadow on the ground"
+        assert (shadowed & (inst >= 0) & (inst != ground)).sum() > 50, \
             f"{light}: the reference shows no shadow on the shapes"
     over = [_describe(light, m) for light, m in lights.items() if m["mismatch_pct"] > MASK_LIMIT_PCT]
     assert not over, f"{name} over {MASK_LIMIT_PCT}%: " + "; ".join(over)

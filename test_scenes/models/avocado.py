@@ -26,6 +26,6 @@ scene.collection.objects.link(lying)
 lying.rotation_euler = (0.0, math.radians(90), math.radians(-35))  # (the importer's Y-up turn dropped)
 lying.location = (1.0, 1.3, 0.55)
 
-L["add_sun"]("Sun", elevation=15, azimuth=250, energy=4.0)
-L["add_light"]("Lamp", "POINT", location=(1.2, -1.4, 1.8), energy=300.0)
+L["add_sun"]("Sun", elevation=15, azimuth=226, energy=4.0)
+L["add_light"]("Lamp", "POINT", location=(-2.1, -2.0, 1.5), energy=300.0)
 L["add_camera"](scene, (6.5, -6.5, 4.0), (0.2, 0.0, 0.9), lens=35)

@@ -142,6 +142,7 @@ def lib():
         sub.levels = sub.render_levels = 1
         return [sphere, box, slab_ob, cyl, monkey]
 
-    L.update(stage=stage, exchange_set=exchange_set, from_bmesh=from_bmesh, torus=torus, slab=slab, set_custom_normals=set_custom_normals,
+    L.update(stage=stage, exchange_set=exchange_set, from_bmesh=from_bmesh, torus=torus, slab=slab,
+             set_custom_normals=set_custom_normals,
              roundtrip=roundtrip)
     return L

@@ -36,7 +36,9 @@ def checker_sphere(bm):
 
     def odd(f):
         c = f.calc_center_median()
-        return (math.floor(5 * math.atan2(c.y, c.x) / math.pi) + math.floor(8 * math.acos(c.z / c.length) / math.pi)) % 2
+        segment = math.floor(5 * math.atan2(c.y, c.x) / math.pi)
+        ring = math.floor(8 * math.acos(c.z / c.length) / math.pi)
+        return (segment + ring) % 2
 
     bmesh.ops.reverse_faces(bm, faces=[f for f in bm.faces if odd(f)])
 

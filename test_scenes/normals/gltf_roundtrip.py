@@ -14,6 +14,6 @@ for ob in L["roundtrip"](L["exchange_set"](grey), "gltf"):
     ob.data.materials.clear()
     ob.data.materials.append(grey)
 
-L["add_sun"]("Sun", elevation=10, azimuth=60, energy=4.0)
-L["add_light"]("Lamp", "POINT", location=(0.5, 0.0, 2.4), energy=500.0)
+L["add_sun"]("Sun", elevation=6, azimuth=60, energy=4.0)
+L["add_light"]("Lamp", "POINT", location=(0.9, -2.8, 1.0), energy=300.0)
 L["add_camera"](scene, (8, -9, 6), (0, 0, 0.6), lens=35)

@@ -15,5 +15,5 @@ for ob in L["roundtrip"](L["exchange_set"](grey), "obj"):
     ob.data.materials.append(grey)
 
 L["add_sun"]("Sun", elevation=14, azimuth=220, energy=4.0)
-L["add_light"]("Lamp", "POINT", location=(-0.5, 0.3, 2.2), energy=500.0)
+L["add_light"]("Lamp", "POINT", location=(-1.7, -2.0, 1.0), energy=300.0)
 L["add_camera"](scene, (8, -9, 6), (0, 0, 0.6), lens=35)

@@ -1,7 +1,7 @@
 """Custom normals from Weighted Normal modifiers: a chamfered box (face-area weights, sharp edges
-kept), a 12-sided capped cylinder (area weights at full bias), a 12x8 torus (corner-angle weights) and a low-poly rock (an
-icosphere with jittered vertices, area-and-angle weights), under a sun 12° high and a point
-light; 320x240.
+kept), a 12-sided capped cylinder (area weights at full bias), a 12x8 torus (corner-angle
+weights) and a low-poly rock (an icosphere with jittered vertices, area-and-angle weights), under
+a sun 12° high and a point light; 320x240.
 
 The modifier tilts the normals of small faces towards their big neighbours: the shading normal
 of a chamfer is far from its face, where Cycles decides facing with the shading normal.
