@@ -1,9 +1,9 @@
 """Helpers shared by the third-party model scenes (hidden from the scene list by the leading ``_``).
 
-``lib()`` returns ``test_scenes/_lib.py``'s builders plus ``import_gltf(path)``: the file read by
-Blender's glTF importer with its own normals (custom normals, ``import_shading="NORMALS"``); the
-new objects without a parent (the model's roots, in Euler XYZ rotation mode), each mesh given
-``material``.
+``lib()`` returns ``test_scenes/_lib.py``'s builders plus ``import_gltf(path, material)``: the
+file read by Blender's glTF importer with its own normals (custom normals,
+``import_shading="NORMALS"``); the new objects without a parent (the model's roots, in Euler XYZ
+rotation mode), each mesh given ``material``.
 """
 import os
 import runpy
