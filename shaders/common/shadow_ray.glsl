@@ -3,7 +3,8 @@
 // same surface point, normal and facing/reach tests. Needs common/camera.glsl, common/gbuffer.glsl.
 // Defines: HS_LIGHT_SUN or HS_LIGHT_LOCAL, HS_MAX_DISTANCE, HS_SOFT (no facing test: an
 // extended light's samples weigh the horizon themselves), HS_TERMINATOR (the scene has smooth-shaded
-// models: their shadow terminator moves the origins, shadow_ray_origin).
+// models: the G-buffer's shading normal decides facing, their shadow terminator moves the
+// origins, shadow_ray_origin; without it every normal is the geometric one).
 
 uniform vec3 u_light_vec;       // sun: unit direction towards it; else the light's position
                                 // (bake space: world - the bake's origin)
@@ -66,7 +67,11 @@ float shadow_ray_prelude(ivec2 px, out vec3 p, out vec3 n, out vec3 ns, out floa
     if (distance(p, u_cam_bake) > u_max_distance) return 1.0;
 #endif
     n = nw.xyz;
+#ifdef HS_TERMINATOR
     ns = texelFetch(u_gb_shading, px, 0).xyz;
+#else
+    ns = n;                           // (flat models only: the G-buffer's shading normal is n)
+#endif
 #ifdef HS_LIGHT_LOCAL
     to_light = u_light_vec - p;
 #else

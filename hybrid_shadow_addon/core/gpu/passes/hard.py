@@ -28,7 +28,8 @@ from .light_grid import LightGridCache
 from .trace import LightRay, RaytraceOptions, TraceProgram
 
 #: the defines of the trace that the refinement's classify program takes over
-CLASSIFY_DEFINES = ("HS_LIGHT_LOCAL", "HS_LIGHT_SUN", "HS_MAX_DISTANCE", "HS_INTERLACE", "HS_SOFT", "HS_SOFT_SHAPE")
+CLASSIFY_DEFINES = ("HS_LIGHT_LOCAL", "HS_LIGHT_SUN", "HS_MAX_DISTANCE", "HS_INTERLACE", "HS_SOFT", "HS_SOFT_SHAPE",
+                    "HS_TERMINATOR")
 
 
 def plan_of(settings) -> str:
