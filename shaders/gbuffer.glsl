@@ -25,29 +25,25 @@
 uniform float u_log_depth_scale;   // 1 / log2(clip_end / clip_start)
 
 // The varyings, one list for the vertex, geometry and fragment stages (interface blocks: the
-// geometry stage reads the vertex stage's block as an array and writes its own).
+// geometry stage reads the vertex stage's block as an array and writes its own). Each macro is one
+// line (GLSL 4.10 has no line continuation). v_plane_point: a point of the triangle (the
+// provoking vertex), camera-relative; v_material: specular, roughness, instance index, terminator
+// geometry offset; v_rel: the interpolated camera-relative position (fallback); v_shading: the
+// interpolated world shading normal (unnormalised); v_face: the face normal in the world
+// (unnormalised). HS_GB_TRIANGLE, the triangle a TERMINATOR fragment lies on: corner 0
+// (camera-relative), the edges to corners 1 and 2, the three unit corner normals (world).
 #ifdef SPHERE
-#define HS_GB_SHAPE flat vec4 v_i0; flat vec4 v_i1; flat vec4 v_i2; flat vec4 v_sphere; \
-                    flat vec3 v_n0; flat vec3 v_n1; flat vec3 v_n2;
+#define HS_GB_SHAPE flat vec4 v_i0; flat vec4 v_i1; flat vec4 v_i2; flat vec4 v_sphere; flat vec3 v_n0; flat vec3 v_n1; flat vec3 v_n2;
 #else
-#define HS_GB_SHAPE flat vec3 v_face;  /* the face normal in the world (unnormalised) */
+#define HS_GB_SHAPE flat vec3 v_face;
 #endif
 #ifdef TEXTURED
 #define HS_GB_TEXTURE vec2 v_uv; flat int v_matid;
 #else
 #define HS_GB_TEXTURE
 #endif
-#define HS_GB_VARYINGS \
-    flat vec3 v_plane_point;  /* a point of the triangle (the provoking vertex), camera-relative */ \
-    flat vec4 v_color; \
-    flat vec4 v_material;     /* specular, roughness, instance index, terminator geometry offset */ \
-    vec3 v_rel;               /* interpolated camera-relative position (fallback) */ \
-    vec3 v_shading;           /* interpolated world shading normal (unnormalised) */ \
-    HS_GB_SHAPE HS_GB_TEXTURE
-// the triangle a TERMINATOR fragment lies on: corner 0 (camera-relative), the edges to corners 1
-// and 2, the three unit corner normals (world)
-#define HS_GB_TRIANGLE flat vec3 t_v0; flat vec3 t_e1; flat vec3 t_e2; \
-                       flat vec3 t_n0; flat vec3 t_n1; flat vec3 t_n2;
+#define HS_GB_VARYINGS flat vec3 v_plane_point; flat vec4 v_color; flat vec4 v_material; vec3 v_rel; vec3 v_shading; HS_GB_SHAPE HS_GB_TEXTURE
+#define HS_GB_TRIANGLE flat vec3 t_v0; flat vec3 t_e1; flat vec3 t_e2; flat vec3 t_n0; flat vec3 t_n1; flat vec3 t_n2;
 
 #ifdef VERTEX_SHADER
 layout(location = 0) in vec3 in_pos;          // model space (a triangle's last corner: its plane point)
