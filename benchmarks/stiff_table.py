@@ -54,7 +54,8 @@ def evaluate_case(name: str, modes=("raytrace-high",), *, ctx=None, params: str 
     """Load ``stiff/<name>``, render the Cycles reference at the scene's resolution and each mode
     with one pipeline; ``{mode: {light: metrics + shadow_ms}}`` plus ``'_scene'`` and ``'_ref'``.
     ``eager_grids``: the hard lights' grids from the first frame on (``passes/light_grid.py``),
-    not only once they pay back."""
+    not only once they pay back. ``keep_masks`` also keeps the last frame's G-buffer depth and
+    camera (``'_depth'``, ``'_camera'``) and the bake's origin (``'_origin'``)."""
     import bpy
 
     from hybrid_shadow_addon.blender.cycles_reference import render_reference
@@ -99,6 +100,7 @@ def evaluate_case(name: str, modes=("raytrace-high",), *, ctx=None, params: str 
             gb = frame.gbuffer
             inst = gb.read("material")[..., 2]
             out["_instance"] = np.where(gb.read("position")[..., 3] > 0.5, np.rint(inst), -1).astype(np.int64)
+            out["_depth"], out["_camera"], out["_origin"] = gb.read("depth"), gb.camera, np.array(pipe.baked.origin)
     finally:
         pipe.release()
     return out

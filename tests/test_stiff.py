@@ -105,6 +105,24 @@ def test_degenerate_meshes(gl_ctx):
 
 
 @pytest.mark.cycles
+def test_stadium_small_objects_match_cycles(gl_ctx):
+    """``stadium``'s centimetre objects, 150 m from the bake origin and 30 cm from the camera,
+    where a float32 ULP is a hundredth of a pixel: off the 5 km ground (whose pixels carry
+    Cycles' own float32 error of its hit point on that triangle, a tenth of a pixel and more)
+    our masks match Cycles' but for one pixel per light at most."""
+    r = case("stadium", gl_ctx)
+    names = np.array(r["_scene"].instances.names + [""])
+    small = (r["_instance"] >= 0) & (names[r["_instance"]] != "Ground")
+    shadowed = 0
+    for light, m in r["raytrace-high"].items():
+        e = stiff_table.mask_metrics(np.where(small, m["ref"], np.nan), m["ours"])
+        assert e["valid"] > 300, (light, e)
+        assert e["mismatch"] <= 1, (light, e)
+        shadowed += int(np.sum(small & (m["ref"] < 0.5)))
+    assert shadowed > 30, "no shadow on the small objects"
+
+
+@pytest.mark.cycles
 def test_crowd_has_thousands_of_objects_in_one_node(gl_ctx):
     from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 

@@ -21,23 +21,19 @@ uniform float u_max_distance;
 uniform float u_light_radius;   // a sphere light's radius (common/soft_light.glsl)
 #endif
 
-// Ray origin pushed off the surface along the normal (Waechter & Binder, Ray Tracing Gems ch. 6):
-// a fixed number of float ULPs of each coordinate (scale-invariant, works far from the origin),
-// a small absolute step near the origin where ULPs vanish. 'slack' adds the G-buffer
+// Ray origin pushed off the surface along the normal, by the float32 error of p and of its
+// transform into a model's space: a few ULPs of p's largest coordinate (an instance's rotation
+// mixes the axes, so the error along n is that of the largest one), at least a small absolute
+// step near the bake origin. Along n only: a push across the surface moves the point whose
+// shadow is sampled (per-coordinate ULP pushes, Waechter & Binder's, do so far from the bake
+// origin, where ULPs are large next to a close-up pixel). 'slack' adds the G-buffer
 // reconstruction error, which grows with the distance from the camera.
 vec3 offset_origin(vec3 p, vec3 n, float slack)
 {
-    const float origin = 1.0 / 32.0;
-    const float float_scale = 1.0 / 65536.0;
-    const float int_scale = 256.0;
-    ivec3 of_i = ivec3(int_scale * n);
-    vec3 p_i = vec3(intBitsToFloat(floatBitsToInt(p.x) + ((p.x < 0.0) ? -of_i.x : of_i.x)),
-                    intBitsToFloat(floatBitsToInt(p.y) + ((p.y < 0.0) ? -of_i.y : of_i.y)),
-                    intBitsToFloat(floatBitsToInt(p.z) + ((p.z < 0.0) ? -of_i.z : of_i.z)));
-    vec3 q = vec3(abs(p.x) < origin ? p.x + float_scale * n.x : p_i.x,
-                  abs(p.y) < origin ? p.y + float_scale * n.y : p_i.y,
-                  abs(p.z) < origin ? p.z + float_scale * n.z : p_i.z);
-    return q + n * slack;
+    const float ulps = 4.76837158203125e-07;   // 2^-21: 4 to 8 ULPs of the largest coordinate
+    const float min_step = 1.0 / 65536.0;
+    float m = max(max(abs(p.x), abs(p.y)), abs(p.z));
+    return p + n * (max(m * ulps, min_step) + slack);
 }
 
 // The surface point of pixel px in bake space: the camera ray scaled to the G-buffer's view

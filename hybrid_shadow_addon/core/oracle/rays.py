@@ -6,16 +6,19 @@ import numpy as np
 
 from ..gpu.lights import light_cone, light_ray_uniforms
 
+ORIGIN_ULPS = 2.0 ** -21  # offset_origin's push: this share of the largest coordinate (4-8 ULPs)
+ORIGIN_MIN_STEP = 2.0 ** -16  # and at least this (metres, near the bake origin)
+
 
 def offset_origins(p: np.ndarray, n: np.ndarray, slack: np.ndarray) -> np.ndarray:
-    """numpy mirror of ``offset_origin`` in ``shaders/raytrace.glsl`` (float32 throughout)."""
+    """numpy mirror of ``offset_origin`` in ``shaders/common/shadow_ray.glsl`` (float32
+    throughout): ``p`` pushed along ``n`` by 2^-21 of its largest coordinate (at least 2^-16)
+    plus ``slack``."""
     p = np.asarray(p, np.float32)
     n = np.asarray(n, np.float32)
-    of_i = (np.float32(256.0) * n).astype(np.int32)
-    bits = p.view(np.int32)
-    p_i = np.where(p < 0, bits - of_i, bits + of_i).astype(np.int32).view(np.float32)
-    q = np.where(np.abs(p) < np.float32(1 / 32), p + np.float32(1 / 65536) * n, p_i)
-    return (q + n * np.asarray(slack, np.float32)[..., None]).astype(np.float32)
+    m = np.abs(p).max(axis=-1)
+    step = np.maximum(m * np.float32(ORIGIN_ULPS), np.float32(ORIGIN_MIN_STEP)) + np.asarray(slack, np.float32)
+    return (p + n * step.astype(np.float32)[..., None]).astype(np.float32)
 
 
 def surface_points(camera, rows, cols, depth) -> np.ndarray:
