@@ -51,6 +51,7 @@ class SceneExporter:
         self.model_ids: list[int] = []
         self.matrices: list = []
         self.attr_ids: list[int] = []
+        self.emission: list[tuple] = []
         self.parts: list[Instances] = []  # vectorised geometry-nodes instances
         self.lights: list = []
         self.keep: list = []  # GeometrySets own the meshes they reference: alive while exporting
@@ -127,8 +128,10 @@ class SceneExporter:
             self.names.append(name if j == 0 else slot_name(name, k))
             self.model_ids.append(mid)
             self.matrices.append(matrix)
-            aid = self.shading.attributes(ob, self._slot_material(slots, k))
+            material = self._slot_material(slots, k)
+            aid = self.shading.attributes(ob, material)
             self.attr_ids.append(self.shading.checked(aid, mid, mesh, name))
+            self.emission.append(self.shading.emission(ob, material))
 
     def _add_converted_instance(self, ob, matrix, name) -> None:
         """A non-mesh object without a mesh component: its ``to_mesh()`` triangles, if any."""
@@ -163,6 +166,7 @@ class SceneExporter:
             roughness=np.array([a[4] for a in attrs], np.float32),
             material_ids=np.array([a[5] for a in attrs], np.int32),
             terminator=np.array([a[7] for a in attrs], np.float32),
+            emission=np.array(self.emission, np.float32).reshape(-1, 3),
         )
 
     # -- geometry-nodes instances, vectorised -------------------------------------------------
@@ -205,6 +209,7 @@ class SceneExporter:
                     roughness=np.full(n, rough, np.float32),
                     material_ids=np.full(n, material_id, np.int32),
                     terminator=np.full(n, terminator, np.float32),
+                    emission=np.tile(np.float32(self.shading.emission(owner, self._slot_material(slots, k))), (n, 1)),
                 ))
         return True
 
