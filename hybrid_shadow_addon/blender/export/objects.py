@@ -29,7 +29,7 @@ import numpy as np
 from ...core.scene import Instances, Scene, affine_inverse
 from .camera import export_camera, render_resolution
 from .common import GEOMETRY_TYPES, to_matrices, to_matrix
-from .lights import export_light
+from .lights import export_light, is_portal
 from .meshes import ModelTable, slot_name
 from .shading import ShadingTable
 from .visibility import RenderVisibility
@@ -94,7 +94,7 @@ class SceneExporter:
             kind = ob.type
             if kind == "MESH":
                 self._add_mesh_instance(ob, ob.data, ob.data.as_pointer(), inst.matrix_world, name)
-            elif kind == "LIGHT":
+            elif kind == "LIGHT" and not is_portal(ob):
                 self.lights.append(export_light(ob, to_matrix(inst.matrix_world), name))
             elif kind in GEOMETRY_TYPES and bpy.types.GeometrySet.from_evaluated_object(ob).mesh is None:
                 self._add_converted_instance(ob, inst.matrix_world, name)
