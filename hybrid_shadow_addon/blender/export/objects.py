@@ -28,7 +28,8 @@ import numpy as np
 
 from ...core.scene import Instances, Scene, affine_inverse
 from .camera import export_camera, render_resolution
-from .common import GEOMETRY_TYPES, to_matrices, to_matrix
+from .common import GEOMETRY_TYPES, collect_report, to_matrices, to_matrix
+from .dropped import report_dropped
 from .lights import export_light, is_portal
 from .meshes import ModelTable, slot_name
 from .shading import ShadingTable
@@ -58,14 +59,16 @@ class SceneExporter:
 
     def run(self, resolution) -> Scene:
         scene = self.dg.scene_eval
-        self._walk()
-        instances = Instances.concatenate([self._iterated_instances()] + self.parts)
-        camera = export_camera(self.dg)
+        with collect_report() as report:
+            self._walk()
+            instances = Instances.concatenate([self._iterated_instances()] + self.parts)
+            camera = export_camera(self.dg)
+            world = world_color(scene.world)
         result = Scene(name=scene.name, models=self.models, instances=instances,
-                       lights=self.lights, camera=camera, world_color=world_color(scene.world),
+                       lights=self.lights, camera=camera, world_color=world,
                        resolution=render_resolution(scene) if resolution is None else resolution,
                        frame=scene.frame_current, materials=self.shading.materials,
-                       images=self.shading.images)
+                       images=self.shading.images, report=report)
         return result.check_transforms()
 
     def _walk(self) -> None:
@@ -98,6 +101,7 @@ class SceneExporter:
                 self.lights.append(export_light(ob, to_matrix(inst.matrix_world), name))
             elif kind in GEOMETRY_TYPES and bpy.types.GeometrySet.from_evaluated_object(ob).mesh is None:
                 self._add_converted_instance(ob, inst.matrix_world, name)
+            report_dropped(ob, name, inst.is_instance)
 
     # -- instances found by the iterator ------------------------------------------------------
     @staticmethod
