@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .nodes import as_float, as_rgb, constant, describe, resolve
-from .surfaces import AlphaRead, read_alpha, read_surface
+from .surfaces import AlphaRead, constant_default, read_alpha, read_surface
 
 _GREY = (0.8, 0.8, 0.8, 1.0)
 _WHITE = (1.0, 1.0, 1.0, 1.0)
@@ -246,7 +246,8 @@ def _body_values(node, stack) -> tuple:
     """``(rgb, specular, roughness)`` of the BSDF read as a material's surface: a Principled's
     unlinked values; another BSDF's Color, no specular for the diffuse ones."""
     color = node.inputs.get("Base Color") or node.inputs.get("Color")
-    rgb = as_rgb(constant(color, stack) if constant(color, stack) is not None else color.default_value)
+    value = constant(color, stack)
+    rgb = as_rgb(value if value is not None else constant_default(color))
     if node.type == "BSDF_PRINCIPLED":
         spec, rough = (constant(node.inputs[n], stack) for n in ("Specular IOR Level", "Roughness"))
         spec = float(node.inputs["Specular IOR Level"].default_value) if spec is None else as_float(spec)
