@@ -107,7 +107,7 @@ def parse_resolution(text: str) -> tuple[int, int]:
 
 def cmd_render(args) -> int:
     from .core.settings import Settings
-    from .tools.render import render_to_files
+    from .tools.render import print_report, render_to_files
 
     try:
         settings = Settings(mode=args.mode, quality=args.quality, max_shadowed_lights=args.max_shadowed_lights,
@@ -121,6 +121,7 @@ def cmd_render(args) -> int:
     if args.frames is not None:
         return _render_frames(args, settings)
     scene = load(args.scene, args.frame)
+    print_report(scene.report)
     stats = render_to_files(scene, settings, resolution=args.resolution, output=args.output,
                             masks_dir=args.masks_dir, stats_path=args.stats, progress=_progress(args, "render"))
     t = stats
@@ -176,6 +177,7 @@ def _progress(args, title):
 
 def cmd_compare(args) -> int:
     from .tools.compare import run_compare
+    from .tools.render import print_report
     from .tools.report import text_table
     from .tools.variants import resolve_variants
 
@@ -189,6 +191,7 @@ def cmd_compare(args) -> int:
 
         bscene = open_scene(args.scene, args.frame)
         scene = current_scene(resolution=args.resolution)
+    print_report(scene.report)
     progress = _progress(args, "compare")
     with blender_output_to_stderr():
         m = run_compare(scene, args.output_dir, reference=CyclesReferenceProvider(bscene, hard=not args.soft,

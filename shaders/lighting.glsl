@@ -1,5 +1,6 @@
 // Pass 3: deferred lighting. Batch 0 writes ambient (albedo x world colour), every unmasked
 // light and up to 8 masked lights; further batches add 8 masked lights each (additive blend).
+// An emitter (specular < 0 in the G-buffer) shows its albedo, its emission, and nothing else.
 // HS_MASKS: the masked lights of the batch (a program per count), the first HS_MASKS_POINT of
 // them lights other than sized area lights; HS_FIRST_BATCH, and with it HS_UNMASKED_POINT and
 // HS_UNMASKED_AREA where there are such unmasked lights (rows [0, u_unmasked_split) and
@@ -47,6 +48,14 @@ void main() {
     vec3 n = texelFetch(u_gb_shading, pix, 0).xyz;
     vec3 albedo = texelFetch(u_gb_albedo, pix, 0).rgb;
     vec2 mat = texelFetch(u_gb_material, pix, 0).xy;
+    if (mat.x < 0.0) {   // an emitter (passes/gbuffer.py EMITTER_SPECULAR): its colour, unlit
+#ifdef HS_FIRST_BATCH
+        o_color = vec4(albedo, 1.0);
+#else
+        o_color = vec4(0.0);
+#endif
+        return;
+    }
     vec3 v = view_vector(p);
     vec3 c = vec3(0.0);
 #ifdef HS_FIRST_BATCH

@@ -1,4 +1,6 @@
 """The scene camera, the world colour and the render resolution."""
+import math
+
 import bpy
 import numpy as np
 import pytest
@@ -35,3 +37,50 @@ def test_camera_world_and_resolution(scene):
     assert s.resolution == (500, 250)
     assert export_scene(resolution=(64, 32)).resolution == (64, 32)
     np.testing.assert_allclose(s.world_color, (0.1, 0.2, 0.3), rtol=1e-6)
+
+
+def _world_with(scene, node_type):
+    world = bpy.data.worlds.new("Tex")
+    world.use_nodes = True
+    node = world.node_tree.nodes.new(node_type)
+    bg = world.node_tree.nodes["Background"]
+    world.node_tree.links.new(node.outputs["Color"], bg.inputs["Color"])
+    bg.inputs["Strength"].default_value = 2.0
+    scene.world = world
+    return node
+
+
+def test_environment_texture_world_is_its_mean(scene):
+    from hybrid_shadow_addon.blender.export.world import equirect_mean
+
+    node = _world_with(scene, "ShaderNodeTexEnvironment")
+    img = bpy.data.images.new("env", 16, 8, float_buffer=True)
+    px = np.zeros((8, 16, 4), np.float32)
+    px[4:, :, :3] = (2.0, 1.0, 0.5)  # the upper half (rows from the bottom) bright
+    px[..., 3] = 1
+    img.pixels.foreach_set(px.ravel())
+    node.image = img
+    s = export_scene()
+    np.testing.assert_allclose(s.world_color, 2.0 * 0.5 * np.float32([2.0, 1.0, 0.5]), rtol=1e-5)
+    np.testing.assert_allclose(equirect_mean(px), [1.0, 0.5, 0.25], rtol=1e-6)
+    # the solid angle: a band at the equator weighs more than one at a pole
+    band = np.zeros((8, 16, 3), np.float32)
+    band[3] = 1.0
+    pole = np.zeros((8, 16, 3), np.float32)
+    pole[7] = 1.0
+    assert equirect_mean(band)[0] > 3 * equirect_mean(pole)[0]
+    assert any("Environment Texture" in w for w in s.report), s.report
+
+
+def test_sky_texture_world_is_its_average(scene):
+    from hybrid_shadow_addon.blender.export.world import SKY_MEAN
+
+    node = _world_with(scene, "ShaderNodeTexSky")
+    node.sun_elevation = math.radians(15.0)
+    s = export_scene()
+    np.testing.assert_allclose(s.world_color, 2.0 * np.float32(dict(SKY_MEAN)[15.0]), rtol=1e-5)
+    node.sun_elevation = math.radians(60.0)
+    low_sun = s.world_color
+    s2 = export_scene()
+    assert s2.world_color[2] > low_sun[2]  # a high sun: a bluer, brighter sky on average
+    assert any("Sky Texture" in w for w in s2.report), s2.report

@@ -579,3 +579,173 @@ def test_diffuse_color_pass_is_the_exported_albedo():
     err = np.abs(ours - color[ground]).max(axis=1)
     assert np.percentile(err, 95) < 1e-3, np.percentile(err, [50, 95, 100])
     assert ours.std(axis=0).min() > 0.02  # the checker shows
+
+
+# --------------------------------------------------------------------------------------------
+# shader-node materials other than a Principled BSDF, and the export report
+# --------------------------------------------------------------------------------------------
+def _node_material(name, kind, **inputs):
+    """A material whose Surface is one shader node ``kind`` with ``inputs`` set."""
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nodes = mat.node_tree.nodes
+    nodes.remove(nodes["Principled BSDF"])
+    node = nodes.new(kind)
+    for k, v in inputs.items():
+        node.inputs[k].default_value = v
+    mat.node_tree.links.new(node.outputs[0], nodes["Material Output"].inputs["Surface"])
+    return mat, node
+
+
+def _on_quad(name, mat):
+    me = _quad(name)
+    me.materials.append(mat)
+    add_object(name, me)
+
+
+def test_bsdf_colours_glass_and_emission(scene):
+    _on_quad("Clay", _node_material("Clay", "ShaderNodeBsdfDiffuse", Color=(0.7, 0.3, 0.2, 1))[0])
+    _on_quad("Shiny", _node_material("Shiny", "ShaderNodeBsdfGlossy", Color=(0.1, 0.2, 0.9, 1))[0])
+    _on_quad("Ball", _node_material("Glass", "ShaderNodeBsdfGlass", Color=(0.8, 0.9, 1.0, 1))[0])
+    _on_quad("Panel", _node_material("Panel", "ShaderNodeEmission", Color=(1.0, 0.5, 0.25, 1), Strength=4.0)[0])
+    s, warned = _export_warnings(export_scene)
+    inst = s.instances
+    np.testing.assert_allclose(inst.base_color[_row(s, "Clay")], (0.7, 0.3, 0.2, 1), rtol=1e-6)
+    assert inst.specular[_row(s, "Clay")] == 0.0
+    np.testing.assert_allclose(inst.base_color[_row(s, "Shiny")][:3], (0.1, 0.2, 0.9), rtol=1e-6)
+    glass = _row(s, "Ball")
+    assert inst.material_ids[glass] == -1 and inst.casts_shadow[glass]  # opaque to shadow rays
+    np.testing.assert_allclose(inst.emission[_row(s, "Panel")], (4.0, 2.0, 1.0), rtol=1e-6)
+    assert not inst.emission[_row(s, "Clay")].any()
+    assert any("'Shiny'" in w and "read as Diffuse" in w for w in warned), warned
+    assert any("'Glass'" in w and "opaque" in w for w in warned), warned
+    assert any("'Panel'" in w and "lights nothing" in w for w in warned), warned
+    assert not any("'Clay'" in w for w in warned), warned
+    assert s.report == list(dict.fromkeys(warned)), (s.report, warned)
+
+
+def test_transparent_bsdf_alone(scene):
+    _on_quad("Veil", _node_material("Veil", "ShaderNodeBsdfTransparent")[0])
+    _on_quad("Smoke", _node_material("Smoke", "ShaderNodeBsdfTransparent", Color=(0.25, 0.25, 0.25, 1))[0])
+    s = export_scene()
+    assert _material_of(s, "Veil").alpha == pytest.approx(0.0)  # the camera and shadow rays pass
+    assert _material_of(s, "Smoke").alpha == pytest.approx(0.75, abs=1e-6)  # transmits a quarter
+
+
+def _mix_transparent(name, fac=None, image=None, transparent_first=True, group=False, clip=None, color=(1, 1, 1, 1)):
+    """Mix(Transparent, Diffuse) (or swapped), its factor ``fac`` or ``image``'s alpha (through a
+    Math ``clip`` = (operation, threshold)), the mix inside a node group when ``group``."""
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nodes, link = mat.node_tree.nodes, mat.node_tree.links.new
+    nodes.remove(nodes["Principled BSDF"])
+    tree = bpy.data.node_groups.new(name, "ShaderNodeTree") if group else mat.node_tree
+    tn, tl = tree.nodes, tree.links.new
+    mix = tn.new("ShaderNodeMixShader")
+    clear = tn.new("ShaderNodeBsdfTransparent")
+    clear.inputs["Color"].default_value = color
+    diffuse = tn.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = (0.1, 0.6, 0.1, 1)
+    a, b = (clear, diffuse) if transparent_first else (diffuse, clear)
+    tl(a.outputs[0], mix.inputs[1])
+    tl(b.outputs[0], mix.inputs[2])
+    fac_in, shader_out = mix.inputs["Fac"], mix.outputs[0]
+    if group:
+        tree.interface.new_socket("Fac", in_out="INPUT", socket_type="NodeSocketFloat")
+        tree.interface.new_socket("Shader", in_out="OUTPUT", socket_type="NodeSocketShader")
+        gin, gout = tn.new("NodeGroupInput"), tn.new("NodeGroupOutput")
+        tl(gin.outputs["Fac"], mix.inputs["Fac"])
+        tl(mix.outputs[0], gout.inputs["Shader"])
+        gnode = nodes.new("ShaderNodeGroup")
+        gnode.node_tree = tree
+        fac_in, shader_out = gnode.inputs["Fac"], gnode.outputs["Shader"]
+    link(shader_out, nodes["Material Output"].inputs["Surface"])
+    if fac is not None:
+        fac_in.default_value = fac
+    if image is not None:
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = image
+        src = tex.outputs["Alpha"]
+        if clip is not None:
+            math_node = nodes.new("ShaderNodeMath")
+            math_node.operation = clip[0]
+            math_node.inputs[1].default_value = clip[1]
+            link(src, math_node.inputs[0])
+            src = math_node.outputs[0]
+        link(src, fac_in)
+    return mat
+
+
+@pytest.mark.parametrize("group", [False, True])
+def test_mix_transparent_constant(scene, group):
+    _on_quad("Half", _mix_transparent("Half", fac=0.8, group=group))
+    _on_quad("Swapped", _mix_transparent("Swapped", fac=0.8, transparent_first=False, group=group))
+    s = export_scene()
+    assert _material_of(s, "Half").alpha == pytest.approx(0.8, abs=1e-6)
+    assert _material_of(s, "Swapped").alpha == pytest.approx(0.2, abs=1e-6)
+    np.testing.assert_allclose(s.instances.base_color[_row(s, "Half")][:3], (0.1, 0.6, 0.1), rtol=1e-6)
+
+
+@pytest.mark.parametrize("group", [False, True])
+def test_mix_transparent_image(scene, group):
+    img, px = _image("cut", seed=4)
+    _on_quad("Card", _mix_transparent("Card", image=img, group=group))
+    _on_quad("Inverse", _mix_transparent("Inverse", image=img, transparent_first=False, group=group))
+    s = export_scene()
+    card, inverse = _material_of(s, "Card"), _material_of(s, "Inverse")
+    assert card.alpha_image >= 0 and inverse.alpha_image >= 0
+    a = s.images[card.alpha_image].pixels[..., 3] / 255.0
+    np.testing.assert_allclose(a, px[..., 3], atol=1 / 255 + 1e-6)
+    inv = s.images[inverse.alpha_image].pixels[..., 3] / 255.0
+    np.testing.assert_allclose(inv, 1.0 - px[..., 3], atol=1 / 255 + 1e-6)
+
+
+@pytest.mark.parametrize("op, threshold, inverted", [("GREATER_THAN", 0.4, False), ("LESS_THAN", 0.4, True),
+                                                     ("ROUND", 0.5, False)])
+def test_mix_transparent_math_clip(scene, op, threshold, inverted):
+    img, px = _image("cut", seed=5)
+    _on_quad("Card", _mix_transparent("Card", image=img, clip=(op, threshold)))
+    s = export_scene()
+    m = _material_of(s, "Card")
+    assert m.alpha_mode == "CLIP"
+    a = s.images[m.alpha_image].pixels[..., 3] / 255.0
+    if inverted:  # a < t reads as (1 - a) > 1 - t
+        assert m.alpha_threshold == pytest.approx(1.0 - threshold)
+        np.testing.assert_allclose(a, 1.0 - px[..., 3], atol=1 / 255 + 1e-6)
+    else:
+        assert m.alpha_threshold == pytest.approx(threshold)
+        np.testing.assert_allclose(a, px[..., 3], atol=1 / 255 + 1e-6)
+
+
+def test_report_names_subsurface_volume_and_curves(scene):
+    mat = bpy.data.materials.new("Skin")
+    mat.use_nodes = True
+    mat.node_tree.nodes["Principled BSDF"].inputs["Subsurface Weight"].default_value = 0.5
+    vol = mat.node_tree.nodes.new("ShaderNodeVolumePrincipled")
+    mat.node_tree.links.new(vol.outputs[0], mat.node_tree.nodes["Material Output"].inputs["Volume"])
+    _on_quad("Face", mat)
+    add_object("Fur", bpy.data.hair_curves.new("Fur"))
+    s = export_scene()
+    assert "material 'Skin': Subsurface read as Diffuse" in s.report, s.report
+    assert "material 'Skin': volume ignored" in s.report, s.report
+    assert any(w.startswith("Curves object 'Fur': not drawn") for w in s.report), s.report
+    assert len(s.report) == len(set(s.report))
+
+
+def test_plain_scene_has_an_empty_report(scene):
+    _on_quad("Plain", bpy.data.materials.new("Plain"))
+    assert export_scene().report == []
+
+
+def test_light_portal_is_not_a_light(scene):
+    portal = bpy.data.lights.new("Portal", "AREA")
+    if hasattr(portal, "is_portal"):
+        portal.is_portal = True
+    else:
+        portal.cycles.is_portal = True
+    add_object("Portal", portal)
+    add_object("Lamp", bpy.data.lights.new("Lamp", "POINT"))
+    s = export_scene()
+    assert [light.name for light in s.lights] == ["Lamp"]
+    assert any("'Portal'" in w and "portal" in w for w in s.report), s.report
+    assert [light.name for light in export.export_lights(bpy.context.evaluated_depsgraph_get())] == ["Lamp"]

@@ -172,6 +172,8 @@ def render(engine, depsgraph) -> None:
         _stats(engine, "Hybrid Shadows | Exporting scene")
         engine.update_progress(0.0)
         core = export.export_depsgraph(depsgraph, resolution=(width, height)).validate()
+        for line in core.report:  # what is approximated: the Info report
+            engine.report({"WARNING"}, f"Hybrid Shadows: {line}")
         if engine.test_break():
             return
         with final_scope() as pipe:

@@ -236,8 +236,24 @@ def show_result(engine, worker) -> bool:
     if acc is not None:
         left += f", {acc}/{result.settings.samples} soft samples"
     engine.update_stats("", f"Hybrid Shadows | {settings_label(result)} | "
-                            f"{result.timings.get('total_ms', 0):.0f} ms{left}")
+                            f"{result.timings.get('total_ms', 0):.0f} ms{left}{report_note(engine)}")
     return True
+
+
+def report_note(engine) -> str:
+    """The stats line's note of the export report of the engine's scene ("" when empty); its
+    lines go to the Info report once each time they change."""
+    state = shared(engine)
+    scene = getattr(getattr(state, "sync", None), "scene", None)
+    lines = tuple(getattr(scene, "report", ()) or ())
+    if lines != getattr(engine, "_vp_report", ()):
+        engine._vp_report = lines
+        for line in lines:
+            engine.report({"WARNING"}, f"Hybrid Shadows: {line}")
+    if not lines:
+        return ""
+    return f" | {len(lines)} approximation{'s' if len(lines) != 1 else ''} (see Info: {lines[0]}" + \
+        (", ..." if len(lines) > 1 else "") + ")"
 
 
 # -- redraws and depsgraph evaluations ------------------------------------------------------------

@@ -209,6 +209,7 @@ def compare_steps(scene, output_dir, *, reference, resolution=None, variants=Non
         "resolution": [int(width), int(height)],
         "bpy_version": reference.version,
         "lights": names,
+        "warnings": list(getattr(scene, "report", [])),
         "soft": bool(soft),
         "error_metric": error_key,
         "threshold": metrics.MISMATCH_THRESHOLD,

@@ -67,9 +67,26 @@ def frame_stats(scene, frame, bake_ms: float) -> dict:
         "instances": len(scene.instances),
         "lights": len(scene.lights),
         "shadowed_light_names": [scene.lights[i].name for i in frame.lights],
+        "warnings": list(getattr(scene, "report", [])),
     }
     stats.update(frame.stats)
     return stats
+
+
+def print_report(lines, seen: set | None = None, stream=None) -> None:
+    """Print the export report's lines (those not in ``seen``, which then holds them) to
+    ``stream`` (stderr): what the scene uses that is not rendered as Cycles does."""
+    seen = set() if seen is None else seen
+    new = [w for w in lines if w not in seen]
+    seen.update(new)
+    if not new:
+        return
+    out = stream or sys.stderr
+    print(f"export report: {len(new)} approximation{'s' if len(new) != 1 else ''} or omission"
+          f"{'s' if len(new) != 1 else ''}:", file=out)
+    for w in new:
+        print(f"  - {w}", file=out)
+    out.flush()
 
 
 def check_renderable(scene) -> None:
@@ -254,6 +271,7 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
     raytrace = settings.mode == "raytrace"
     prev = None
     warned = False
+    reported: set = set()
     t_start = time.perf_counter()
     skipped = len(frames) - len(todo)
     note = f", {skipped} already written" if skipped else ""
@@ -263,6 +281,7 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
         t0 = time.perf_counter()
         scene = source.scene_at(f)
         export_ms = (time.perf_counter() - t0) * 1e3
+        print_report(scene.report, reported)
         scene.validate()
         check_renderable(scene)
         check_light_count(pipe.ctx, len(scene.lights))

@@ -145,6 +145,15 @@ def _mode_note(m: dict) -> str:
             f"the MAE.{maps}")
 
 
+def _warnings_html(m: dict) -> str:
+    """The export report's lines (what the scene uses that is not rendered as Cycles does)."""
+    lines = m.get("warnings") or []
+    if not lines:
+        return ""
+    items = "".join(f"<li>{html.escape(str(w))}</li>" for w in lines)
+    return f"<h2>Export report</h2>\n<p>Approximated or left out ({len(lines)}):</p><ul>{items}</ul>\n"
+
+
 def report_html(m: dict) -> str:
     e = html.escape
     lights = m["lights"]
@@ -212,7 +221,7 @@ Error: pixels valid in the Cycles reference and with geometry in ours; mismatch 
 {_mode_note(m)}
 Interlaced ray tracing: error of the first frame after a change. Bold: on the Pareto front.</p>
 <table><thead>{head}</thead><tbody>{''.join(body)}</tbody></table>
-<h2>Error against time</h2>
+{_warnings_html(m)}<h2>Error against time</h2>
 <p><img src="error_vs_time.png" alt="error against time"></p>
 <h2>Masks and differences</h2>
 {''.join(grids)}

@@ -2,6 +2,7 @@
 and the object kinds and properties the export reads."""
 from __future__ import annotations
 
+import contextlib
 import itertools
 import warnings
 
@@ -19,9 +20,28 @@ class ExportWarning(UserWarning):
     material, image or mesh."""
 
 
+#: The export reports being collected (:func:`collect_report`), innermost last.
+_REPORTS: list = []
+
+
 def warn_export(message: str) -> None:
-    """Issue an :class:`ExportWarning` attributed to the caller of the function that warns."""
+    """Issue an :class:`ExportWarning` attributed to the caller of the function that warns, and
+    add the message to the export report being collected (once per export)."""
+    if _REPORTS and message not in _REPORTS[-1]:
+        _REPORTS[-1].append(message)
     warnings.warn(message, ExportWarning, stacklevel=3)
+
+
+@contextlib.contextmanager
+def collect_report():
+    """Collect the messages of :func:`warn_export` made inside the block into a list (each
+    once, in order): the export report of one export."""
+    report: list = []
+    _REPORTS.append(report)
+    try:
+        yield report
+    finally:
+        _REPORTS.remove(report)
 
 
 def to_matrix(m) -> np.ndarray:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.scene import Light
-from .common import to_matrix
+from .common import to_matrix, warn_export
 from .visibility import RenderVisibility
 
 
@@ -27,6 +27,21 @@ def light_power(d) -> float:
         area = float(d.size) * float(size_y) * (np.pi / 4 if d.shape in ("DISK", "ELLIPSE") else 1.0)
         power *= area
     return power
+
+
+def is_portal(ob) -> bool:
+    """Whether a light object is a Cycles light portal (``cycles.is_portal`` before Blender 5,
+    the light's ``is_portal`` after): it guides the world's sampling and emits nothing itself.
+    Reported once per export."""
+    d = ob.data
+    if getattr(d, "type", None) != "AREA":
+        return False
+    portal = getattr(d, "is_portal", None)
+    if portal is None:
+        portal = getattr(getattr(d, "cycles", None), "is_portal", False)
+    if portal:
+        warn_export(f"light '{ob.name}': a light portal, not a light (it only guides Cycles' world sampling)")
+    return bool(portal)
 
 
 def export_light(ob, matrix: np.ndarray, name: str) -> Light:
@@ -55,7 +70,7 @@ def export_lights(depsgraph, render_visibility: bool | None = None) -> list:
     lights = []
     for inst in depsgraph.object_instances:
         ob = inst.object
-        if ob.type != "LIGHT":
+        if ob.type != "LIGHT" or is_portal(ob):
             continue
         if inst.is_instance:
             parent = inst.parent

@@ -13,6 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .nodes import as_float, as_rgb, constant, describe, resolve
+from .surfaces import AlphaRead, constant_default, read_alpha, read_surface
+
 _GREY = (0.8, 0.8, 0.8, 1.0)
 _WHITE = (1.0, 1.0, 1.0, 1.0)
 #: The identity (3, 3) homogeneous 2D affine of a UV lookup.
@@ -71,7 +74,10 @@ class MaterialReading:
     ``rgba``, ``specular``, ``roughness``: :func:`material_surface` (the unlinked values);
     ``color``/``alpha_texture``: the supported image links of Base Color / Alpha; ``alpha``: the
     constant alpha (1 when Alpha is an image); ``problems``: the links read as their defaults;
-    ``normal_map``: :func:`mapped_normal` (the node that bends a BSDF's normal, "" for none)."""
+    ``normal_map``: :func:`mapped_normal` (the node that bends a BSDF's normal, "" for none);
+    ``alpha_scale``/``alpha_offset``: the alpha image's value ``a`` reads as ``scale * a +
+    offset`` (a Transparent mix's factor, a Less Than clip); ``emission``: linear RGB x strength
+    of an Emission surface (None: none); ``notes``: the approximations made (the report's)."""
 
     name: str
     rgba: tuple
@@ -85,26 +91,20 @@ class MaterialReading:
     transparent_shadow: bool = True
     problems: list = field(default_factory=list)
     normal_map: str = ""
+    alpha_scale: float = 1.0
+    alpha_offset: float = 0.0
+    emission: tuple | None = None
+    notes: list = field(default_factory=list)
 
 
-def _link_source(socket):
-    """``(node, output socket)`` feeding input ``socket`` (through reroutes), None when unlinked
-    (a muted link counts as none, as in Blender)."""
-    seen = 0
-    while socket.is_linked and seen < 64:
-        link = socket.links[0]
-        if link.is_muted:
-            return None
-        node = link.from_node
-        if node.type == "REROUTE":
-            socket, seen = node.inputs[0], seen + 1
-            continue
-        return node, link.from_socket
-    return None
+def _link_source(socket, stack: tuple = ()):
+    """``(node, output socket, stack)`` feeding input ``socket`` (:func:`.nodes.resolve`: through
+    reroutes and node groups), None when unlinked (a muted link counts as none, as in Blender)."""
+    src = resolve(socket, stack)
+    return None if src.node is None else (src.node, src.socket, src.stack)
 
 
-def _describe(node) -> str:
-    return f"'{node.name}' ({node.bl_idname})"
+_describe = describe
 
 
 def _euler_matrix(rx: float, ry: float, rz: float) -> np.ndarray:
@@ -142,15 +142,15 @@ def mapping_affine(node) -> np.ndarray | None:
     return out
 
 
-def _uv_source(socket, label: str, problems: list):
+def _uv_source(socket, label: str, problems: list, stack: tuple = ()):
     """``(uv_map, affine)`` of an Image Texture's Vector input, None (with a problem) when it is
     not a UV lookup through Mapping nodes."""
     affine = IDENTITY_UV.copy()
-    src = _link_source(socket)
+    src = _link_source(socket, stack)
     if src is None:
         return "", affine
     for _ in range(16):
-        node, out = src
+        node, out, stack = src
         if node.mute:
             problems.append(f"{label} reads its UVs through the muted node {_describe(node)}")
             return None
@@ -170,7 +170,7 @@ def _uv_source(socket, label: str, problems: list):
                             f"({node.vector_type.lower()}, or with linked inputs), which the export does not read")
             return None
         affine = affine @ m  # the node nearest the image is applied last
-        src = _link_source(node.inputs["Vector"])
+        src = _link_source(node.inputs["Vector"], stack)
         if src is None:
             problems.append(f"{label} reads a constant vector through {_describe(node)}, not UVs")
             return None
@@ -178,13 +178,13 @@ def _uv_source(socket, label: str, problems: list):
     return None
 
 
-def _image_link(socket, label: str, problems: list, outputs=("Color",)):
-    """The :class:`TextureLink` feeding ``socket`` when it is an Image Texture read at UVs; None
-    when unlinked, or (with a problem) when it is anything else."""
-    src = _link_source(socket)
+def image_link(socket, label: str, problems: list, outputs=("Color",), stack: tuple = ()):
+    """The :class:`TextureLink` feeding ``socket`` (inside the groups ``stack``) when it is an
+    Image Texture read at UVs; None when unlinked, or (with a problem) when it is anything else."""
+    src = _link_source(socket, stack)
     if src is None:
         return None
-    node, out = src
+    node, out, stack = src
     if node.type != "TEX_IMAGE" or node.mute:
         what = "the muted node" if node.mute else "the unsupported node"
         problems.append(f"{label} is linked from {what} {_describe(node)}")
@@ -204,7 +204,7 @@ def _image_link(socket, label: str, problems: list, outputs=("Color",)):
     if out.identifier not in outputs:
         problems.append(f"{label} is linked from the {out.name} output of {_describe(node)}")
         return None
-    uv = _uv_source(node.inputs["Vector"], label, problems)
+    uv = _uv_source(node.inputs["Vector"], label, problems, stack)
     if uv is None:
         return None
     return TextureLink(node=node, output=out.identifier, uv_map=uv[0], uv_affine=uv[1])
@@ -242,33 +242,66 @@ def blend_settings(material) -> tuple:
     return mode, threshold, bool(transparent)
 
 
+def _body_values(node, stack) -> tuple:
+    """``(rgb, specular, roughness)`` of the BSDF read as a material's surface: a Principled's
+    unlinked values; another BSDF's Color, no specular for the diffuse ones."""
+    color = node.inputs.get("Base Color") or node.inputs.get("Color")
+    value = constant(color, stack)
+    rgb = as_rgb(value if value is not None else constant_default(color))
+    if node.type == "BSDF_PRINCIPLED":
+        spec, rough = (constant(node.inputs[n], stack) for n in ("Specular IOR Level", "Roughness"))
+        spec = float(node.inputs["Specular IOR Level"].default_value) if spec is None else as_float(spec)
+        rough = float(node.inputs["Roughness"].default_value) if rough is None else as_float(rough)
+    elif node.type in ("BSDF_GLOSSY", "BSDF_ANISOTROPIC", "BSDF_GLASS", "BSDF_REFRACTION"):
+        sock = node.inputs.get("Roughness")
+        spec, rough = 0.5, as_float(constant(sock, stack) or 0.0) if sock is not None else 0.5
+    else:
+        spec, rough = 0.0, 0.5
+    return rgb, min(max(spec, 0.0), 1.0), min(max(rough, 0.0), 1.0)
+
+
+def _apply_alpha(r: MaterialReading, a: AlphaRead) -> None:
+    """Set a reading's alpha from :class:`AlphaRead` ``a`` (a clip sets the CLIP mode)."""
+    if a.texture is None:
+        r.alpha = min(max(float(a.value), 0.0), 1.0)
+        return
+    r.alpha_texture, r.alpha = a.texture, 1.0
+    r.alpha_scale, r.alpha_offset = float(a.scale), float(a.offset)
+    if a.clip is not None:
+        r.alpha_mode, r.alpha_threshold = "CLIP", float(a.clip)
+
+
 def read_material(material) -> MaterialReading | None:
-    """Base Color, Alpha and the blend settings of a material's Principled BSDF (None for no
-    material). Unsupported links are listed in ``problems`` and read as their default value."""
+    """Colour, alpha, emission and the blend settings of a material's surface (None for no
+    material): :mod:`.surfaces` walks its shader graph. Unsupported links are listed in
+    ``problems`` and read as their default value; approximations in ``notes``."""
     if material is None:
         return None
     rgba, spec, rough = material_surface(material)
     mode, threshold, transparent = blend_settings(material)
     r = MaterialReading(name=material.name, rgba=rgba, specular=spec, roughness=rough, alpha=float(rgba[3]),
                         alpha_mode=mode, alpha_threshold=threshold, transparent_shadow=transparent)
-    if material.use_nodes and material.node_tree:
-        r.normal_map = mapped_normal(material.node_tree)
-    node = principled_node(material.node_tree) if material.use_nodes and material.node_tree else None
-    if node is None:
+    if not (material.use_nodes and material.node_tree):
         return r
-    r.color = _image_link(node.inputs["Base Color"], "Base Color", r.problems)
-    alpha_in = node.inputs["Alpha"]
-    src = _link_source(alpha_in)
-    if src is not None and src[0].type == "MATH" and src[0].operation == "GREATER_THAN" and not src[0].mute \
-            and not src[0].inputs[1].is_linked:
-        math = src[0]  # Blender 4.2's Alpha Clip: alpha > threshold
-        r.alpha_mode, r.alpha_threshold = "CLIP", float(math.inputs[1].default_value)
-        alpha_in = math.inputs[0]
-        if not alpha_in.is_linked:
-            r.alpha = float(float(alpha_in.default_value) > r.alpha_threshold)
-            return r
-    r.alpha_texture = _image_link(alpha_in, "Alpha", r.problems, outputs=("Alpha", "Color"))
-    if r.alpha_texture is not None:
-        r.alpha = 1.0
+    r.normal_map = mapped_normal(material.node_tree)
+    surface = read_surface(material, r.problems, image_link)
+    r.notes, r.emission = surface.notes, surface.emission
+    node, stack = surface.body, surface.stack
+    if node is None and surface.transparent_rgb is None:
+        node, stack = principled_node(material.node_tree), ()
+    if node is None:
+        if surface.transparent_rgb is not None:
+            r.rgba = tuple(surface.transparent_rgb) + (1.0,)
+        _apply_alpha(r, surface.alpha)
+        r.rgba = tuple(r.rgba[:3]) + (r.alpha,)
+        return r
+    rgb, r.specular, r.roughness = _body_values(node, stack)
+    color = node.inputs.get("Base Color") or node.inputs.get("Color")
+    label = "Base Color" if node.type == "BSDF_PRINCIPLED" else f"{node.bl_label} Color"
+    r.color = image_link(color, label, r.problems, stack=stack)
+    alpha = surface.alpha
+    if node.type == "BSDF_PRINCIPLED" and alpha.texture is None and alpha.value >= 1.0:
+        alpha = read_alpha(node.inputs["Alpha"], stack, "Alpha", r.problems, image_link)
+    _apply_alpha(r, alpha)
+    r.rgba = rgb + (r.alpha if r.alpha_texture is None else 1.0,)
     return r
-

@@ -28,8 +28,9 @@ import numpy as np
 
 from ...core.scene import Instances, Scene, affine_inverse
 from .camera import export_camera, render_resolution
-from .common import GEOMETRY_TYPES, to_matrices, to_matrix
-from .lights import export_light
+from .common import GEOMETRY_TYPES, collect_report, to_matrices, to_matrix
+from .dropped import report_dropped
+from .lights import export_light, is_portal
 from .meshes import ModelTable, slot_name
 from .shading import ShadingTable
 from .visibility import RenderVisibility
@@ -51,20 +52,23 @@ class SceneExporter:
         self.model_ids: list[int] = []
         self.matrices: list = []
         self.attr_ids: list[int] = []
+        self.emission: list[tuple] = []
         self.parts: list[Instances] = []  # vectorised geometry-nodes instances
         self.lights: list = []
         self.keep: list = []  # GeometrySets own the meshes they reference: alive while exporting
 
     def run(self, resolution) -> Scene:
         scene = self.dg.scene_eval
-        self._walk()
-        instances = Instances.concatenate([self._iterated_instances()] + self.parts)
-        camera = export_camera(self.dg)
+        with collect_report() as report:
+            self._walk()
+            instances = Instances.concatenate([self._iterated_instances()] + self.parts)
+            camera = export_camera(self.dg)
+            world = world_color(scene.world)
         result = Scene(name=scene.name, models=self.models, instances=instances,
-                       lights=self.lights, camera=camera, world_color=world_color(scene.world),
+                       lights=self.lights, camera=camera, world_color=world,
                        resolution=render_resolution(scene) if resolution is None else resolution,
                        frame=scene.frame_current, materials=self.shading.materials,
-                       images=self.shading.images)
+                       images=self.shading.images, report=report)
         return result.check_transforms()
 
     def _walk(self) -> None:
@@ -93,10 +97,11 @@ class SceneExporter:
             kind = ob.type
             if kind == "MESH":
                 self._add_mesh_instance(ob, ob.data, ob.data.as_pointer(), inst.matrix_world, name)
-            elif kind == "LIGHT":
+            elif kind == "LIGHT" and not is_portal(ob):
                 self.lights.append(export_light(ob, to_matrix(inst.matrix_world), name))
             elif kind in GEOMETRY_TYPES and bpy.types.GeometrySet.from_evaluated_object(ob).mesh is None:
                 self._add_converted_instance(ob, inst.matrix_world, name)
+            report_dropped(ob, name, inst.is_instance)
 
     # -- instances found by the iterator ------------------------------------------------------
     @staticmethod
@@ -127,8 +132,10 @@ class SceneExporter:
             self.names.append(name if j == 0 else slot_name(name, k))
             self.model_ids.append(mid)
             self.matrices.append(matrix)
-            aid = self.shading.attributes(ob, self._slot_material(slots, k))
+            material = self._slot_material(slots, k)
+            aid = self.shading.attributes(ob, material)
             self.attr_ids.append(self.shading.checked(aid, mid, mesh, name))
+            self.emission.append(self.shading.emission(ob, material))
 
     def _add_converted_instance(self, ob, matrix, name) -> None:
         """A non-mesh object without a mesh component: its ``to_mesh()`` triangles, if any."""
@@ -163,6 +170,7 @@ class SceneExporter:
             roughness=np.array([a[4] for a in attrs], np.float32),
             material_ids=np.array([a[5] for a in attrs], np.int32),
             terminator=np.array([a[7] for a in attrs], np.float32),
+            emission=np.array(self.emission, np.float32).reshape(-1, 3),
         )
 
     # -- geometry-nodes instances, vectorised -------------------------------------------------
@@ -205,6 +213,7 @@ class SceneExporter:
                     roughness=np.full(n, rough, np.float32),
                     material_ids=np.full(n, material_id, np.int32),
                     terminator=np.full(n, terminator, np.float32),
+                    emission=np.tile(np.float32(self.shading.emission(owner, self._slot_material(slots, k))), (n, 1)),
                 ))
         return True
 

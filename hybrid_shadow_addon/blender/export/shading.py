@@ -3,7 +3,10 @@ roughness, and (textured or alpha materials) a scene material with its images, e
 image read once per export."""
 from __future__ import annotations
 
-from ...core.scene import Image, Material
+import numpy as np
+
+from ...core.bake.materials import srgb_decode
+from ...core.scene import LUMA, Image, Material
 from .common import is_sphere_primitive, terminator_offset, warn_export
 from .images import image_pixels
 from .materials import IDENTITY_UV, TextureLink, material_surface, read_material
@@ -36,6 +39,16 @@ class ShadingTable:
         self.image_of: dict = {}  # (image pointer, extension, interpolation) -> image id or -1
         self.pixels_of: dict = {}  # image pointer -> image_pixels()
         self.uv_of: dict = {}  # (model id, UV map name) -> bool (the model has those UVs)
+        self.emission_of: dict = {}  # material pointer -> linear RGB x strength of an emitter
+
+    def emission(self, ob, material) -> tuple:
+        """Linear RGB x strength an object showing ``material`` emits towards the camera."""
+        if material is None:
+            return (0.0, 0.0, 0.0)
+        key = material.as_pointer()
+        if key not in self.surface_of:
+            self.attributes(ob, material)
+        return self.emission_of.get(key, (0.0, 0.0, 0.0))
 
     def attributes(self, ob, material) -> int:
         """Row in ``self.attrs`` for an (evaluated) object showing ``material``."""
@@ -66,8 +79,12 @@ class ShadingTable:
         r = read_material(material)
         problems = r.problems
         fallback = tuple(r.rgba)
+        if r.emission is not None:
+            self.emission_of[material.as_pointer()] = tuple(float(c) for c in r.emission)
         color_img = self._image_index(r.color, problems, "Base Color") if r.color is not None else -1
-        alpha_img = self._image_index(r.alpha_texture, problems, "Alpha") if r.alpha_texture is not None else -1
+        alpha_img = -1
+        if r.alpha_texture is not None:
+            alpha_img = self._image_index(r.alpha_texture, problems, "Alpha", (r.alpha_scale, r.alpha_offset))
         alpha = r.alpha if alpha_img >= 0 or r.alpha_texture is None else float(fallback[3])
         if color_img >= 0 and alpha_img >= 0 and not r.color.same_mapping(r.alpha_texture):
             problems.append("Base Color and Alpha use different UV maps or mappings; the colour image "
@@ -75,6 +92,8 @@ class ShadingTable:
             color_img = -1
         link = r.alpha_texture if alpha_img >= 0 else r.color if color_img >= 0 else None
         rgb = (1.0, 1.0, 1.0) if color_img >= 0 else tuple(fallback[:3])
+        for note in r.notes:
+            warn_export(f"material '{material.name}': {note}")
         if r.normal_map:
             warn_export(f"material '{material.name}': {NORMAL_MAP_NOT_READ}: {r.normal_map}")
         if problems:
@@ -85,21 +104,25 @@ class ShadingTable:
             mid = len(self.materials)
             self.materials.append(Material(
                 name=material.name, color_image=color_img, alpha=min(max(alpha, 0.0), 1.0), alpha_image=alpha_img,
-                alpha_channel="LUMA" if alpha_img >= 0 and r.alpha_texture.output == "Color" else "A",
+                alpha_channel="LUMA" if alpha_img >= 0 and r.alpha_texture.output == "Color"
+                and (r.alpha_scale, r.alpha_offset) == (1.0, 0.0) else "A",
                 uv_transform=(IDENTITY_UV if link is None else link.uv_affine)[:2],
                 alpha_mode=r.alpha_mode, alpha_threshold=r.alpha_threshold,
                 transparent_shadow=r.transparent_shadow))
             self.material_uv.append("" if link is None else link.uv_map)
         return rgb + (alpha,), r.specular, r.roughness, mid, fallback
 
-    def _image_index(self, link: TextureLink, problems: list, label: str) -> int:
+    def _image_index(self, link: TextureLink, problems: list, label: str, affine=(1.0, 0.0)) -> int:
         """Index in ``self.images`` of the image an Image Texture node reads (one per image,
         extension and interpolation; the pixels read once per image); -1 (with a problem) when
-        it has no pixels."""
+        it has no pixels. ``affine`` ``(scale, offset)`` other than ``(1, 0)``: an alpha image
+        whose Alpha (or Color luminance) is mapped so (:func:`mapped_alpha`)."""
         node = link.node
         image = node.image
         interp = INTERPOLATIONS.get(node.interpolation, "Linear")
-        key = (image.as_pointer(), node.extension, interp)
+        affine = (float(affine[0]), float(affine[1]))
+        mapped = affine != (1.0, 0.0)
+        key = (image.as_pointer(), node.extension, interp) + ((link.output,) + affine if mapped else ())
         idx = self.image_of.get(key)
         if idx is None:
             ptr = image.as_pointer()
@@ -109,7 +132,10 @@ class ShadingTable:
             idx = -1
             if px is not None:
                 idx = len(self.images)
-                self.images.append(Image(name=image.name, pixels=px[0], srgb=px[1], extension=node.extension,
+                pixels, srgb = px
+                if mapped:
+                    pixels, srgb = mapped_alpha(pixels, srgb, link.output, *affine), False
+                self.images.append(Image(name=image.name, pixels=pixels, srgb=srgb, extension=node.extension,
                                          interpolation=interp))
             self.image_of[key] = idx
         if idx < 0:
@@ -161,3 +187,23 @@ class ShadingTable:
         are not read (nor found missing) yet."""
         k = self.attrs[aid][5]
         return k >= 0 and self.materials[k].textured and (mid, self.material_uv[k]) not in self.uv_of
+
+
+def mapped_alpha(pixels: np.ndarray, srgb: bool, output: str, scale: float, offset: float) -> np.ndarray:
+    """(H, W, 4) uint8 image whose alpha is ``scale * a + offset`` (clamped to 0..1) of the
+    stored image's Alpha (``output`` "Alpha") or Color luminance ("Color", decoded from sRGB when
+    stored so): the image a Transparent mix's factor or a Less Than clip reads, for the alpha
+    rule that reads an image's alpha as it is. Exact up to 8 bits: the map is affine, so it
+    commutes with the lookup's filter."""
+    px = pixels.astype(np.float64) / 255.0
+    if px.shape[2] < 3:
+        px = np.repeat(px[..., :1], 3, axis=2)
+    if output == "Color":
+        rgb = srgb_decode(px[..., :3]) if srgb else px[..., :3]
+        a = rgb @ np.float64(LUMA)
+    else:
+        a = px[..., 3] if px.shape[2] == 4 else np.ones(px.shape[:2])
+    out = np.zeros(px.shape[:2] + (4,), np.uint8)
+    out[..., :3] = 255
+    out[..., 3] = np.round(np.clip(scale * a + offset, 0.0, 1.0) * 255.0).astype(np.uint8)
+    return out

@@ -101,7 +101,7 @@ def shade(scene, gbuffer: dict, masks: dict | None = None, use_specular: bool = 
           film_transparent: bool = False) -> np.ndarray:
     """(H, W, 4) float64 linear RGBA from G-buffer arrays (``read_gbuffer_arrays``: keys
     position, shading_normal, albedo, material; row 0 = top) and masks ``{light: (H, W)}``
-    (NaN treated as 1)."""
+    (NaN treated as 1). An emitter's pixel (specular below 0) is its albedo, its emission."""
     pos = gbuffer["position"].astype(np.float64)
     cov = pos[..., 3] > 0.5
     p = pos[..., :3]
@@ -126,6 +126,8 @@ def shade(scene, gbuffer: dict, masks: dict | None = None, use_specular: bool = 
             m = np.nan_to_num(np.asarray(masks[i], np.float64), nan=1.0)
             contrib = contrib * m[..., None]
         c = c + contrib
+    emits = mat[..., 0] < 0.0  # an emitter (the G-buffer's specular -1): its emission, unlit
+    c[emits] = albedo[emits]
     out = np.zeros(pos.shape[:2] + (4,))
     out[cov, :3] = c[cov]
     out[cov, 3] = 1.0

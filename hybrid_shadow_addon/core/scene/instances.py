@@ -23,6 +23,8 @@ class Instances:
     with no triangles. ``terminator`` is the object's Shadow Terminator Geometry Offset (Cycles'
     ``Object.shadow_terminator_geometry_offset``): on smooth-shaded triangles, shadow rays towards
     lights within that cosine of the terminator start lifted towards the smooth surface.
+    ``emission``: linear RGB x strength of an emitting surface (an Emission shader): the camera
+    sees that colour and no lighting on it; it still casts shadows. Zero: not an emitter.
     """
 
     names: list = field(default_factory=list)  # list[str], len N
@@ -36,6 +38,7 @@ class Instances:
     sphere: np.ndarray = None  # (N,) bool
     material_ids: np.ndarray = None  # (N,) int32 index into Scene.materials; -1: plain colour
     terminator: np.ndarray = None  # (N,) float32 shadow terminator geometry offset, 0..1 (Cycles: 0.1)
+    emission: np.ndarray = None  # (N, 3) float32 linear RGB x strength seen by the camera; 0: none
 
     def __post_init__(self):
         n = len(self.names)
@@ -58,6 +61,7 @@ class Instances:
                              else np.ascontiguousarray(self.material_ids, np.int32).reshape(n))
         self.terminator = (np.full(n, DEFAULT_TERMINATOR, np.float32) if self.terminator is None
                            else as_f32(self.terminator).reshape(n))
+        self.emission = np.zeros((n, 3), np.float32) if self.emission is None else as_f32(self.emission, (3,))
 
     def __len__(self) -> int:
         return len(self.names)
@@ -80,6 +84,7 @@ class Instances:
             sphere=np.concatenate([p.sphere for p in parts]),
             material_ids=np.concatenate([p.material_ids for p in parts]),
             terminator=np.concatenate([p.terminator for p in parts]),
+            emission=np.concatenate([p.emission for p in parts]),
         )
 
     def take(self, rows) -> Instances:
@@ -89,7 +94,8 @@ class Instances:
                          matrices=self.matrices[rows], inverse=self.inverse[rows],
                          casts_shadow=self.casts_shadow[rows], base_color=self.base_color[rows],
                          specular=self.specular[rows], roughness=self.roughness[rows], sphere=self.sphere[rows],
-                         material_ids=self.material_ids[rows], terminator=self.terminator[rows])
+                         material_ids=self.material_ids[rows], terminator=self.terminator[rows],
+                         emission=self.emission[rows])
 
     def max_scale(self) -> np.ndarray:
         """(N,) largest axis scale of each world matrix (length of the 3x3 columns)."""

@@ -15,7 +15,8 @@ from .lights import LIGHT_TYPES
 @dataclass
 class Scene:
     """Everything the engine renders: the models and their instances, lights, camera, materials and
-    images, the world colour and the render resolution; :meth:`validate` rejects unusable values."""
+    images, the world colour and the render resolution, and the export's report of what it
+    approximated; :meth:`validate` rejects unusable values."""
 
     name: str = "Scene"
     models: list = field(default_factory=list)  # list[Model]
@@ -27,6 +28,9 @@ class Scene:
     frame: int = 1
     materials: list = field(default_factory=list)  # list[Material], see Instances.material_ids
     images: list = field(default_factory=list)  # list[Image], see Material
+    #: What the export approximated or left out, one line each ("material 'Skin': Subsurface
+    #: read as Diffuse"): shown by the CLI, ``--stats`` (``warnings``), Blender and ``compare``
+    report: list = field(default_factory=list)  # list[str]
 
     def __post_init__(self):
         self.world_color = as_f32(self.world_color).reshape(3)

@@ -44,6 +44,9 @@ from ..targets import create_texture
 from .base import Pass
 
 INSTANCE_FORMAT = "4f 4f 4f 3f 3f 3f 4f 4f/i"
+#: The specular an emitting instance's G-buffer material holds: the lighting pass then shows its
+#: albedo (the emission) as it is, lit by nothing
+EMITTER_SPECULAR = -1.0
 INSTANCE_ATTRS = ("in_m0", "in_m1", "in_m2", "in_n0", "in_n1", "in_n2", "in_color", "in_material")
 SPHERE_FORMAT = INSTANCE_FORMAT.replace("/i", "") + " 4f 4f 4f 4f/i"
 TEXTURED_FORMAT = INSTANCE_FORMAT.replace("/i", "") + " 1f/i"  # + the material (-1: none)
@@ -166,10 +169,14 @@ class GBufferPass(Pass):
         m = inst.matrices[rows].copy()
         m[:, :3, 3] -= cam_pos
         nmat = np.transpose(inst.inverse[rows, :3, :3], (0, 2, 1))
-        cols = [m[:, 0, :], m[:, 1, :], m[:, 2, :], nmat[:, 0, :], nmat[:, 1, :], nmat[:, 2, :],
-                inst.base_color[rows].astype(np.float64),
-                np.stack([inst.specular[rows], inst.roughness[rows], rows.astype(np.float64),
-                          inst.terminator[rows]], axis=1)]
+        color = inst.base_color[rows].astype(np.float64)
+        specular = inst.specular[rows].astype(np.float64)
+        emits = (inst.emission[rows] > 0.0).any(axis=1)
+        if emits.any():  # an emitter: its emission as the colour, specular -1 marks it (lighting.glsl)
+            color[emits, :3] = inst.emission[rows][emits]
+            specular[emits] = EMITTER_SPECULAR
+        cols = [m[:, 0, :], m[:, 1, :], m[:, 2, :], nmat[:, 0, :], nmat[:, 1, :], nmat[:, 2, :], color,
+                np.stack([specular, inst.roughness[rows], rows.astype(np.float64), inst.terminator[rows]], axis=1)]
         if spheres:
             inv = inst.inverse[rows].copy()
             # inverse of (T(-cam) @ M) = M^-1 @ T(cam): translation += M^-1[:3,:3] @ cam
