@@ -23,6 +23,7 @@ SMALL = {
     "soft_lights": "soft_lights",
     "smooth_shapes": "smooth_shapes",
     "fence_far": "fence_far",
+    "materials": "materials",
 }
 # the shading-normal scenes and third-party models (against Cycles in test_real_meshes.py)
 SMALL.update({n: n for n in ("normals/smooth_primitives", "normals/weighted_normals", "normals/custom_split",
