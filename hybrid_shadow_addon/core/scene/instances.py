@@ -23,6 +23,9 @@ class Instances:
     with no triangles. ``terminator`` is the object's Shadow Terminator Geometry Offset (Cycles'
     ``Object.shadow_terminator_geometry_offset``): on smooth-shaded triangles, shadow rays towards
     lights within that cosine of the terminator start lifted towards the smooth surface.
+    ``visible_camera`` False: not drawn (Cycles' camera ray visibility off, an indirect-only
+    collection), still a caster where ``casts_shadow``. ``holdout``: drawn as a hole in the image
+    (alpha 0, no colour: Cycles' holdout), still a caster where ``casts_shadow``.
     """
 
     names: list = field(default_factory=list)  # list[str], len N
@@ -36,6 +39,8 @@ class Instances:
     sphere: np.ndarray = None  # (N,) bool
     material_ids: np.ndarray = None  # (N,) int32 index into Scene.materials; -1: plain colour
     terminator: np.ndarray = None  # (N,) float32 shadow terminator geometry offset, 0..1 (Cycles: 0.1)
+    visible_camera: np.ndarray = None  # (N,) bool: drawn in the G-buffer (default True)
+    holdout: np.ndarray = None  # (N,) bool: drawn as a hole in the image (default False)
 
     def __post_init__(self):
         n = len(self.names)
@@ -58,6 +63,10 @@ class Instances:
                              else np.ascontiguousarray(self.material_ids, np.int32).reshape(n))
         self.terminator = (np.full(n, DEFAULT_TERMINATOR, np.float32) if self.terminator is None
                            else as_f32(self.terminator).reshape(n))
+        self.visible_camera = (np.ones(n, bool) if self.visible_camera is None
+                               else np.ascontiguousarray(self.visible_camera, bool).reshape(n))
+        self.holdout = (np.zeros(n, bool) if self.holdout is None
+                        else np.ascontiguousarray(self.holdout, bool).reshape(n))
 
     def __len__(self) -> int:
         return len(self.names)
@@ -80,6 +89,8 @@ class Instances:
             sphere=np.concatenate([p.sphere for p in parts]),
             material_ids=np.concatenate([p.material_ids for p in parts]),
             terminator=np.concatenate([p.terminator for p in parts]),
+            visible_camera=np.concatenate([p.visible_camera for p in parts]),
+            holdout=np.concatenate([p.holdout for p in parts]),
         )
 
     def take(self, rows) -> Instances:
@@ -89,7 +100,8 @@ class Instances:
                          matrices=self.matrices[rows], inverse=self.inverse[rows],
                          casts_shadow=self.casts_shadow[rows], base_color=self.base_color[rows],
                          specular=self.specular[rows], roughness=self.roughness[rows], sphere=self.sphere[rows],
-                         material_ids=self.material_ids[rows], terminator=self.terminator[rows])
+                         material_ids=self.material_ids[rows], terminator=self.terminator[rows],
+                         visible_camera=self.visible_camera[rows], holdout=self.holdout[rows])
 
     def max_scale(self) -> np.ndarray:
         """(N,) largest axis scale of each world matrix (length of the 3x3 columns)."""
