@@ -54,8 +54,10 @@ mattes = bpy.data.collections.new("Mattes")
 ghosts = bpy.data.collections.new("Ghosts")
 scene.collection.children.link(mattes)
 scene.collection.children.link(ghosts)
-add("MatteBox", box("MatteBox", (0.8, 0.8, 1.2), base_at_origin=True, materials=[blue]), mattes, location=(-0.8, 2.4, 0))
-add("GhostBox", box("GhostBox", (0.9, 0.9, 1.4), base_at_origin=True, materials=[blue]), ghosts, location=(3.2, -1.2, 0))
+add("MatteBox", box("MatteBox", (0.8, 0.8, 1.2), base_at_origin=True, materials=[blue]), mattes,
+    location=(-0.8, 2.4, 0))
+add("GhostBox", box("GhostBox", (0.9, 0.9, 1.4), base_at_origin=True, materials=[blue]), ghosts,
+    location=(3.2, -1.2, 0))
 layers = scene.view_layers[0].layer_collection.children
 layers["Mattes"].holdout = True
 layers["Ghosts"].indirect_only = True
