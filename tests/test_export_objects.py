@@ -302,6 +302,35 @@ def test_the_viewport_shows_an_emitter_by_its_viewport_setting(scene):
     assert "Emitter/Proto" in sync.scene.instances.names
 
 
+def test_the_viewport_sync_follows_ray_visibility_changes(scene):
+    """Toggling an object's camera visibility or holdout, or an instancer's, re-exports the
+    viewport's scene (the G-buffer reads them; the bake is not involved)."""
+    from hybrid_shadow_addon.blender.viewport import ViewportSync
+
+    me = cube_mesh()
+    box = add_object("Box", me)
+    coll = bpy.data.collections.new("Src")
+    add_object("A", me, coll)
+    e = add_object("E", None, location=(5, 0, 0))
+    e.instance_type, e.instance_collection = "COLLECTION", coll
+    sync = ViewportSync()
+    sync.full_export(bpy.context.evaluated_depsgraph_get())
+
+    def handler(_scene, depsgraph):
+        sync.update(depsgraph)
+
+    bpy.app.handlers.depsgraph_update_post.append(handler)
+    try:
+        for ob, attr, value in ((box, "visible_camera", False), (box, "is_holdout", True),
+                                (e, "visible_camera", False)):
+            setattr(ob, attr, value)
+            bpy.context.view_layer.update()
+        flags = _ray_flags(sync.scene)
+    finally:
+        bpy.app.handlers.depsgraph_update_post.remove(handler)
+    assert flags == {"Box": (False, True, True), "E/A": (False, True, False)}
+
+
 # --------------------------------------------------------------------------------------------
 # transforms
 # --------------------------------------------------------------------------------------------

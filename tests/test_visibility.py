@@ -150,3 +150,51 @@ def test_visibility_changes_need_no_bake_and_moves_keep_unseen_casters(pipe, gl_
     assert np.array_equal(np.isnan(ma), np.isnan(mb))
     assert np.nanmax(np.abs(ma - mb)) == 0
     assert (_shadowed_by(moved, a, CUBE)).sum() > 100
+
+
+# ---------------------------------------------------------------------------------------------
+# test_scenes/visibility.py against Cycles
+# ---------------------------------------------------------------------------------------------
+LIMIT_PCT = 0.5
+
+
+def _cycles_errors(pipe, scene, ref) -> dict:
+    from hybrid_shadow_addon.tools.metrics import mask_error
+
+    pipe.set_scene(scene)
+    w, h = scene.resolution
+    frame = pipe.render(scene, HARD, w, h)
+    return {scene.lights[li].name: mask_error(ref.visibility[scene.lights[li].name], frame.mask_array(li))
+            for li in frame.lights}
+
+
+@pytest.mark.blender
+@pytest.mark.cycles
+def test_visibility_scene_matches_cycles(pipe):
+    """Every hard light within 0.5% of the valid pixels; the same scene read without its ray
+    visibility and holdouts (all drawn, all casting) is not: the scene measures the flags."""
+    import bpy
+
+    from hybrid_shadow_addon.blender.cycles_reference import render_reference
+    from hybrid_shadow_addon.blender.export import export_depsgraph
+    from hybrid_shadow_addon.blender.load import open_scene
+
+    bscene = open_scene("visibility")
+    scene = export_depsgraph(bpy.context.evaluated_depsgraph_get()).validate()
+    inst = scene.instances
+    assert (~inst.visible_camera).sum() >= 5 and inst.holdout.sum() >= 2 and (~inst.casts_shadow).sum() >= 4
+    assert "Emitter" not in inst.names and "Cone" not in inst.names
+    assert sum(n.startswith("Emitter/") for n in inst.names) == 10
+    ref = render_reference(bscene, resolution=scene.resolution)
+    errors = _cycles_errors(pipe, scene, ref)
+    assert sorted(errors) == ["Point", "Sun"]
+    for light, e in errors.items():
+        assert e.valid_pixels > 20000, light
+        assert np.sum(ref.visibility[light] < 0.5) > 2000, f"{light}: the reference shows little shadow"
+        assert e.mismatch_pct <= LIMIT_PCT, f"{light}: {e.mismatch_pct:.3f}% ({e.mismatch_pixels}/{e.valid_pixels})"
+    inst.visible_camera[:] = True
+    inst.holdout[:] = False
+    inst.casts_shadow[:] = True
+    plain = _cycles_errors(pipe, scene, ref)
+    assert all(e.mismatch_pct > 2 * LIMIT_PCT for e in plain.values()), \
+        {k: round(e.mismatch_pct, 3) for k, e in plain.items()}
