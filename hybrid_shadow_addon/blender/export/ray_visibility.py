@@ -86,9 +86,9 @@ class RayVisibility:
         if not self.render_visibility:
             return True
         ob = inst.object
-        orig = ob.original
-        instancer = bool(ob.is_instancer) or len(getattr(ob, "particle_systems", ())) > 0 or _has_instances(ob)
-        return not instancer or bool(getattr(orig, "show_instancer_for_render", True))
+        if bool(getattr(ob.original, "show_instancer_for_render", True)):
+            return True
+        return not (bool(ob.is_instancer) or len(getattr(ob, "particle_systems", ())) > 0 or _has_instances(ob))
 
 
 def _has_instances(ob) -> bool:
