@@ -184,6 +184,20 @@ layout(location = 4) out vec4 o_material;   // specular, roughness, instance ind
 layout(location = 5) out vec4 o_depth;      // r: view depth (metres along the view axis)
 layout(location = 6) out vec4 o_terminator; // xyz: the smooth-surface lift (world), w: geometry offset
 
+// A holdout (instance index stored as -(index + 1), passes/gbuffer.py holdout_index): background
+// to every pass (position, normals and depth zero: no shadow ray, no lighting), hiding what lies
+// behind it through the depth test; material w = -1 tells the lighting to write a hole (alpha 0,
+// no colour), as Cycles' holdout does in the film.
+void write_holdout() {
+    o_position = vec4(0.0);
+    o_normal = vec4(0.0);
+    o_shading = vec4(0.0);
+    o_albedo = vec4(0.0);
+    o_material = vec4(0.0, 0.0, -v_material.z - 1.0, -1.0);
+    o_depth = vec4(0.0);
+    o_terminator = vec4(0.0);
+}
+
 void main() {
     vec4 albedo = v_color;
 #ifdef TEXTURED
@@ -258,5 +272,6 @@ void main() {
     float vd = view_depth(p);
     o_depth = vec4(vd, 0.0, 0.0, 1.0);
     gl_FragDepth = clamp(log2(max(vd, 1e-30) / u_clip_start) * u_log_depth_scale, 0.0, 1.0);
+    if (v_material.z < 0.0) write_holdout();
 }
 #endif

@@ -38,7 +38,9 @@ void main() {
     vec4 pos = texelFetch(u_gb_position, pix, 0);
     if (pos.w < 0.5) {
 #ifdef HS_FIRST_BATCH
-        o_color = u_transparent == 0 ? vec4(u_world_color, 1.0) : vec4(0.0);
+        // material w < 0: a holdout's pixel (shaders/gbuffer.glsl), a hole whatever the film
+        bool hole = texelFetch(u_gb_material, pix, 0).w < 0.0;
+        o_color = (u_transparent == 0 && !hole) ? vec4(u_world_color, 1.0) : vec4(0.0);
 #else
         o_color = vec4(0.0);
 #endif

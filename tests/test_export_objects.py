@@ -198,6 +198,139 @@ def test_visible_shadow_and_sphere_flags(scene):
     assert flags == {"Caster": (True, False), "NoShadow": (False, False), "Ball": (True, True)}
 
 
+def _ray_flags(s) -> dict:
+    """``{instance name: (drawn, casts, holdout)}``."""
+    i = s.instances
+    return {n: (bool(i.visible_camera[k]), bool(i.casts_shadow[k]), bool(i.holdout[k])) for k, n in enumerate(i.names)}
+
+
+@pytest.mark.parametrize("render_visibility", [None, False])
+def test_camera_visibility_holdout_and_indirect_only(scene, render_visibility):
+    """Cycles: camera visibility off is not drawn, holdouts (the object's or its collection's) are
+    holes, an indirect-only collection is not drawn but casts (a holdout in it stays a holdout)."""
+    me = cube_mesh()
+    add_object("Seen", me)
+    add_object("Unseen", me).visible_camera = False
+    add_object("NoShadow", me).visible_shadow = False
+    add_object("Hole", me).is_holdout = True
+    mattes, ghosts = bpy.data.collections.new("Mattes"), bpy.data.collections.new("Ghosts")
+    scene.collection.children.link(mattes)
+    scene.collection.children.link(ghosts)
+    add_object("Matte", me, mattes)
+    add_object("Ghost", me, ghosts)
+    add_object("HoleGhost", me, ghosts).is_holdout = True
+    layers = scene.view_layers[0].layer_collection.children
+    layers["Mattes"].holdout = True
+    layers["Ghosts"].indirect_only = True
+    assert _ray_flags(export_scene(render_visibility=render_visibility)) == {
+        "Seen": (True, True, False), "Unseen": (False, True, False), "NoShadow": (True, False, False),
+        "Hole": (True, True, True), "Matte": (True, True, True), "Ghost": (False, True, False),
+        "HoleGhost": (True, True, True)}
+
+
+def test_collection_instances_combine_their_instancers_flags(scene):
+    """Cycles ANDs an instance's camera and shadow visibility with its instancer's and takes
+    holdout from the instancer alone."""
+    coll = bpy.data.collections.new("Src")
+    me = cube_mesh()
+    add_object("A", me, coll)
+    b = add_object("B", me, coll, location=(3, 0, 0))
+    b.visible_camera = False
+    b.is_holdout = True  # an instance's own holdout: not read (the instancer's is)
+    for name, attr in (("NoShadow", "visible_shadow"), ("Unseen", "visible_camera"), ("Hole", "is_holdout")):
+        e = add_object(name, None)
+        e.instance_type, e.instance_collection = "COLLECTION", coll
+        setattr(e, attr, attr == "is_holdout")
+    assert _ray_flags(export_scene()) == {
+        "NoShadow/A": (True, False, False), "NoShadow/B": (False, False, False),
+        "Unseen/A": (False, True, False), "Unseen/B": (False, True, False),
+        "Hole/A": (True, True, True), "Hole/B": (False, True, True)}
+
+
+@pytest.mark.parametrize("vectorised", [True, False])
+def test_geometry_nodes_instances_combine_their_instancers_flags(scene, monkeypatch, vectorised):
+    if not vectorised:
+        monkeypatch.setattr(export.SceneExporter, "_vectorise", lambda self, ob: False)
+    src = add_object("Src", cube_mesh(), location=(0, 0, 50))
+    src.hide_render = True
+    src.visible_camera = False
+    gn = gn_instancer("GN", [(0, 0, 0), (4, 0, 0)], object_info(src, True))
+    gn.visible_shadow = False
+    hole = gn_instancer("HoleGN", [(0, 4, 0)], object_info(src, True))
+    hole.is_holdout = True
+    s = export_scene()
+    flags = _ray_flags(s)
+    assert len(s.instances) == 3
+    assert {v for k, v in flags.items() if k.startswith("GN/")} == {(False, False, False)}
+    assert {v for k, v in flags.items() if k.startswith("HoleGN/")} == {(False, True, True)}
+
+
+def _particle_emitter(scene, show_for_render=False, show_for_viewport=True):
+    """An emitter whose hair particles instance a cone-like prototype hidden from render."""
+    proto = add_object("Proto", cube_mesh("proto"), location=(0, 0, 20))
+    proto.hide_render = True
+    emitter = add_object("Emitter", cube_mesh("emitter"))
+    emitter.modifiers.new("Scatter", "PARTICLE_SYSTEM")
+    ps = emitter.particle_systems[0].settings
+    ps.type, ps.count, ps.render_type, ps.instance_object = "HAIR", 6, "OBJECT", proto
+    emitter.show_instancer_for_render = show_for_render
+    emitter.show_instancer_for_viewport = show_for_viewport
+    return emitter
+
+
+def test_an_emitter_without_show_emitter_is_neither_drawn_nor_casting(scene):
+    emitter = _particle_emitter(scene)
+    emitter.visible_shadow = False
+    flags = _ray_flags(export_scene())
+    assert sorted(set(flags)) == ["Emitter/Proto"], "the emitter or the hidden prototype was exported"
+    assert sum(1 for n in export_scene().instances.names if n == "Emitter/Proto") == 6
+    assert set(flags.values()) == {(True, False, False)}  # the emitter's shadow flag reaches its particles
+    emitter.show_instancer_for_render = True
+    assert sorted(set(export_scene().instances.names)) == ["Emitter", "Emitter/Proto"]
+
+
+def test_the_viewport_shows_an_emitter_by_its_viewport_setting(scene):
+    from hybrid_shadow_addon.blender.viewport import ViewportSync
+
+    emitter = _particle_emitter(scene, show_for_render=False, show_for_viewport=True)
+    sync = ViewportSync()
+    sync.full_export(bpy.context.evaluated_depsgraph_get())
+    assert "Emitter" in sync.scene.instances.names
+    emitter.show_instancer_for_viewport = False
+    sync.full_export(bpy.context.evaluated_depsgraph_get())
+    assert "Emitter" not in sync.scene.instances.names
+    assert "Emitter/Proto" in sync.scene.instances.names
+
+
+def test_the_viewport_sync_follows_ray_visibility_changes(scene):
+    """Toggling an object's camera visibility or holdout, or an instancer's, re-exports the
+    viewport's scene (the G-buffer reads them; the bake is not involved)."""
+    from hybrid_shadow_addon.blender.viewport import ViewportSync
+
+    me = cube_mesh()
+    box = add_object("Box", me)
+    coll = bpy.data.collections.new("Src")
+    add_object("A", me, coll)
+    e = add_object("E", None, location=(5, 0, 0))
+    e.instance_type, e.instance_collection = "COLLECTION", coll
+    sync = ViewportSync()
+    sync.full_export(bpy.context.evaluated_depsgraph_get())
+
+    def handler(_scene, depsgraph):
+        sync.update(depsgraph)
+
+    bpy.app.handlers.depsgraph_update_post.append(handler)
+    try:
+        for ob, attr, value in ((box, "visible_camera", False), (box, "is_holdout", True),
+                                (e, "visible_camera", False)):
+            setattr(ob, attr, value)
+            bpy.context.view_layer.update()
+        flags = _ray_flags(sync.scene)
+    finally:
+        bpy.app.handlers.depsgraph_update_post.remove(handler)
+    assert flags == {"Box": (False, True, True), "E/A": (False, True, False)}
+
+
 # --------------------------------------------------------------------------------------------
 # transforms
 # --------------------------------------------------------------------------------------------

@@ -24,6 +24,7 @@ SMALL = {
     "smooth_shapes": "smooth_shapes",
     "fence_far": "fence_far",
     "materials": "materials",
+    "visibility": "visibility",
 }
 # the shading-normal scenes and third-party models (against Cycles in test_real_meshes.py)
 SMALL.update({n: n for n in ("normals/smooth_primitives", "normals/weighted_normals", "normals/custom_split",
@@ -37,11 +38,14 @@ def test_every_builtin_scene_is_covered():
 
 
 def _reference(depsgraph):
-    """What bpy reports, read independently: mesh instances with triangles, their world matrices,
-    triangle count, distinct evaluated meshes, lights by type."""
+    """What bpy reports, read independently: rendered mesh instances with triangles, their world
+    matrices, triangle count, distinct evaluated meshes, lights by type."""
     matrices, tris, meshes, lights = [], 0, set(), {}
     for inst in depsgraph.object_instances:
         ob = inst.object
+        owner = (inst.parent if inst.is_instance else ob).original
+        if owner.hide_render or not inst.is_instance and ob.is_instancer and not owner.show_instancer_for_render:
+            continue  # not rendered: hidden, or an emitter that does not show itself
         if ob.type == "MESH":
             n = len(ob.data.loop_triangles)
             if n:

@@ -50,7 +50,12 @@ class UpdatePlan:
 def _object_attributes(ob) -> tuple:
     """What the exporter reads from an object besides its transform and geometry."""
     mats = tuple(None if s.material is None else s.material.as_pointer() for s in ob.material_slots)
-    return (bool(ob.visible_shadow), export.is_sphere_primitive(ob), mats, tuple(ob.color))
+    return (bool(ob.visible_shadow), export.is_sphere_primitive(ob), mats, tuple(ob.color)) + _ray_attributes(ob)
+
+
+def _ray_attributes(ob) -> tuple:
+    """The ray visibility the exporter reads from an object (:mod:`.export.ray_visibility`)."""
+    return (bool(ob.visible_camera), bool(ob.is_holdout), bool(ob.show_instancer_for_viewport))
 
 
 class ViewportSync:
@@ -85,7 +90,7 @@ class ViewportSync:
         self.attributes = {}
         for ob in depsgraph.objects:
             self.known.add(ob.name)
-            if ob.name in self.rows:
+            if ob.name in self.rows or ob.is_instancer:
                 self.attributes[ob.name] = _object_attributes(ob)
         if self.scene is not None:
             scene.camera = self.scene.camera
@@ -169,7 +174,8 @@ class ViewportSync:
             if kind in export.GEOMETRY_TYPES or ob.is_instancer or kind == "EMPTY" and ob.instance_type != "NONE":
                 plan.need_full(f"new object '{name}'")
             return
-        if ob.is_instancer and (u.is_updated_transform or u.is_updated_geometry):
+        if ob.is_instancer and (u.is_updated_transform or u.is_updated_geometry
+                                or _object_attributes(ob) != self.attributes.get(name)):
             plan.need_full(f"instancer '{name}' changed")
             return
         owned = name in self.rows

@@ -32,6 +32,7 @@ from .common import GEOMETRY_TYPES, collect_report, to_matrices, to_matrix
 from .dropped import report_dropped
 from .lights import export_light, is_portal
 from .meshes import ModelTable, slot_name
+from .ray_visibility import DEFAULT, RayVisibility
 from .shading import ShadingTable
 from .visibility import RenderVisibility
 from .world import world_color
@@ -44,6 +45,8 @@ class SceneExporter:
     def __init__(self, depsgraph, render_visibility: bool | None = None):
         self.dg = depsgraph
         self.renderable = RenderVisibility(depsgraph, render_visibility)
+        self.rays = RayVisibility(depsgraph, self.renderable.check)
+        self.row_flags = DEFAULT  # the RayFlags of the depsgraph row being walked
         self.model_table = ModelTable()
         self.models = self.model_table.models
         self.shading = ShadingTable(self.model_table)
@@ -53,6 +56,7 @@ class SceneExporter:
         self.matrices: list = []
         self.attr_ids: list[int] = []
         self.emission: list[tuple] = []
+        self.flags: list = []  # RayFlags per row
         self.parts: list[Instances] = []  # vectorised geometry-nodes instances
         self.lights: list = []
         self.keep: list = []  # GeometrySets own the meshes they reference: alive while exporting
@@ -85,6 +89,7 @@ class SceneExporter:
                 if not self.renderable(parent.original):
                     continue
                 name = ob.name if ob.name == parent.name else f"{parent.name}/{ob.name}"
+                self.row_flags = self.rays.flags(ob, parent)
             else:
                 ob = inst.object
                 if not self.renderable(ob.original):
@@ -94,6 +99,9 @@ class SceneExporter:
                         and any(m.type == "NODES" for m in ob.modifiers)
                         and self._vectorise(ob)):
                     vectorised.add(ob.as_pointer())
+                if ob.type != "LIGHT" and not self.rays.shows_self(inst):
+                    continue  # an emitter or instancer with Show Instancer off: its instances only
+                self.row_flags = self.rays.flags(ob)
             kind = ob.type
             if kind == "MESH":
                 self._add_mesh_instance(ob, ob.data, ob.data.as_pointer(), inst.matrix_world, name)
@@ -136,6 +144,7 @@ class SceneExporter:
             aid = self.shading.attributes(ob, material)
             self.attr_ids.append(self.shading.checked(aid, mid, mesh, name))
             self.emission.append(self.shading.emission(ob, material))
+            self.flags.append(self.row_flags)
 
     def _add_converted_instance(self, ob, matrix, name) -> None:
         """A non-mesh object without a mesh component: its ``to_mesh()`` triangles, if any."""
@@ -158,12 +167,13 @@ class SceneExporter:
         if not self.names:
             return Instances()
         attrs = [self.shading.attrs[i] for i in self.attr_ids]
+        flags = self.flags
         return Instances(
             names=self.names,
             model_ids=np.array(self.model_ids, np.int32),
             matrices=(m := to_matrices(self.matrices)),
             inverse=affine_inverse(m),
-            casts_shadow=np.array([a[0] for a in attrs], bool),
+            casts_shadow=np.array([a[0] and f.shadow for a, f in zip(attrs, flags)], bool),
             sphere=np.array([a[1] for a in attrs], bool),
             base_color=np.array([a[2] for a in attrs], np.float32),
             specular=np.array([a[3] for a in attrs], np.float32),
@@ -171,6 +181,8 @@ class SceneExporter:
             material_ids=np.array([a[5] for a in attrs], np.int32),
             terminator=np.array([a[7] for a in attrs], np.float32),
             emission=np.array(self.emission, np.float32).reshape(-1, 3),
+            visible_camera=np.array([f.camera for f in flags], bool),
+            holdout=np.array([f.holdout for f in flags], bool),
         )
 
     # -- geometry-nodes instances, vectorised -------------------------------------------------
@@ -194,6 +206,7 @@ class SceneExporter:
                 models = self.model_table.slot_models(mesh.as_pointer(), mesh, self._model_name(source, mesh),
                                                       len(slots))
             n = len(index)
+            rays = self.rays.flags(ob) if source is None else self.rays.flags(source, ob)
             for j, (k, mid) in enumerate(models):
                 aid = self.shading.attributes(owner, self._slot_material(slots, k))
                 aid = self.shading.checked(aid, mid, mesh, source.name if source is not None else prefix)
@@ -206,7 +219,7 @@ class SceneExporter:
                     model_ids=np.full(n, mid, np.int32),
                     matrices=matrices,
                     inverse=inverse,
-                    casts_shadow=np.full(n, shadow),
+                    casts_shadow=np.full(n, shadow and rays.shadow),
                     sphere=np.full(n, sphere),
                     base_color=np.tile(np.float32(rgba), (n, 1)),
                     specular=np.full(n, spec, np.float32),
@@ -214,6 +227,8 @@ class SceneExporter:
                     material_ids=np.full(n, material_id, np.int32),
                     terminator=np.full(n, terminator, np.float32),
                     emission=np.tile(np.float32(self.shading.emission(owner, self._slot_material(slots, k))), (n, 1)),
+                    visible_camera=np.full(n, rays.camera),
+                    holdout=np.full(n, rays.holdout),
                 ))
         return True
 

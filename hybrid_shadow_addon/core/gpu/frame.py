@@ -69,7 +69,8 @@ class GBuffer:
     unit geometric (face) normal turned towards the camera; ``shading_normal`` RGBA32F (the
     smooth normal, turned over with the geometric one where the camera sees a triangle's back);
     ``albedo`` RGBA16F linear base colour; ``material`` RGBA32F (specular, roughness, instance
-    index, 1); ``depth`` R32F view depth in metres (0 on background); ``terminator`` RGBA32F
+    index, 1; on a holdout's pixels, which are background to every other target: 0, 0, index,
+    -1); ``depth`` R32F view depth in metres (0 on background); ``terminator`` RGBA32F
     (the smooth-surface lift of Cycles' shadow terminator in the world, the object's geometry
     offset; zero on flat models); ``depth_buffer`` the
     depth attachment. Arrays from :meth:`read` have row 0 = top row of the image.

@@ -25,6 +25,9 @@ class Instances:
     lights within that cosine of the terminator start lifted towards the smooth surface.
     ``emission``: linear RGB x strength of an emitting surface (an Emission shader): the camera
     sees that colour and no lighting on it; it still casts shadows. Zero: not an emitter.
+    ``visible_camera`` False: not drawn (Cycles' camera ray visibility off, an indirect-only
+    collection), still a caster where ``casts_shadow``. ``holdout``: drawn as a hole in the image
+    (alpha 0, no colour: Cycles' holdout), still a caster where ``casts_shadow``.
     """
 
     names: list = field(default_factory=list)  # list[str], len N
@@ -39,6 +42,8 @@ class Instances:
     material_ids: np.ndarray = None  # (N,) int32 index into Scene.materials; -1: plain colour
     terminator: np.ndarray = None  # (N,) float32 shadow terminator geometry offset, 0..1 (Cycles: 0.1)
     emission: np.ndarray = None  # (N, 3) float32 linear RGB x strength seen by the camera; 0: none
+    visible_camera: np.ndarray = None  # (N,) bool: drawn in the G-buffer (default True)
+    holdout: np.ndarray = None  # (N,) bool: drawn as a hole in the image (default False)
 
     def __post_init__(self):
         n = len(self.names)
@@ -62,6 +67,10 @@ class Instances:
         self.terminator = (np.full(n, DEFAULT_TERMINATOR, np.float32) if self.terminator is None
                            else as_f32(self.terminator).reshape(n))
         self.emission = np.zeros((n, 3), np.float32) if self.emission is None else as_f32(self.emission, (3,))
+        self.visible_camera = (np.ones(n, bool) if self.visible_camera is None
+                               else np.ascontiguousarray(self.visible_camera, bool).reshape(n))
+        self.holdout = (np.zeros(n, bool) if self.holdout is None
+                        else np.ascontiguousarray(self.holdout, bool).reshape(n))
 
     def __len__(self) -> int:
         return len(self.names)
@@ -85,6 +94,8 @@ class Instances:
             material_ids=np.concatenate([p.material_ids for p in parts]),
             terminator=np.concatenate([p.terminator for p in parts]),
             emission=np.concatenate([p.emission for p in parts]),
+            visible_camera=np.concatenate([p.visible_camera for p in parts]),
+            holdout=np.concatenate([p.holdout for p in parts]),
         )
 
     def take(self, rows) -> Instances:
@@ -95,7 +106,8 @@ class Instances:
                          casts_shadow=self.casts_shadow[rows], base_color=self.base_color[rows],
                          specular=self.specular[rows], roughness=self.roughness[rows], sphere=self.sphere[rows],
                          material_ids=self.material_ids[rows], terminator=self.terminator[rows],
-                         emission=self.emission[rows])
+                         emission=self.emission[rows],
+                         visible_camera=self.visible_camera[rows], holdout=self.holdout[rows])
 
     def max_scale(self) -> np.ndarray:
         """(N,) largest axis scale of each world matrix (length of the 3x3 columns)."""

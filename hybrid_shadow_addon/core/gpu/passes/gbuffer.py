@@ -11,6 +11,9 @@ are the chunks of a big model (:func:`~..geometry.chunk_order`: its triangles in
 spatially close ones, each with a bounding sphere) that miss it: a terrain seen from within
 draws only the part in view (a software rasteriser shades vertices and sets up triangles on one
 thread, in view or not).
+Instances the camera does not see (``Instances.visible_camera``) are not drawn; holdouts
+(``Instances.holdout``) are drawn as background that hides what lies behind them, with the
+material's w -1 so that the lighting leaves a hole (alpha 0, no colour) there.
 Sphere primitives (``Instances.sphere``) are drawn as their model's bounding sphere
 (ray/ellipsoid per fragment). Models with UVs shown with a textured material draw with the
 ``TEXTURED`` variant: the UVs of the indexed buffer, the material per instance, the colour image's texel (mip
@@ -116,6 +119,21 @@ def chunk_runs(vis: np.ndarray, chunks) -> list:
     return out
 
 
+def camera_visible(scene) -> np.ndarray:
+    """(N,) bool per instance: the camera sees it (``Instances.visible_camera``); the others
+    are not drawn, and cast shadows all the same (the bake keeps them)."""
+    return np.asarray(scene.instances.visible_camera, bool)
+
+
+def holdout_index(inst, rows: np.ndarray) -> np.ndarray:
+    """(len(rows),) float64: the instance index of each row as the G-buffer's vertex stage reads
+    it, ``-(index + 1)`` for a holdout (``Instances.holdout``: ``shaders/gbuffer.glsl`` writes its
+    pixels as background that hides what lies behind, marked for the lighting to leave a hole)."""
+    rows = np.asarray(rows)
+    index = rows.astype(np.float64)
+    return np.where(inst.holdout[rows], -1.0 - index, index)
+
+
 def log_depth_scale(camera) -> float:
     """``1 / log2(clip_end / clip_start)``: the G-buffer's depth test runs on
     ``log2(view depth / clip_start) * scale`` (``shaders/gbuffer.glsl``), which keeps a relative
@@ -176,7 +194,7 @@ class GBufferPass(Pass):
             color[emits, :3] = inst.emission[rows][emits]
             specular[emits] = EMITTER_SPECULAR
         cols = [m[:, 0, :], m[:, 1, :], m[:, 2, :], nmat[:, 0, :], nmat[:, 1, :], nmat[:, 2, :], color,
-                np.stack([specular, inst.roughness[rows], rows.astype(np.float64), inst.terminator[rows]], axis=1)]
+                np.stack([specular, inst.roughness[rows], holdout_index(inst, rows), inst.terminator[rows]], axis=1)]
         if spheres:
             inv = inst.inverse[rows].copy()
             # inverse of (T(-cam) @ M) = M^-1 @ T(cam): translation += M^-1[:3,:3] @ cam
@@ -241,6 +259,7 @@ class GBufferPass(Pass):
         planes = frustum_planes(cam.clip_from_rel)
         visible = frustum_visible(scene, cam.clip_from_rel, cam.cam_pos)
         self.culled = int(len(visible) - np.count_nonzero(visible))
+        visible &= camera_visible(scene)
         if visible.any():
             order = np.argsort(inst.model_ids, kind="stable")
             tri_rows = order[~inst.sphere[order] & visible[order]]
