@@ -11,6 +11,8 @@ from .arrays import as_f32
 
 #: Cycles' default Shadow Terminator Geometry Offset of an object
 DEFAULT_TERMINATOR = 0.1
+#: an instance's light-linking membership outside any linking collection: every set
+ALL_SETS = np.uint64(0xFFFFFFFFFFFFFFFF)
 
 
 @dataclass
@@ -23,6 +25,8 @@ class Instances:
     with no triangles. ``terminator`` is the object's Shadow Terminator Geometry Offset (Cycles'
     ``Object.shadow_terminator_geometry_offset``): on smooth-shaded triangles, shadow rays towards
     lights within that cosine of the terminator start lifted towards the smooth surface.
+    ``light_sets`` / ``shadow_sets``: light and shadow linking (:mod:`.linking`), bit s set where
+    the lights whose receiver (blocker) collection is set s light (shadow) the instance.
     """
 
     names: list = field(default_factory=list)  # list[str], len N
@@ -36,6 +40,8 @@ class Instances:
     sphere: np.ndarray = None  # (N,) bool
     material_ids: np.ndarray = None  # (N,) int32 index into Scene.materials; -1: plain colour
     terminator: np.ndarray = None  # (N,) float32 shadow terminator geometry offset, 0..1 (Cycles: 0.1)
+    light_sets: np.ndarray = None  # (N,) uint64 receiver light sets the instance belongs to
+    shadow_sets: np.ndarray = None  # (N,) uint64 blocker shadow sets the instance belongs to
 
     def __post_init__(self):
         n = len(self.names)
@@ -58,6 +64,10 @@ class Instances:
                              else np.ascontiguousarray(self.material_ids, np.int32).reshape(n))
         self.terminator = (np.full(n, DEFAULT_TERMINATOR, np.float32) if self.terminator is None
                            else as_f32(self.terminator).reshape(n))
+        self.light_sets = (np.full(n, ALL_SETS, np.uint64) if self.light_sets is None
+                           else np.ascontiguousarray(self.light_sets, np.uint64).reshape(n))
+        self.shadow_sets = (np.full(n, ALL_SETS, np.uint64) if self.shadow_sets is None
+                            else np.ascontiguousarray(self.shadow_sets, np.uint64).reshape(n))
 
     def __len__(self) -> int:
         return len(self.names)
@@ -80,6 +90,8 @@ class Instances:
             sphere=np.concatenate([p.sphere for p in parts]),
             material_ids=np.concatenate([p.material_ids for p in parts]),
             terminator=np.concatenate([p.terminator for p in parts]),
+            light_sets=np.concatenate([p.light_sets for p in parts]),
+            shadow_sets=np.concatenate([p.shadow_sets for p in parts]),
         )
 
     def take(self, rows) -> Instances:
@@ -89,7 +101,8 @@ class Instances:
                          matrices=self.matrices[rows], inverse=self.inverse[rows],
                          casts_shadow=self.casts_shadow[rows], base_color=self.base_color[rows],
                          specular=self.specular[rows], roughness=self.roughness[rows], sphere=self.sphere[rows],
-                         material_ids=self.material_ids[rows], terminator=self.terminator[rows])
+                         material_ids=self.material_ids[rows], terminator=self.terminator[rows],
+                         light_sets=self.light_sets[rows], shadow_sets=self.shadow_sets[rows])
 
     def max_scale(self) -> np.ndarray:
         """(N,) largest axis scale of each world matrix (length of the 3x3 columns)."""
