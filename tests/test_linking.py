@@ -125,7 +125,8 @@ def test_every_mode_equals_the_scene_of_the_blockers(gl_ctx, mode):
     settings = MODES[mode]
     scene = linked_scene(radius=0.3 if mode == "soft" else 0.0)
     masks = {}
-    for key, s in (("linked", scene), ("plain", unlinked_equivalent(scene, 0)), ("full", unlinked_equivalent(scene, None))):
+    variants = (("linked", scene), ("plain", unlinked_equivalent(scene, 0)), ("full", unlinked_equivalent(scene, None)))
+    for key, s in variants:
         p = Pipeline(gl_ctx)
         try:
             rp = p.shadow_pass("raytrace")

@@ -30,6 +30,7 @@ from ...core.scene import Instances, Scene, affine_inverse
 from .camera import export_camera, render_resolution
 from .common import GEOMETRY_TYPES, to_matrices, to_matrix
 from .lights import export_light
+from .linking import apply_linking
 from .meshes import ModelTable, slot_name
 from .shading import ShadingTable
 from .visibility import RenderVisibility
@@ -52,6 +53,8 @@ class SceneExporter:
         self.matrices: list = []
         self.attr_ids: list[int] = []
         self.parts: list[Instances] = []  # vectorised geometry-nodes instances
+        self.sources: list[str] = []  # per iterated row: the object it instances (light linking)
+        self.part_sources: list[str] = []  # per part: likewise
         self.lights: list = []
         self.keep: list = []  # GeometrySets own the meshes they reference: alive while exporting
 
@@ -59,6 +62,8 @@ class SceneExporter:
         scene = self.dg.scene_eval
         self._walk()
         instances = Instances.concatenate([self._iterated_instances()] + self.parts)
+        apply_linking(self.lights, instances, self.sources + [
+            name for part, name in zip(self.parts, self.part_sources) if len(part) for _ in range(len(part))])
         camera = export_camera(self.dg)
         result = Scene(name=scene.name, models=self.models, instances=instances,
                        lights=self.lights, camera=camera, world_color=world_color(scene.world),
@@ -125,6 +130,7 @@ class SceneExporter:
         already)."""
         for j, (k, mid) in enumerate(models):
             self.names.append(name if j == 0 else slot_name(name, k))
+            self.sources.append(ob.original.name)
             self.model_ids.append(mid)
             self.matrices.append(matrix)
             aid = self.shading.attributes(ob, self._slot_material(slots, k))
@@ -193,6 +199,7 @@ class SceneExporter:
                 if inverse is None:
                     inverse = affine_inverse(matrices)
                 suffix = "" if j == 0 else slot_name("", k)
+                self.part_sources.append((source if source is not None else ob).original.name)
                 self.parts.append(Instances(
                     names=[f"{prefix}[{i}]{suffix}" for i in index.tolist()],
                     model_ids=np.full(n, mid, np.int32),
