@@ -29,7 +29,7 @@ lib["add_camera"](scene, (7.5, -8.0, 6.0), (0.0, 0.3, 0.5), lens=32)
 def linking_collection(name, states):
     """A collection outside the scene listing ``states`` ({object: "INCLUDE" | "EXCLUDE"})."""
     coll = bpy.data.collections.new(name)
-    for ob, state in states.items():
+    for ob in states:
         coll.objects.link(ob)
     for ob, entry in zip(coll.objects, coll.collection_objects):
         entry.light_linking.link_state = states[ob]
