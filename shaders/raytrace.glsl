@@ -37,6 +37,8 @@
 // | HS_SOFT_PACKET   | a pixel's samples walk the scene together                        | soft.py           |
 // |                  | (common/scene_packet.glsl)                                       |                   |
 // | HS_SOFT_FULL     | a refined pixel never stops early                                | soft.py           |
+// | HS_LINKING       | light and shadow linking: rays skip the instances outside the    | trace.py (from    |
+// |                  | light's blocker set, pixels outside its receiver set are 0       | gpu/linking.py)   |
 // | HS_LOOP_CHECK    | tests: a pixel whose loop hit llvmpipe's budget reads            | soft.py           |
 // |                  | HS_LOOP_SPENT (RaytraceOptions.loop_check; see below)            |                   |
 
@@ -63,6 +65,9 @@ uniform sampler2D u_probe;      // the probe pass's sums (full resolution; see h
 #endif
 
 uniform int u_scale;            // mask texel = u_scale x u_scale full-resolution pixels
+#ifdef HS_LINKING
+uniform int u_link_receiver;    // the light's light set (common/linking.glsl), -1: it lights all
+#endif
 uniform ivec2 u_full_size;      // G-buffer size
 #ifdef HS_INTERLACE
 uniform ivec2 u_offset;         // texel q traces pixel 2q + u_offset (this frame's phase)
@@ -95,6 +100,11 @@ void trace_main()
     vec3 p, n, ns, to_light;
     float depth;
     float known = shadow_ray_prelude(px, p, n, ns, depth, to_light);
+#ifdef HS_LINKING
+    // a surface the light does not light (its receiver collection leaves it out): 0, no ray
+    if (u_link_receiver >= 0 && texelFetch(u_gb_position, px, 0).w > 0.5
+        && !hs_link_receives(int(texelFetch(u_gb_material, px, 0).z + 0.5), u_link_receiver)) known = 0.0;
+#endif
 #ifdef HS_NO_RAYS
     // a light no pixel needs a ray of (passes/light_cull.py): the answers without one, no walk
     o_mask = max(known, 0.0);

@@ -22,6 +22,10 @@
 // away from the light is 0 there, as in the ray-traced masks.
 #include "common/camera.glsl"
 #include "common/gbuffer.glsl"
+#include "common/linking.glsl"
+#ifdef HS_LINKING
+uniform int u_link_receiver;   // the light's light set, -1: it lights every surface
+#endif
 
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
@@ -252,6 +256,11 @@ void main() {
     if (pos.w < 0.5) { o_mask = 1.0; return; }
     vec3 p = pos.xyz - u_cam_pos;
     if (u_max_distance > 0.0 && length(p) > u_max_distance) { o_mask = 1.0; return; }
+#ifdef HS_LINKING
+    // HS_LINKING: a surface the light's receiver collection leaves out is unlit (its casters
+    // were drawn filtered by its blocker collection: shadowmap.py)
+    if (!hs_link_receives(int(texelFetch(u_gb_material, pix, 0).z + 0.5), u_link_receiver)) { o_mask = 0.0; return; }
+#endif
     vec3 n = texelFetch(u_gb_normal, pix, 0).xyz;
     vec3 to_light = (u_ortho_light == 1) ? -u_light_dir : u_light_pos_rel - p;
     vec3 l = normalize(to_light);

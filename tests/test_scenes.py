@@ -25,6 +25,7 @@ SMALL = {
     "fence_far": "fence_far",
     "materials": "materials",
     "visibility": "visibility",
+    "linking": "linking",
 }
 # the shading-normal scenes and third-party models (against Cycles in test_real_meshes.py)
 SMALL.update({n: n for n in ("normals/smooth_primitives", "normals/weighted_normals", "normals/custom_split",

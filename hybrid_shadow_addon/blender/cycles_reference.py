@@ -1,6 +1,7 @@
 """Per-light shadow visibility and the position pass from Cycles: the reference we measure against.
 
-For each light: only that light renders, ``max_bounces = 0``, ``filter_width = 0.01`` (samples
+For each light: only that light renders (the others hidden; light and shadow linking stay as
+the scene has them), ``max_bounces = 0``, ``filter_width = 0.01`` (samples
 at the pixel centre), no world light, film transparent; the Diffuse Direct pass with the light's
 ``use_shadow`` on and off; visibility = shadowed / unshadowed. By default lights are made hard
 for the reference (sun angle, point/spot radius and area size 0), as our shadows are: the

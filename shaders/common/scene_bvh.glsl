@@ -301,6 +301,9 @@ HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax)
         if (!found) break;
         uint pay = w & 0x7FFFFFFFu;
         int next = i;
+#ifdef HS_LINKING
+        if (ret < 0 && !hs_link_blocks(int(pay))) continue;   // not the light's blocker: on
+#endif
         int at = ret < 0 ? 5 * int(pay) : int(pay >> 3u);
         vec4 x0, x1, x2, x3, x4, x5, x6, x7, x8;
         uvec4 u3;

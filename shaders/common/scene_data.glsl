@@ -162,6 +162,7 @@ bool hs_slab_hit(vec3 o, vec3 inv, vec3 bmin, vec3 bmax, float tmax)
 #include "common/alpha.glsl"
 #endif
 
+#include "common/linking.glsl"
 #if defined(HS_STRUCTURE_BVH)
 #include "common/scene_bvh.glsl"
 #elif defined(HS_STRUCTURE_GRID)

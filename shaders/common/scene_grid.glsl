@@ -171,6 +171,9 @@ bool hs_bvh_occluded(vec3 o, vec3 d, int root, int count, float tmax, int mat)
 bool hs_object_occludes(vec3 o, vec3 d, float tmax, uvec2 entry)
 {
     int obj = int(entry.x);
+#ifdef HS_LINKING
+    if (!hs_link_blocks(obj)) return false;   // not the traced light's blocker
+#endif
     if (!hs_sphere_pretest(o, d, hs_fetch_object(obj, 3), tmax)) return false;
     vec4 r0 = hs_fetch_object(obj, 0);
     vec4 r1 = hs_fetch_object(obj, 1);

@@ -309,6 +309,9 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
             uvec4 u3;
             hs_leaf_record(at, x0, x1, x2, u3, x3, x4, x5, x6, x7, x8);
             if (ret < 0) {
+#ifdef HS_LINKING
+              if (hs_link_blocks(int(pay))) {   // (not the light's blocker: on to the next node)
+#endif
                 // an instance: the cone in model space, from the bake-space one: the linear map L
                 // (rows x0..x2) turns an angle of sine s about the axis into one of sine <= s
                 // sigma_max / sigma_min (Gershgorin bounds of L^T L's eigenvalues), which stays below
@@ -371,6 +374,9 @@ uvec2 hs_trace_packet(vec3 o, int cnt, uvec2 live)
                     if (hs_pk_cuts) hs_pk_cut = hs_cut_setup(int(u3.w) - 1);
 #endif
                 }
+#endif
+#ifdef HS_LINKING
+              }
 #endif
             }
 #ifdef HS_HAS_MESHES

@@ -31,6 +31,7 @@ from .camera import export_camera, render_resolution
 from .common import GEOMETRY_TYPES, collect_report, to_matrices, to_matrix
 from .dropped import report_dropped
 from .lights import export_light, is_portal
+from .linking import apply_linking
 from .meshes import ModelTable, slot_name
 from .ray_visibility import DEFAULT, RayVisibility
 from .shading import ShadingTable
@@ -58,6 +59,8 @@ class SceneExporter:
         self.emission: list[tuple] = []
         self.flags: list = []  # RayFlags per row
         self.parts: list[Instances] = []  # vectorised geometry-nodes instances
+        self.sources: list[str] = []  # per iterated row: the object it instances (light linking)
+        self.part_sources: list[str] = []  # per part: likewise
         self.lights: list = []
         self.keep: list = []  # GeometrySets own the meshes they reference: alive while exporting
 
@@ -66,6 +69,8 @@ class SceneExporter:
         with collect_report() as report:
             self._walk()
             instances = Instances.concatenate([self._iterated_instances()] + self.parts)
+            apply_linking(self.lights, instances, self.sources + [
+                name for part, name in zip(self.parts, self.part_sources) if len(part) for _ in range(len(part))])
             camera = export_camera(self.dg)
             world = world_color(scene.world)
         result = Scene(name=scene.name, models=self.models, instances=instances,
@@ -138,6 +143,7 @@ class SceneExporter:
         already)."""
         for j, (k, mid) in enumerate(models):
             self.names.append(name if j == 0 else slot_name(name, k))
+            self.sources.append(ob.original.name)
             self.model_ids.append(mid)
             self.matrices.append(matrix)
             material = self._slot_material(slots, k)
@@ -214,6 +220,7 @@ class SceneExporter:
                 if inverse is None:
                     inverse = affine_inverse(matrices)
                 suffix = "" if j == 0 else slot_name("", k)
+                self.part_sources.append((source if source is not None else ob).original.name)
                 self.parts.append(Instances(
                     names=[f"{prefix}[{i}]{suffix}" for i in index.tolist()],
                     model_ids=np.full(n, mid, np.int32),

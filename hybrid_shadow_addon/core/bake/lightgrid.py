@@ -35,7 +35,9 @@ two-level BVH's ``[leaf]`` texel 5i).
 
 A grid is built per light (:func:`build_sun_grid`, :func:`build_local_grid`) from the world
 casters (:func:`world_casters`, once per bake); one that would be too large or too crowded
-(:data:`MAX_ENTRIES`, :data:`MAX_CELL`) is None and the light keeps the BVH.
+(:data:`MAX_ENTRIES`, :data:`MAX_CELL`) is None and the light keeps the BVH. A light whose
+blocker collection leaves casters out (shadow linking) files only its blockers (``keep``,
+:func:`caster_keep`), over the same shared triangles.
 """
 from __future__ import annotations
 
@@ -79,6 +81,7 @@ class WorldCasters:
     sphere_center: np.ndarray
     sphere_radius: np.ndarray
     scale: float
+    tri_inst: np.ndarray = None  # (T,) the instance of each triangle
 
     @property
     def count(self) -> int:
@@ -92,6 +95,7 @@ def world_casters(scene, origin) -> WorldCasters:
     origin = np.asarray(origin, np.float64)
     n = len(inst.names)
     tris = []
+    owners = []
     sph = np.zeros(0, np.int64)
     scale = 0.0
     if n:
@@ -117,6 +121,7 @@ def world_casters(scene, origin) -> WorldCasters:
             mats = inst.matrices[idx]
             wv = np.einsum("nij,vj->nvi", mats[:, :3, :3], v) + (mats[:, :3, 3] - origin)[:, None, :]
             tris.append(wv[:, model.triangles.astype(np.int64)].reshape(-1, 3, 3).astype(np.float32))
+            owners.append(np.repeat(idx, model.triangle_count))
     t = np.concatenate(tris) if tris else np.zeros((0, 3, 3), np.float32)
     sc = np.zeros((0, 3))
     sr = np.zeros(0)
@@ -127,7 +132,23 @@ def world_casters(scene, origin) -> WorldCasters:
         mats = inst.matrices[sph]
         sc = np.einsum("nij,nj->ni", mats[:, :3, :3], mc) + mats[:, :3, 3] - origin
         sr = mr * np.linalg.norm(mats[:, :3, :3], axis=1).max(axis=1)
-    return WorldCasters(t, sph.astype(np.int64), sc, sr, scale)
+    return WorldCasters(t, sph.astype(np.int64), sc, sr, scale,
+                        np.concatenate(owners) if owners else np.zeros(0, np.int64))
+
+
+def caster_keep(wc: WorldCasters, instances: np.ndarray) -> np.ndarray:
+    """(count,) bool over the casters (triangles, then spheres): those of the instances that
+    ``instances`` (N,) bool marks (a light's blockers)."""
+    instances = np.asarray(instances, bool)
+    return np.concatenate([instances[wc.tri_inst], instances[wc.sphere_inst]])
+
+
+def _kept(it: _Items, keep) -> _Items:
+    """The items whose caster ``keep`` marks (all where it is None)."""
+    if keep is None:
+        return it
+    sel = np.asarray(keep, bool)[it.caster]
+    return _Items(*(None if getattr(it, f.name) is None else getattr(it, f.name)[sel] for f in fields(_Items)))
 
 
 def tri_texture(wc: WorldCasters, tex_width: int = 4096) -> TextureData:
@@ -350,9 +371,10 @@ def caster_boxes(wc: WorldCasters, basis: np.ndarray):
 
 
 def build_sun_grid(wc: WorldCasters, direction, tex_width: int = 4096,
-                   cells_per_caster: float | None = None) -> LightGrid | None:
+                   cells_per_caster: float | None = None, keep=None) -> LightGrid | None:
     """The grid of a sun shining from ``direction`` (towards the sun, the shader's
-    ``u_light_vec``), or None where it does not fit."""
+    ``u_light_vec``), or None where it does not fit; ``keep``: the casters it files
+    (:func:`caster_keep`; None: all)."""
     t0 = time.perf_counter()
     basis = sun_basis(direction)
     n = wc.count
@@ -367,7 +389,7 @@ def build_sun_grid(wc: WorldCasters, direction, tex_width: int = 4096,
         normals, offsets = np.zeros((0, 3, 2)), np.zeros((0, 3))
         g0, ext = np.zeros(2), np.ones(2)
     items = _Items(np.arange(n), lo[:, :2], hi[:, :2], hi[:, 2], np.full(n, margin), normals, offsets)
-    filed = _file(items, g0, ext, n, len(wc.tris), wc.sphere_inst, cells_per_caster)
+    filed = _file(_kept(items, keep), g0, ext, n, len(wc.tris), wc.sphere_inst, cells_per_caster)
     b32 = basis.astype(np.float32)
     uniforms = {"hs_lg_ux": b32[0], "hs_lg_uy": b32[1], "hs_lg_dz": b32[2], "hs_lg_base": g0.astype(np.float32)}
     return _grid(wc, filed, tex_width, uniforms, {}, t0)
@@ -470,9 +492,10 @@ def _face_spheres(c, r, dist, margin_face, everywhere, f: int):
 
 
 def build_local_grid(wc: WorldCasters, position, tex_width: int = 4096,
-                     cells_per_caster: float | None = None) -> LightGrid | None:
+                     cells_per_caster: float | None = None, keep=None) -> LightGrid | None:
     """The cube grid of a point, spot or (hard) area light at bake-space ``position`` (the
-    shader's ``u_light_vec``), or None where it does not fit."""
+    shader's ``u_light_vec``), or None where it does not fit; ``keep`` as
+    :func:`build_sun_grid`'s."""
     t0 = time.perf_counter()
     L = np.asarray(np.asarray(position, np.float32), np.float64)
     n_tri = len(wc.tris)
@@ -517,6 +540,7 @@ def build_local_grid(wc: WorldCasters, position, tex_width: int = 4096,
     items = _Items(*(np.concatenate([getattr(p, k.name) for p in parts]) for k in fields(_Items))) if parts \
         else _Items(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0),
                     np.zeros((0, 3, 2)), np.zeros((0, 3)), np.zeros(0, np.int64))
-    filed = _file(items, np.zeros(2), np.array([2.0, 12.0]), wc.count, n_tri, wc.sphere_inst, cells_per_caster)
+    filed = _file(_kept(items, keep), np.zeros(2), np.array([2.0, 12.0]), wc.count, n_tri, wc.sphere_inst,
+                  cells_per_caster)
     uniforms = {"hs_lg_pos": L.astype(np.float32)}
     return _grid(wc, filed, tex_width, uniforms, {"HS_LG_LOCAL": 1}, t0)

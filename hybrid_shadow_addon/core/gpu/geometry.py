@@ -365,9 +365,10 @@ class CasterDraws:
         self._batches: dict = {}
         self._sphere = ProxyMesh(ctx, icosphere)
 
-    def build(self, scene, rows: np.ndarray, origin, prog) -> list:
+    def build(self, scene, rows: np.ndarray, origin, prog, tag=()) -> list:
         """``[(vao, vertex_count, instance_count)]`` drawing instances ``rows`` with ``prog``
-        (attributes ``in_pos`` and :data:`CASTER_ATTRS`), ``origin`` subtracted in float64."""
+        (attributes ``in_pos`` and :data:`CASTER_ATTRS`), ``origin`` subtracted in float64;
+        ``tag``: draws of another set of rows kept beside these (a linked light's blockers)."""
         inst = scene.instances
         rows = np.asarray(rows, np.int64)
         draws = []
@@ -381,16 +382,16 @@ class CasterDraws:
                 continue
             sel = rows[(~sph) & (mids == mi)]
             vbo, ibo, nidx = self.models.shared(model)
-            draws.append((self._upload(("m", int(mi)), inst.matrices[sel], origin, prog, vbo, index_buffer=ibo),
+            draws.append((self._upload((*tag, "m", int(mi)), inst.matrices[sel], origin, prog, vbo, index_buffer=ibo),
                           nidx, len(sel)))
         srows = rows[sph]
         if len(srows):
             vbo, nverts = self._sphere.get()
-            draws.append((self._upload("spheres", sphere_proxy_matrices(scene, srows), origin, prog, vbo),
+            draws.append((self._upload((*tag, "spheres"), sphere_proxy_matrices(scene, srows), origin, prog, vbo),
                           nverts, len(srows)))
         return draws
 
-    def build_alpha(self, scene, rows: np.ndarray, origin, prog) -> list:
+    def build_alpha(self, scene, rows: np.ndarray, origin, prog, tag=()) -> list:
         """Like :meth:`build` for alpha-cut casters (:func:`alpha_caster_rows`): ``prog`` also
         reads ``in_uv`` and ``in_matid`` (its fragment stage drops what the alpha lets through)."""
         inst = scene.instances
@@ -404,7 +405,7 @@ class CasterDraws:
             sel = rows[mids == mi]
             vbo, ibo, nidx = self.models.shared(model)
             mat = inst.material_ids[sel].astype(np.float32)[:, None]
-            draws.append((self._upload(("a", int(mi)), inst.matrices[sel], origin, prog, vbo, mat,
+            draws.append((self._upload((*tag, "a", int(mi)), inst.matrices[sel], origin, prog, vbo, mat,
                                        index_buffer=ibo), nidx, len(sel)))
         return draws
 

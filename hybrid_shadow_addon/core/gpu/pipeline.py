@@ -185,6 +185,7 @@ class Pipeline:
         if shadow.needs_bake and (self.baked is None or self.baked.structure != settings.structure):
             self.set_scene(scene, settings.structure)
         self._reset_gl_state()  # (a frame aborted by its progress callback may have left any)
+        self.gpu.linking.update(scene)  # (linking lives apart from the bake: an upload at most)
         job = FrameJob(scene, settings, width, height, film_transparent,
                        lights=select_shadowed_lights(scene, settings))
         step = _Steps(progress, 4 + len(job.lights))

@@ -7,6 +7,7 @@ import numpy as np
 
 from ..bake.materials import bake_materials, material_signature
 from .geometry import ModelBufferCache
+from .linking import LinkTextures
 from .programs import ProgramCache
 from .scene_textures import SceneTextures
 
@@ -20,6 +21,7 @@ class GpuResources:
         self.programs = programs if programs is not None else ProgramCache(ctx)
         self.models = ModelBufferCache(ctx)
         self.scene_textures = SceneTextures(ctx)
+        self.linking = LinkTextures(ctx)  # light and shadow linking, apart from the bake
         self._own_materials = None  # (material_signature, None, {sampler: texture}) made without a bake
 
     def material_textures(self, scene) -> dict:
@@ -64,4 +66,5 @@ class GpuResources:
         self._release_own()
         self.models.release()
         self.scene_textures.release()
+        self.linking.release()
         self.programs.release()

@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from ..gpu.lights import area_of, light_table, spread_attenuation
+from ..scene.linking import receivers
 
 
 def _smoothstep01(x):
@@ -97,11 +98,24 @@ def view_vectors(position: np.ndarray, camera) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
+def pixel_receives(scene, light, instance, coverage) -> np.ndarray:
+    """(H, W) float 1 where the pixel's instance (``instance``: the G-buffer's index, float) is lit
+    by ``light`` under light linking, else 0 (0 where ``coverage`` is off)."""
+    lit = receivers(scene, light)
+    if not len(lit):
+        return np.zeros(np.shape(coverage))
+    idx = np.where(coverage, np.round(np.nan_to_num(instance)).astype(np.int64), 0)
+    ok = coverage & (idx >= 0) & (idx < len(lit))
+    return (ok & lit[np.clip(idx, 0, len(lit) - 1)]).astype(np.float64)
+
+
 def shade(scene, gbuffer: dict, masks: dict | None = None, use_specular: bool = True,
           film_transparent: bool = False) -> np.ndarray:
     """(H, W, 4) float64 linear RGBA from G-buffer arrays (``read_gbuffer_arrays``: keys
     position, shading_normal, albedo, material; row 0 = top) and masks ``{light: (H, W)}``
-    (NaN treated as 1). An emitter's pixel (specular below 0) is its albedo, its emission."""
+    (NaN treated as 1). An emitter's pixel (specular below 0) is its albedo, its emission. A light
+    with a receiver set (light linking) lights only its receivers: the instance of each pixel is
+    the material's third channel."""
     pos = gbuffer["position"].astype(np.float64)
     cov = pos[..., 3] > 0.5
     p = pos[..., :3]
@@ -125,6 +139,8 @@ def shade(scene, gbuffer: dict, masks: dict | None = None, use_specular: bool = 
         if i in masks:
             m = np.nan_to_num(np.asarray(masks[i], np.float64), nan=1.0)
             contrib = contrib * m[..., None]
+        if scene.lights[i].receiver_set >= 0:
+            contrib = contrib * pixel_receives(scene, i, mat[..., 2], cov)[..., None]
         c = c + contrib
     emits = mat[..., 0] < 0.0  # an emitter (the G-buffer's specular -1): its emission, unlit
     c[emits] = albedo[emits]

@@ -11,6 +11,8 @@ from .arrays import as_f32
 
 #: Cycles' default Shadow Terminator Geometry Offset of an object
 DEFAULT_TERMINATOR = 0.1
+#: an instance's light-linking membership outside any linking collection: every set
+ALL_SETS = np.uint64(0xFFFFFFFFFFFFFFFF)
 
 
 @dataclass
@@ -28,6 +30,8 @@ class Instances:
     ``visible_camera`` False: not drawn (Cycles' camera ray visibility off, an indirect-only
     collection), still a caster where ``casts_shadow``. ``holdout``: drawn as a hole in the image
     (alpha 0, no colour: Cycles' holdout), still a caster where ``casts_shadow``.
+    ``light_sets`` / ``shadow_sets``: light and shadow linking (:mod:`.linking`), bit s set where
+    the lights whose receiver (blocker) collection is set s light (shadow) the instance.
     """
 
     names: list = field(default_factory=list)  # list[str], len N
@@ -44,6 +48,8 @@ class Instances:
     emission: np.ndarray = None  # (N, 3) float32 linear RGB x strength seen by the camera; 0: none
     visible_camera: np.ndarray = None  # (N,) bool: drawn in the G-buffer (default True)
     holdout: np.ndarray = None  # (N,) bool: drawn as a hole in the image (default False)
+    light_sets: np.ndarray = None  # (N,) uint64 receiver light sets the instance belongs to
+    shadow_sets: np.ndarray = None  # (N,) uint64 blocker shadow sets the instance belongs to
 
     def __post_init__(self):
         n = len(self.names)
@@ -71,6 +77,10 @@ class Instances:
                                else np.ascontiguousarray(self.visible_camera, bool).reshape(n))
         self.holdout = (np.zeros(n, bool) if self.holdout is None
                         else np.ascontiguousarray(self.holdout, bool).reshape(n))
+        self.light_sets = (np.full(n, ALL_SETS, np.uint64) if self.light_sets is None
+                           else np.ascontiguousarray(self.light_sets, np.uint64).reshape(n))
+        self.shadow_sets = (np.full(n, ALL_SETS, np.uint64) if self.shadow_sets is None
+                            else np.ascontiguousarray(self.shadow_sets, np.uint64).reshape(n))
 
     def __len__(self) -> int:
         return len(self.names)
@@ -96,6 +106,8 @@ class Instances:
             emission=np.concatenate([p.emission for p in parts]),
             visible_camera=np.concatenate([p.visible_camera for p in parts]),
             holdout=np.concatenate([p.holdout for p in parts]),
+            light_sets=np.concatenate([p.light_sets for p in parts]),
+            shadow_sets=np.concatenate([p.shadow_sets for p in parts]),
         )
 
     def take(self, rows) -> Instances:
@@ -107,7 +119,8 @@ class Instances:
                          specular=self.specular[rows], roughness=self.roughness[rows], sphere=self.sphere[rows],
                          material_ids=self.material_ids[rows], terminator=self.terminator[rows],
                          emission=self.emission[rows],
-                         visible_camera=self.visible_camera[rows], holdout=self.holdout[rows])
+                         visible_camera=self.visible_camera[rows], holdout=self.holdout[rows],
+                         light_sets=self.light_sets[rows], shadow_sets=self.shadow_sets[rows])
 
     def max_scale(self) -> np.ndarray:
         """(N,) largest axis scale of each world matrix (length of the 3x3 columns)."""

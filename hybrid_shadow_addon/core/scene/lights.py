@@ -18,7 +18,9 @@ class Light:
     ``power``: watts for point/spot/area (Blender's ``energy``), irradiance in W/m^2 for a sun
     (Blender's ``energy`` of a sun is its strength). ``radius`` is ``shadow_soft_size`` (point,
     spot); ``angle`` the sun's angular diameter; ``size``/``size_y`` the area light's extent.
-    ``spot_size`` is the full cone angle in radians, ``spot_blend`` 0..1.
+    ``spot_size`` is the full cone angle in radians, ``spot_blend`` 0..1. ``receiver_set`` and
+    ``blocker_set``: the light set of its receiver collection and the shadow set of its blocker
+    collection (light and shadow linking, :mod:`.linking`), -1 where it has none.
     """
 
     name: str
@@ -35,6 +37,8 @@ class Light:
     size_y: float = 0.0
     area_shape: str = "SQUARE"
     spread: float = float(np.pi)  # area light: full angle of its emission cone (Blender's spread)
+    receiver_set: int = -1
+    blocker_set: int = -1
 
     def __post_init__(self):
         self.type = str(self.type).upper()
@@ -65,5 +69,8 @@ class Light:
         if (np.abs(self.matrix) >= MAX_COORD).any():
             raise SceneError(f"light '{self.name}' has an infinite or absurd transform "
                              f"(a value beyond {MAX_COORD:.0e})")
+        for label, s in (("receiver", self.receiver_set), ("blocker", self.blocker_set)):
+            if not -1 <= int(s) < 64:
+                raise SceneError(f"light '{self.name}' has {label} set {s}; sets are 0..63 (-1: none)")
         if not np.linalg.norm(self.matrix[:3, 2]) > 0:
             raise SceneError(f"light '{self.name}' has a zero-scale matrix (no direction)")

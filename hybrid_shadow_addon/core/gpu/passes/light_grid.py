@@ -20,6 +20,8 @@ frame. A grid is kept while the bake and its light stay; the world casters, and 
 texture shared by all grids, once per bake (any upload or update of the scene textures). Once
 the grids kept hold MAX_BYTES, no more are built. A light whose grid does not fit
 (:func:`...bake.lightgrid.build_sun_grid` / ``build_local_grid`` return None) keeps the BVH.
+A light with a blocker collection (shadow linking) files only its blockers: its grid is kept
+under its blockers too, so that a change of the collection builds another, without a bake.
 """
 from __future__ import annotations
 
@@ -29,8 +31,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...bake.lightgrid import build_local_grid, build_sun_grid, tri_texture, world_casters
+from ...bake.lightgrid import build_local_grid, build_sun_grid, caster_keep, tri_texture, world_casters
 from ...errors import GPUError
+from ...scene.linking import blockers
 from ..scene_textures import SceneTextures
 
 KEEP_EXTRA = 4  # grids kept beyond those of the last frame's lights (recent places of a moving light)
@@ -134,7 +137,9 @@ class LightGridCache:
         if self._generation != textures.generation:
             self.release()
             self._generation = textures.generation
-        key = self.key(local, light_vec)
+        base = self.key(local, light_vec)
+        keep_inst = blockers(scene, light) if light.blocker_set >= 0 else None
+        key = base if keep_inst is None else base + (np.packbits(keep_inst).tobytes(),)
         self._used.add(key)
         hit = self._grids.pop(key, None)
         if hit is None:
@@ -155,14 +160,15 @@ class LightGridCache:
                     else:
                         inst = scene.instances
                         n = sum(scene.models[m].triangle_count for m in inst.model_ids[inst.casts_shadow].tolist())
-                    seen = self._seen.get(key)
+                    seen = self._seen.get(base)
                     if seen is None or n * self._us_per_caster * 1e-3 > PAYBACK_FRAMES * seen:
                         return None
                 t0 = time.perf_counter()
                 if self._casters is None:
                     self._casters = world_casters(scene, textures.baked.origin)
                 build = build_local_grid if local else build_sun_grid
-                args = (self._casters, light_vec, textures.baked.config.tex_width)
+                keep = None if keep_inst is None else caster_keep(self._casters, keep_inst)
+                args = (self._casters, light_vec, textures.baked.config.tex_width, None, keep)
                 if not self.eager:  # (the frames go on through the tree meanwhile)
                     if self._pool is None:
                         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="light-grid")

@@ -91,6 +91,8 @@ class LightingPass(Pass):
         out.use(ctx)
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         defines = lighting_defines(table)
+        self.gpu.linking.update(scene)
+        defines.update(self.gpu.linking.defines)
         if block is not None:
             defines.update(block[0])
             block[1].bind_to_uniform_block(0)
@@ -118,6 +120,7 @@ class LightingPass(Pass):
                 lights_tex.use(unit)
                 set_uniforms(prog, {"u_lights": unit})
                 unit += 1
+            unit = self.gpu.linking.bind_lights(prog, unit, [scene.lights[i] for i in order])
             for k, row in enumerate(rows):
                 masks[order[row]].use(unit + k)
             set_uniforms(prog, common)

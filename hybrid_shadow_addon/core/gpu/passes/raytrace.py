@@ -116,6 +116,7 @@ class RaytracePass(ShadowPass):
             maps = self._conservative_maps()
             maps.start(scene, gbuffer, settings, lights)
         origin = self.scene_textures.baked.origin
+        self.gpu.linking.update(scene)
         # lights that reach no pixel get the answers without rays (one shared mask), no trace
         self.culled = []
         cull = self._options.cull_lights and self.hard.plan != "coarse" and any(
@@ -141,7 +142,9 @@ class RaytracePass(ShadowPass):
             if soft is not None:
                 self._soft_samples = max(self._soft_samples, int(settings.samples))
             ray = LightRay(li, light, local, vec, soft, self.trace.defines(settings, local, soft))
-            if maps is not None and soft is None:  # (a map bounds the rays to a light's centre only)
+            if maps is not None and soft is None and light.blocker_set < 0:
+                # (a map bounds the rays to a light's centre only; it holds every caster: not
+                # for a light whose blocker collection leaves some out)
                 ray.cmap = maps.for_light(scene, li, local)
                 if ray.cmap is not None:
                     ray.defines["HS_CONSERVATIVE"] = 1

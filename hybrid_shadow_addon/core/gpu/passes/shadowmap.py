@@ -22,6 +22,7 @@ import zlib
 import moderngl
 import numpy as np
 
+from ...scene.linking import blockers
 from ..geometry import CasterDraws, alpha_caster_rows
 from ..lights import soft_shape
 from ..projection import CUBE_AXES, look_basis, ortho, perspective, view_from_rel
@@ -155,14 +156,15 @@ class ShadowMapPass(ShadowPass):
         max_tex = int(ctx.info.get("GL_MAX_TEXTURE_SIZE", 16384))
         depth_prog = self.programs.get("shadowmap_depth")
         casters = np.nonzero(scene.instances.casts_shadow)[0] if len(scene.instances) else np.zeros(0, np.int64)
-        cut = alpha_caster_rows(scene, casters)
-        draws = [(depth_prog, *d) for d in self.casters.build(scene, casters[~cut], cam.cam_pos, depth_prog)]
-        progs = [depth_prog]
-        if cut.any():
-            alpha_prog = self.programs.get("shadowmap_depth", {"ALPHA": 1})
+        alpha_prog = self.programs.get("shadowmap_depth", {"ALPHA": 1}) if alpha_caster_rows(scene, casters).any() \
+            else None
+        progs = [depth_prog] if alpha_prog is None else [depth_prog, alpha_prog]
+        if alpha_prog is not None:
             self.gpu.bind_materials(alpha_prog, scene)
-            progs.append(alpha_prog)
-            draws += [(alpha_prog, *d) for d in self.casters.build_alpha(scene, casters[cut], cam.cam_pos, alpha_prog)]
+        draws = self._draws(scene, casters, cam.cam_pos, depth_prog, alpha_prog)
+        linking = self.gpu.linking
+        linking.update(scene)
+        linked_draws = {}  # blocker set -> the draws of its casters (shadow linking)
         out = {}
         self.views = {}
         self.last_defines = set()
@@ -173,7 +175,14 @@ class ShadowMapPass(ShadowPass):
             out[li] = mask.texture
             views = light_views(scene, light, cam, settings, max_tex)
             self.views[li] = views
-            if views is None or not draws:
+            light_draws = draws
+            if light.blocker_set >= 0:
+                if light.blocker_set not in linked_draws:
+                    linked_draws[light.blocker_set] = self._draws(
+                        scene, np.nonzero(blockers(scene, light))[0], cam.cam_pos, depth_prog, alpha_prog,
+                        ("link", light.blocker_set))
+                light_draws = linked_draws[light.blocker_set]
+            if views is None or (not light_draws and not linking.active):
                 mask.texture.write(np.ones((gbuffer.height, gbuffer.width), np.float32).tobytes())
                 continue
             # 1. depth maps
@@ -191,17 +200,20 @@ class ShadowMapPass(ShadowPass):
                     prog["u_light_clip_from_rel"].write(m.T.astype("f4").tobytes())
                     prog["u_light_origin_rel"].value = tuple(views.light_pos_rel)
                     prog["u_light_fwd"].value = tuple(f)
-                for _, dvao, nverts, ninst in draws:
+                for _, dvao, nverts, ninst in light_draws:
                     dvao.render(moderngl.TRIANGLES, vertices=nverts, instances=ninst)
             ctx.disable(moderngl.BLEND)
             ctx.blend_equation = moderngl.FUNC_ADD
             # 2. mask
             soft = soft_shape(light, settings.hard)
             defines = {} if soft is None else {"HS_PCSS": 1, "HS_SOFT_SHAPE": int(soft["shape"])}
+            defines.update(linking.defines)
             self.last_defines.update(f"{k}={v}" for k, v in defines.items())
             mask_prog, vao = self.programs.fullscreen("shadowmap_mask", defines)
             mask.use(ctx)
             unit = gbuffer.bind(mask_prog)
+            unit = linking.bind(mask_prog, unit)
+            set_uniforms(mask_prog, linking.light_uniforms(light))
             atlas.texture.use(unit)
             mask_prog["u_shadowmap"].value = unit
             mats = np.zeros((6, 4, 4), np.float32)
@@ -228,6 +240,15 @@ class ShadowMapPass(ShadowPass):
                     "u_seed": zlib.crc32(light.name.encode("utf-8")) & 0x7FFFFFFF})
             vao.render(moderngl.TRIANGLES, vertices=3)
         return out
+
+    def _draws(self, scene, rows, origin, depth_prog, alpha_prog, tag=()) -> list:
+        """``[(prog, vao, vertex count, instance count)]`` of the casters ``rows``: the
+        alpha-cut ones with ``alpha_prog``, the others with ``depth_prog``."""
+        cut = alpha_caster_rows(scene, rows)
+        draws = [(depth_prog, *d) for d in self.casters.build(scene, rows[~cut], origin, depth_prog, tag)]
+        if cut.any():
+            draws += [(alpha_prog, *d) for d in self.casters.build_alpha(scene, rows[cut], origin, alpha_prog, tag)]
+        return draws
 
     def stats(self, job) -> dict:
         return {**super().stats(job), "defines": sorted(self.last_defines)}

@@ -100,12 +100,14 @@ class TraceProgram:
     def __init__(self, gpu):
         self.programs = gpu.programs
         self.scene_textures = gpu.scene_textures
+        self.linking = gpu.linking
         self.scene_frame = 1  # the animation frame being rendered (seeds the sample patterns)
         self.smooth = False  # the scene has smooth-shaded models: their terminator moves origins
 
     def defines(self, settings, local: bool, soft: dict | None = None) -> dict:
         d = dict(self.scene_textures.baked.defines)
         d.update(self.scene_textures.defines)
+        d.update(self.linking.defines)
         d["HS_LIGHT_LOCAL" if local else "HS_LIGHT_SUN"] = 1
         if soft is not None:
             d["HS_SOFT"] = 1
@@ -127,6 +129,7 @@ class TraceProgram:
         prog, vao = self.programs.fullscreen("raytrace", defines)
         unit = gbuffer.bind(prog)
         unit = self.scene_textures.bind(prog, unit)
+        unit = self.linking.bind(prog, unit)
         if "HS_LIGHT_GRID" in defines:
             unit = ray.grid.bind(prog, unit)
         if ray.cmap is not None:
@@ -142,7 +145,7 @@ class TraceProgram:
         axis, cone = light_cone(light)
         u = {"u_light_vec": ray.vec, "u_light_axis": axis, "u_light_cone": cone,
              "u_cam_bake": tuple(float(v) for v in gbuffer.camera.cam_pos - self.scene_textures.baked.origin),
-             "u_max_distance": float(settings.max_distance)}
+             "u_max_distance": float(settings.max_distance), **self.linking.light_uniforms(light)}
         soft = soft_shape(light, settings.hard)
         if soft is not None:
             u.update({k: v for k, v in soft.items() if k != "shape"})

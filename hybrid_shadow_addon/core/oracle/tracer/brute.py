@@ -12,14 +12,16 @@ from ..alpha import is_opaque, transmittance
 from .primitives import F, prepare_rays, sphere_hit, transform_rays, woop_hit, woop_hit_bary, woop_setup
 
 
-def _casters(scene, o, d, tm, live):
-    """Each shadow caster of ``scene`` with the rays still to test (``live()``: their mask, read
+def _casters(scene, o, d, tm, live, blockers=None):
+    """Each shadow caster of ``scene`` (of those ``blockers`` marks, when given: a linked light's,
+    :func:`core.scene.linking.blockers`) with the rays still to test (``live()``: their mask, read
     anew per caster) in its model space: ``(instance, model, rays, om, dm, sphere)``, ``sphere``
     the hits of an analytic sphere primitive, else None."""
     inst = scene.instances
     if not len(inst):
         return
-    for i in np.nonzero(inst.casts_shadow)[0].tolist():
+    casting = inst.casts_shadow if blockers is None else inst.casts_shadow & np.asarray(blockers, bool)
+    for i in np.nonzero(casting)[0].tolist():
         rays = np.nonzero(live())[0]
         if not rays.size:
             return
@@ -43,11 +45,12 @@ def _pairs(n_rays: int, n_tri: int, chunk: int):
         yield a, n, np.repeat(np.arange(a, a + n), n_tri), np.tile(np.arange(n_tri), n)
 
 
-def trace_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21) -> np.ndarray:
-    """Occlusion of each ray against every shadow caster of ``scene`` (small scenes only)."""
+def trace_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21, blockers=None) -> np.ndarray:
+    """Occlusion of each ray against every shadow caster of ``scene`` (small scenes only); a
+    linked light's rays: only the casters ``blockers`` (N,) marks."""
     o, d, tm, valid = prepare_rays(origins, dirs, tmax)
     occ = np.zeros(len(o), bool)
-    for _i, model, rays, om, dm, sphere in _casters(scene, o, d, tm, lambda: valid & ~occ):
+    for _i, model, rays, om, dm, sphere in _casters(scene, o, d, tm, lambda: valid & ~occ, blockers):
         if sphere is not None:
             occ[rays[sphere]] = True
             continue
@@ -63,7 +66,7 @@ def trace_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21) -> np.n
     return occ
 
 
-def visibility_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21) -> np.ndarray:
+def visibility_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21, blockers=None) -> np.ndarray:
     """(N,) float64 visibility in [0, 1] of each ray against every shadow caster of ``scene``
     (small scenes only): the product, over every caster surface the ray crosses at t in
     (0, tmax), of that surface's transmittance (:func:`core.oracle.alpha.transmittance`:
@@ -72,10 +75,11 @@ def visibility_brute(scene, origins, dirs, tmax=np.inf, chunk: int = 1 << 21) ->
     Same ray preparation, float32 transform and watertight test (``floor=False``) as
     :func:`trace_brute`, so ``visibility == 0`` exactly where ``trace_brute`` reports occluded
     on a scene without alpha. A triangle's UV is the barycentric blend of its corners' UVs
-    (``Model.uvs``). Invalid rays (zero direction, tmax <= 0, NaN) get 1."""
+    (``Model.uvs``). Invalid rays (zero direction, tmax <= 0, NaN) get 1. ``blockers``: as
+    :func:`trace_brute`'s."""
     o, d, tm, valid = prepare_rays(origins, dirs, tmax)
     vis = np.ones(len(o), np.float64)
-    for i, model, rays, om, dm, sphere in _casters(scene, o, d, tm, lambda: valid & (vis > 0)):
+    for i, model, rays, om, dm, sphere in _casters(scene, o, d, tm, lambda: valid & (vis > 0), blockers):
         if sphere is not None:
             vis[rays[sphere]] = 0.0
             continue
