@@ -14,7 +14,8 @@ thread, in view or not).
 Sphere primitives (``Instances.sphere``) are drawn as their model's bounding sphere
 (ray/ellipsoid per fragment). Models with UVs shown with a textured material draw with the
 ``TEXTURED`` variant: the UVs of the indexed buffer, the material per instance, the colour image's texel (mip
-mapped) times the instance colour, and the fragments that the material's alpha cuts discarded.
+mapped) times the instance colour, and the fragments that the material's alpha cuts discarded
+(``FrameJob.alpha_sample``: a see-through accumulation's sample, :mod:`..see_through`).
 
 World positions are the pixel-centre camera ray intersected with the triangle's plane (see
 ``shaders/gbuffer.glsl``), so they match an exact ray cast of ``Camera.pixel_rays``. The depth
@@ -138,6 +139,7 @@ class GBufferPass(Pass):
         self.chunked = True  # draw big models by chunks, leaving out those outside the view (tests compare)
         self.triangles = 0  # triangles drawn by the last render (instances x triangles of each draw)
         self._frame_programs: dict = {}  # smooth -> (program, textured program): this render's
+        self._alpha_sample = None  # this render's see-through sample index (None: the 0.5 cut)
 
     # -- targets -------------------------------------------------------------------------------
     def _targets(self, width, height) -> GBuffer:
@@ -207,6 +209,8 @@ class GBufferPass(Pass):
             prog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
         if len(progs) > 1:
             self.gpu.bind_materials(progs[1], scene)
+            sample = self._alpha_sample
+            progs[1]["u_alpha_sample"].value = -1 if sample is None else int(sample)
         got = self._frame_programs[smooth] = (progs[0], progs[1] if len(progs) > 1 else None)
         return got
 
@@ -229,6 +233,7 @@ class GBufferPass(Pass):
         self.draw_calls = 0
         self.triangles = 0
         self._frame_programs = {}
+        self._alpha_sample = job.alpha_sample
         self.models.prune(scene.models)
         inst = scene.instances
         planes = frustum_planes(cam.clip_from_rel)
