@@ -92,6 +92,7 @@ def test_accumulation_converges_to_the_blend(pipeline):
     pipeline.set_scene(sc, "bvh")
     f = pipeline.render(sc, HARD.replace(transparency_samples=16))
     assert f.stats["see_through_samples"] == 16
+    data_inst = instance_map(f)  # (the G-buffer is the pass's, drawn over by the next render)
     opaque = dataclasses.replace(sc, materials=[sc.materials[0]] + [dataclasses.replace(m, alpha=1.0)
                                                                     for m in sc.materials[1:]])
     front = pipeline.render(opaque, HARD.replace(transparency_samples=1))
@@ -115,10 +116,12 @@ def test_accumulation_converges_to_the_blend(pipeline):
         wm = a * front_mask[sel] + (1 - a) * bm
         assert np.abs(mask[sel] - wm).max() <= 1 / 16 + 1e-6
         assert np.abs(mask[sel] - wm).mean() < 0.02
-    # without accumulation the 0.3 pane is not there and the 0.7 one is solid
+    # without accumulation the 0.3 pane is not there and the 0.7 one is solid; the accumulated
+    # frame's G-buffer (its data passes) shows them so too
     one = pipeline.render(sc, HARD.replace(transparency_samples=1))
     sel = pane_pixels(sc, (3,))[3]
     assert np.abs(one.image[sel][:, :3] - back_img[sel][:, :3]).max() < 1e-5
+    assert np.array_equal(data_inst, instance_map(one))
 
 
 def test_stacked_panes_decorrelate(pipeline):
@@ -143,9 +146,10 @@ def test_stacked_panes_decorrelate(pipeline):
 
 def test_one_pass_without_see_through_surfaces(pipeline):
     """Opaque scenes, cut-only scenes (CLIP), panes out of view and transparency_samples 1 render
-    one G-buffer pass; a see-through pane in view renders transparency_samples of them."""
+    one G-buffer pass; a see-through pane in view renders transparency_samples of them, and one
+    more for the data passes (cut at 0.5)."""
     cases = [(basic_scene(), 16, 1), (alpha_scene(card_materials=(0, 3, 3, 3)), 16, 1),
-             (pane_scene(), 1, 1), (pane_scene(), 6, 6)]
+             (pane_scene(), 1, 1), (pane_scene(), 6, 7)]
     cases.append((pane_scene(pane_x=500.0), 16, 1))
     for sc, n, passes in cases:
         pipeline.set_scene(sc, "bvh")

@@ -198,7 +198,10 @@ class Pipeline:
 
     def _render_see_through(self, scene, settings, width, height, film_transparent, progress, n) -> Frame:
         """The average of ``n`` sub-frames (all now, or with ``settings.accumulate`` one more than
-        the last call's, restarting when the settings, size or film differ)."""
+        the last call's, restarting when the settings, size or film differ). A final frame's
+        G-buffer (its data passes) is then drawn once more with the cut at 0.5, as Cycles writes
+        its data passes at the first surface of alpha 0.5 or more; the viewport's is the last
+        sub-frame's."""
         if self._generation != self._bake.generation:
             self.reset_history()
         sub = sub_frame_settings(settings)
@@ -220,8 +223,13 @@ class Pipeline:
             acc.add(frame)
         stats = dict(frame.stats, see_through_samples=acc.count, see_through_target=n)
         timings = dict(acc.timings) if not settings.accumulate else dict(frame.timings)
+        gbuffer = frame.gbuffer
+        if not settings.accumulate:  # the data passes: the surfaces of alpha >= 0.5, as Cycles' are
+            job = FrameJob(scene, sub, width, height, film_transparent)
+            gbuffer = self._timed(timings, "gbuffer_data", self.gbuffer_pass.render, job)
+            self.gbuffer_renders += 1
         out = Frame(image=(acc.image / acc.count).astype(np.float32), masks=acc.mask_textures(),
-                    lights=list(acc.lights), timings=timings, stats=stats, gbuffer=frame.gbuffer,
+                    lights=list(acc.lights), timings=timings, stats=stats, gbuffer=gbuffer,
                     mask_arrays={li: acc.mask(li) for li in acc.lights})
         acc.frame = out
         if not settings.accumulate:
