@@ -69,7 +69,8 @@ class SeeThroughScene:
 
     def in_view(self, scene, width: int, height: int) -> bool:
         """Whether the camera may see a see-through surface: an instance drawn with the G-buffer's
-        TEXTURED variant (a mesh with UVs) whose material is see-through, inside the view."""
+        TEXTURED variant (a mesh with UVs, or a material without images) whose material is
+        see-through, inside the view."""
         if not scene.materials or scene.camera is None or not len(scene.instances):
             return False
         mats = self.materials(scene)
@@ -80,8 +81,11 @@ class SeeThroughScene:
         rows = (ids >= 0) & mats[np.maximum(ids, 0)] & ~np.asarray(inst.sphere, bool)
         if not rows.any():
             return False
-        drawn = np.array([m.uvs is not None and m.triangle_count > 0 for m in scene.models] + [False])
-        rows &= drawn[np.asarray(inst.model_ids)]
+        drawn = np.array([m.triangle_count > 0 for m in scene.models] + [False])
+        uvs = np.array([m.uvs is not None for m in scene.models] + [False])
+        imaged = np.array([m.alpha_image >= 0 or m.color_image >= 0 for m in scene.materials])
+        mid = np.asarray(inst.model_ids)
+        rows &= drawn[mid] & (uvs[mid] | ~imaged[np.maximum(ids, 0)])
         if not rows.any():
             return False
         cam = CameraUniforms.from_camera(scene.camera, width, height)

@@ -182,10 +182,15 @@ class GBufferPass(Pass):
         return np.ascontiguousarray(np.concatenate(cols, axis=1), dtype=np.float32)
 
     def _model_vao(self, key, scene, model, rows, cam_pos, prog, tprog, vbo, ibo):
-        """The vao drawing instances ``rows`` of ``model`` (textured where shown so)."""
+        """The vao drawing instances ``rows`` of ``model`` (textured where shown so; a mesh
+        without UVs too when its materials read no image: a constant alpha cuts it, its UVs
+        read as zeros)."""
         inst = scene.instances
         data = self.instance_data(scene, rows, cam_pos)
-        if tprog is not None and model.uvs is not None and (inst.material_ids[rows] >= 0).any():
+        mids = np.unique(inst.material_ids[rows])
+        mids = mids[mids >= 0]
+        if tprog is not None and len(mids) and (model.uvs is not None
+                                                 or not any(scene.materials[k].textured for k in mids)):
             data = np.ascontiguousarray(np.concatenate(
                 [data, inst.material_ids[rows].astype(np.float32)[:, None]], axis=1))
             return self._batch(key).upload(data, tprog, vbo, INDEXED_FORMAT, INDEXED_ATTRS, TEXTURED_FORMAT,
