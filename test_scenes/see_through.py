@@ -2,9 +2,8 @@
 a checker ground, an opaque box under each, a sun whose shadows of the boxes and of the panes
 (transparent: 1 - alpha of the light gets through) fall on the ground in view.
 
-The panes are level like the ground, so the sun lights both alike: Cycles' per-light visibility
-through a pane is then alpha x the pane's + (1 - alpha) x the ground's, which stochastic
-transparency converges to (tests/test_see_through_cycles.py). 160x120.
+Cycles shows alpha x a pane + (1 - alpha) x what lies behind it, each lit as it is lit, which
+stochastic transparency converges to (tests/test_see_through_cycles.py). 160x120.
 
 PARAMS: ``width``, ``height``; ``alpha_a``, ``alpha_b`` (the panes' alphas).
 """
