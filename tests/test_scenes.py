@@ -23,6 +23,7 @@ SMALL = {
     "soft_lights": "soft_lights",
     "smooth_shapes": "smooth_shapes",
     "fence_far": "fence_far",
+    "see_through": "see_through",
 }
 
 
