@@ -200,8 +200,9 @@ class Pipeline:
         """The average of ``n`` sub-frames (all now, or with ``settings.accumulate`` one more than
         the last call's, restarting when the settings, size or film differ). A final frame's
         G-buffer (its data passes) is then drawn once more with the cut at 0.5, as Cycles writes
-        its data passes at the first surface of alpha 0.5 or more; the viewport's is the last
-        sub-frame's."""
+        its data passes at the first surface of alpha 0.5 or more, and its masks are NaN where
+        that G-buffer has no geometry; the viewport's G-buffer is the last sub-frame's and its
+        masks NaN where no sub-frame had geometry."""
         if self._generation != self._bake.generation:
             self.reset_history()
         sub = sub_frame_settings(settings)
@@ -223,14 +224,15 @@ class Pipeline:
             acc.add(frame)
         stats = dict(frame.stats, see_through_samples=acc.count, see_through_target=n)
         timings = dict(acc.timings) if not settings.accumulate else dict(frame.timings)
-        gbuffer = frame.gbuffer
+        gbuffer, coverage = frame.gbuffer, None
         if not settings.accumulate:  # the data passes: the surfaces of alpha >= 0.5, as Cycles' are
             job = FrameJob(scene, sub, width, height, film_transparent)
             gbuffer = self._timed(timings, "gbuffer_data", self.gbuffer_pass.render, job)
             self.gbuffer_renders += 1
-        out = Frame(image=(acc.image / acc.count).astype(np.float32), masks=acc.mask_textures(),
+            coverage = gbuffer.coverage()
+        out = Frame(image=(acc.image / acc.count).astype(np.float32), masks=acc.mask_textures(coverage),
                     lights=list(acc.lights), timings=timings, stats=stats, gbuffer=gbuffer,
-                    mask_arrays={li: acc.mask(li) for li in acc.lights})
+                    mask_arrays={li: acc.mask(li, coverage) for li in acc.lights})
         acc.frame = out
         if not settings.accumulate:
             acc.reset()

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..scene import LUMA
-from .frame import CameraUniforms
+from .frame import CameraUniforms, mask_source_pixels
 from .passes.gbuffer import frustum_visible
 from .targets import create_mask_texture
 
@@ -139,18 +139,26 @@ class SeeThroughAccumulation:
             self.timings[k] = self.timings.get(k, 0.0) + v
         self.count += 1
 
-    def mask(self, li) -> np.ndarray:
+    def mask(self, li, coverage: np.ndarray | None = None) -> np.ndarray:
         """float32 (H, W): the mean of light ``li``'s masks over the sub-frames with geometry at
-        the pixel, NaN where none had."""
+        the pixel, NaN where none had, or (``coverage``: full-resolution bool, row 0 = top) where
+        ``coverage`` has none."""
         n = self.mask_n[li]
+        ok = n > 0
+        if coverage is not None:
+            if coverage.shape != n.shape:
+                scale = max(1, round(coverage.shape[1] / n.shape[1]))
+                rows, cols = mask_source_pixels((n.shape[1], n.shape[0]), coverage.shape[::-1], scale)
+                coverage = coverage[rows, cols]
+            ok &= coverage
         with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(n > 0, self.mask_sum[li] / np.maximum(n, 1), np.nan).astype(np.float32)
+            return np.where(ok, self.mask_sum[li] / np.maximum(n, 1), np.nan).astype(np.float32)
 
-    def mask_textures(self) -> dict:
-        """{light: R32F texture} of the averaged masks (1 where no sub-frame had geometry)."""
+    def mask_textures(self, coverage: np.ndarray | None = None) -> dict:
+        """{light: R32F texture} of the averaged masks (:meth:`mask`; 1 where NaN)."""
         out = {}
         for li in self.lights:
-            m = self.mask(li)
+            m = self.mask(li, coverage)
             h, w = m.shape
             t = self._textures.get(li)
             if t is None or t.size != (w, h):
