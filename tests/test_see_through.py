@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.oracle.alpha import alpha_threshold, camera_keeps
+from hybrid_shadow_addon.core.oracle.alpha import camera_keeps, see_through_threshold
 from hybrid_shadow_addon.core.oracle.tracer import visibility_brute
 from hybrid_shadow_addon.core.settings import Settings
 from tests.helpers.rays import shadow_rays
@@ -49,11 +49,11 @@ def test_thresholds_stratify_and_decorrelate():
     """Any first 2^k samples of a pixel put one threshold in each 1/2^k of (0, 1); pixels and
     surfaces get other rotations."""
     for n in (4, 16):
-        t = np.array([alpha_threshold(7, 3, s, 2) for s in range(n)]).ravel()
+        t = np.array([see_through_threshold(7, 3, s, 2) for s in range(n)]).ravel()
         assert ((t > 0) & (t < 1)).all()
         assert np.array_equal(np.sort(np.floor(t * n)), np.arange(n))
-    a = alpha_threshold(np.arange(1000), 5, 0, 1)
-    b = alpha_threshold(np.arange(1000), 5, 0, 2)
+    a = see_through_threshold(np.arange(1000), 5, 0, 1)
+    b = see_through_threshold(np.arange(1000), 5, 0, 2)
     assert 0.4 < a.mean() < 0.6 and abs(np.corrcoef(a, b)[0, 1]) < 0.1
 
 

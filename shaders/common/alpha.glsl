@@ -215,7 +215,7 @@ bool hs_alpha_keeps(int mat, vec2 uv)
 }
 
 // Stochastic transparency (core/gpu/see_through.py; oracle: core/oracle/alpha.py
-// alpha_threshold). An integer hash (lowbias32) for the per-pixel, per-surface rotation.
+// see_through_threshold). An integer hash (lowbias32) for the per-pixel, per-surface rotation.
 uint hs_hash(uint x)
 {
     x ^= x >> 16u; x *= 0x7feb352du;

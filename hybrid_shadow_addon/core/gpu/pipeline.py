@@ -228,6 +228,7 @@ class Pipeline:
         if not settings.accumulate:  # the data passes: the surfaces of alpha >= 0.5, as Cycles' are
             job = FrameJob(scene, sub, width, height, film_transparent)
             gbuffer = self._timed(timings, "gbuffer_data", self.gbuffer_pass.render, job)
+            timings["total_ms"] += timings["gbuffer_data_ms"]
             self.gbuffer_renders += 1
             coverage = gbuffer.coverage()
         out = Frame(image=(acc.image / acc.count).astype(np.float32), masks=acc.mask_textures(coverage),

@@ -18,7 +18,7 @@ Everything follows the rules documented on :class:`core.scene.Image` and
   CLIP ``1 if alpha < alpha_threshold else 0``.
 - :func:`camera_keeps`: whether a camera ray keeps the surface (the G-buffer's cut): CLIP at its
   threshold; BLEND at ``alpha >= 0.5``, or on sample ``s`` of a see-through accumulation where
-  ``alpha > alpha_threshold(pixel, s, surface)`` (stochastic transparency).
+  ``alpha > see_through_threshold(pixel, s, surface)`` (stochastic transparency).
 - :func:`albedo`: instance base colour x the colour image's (decoded) RGB, bilinear in place of
   cubic (as the G-buffer's mip-mapped colour).
 
@@ -32,7 +32,7 @@ import numpy as np
 from ..scene import LUMA
 
 __all__ = ["sample_image", "srgb_to_linear", "apply_uv_transform", "material_alpha", "transmittance",
-           "albedo", "is_opaque", "alpha_threshold", "camera_keeps"]
+           "albedo", "is_opaque", "see_through_threshold", "camera_keeps"]
 
 
 # ------------------------------------------------------------------------------------------
@@ -235,7 +235,7 @@ def _bit_reverse(s: np.ndarray) -> np.ndarray:
     return out
 
 
-def alpha_threshold(x, y, sample, surface) -> np.ndarray:
+def see_through_threshold(x, y, sample, surface) -> np.ndarray:
     """float32 thresholds in (0, 1) of sample ``sample`` at GL pixels (``x``, ``y``: column, row
     from the bottom) of surface ``surface`` (the instance index): the bit-reversed sample index
     (a van der Corput sequence) plus a hash of pixel and surface, modulo 2^32, its top 23 bits
@@ -252,7 +252,7 @@ def alpha_threshold(x, y, sample, surface) -> np.ndarray:
 def camera_keeps(scene, material_index: int, uv, sample=None, x=None, y=None, surface=None) -> np.ndarray:
     """(N,) bool: whether a camera ray keeps a surface of material ``material_index`` at mesh
     UVs ``uv`` (N, 2). CLIP: ``alpha >= alpha_threshold``; BLEND: ``alpha >= 0.5``, or with
-    ``sample`` (a see-through sub-frame) ``alpha > alpha_threshold(x, y, sample, surface)``,
+    ``sample`` (a see-through sub-frame) ``alpha > see_through_threshold(x, y, sample, surface)``,
     the alpha in float32 as the GPU holds it. No material (-1): kept."""
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
     k = int(material_index)
@@ -264,4 +264,4 @@ def camera_keeps(scene, material_index: int, uv, sample=None, x=None, y=None, su
         return a >= np.float32(mat.alpha_threshold)
     if sample is None:
         return a >= 0.5
-    return a.astype(np.float32) > alpha_threshold(x, y, sample, surface)
+    return a.astype(np.float32) > see_through_threshold(x, y, sample, surface)
