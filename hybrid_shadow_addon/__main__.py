@@ -105,6 +105,22 @@ def parse_resolution(text: str) -> tuple[int, int]:
     return w, h
 
 
+#: the help of --transparency-samples (render, compare)
+TRANSPARENCY_HELP = ("see-through surfaces (blended materials with an alpha between 0 and 1) in view: sub-frames "
+                     "of stochastic transparency averaged, each surface shown alpha of the time, as Cycles blends "
+                     "it with what lies behind (default: Settings'; 1: one frame, cut at alpha 0.5)")
+
+
+def with_transparency_samples(variants, n: int) -> list:
+    """``variants`` with ``transparency_samples`` ``n``."""
+    from .tools.variants import Variant
+
+    try:
+        return [Variant(v.name, v.label, v.settings.replace(transparency_samples=int(n))) for v in variants]
+    except ValueError as e:
+        raise HybridShadowError(f"--transparency-samples: {e}") from None
+
+
 def cmd_render(args) -> int:
     from .core.settings import Settings
     from .tools.render import print_report, render_to_files
@@ -115,7 +131,9 @@ def cmd_render(args) -> int:
                         conservative=args.conservative_maps, structure=args.structure or Settings.structure,
                         light_grid=not args.no_light_grids,
                         samples=args.samples if args.samples is not None else Settings.samples, hard=args.hard,
-                        noise_target=args.noise_target if args.noise_target is not None else Settings.noise_target)
+                        noise_target=args.noise_target if args.noise_target is not None else Settings.noise_target,
+                        transparency_samples=(args.transparency_samples if args.transparency_samples is not None
+                                              else Settings.transparency_samples))
     except ValueError as e:
         raise SceneError(str(e)) from None
     if args.frames is not None:
@@ -182,6 +200,8 @@ def cmd_compare(args) -> int:
     from .tools.variants import resolve_variants
 
     variants = resolve_variants(args.modes)
+    if args.transparency_samples is not None:
+        variants = with_transparency_samples(variants, args.transparency_samples)
     if args.shadow_samples is not None and not args.soft:
         raise HybridShadowError("--shadow-samples is for soft comparisons (--soft): hard lights take one ray")
     with blender_output_to_stderr():
@@ -289,6 +309,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "error) gives its penumbrae as many samples again (default: Settings'; 0: never)")
     pr.add_argument("--hard", action="store_true",
                     help="every light hard: one ray to its centre, sizes ignored (as compare's references)")
+    pr.add_argument("--transparency-samples", type=int, default=None, metavar="N", help=TRANSPARENCY_HELP)
     pr.set_defaults(func=cmd_render)
 
     modes_help = ("variants to run, space or comma separated: raytrace-high, raytrace-medium, raytrace-low, "
@@ -318,6 +339,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "the %% of pixels lit in one and shadowed in the other)")
     pc.add_argument("--shadow-samples", type=int, default=None, metavar="N",
                     help="with --soft: our shadow rays per pixel towards a light with a size (default: Settings')")
+    pc.add_argument("--transparency-samples", type=int, default=None, metavar="N", help=TRANSPARENCY_HELP)
     pc.add_argument("--mesh-spheres", action="store_true",
                     help="Cycles renders objects flagged as sphere primitives as their meshes (default: as the "
                     "sphere we trace, so the error is the shadows', not the flag's stand-in)")

@@ -20,7 +20,9 @@
 // the distance for any clip range.
 // TEXTURED (models with UVs shown with a textured material): in_uv per vertex, in_matid per
 // instance (-1: none); the albedo is the colour image (mip mapped, common/alpha.glsl) times the
-// instance colour, and fragments whose alpha the material cuts are discarded.
+// instance colour, and fragments whose alpha the material cuts are discarded: at 0.5, or on
+// sample u_alpha_sample of a see-through accumulation where a BLEND alpha is below the sample's
+// hashed threshold (hs_alpha_keeps_sample).
 #include "common/camera.glsl"
 uniform float u_log_depth_scale;   // 1 / log2(clip_end / clip_start)
 
@@ -130,6 +132,7 @@ void main() {
 #ifdef FRAGMENT_SHADER
 #ifdef TEXTURED
 #include "common/alpha.glsl"
+uniform int u_alpha_sample;   // see-through accumulation's sample index; -1: none (alpha >= 0.5)
 #endif
 #ifdef TERMINATOR
 in TriangleData { HS_GB_VARYINGS HS_GB_TRIANGLE };
@@ -208,7 +211,8 @@ void main() {
         vec2 tuv = hs_material_uv(v_matid, v_uv);
         vec2 dx = dFdx(tuv) * tex_size, dy = dFdy(tuv) * tex_size;
         float lod = 0.5 * log2(max(max(dot(dx, dx), dot(dy, dy)), 1e-30));
-        if (!hs_alpha_keeps(v_matid, v_uv)) discard;
+        if (!hs_alpha_keeps_sample(v_matid, v_uv, u_alpha_sample, uvec2(gl_FragCoord.xy),
+                                   uint(v_material.z + 0.5))) discard;
         albedo.rgb *= hs_material_color(v_matid, v_uv, lod);
     }
 #endif

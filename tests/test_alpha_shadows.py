@@ -20,10 +20,11 @@ pytestmark = [pytest.mark.gpu]
 
 
 def render(pipeline, sc, mode="raytrace"):
-    """A frame of ``sc`` at quality high, baked afresh (the pipeline keeps its bake otherwise)."""
+    """A frame of ``sc`` at quality high, baked afresh (the pipeline keeps its bake otherwise); one
+    G-buffer, cut at 0.5 (see-through accumulation: test_see_through.py)."""
     if mode == "raytrace":
         pipeline.set_scene(sc, "bvh")
-    return pipeline.render(sc, Settings(mode=mode, quality="high", structure="bvh"))
+    return pipeline.render(sc, Settings(mode=mode, quality="high", structure="bvh", transparency_samples=1))
 
 
 @pytest.fixture(scope="module")
@@ -218,7 +219,8 @@ def test_moving_an_alpha_card_keeps_the_masks_exact(pipeline):
     b.instances.set_matrices([2], trs((0.8, 1.9, 1.6), rot_z=0.9)[None])
     rep = sync_scene(pipeline, a, b, structure="bvh")
     assert rep.kind != FULL and 2 in rep.moved
-    moved = pipeline.render(b, Settings(mode="raytrace", quality="high", structure="bvh")).mask_array(0)
+    moved = pipeline.render(b, Settings(mode="raytrace", quality="high", structure="bvh",
+                                        transparency_samples=1)).mask_array(0)
     c = alpha_scene()
     c.instances.set_matrices([2], trs((0.8, 1.9, 1.6), rot_z=0.9)[None])
     fresh = render(pipeline, c).mask_array(0)

@@ -206,3 +206,24 @@ def test_bad_resolution(res, words, tmp_path):
     assert "Traceback" not in r.stderr
     assert words in r.stderr.strip().splitlines()[-1]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_bad_transparency_samples(tmp_path):
+    r = cli("render", "cube_on_plane", "--transparency-samples", "0", "--output", str(tmp_path / "out.png"))
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr
+    assert "transparency_samples must be between 1 and 4096" in r.stderr.strip().splitlines()[-1]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_render_transparency_samples_in_stats(tmp_path):
+    """The see_through panes: 16 sub-frames by default, one with --transparency-samples 1."""
+    import json
+
+    for n, want in ((None, 16), (1, None)):
+        extra = [] if n is None else ["--transparency-samples", str(n)]
+        st = tmp_path / f"stats{n}.json"
+        r = cli("render", "see_through", "--hard", "--quiet", "--output", str(tmp_path / f"out{n}.png"),
+                "--stats", str(st), *extra)
+        assert r.returncode == 0, r.stderr
+        assert json.loads(st.read_text()).get("see_through_samples") == want

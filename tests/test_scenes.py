@@ -26,6 +26,7 @@ SMALL = {
     "materials": "materials",
     "visibility": "visibility",
     "linking": "linking",
+    "see_through": "see_through",
 }
 # the shading-normal scenes and third-party models (against Cycles in test_real_meshes.py)
 SMALL.update({n: n for n in ("normals/smooth_primitives", "normals/weighted_normals", "normals/custom_split",

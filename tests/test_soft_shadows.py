@@ -158,7 +158,7 @@ def test_no_ghost_after_a_move(pipeline):
 def test_soft_shadows_through_alpha_cards(pipeline):
     sc = alpha_scene(lights=("sun",))
     sc.lights[0].angle = np.radians(6)
-    f = frame_of(pipeline, sc)
+    f = frame_of(pipeline, sc, transparency_samples=1)  # (one G-buffer: its shadow rays are checked)
     ok, o, d, tmax, facing = shadow_rays(f, sc, 0)
     n = f.gbuffer.read("normal")[..., :3][ok]
     pick = np.sort(np.random.default_rng(5).choice(len(o), min(PIXELS, len(o)), replace=False))

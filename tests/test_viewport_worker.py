@@ -148,6 +148,28 @@ def test_soft_shadows_accumulate_until_the_samples(worker, base):
     assert last.stats["accumulated_samples"] == 20
 
 
+def test_see_through_surfaces_accumulate_until_the_samples(worker):
+    """A view with see-through panes: one sub-frame per step until transparency_samples, then it
+    stops; the last frame is the final render's average."""
+    from tests.helpers.scenes import pane_scene
+
+    sc = pane_scene()
+    full = Settings(mode="raytrace", quality="high", hard=True, accumulate=True, transparency_samples=5)
+    worker.set_scene(sc)
+    n = len(worker.log)
+    seq = worker.render(request("p", sc, fast=full, full=full, w=160, h=120))
+    last = finish(worker, "p")
+    steps = [(s, left) for v, sq, s, q, left in worker.log[n:] if v == "p" and sq == seq]
+    assert steps == [(0, 1), (1, 1), (2, 1), (3, 1), (4, 0)]
+    assert last.stats["see_through_samples"] == 5
+    p = Pipeline()
+    try:
+        final = p.render(sc, full.replace(accumulate=False), 160, 120)
+        assert np.allclose(last.image, final.image, atol=1e-5)
+    finally:
+        p.release()
+
+
 def test_requests_for_a_view_coalesce(worker, base):
     gate = threading.Event()
 

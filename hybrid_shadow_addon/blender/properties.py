@@ -168,6 +168,15 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
                                         description="Viewport: shadow rays per pixel and soft light each redraw adds "
                                                     "(the first redraw after a change: four times as many in the "
                                                     "penumbrae)")
+    transparency_samples: IntProperty(name="See-Through Samples", default=Settings.transparency_samples, min=1,
+                                      max=4096, soft_max=64,
+                                      description="Where the camera sees see-through surfaces (blended materials "
+                                                  "with an alpha between 0 and 1): frames of stochastic "
+                                                  "transparency averaged, so that each shows alpha x itself + "
+                                                  "(1 - alpha) x what lies behind, as in Cycles. A final render "
+                                                  "renders them all, a still viewport one per redraw; scenes "
+                                                  "without such surfaces render one frame. 1: a surface shows "
+                                                  "where its alpha is at least 0.5")
     use_specular: BoolProperty(name="Specular", default=True,
                                description="Add the specular lobe of the materials to the lighting",
                                update=_tag_viewport)
@@ -204,6 +213,7 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
             conservative=self.conservative_maps.lower(), structure=self.structure.lower(),
             light_grid=bool(self.use_light_grid), samples=samples, hard=not self.use_soft_shadows,
             pcss_samples=int(self.pcss_samples), accumulate=viewport, frame_samples=frame_samples,
+            transparency_samples=int(self.transparency_samples),
         )
 
 

@@ -63,6 +63,7 @@ class RENDER_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
         sub.active = props.use_soft_shadows
         sub.prop(props, "samples", text="Render Samples")
         sub.prop(props, "noise_target")
+        layout.prop(props, "transparency_samples")
         draw_compare_button(layout)
 
 

@@ -235,6 +235,9 @@ def show_result(engine, worker) -> bool:
     left = f", refining ({result.refine_left} left)" if result.refine_left > 0 else ""
     if acc is not None:
         left += f", {acc}/{result.settings.samples} soft samples"
+    seen = result.stats.get("see_through_samples")
+    if seen is not None:
+        left += f", {seen}/{result.stats['see_through_target']} see-through samples"
     engine.update_stats("", f"Hybrid Shadows | {settings_label(result)} | "
                             f"{result.timings.get('total_ms', 0):.0f} ms{left}{report_note(engine)}")
     return True

@@ -73,6 +73,13 @@ class Settings:
       every pixel as a final render does and gives the penumbrae four times ``frame_samples``. The
       mask is filtered within its penumbrae, the more the fewer its samples. Any change
       (``Pipeline.reset_history``) starts afresh.
+    - ``transparency_samples``: sub-frames averaged where the camera sees see-through surfaces
+      (blended materials with an alpha between 0 and 1: ``core/gpu/see_through.py``), each
+      keeping such a surface where its alpha exceeds a hashed threshold, so the image and the
+      masks converge to alpha x the surface + (1 - alpha) x what lies behind it, as in Cycles.
+      A final render renders them all; ``accumulate`` (the viewport) one per frame. 1: one
+      frame, such a surface shown where its alpha is at least 0.5. A scene without them renders
+      one frame.
     """
 
     mode: str = "raytrace"
@@ -96,6 +103,7 @@ class Settings:
     hard: bool = False
     accumulate: bool = False
     frame_samples: int = 4
+    transparency_samples: int = 16
 
     def __post_init__(self):
         self.validate()
@@ -148,6 +156,7 @@ class Settings:
         _integer(self.samples, "samples", low=1, high=4096)
         _number(self.noise_target, "noise_target", low=0.0)
         _integer(self.frame_samples, "frame_samples", low=1, high=4096)
+        _integer(self.transparency_samples, "transparency_samples", low=1, high=4096)
         if not isinstance(self.accumulate, bool):
             raise ValueError(f"accumulate must be True or False, not {self.accumulate!r}")
         if not isinstance(self.specular, bool):

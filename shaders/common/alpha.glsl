@@ -214,6 +214,37 @@ bool hs_alpha_keeps(int mat, vec2 uv)
     return hs_material_alpha(mat, uv) >= thr;
 }
 
+// Stochastic transparency (core/gpu/see_through.py; oracle: core/oracle/alpha.py
+// see_through_threshold). An integer hash (lowbias32) for the per-pixel, per-surface rotation.
+uint hs_hash(uint x)
+{
+    x ^= x >> 16u; x *= 0x7feb352du;
+    x ^= x >> 15u; x *= 0x846ca68bu;
+    x ^= x >> 16u;
+    return x;
+}
+
+// The threshold a BLEND fragment's alpha must exceed on sample s of a see-through accumulation:
+// the bit-reversed sample index (van der Corput: any first 2^k samples stratify (0, 1)) rotated
+// by a hash of the pixel (GL x, y) and the surface (instance index), so that pixels and stacked
+// panes decorrelate; (2k + 1) / 2^24, exact in float32, strictly inside (0, 1).
+float hs_alpha_threshold(uvec2 pixel, uint s, uint surface)
+{
+    uint r = hs_hash(hs_hash(hs_hash(surface + 0x9e3779b9u) ^ pixel.y) ^ pixel.x);
+    uint t = bitfieldReverse(s) + r;
+    return (float(t >> 9u) + 0.5) * (1.0 / 8388608.0);
+}
+
+// hs_alpha_keeps on sample s of a see-through accumulation (s < 0: none, the rule above): CLIP
+// keeps its threshold; BLEND keeps the fragment where its alpha exceeds hs_alpha_threshold, so
+// that over the samples a surface shows alpha of the time.
+bool hs_alpha_keeps_sample(int mat, vec2 uv, int s, uvec2 pixel, uint surface)
+{
+    uvec4 t2 = hs_mat(HS_MAT_TEXELS * mat + 2);
+    if (s < 0 || (t2.z & HS_MAT_CLIP) != 0u) return hs_alpha_keeps(mat, uv);
+    return hs_material_alpha(mat, uv) > hs_alpha_threshold(pixel, uint(s), surface);
+}
+
 // Linear base colour factor of material mat's colour image at mesh UV uv and mip level lod
 // (trilinear, Cubic images too), white without one.
 vec3 hs_material_color(int mat, vec2 uv, float lod)

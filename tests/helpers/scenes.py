@@ -322,3 +322,41 @@ def variant_scene(lights=("SUN",), meshes=True, spheres=False, spread=1.0):
         m[:3, 3] = (1, -1, 4)
         ls.append(Light(t, t, matrix=m, power=500.0, spot_size=np.radians(120)))
     return Scene(models=models, instances=inst, lights=ls, camera=Camera(matrix=cam), resolution=VARIANT_SIZE)
+
+
+def pane_scene(alphas=(0.3, 0.7), stacked=False, sun_rot=(2.6, 0.7), pane_x=0.0, panes=True):
+    """See-through panes (Principled Alpha, no image, BLEND) level above a patterned ground lit by
+    a sun, with an opaque cube casting a shadow under each (instances: the ground, the cubes,
+    the panes); ``stacked``: a second pane of each
+    alpha 0.3 m above the first. The panes are horizontal like the ground, so a sun lights both
+    alike and Cycles' per-light visibility through a pane is the alpha-weighted mean. ``pane_x``
+    moves the panes along x (far: out of view); ``panes=False`` leaves them out (what lies
+    behind them)."""
+    images = [Image("ground", colour_image(), extension="REPEAT")]
+    materials = [Material("ground", color_image=0, uv_transform=np.float32([[3, 0, 0.1], [0, 3, 0]]))]
+    materials += [Material(f"pane{int(round(a * 100))}", alpha=a) for a in alphas]
+    cube = Model("cube", np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], np.float32),
+                 np.array([t for q in [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4),
+                                       (1, 5, 7, 3)] for t in ((q[0], q[1], q[2]), (q[0], q[2], q[3]))], np.uint32))
+    models = [quad("ground", 6.0), quad("pane"), cube]
+    names, mids, mats, mat_ids, colours = ["ground"], [0], [trs()], [0], [(1, 1, 1, 1)]
+    for k in range(len(alphas)):  # an opaque cube under each pane
+        names.append(f"cube{k}")
+        mids.append(2)
+        mats.append(trs((pane_x - 1.6 + 3.2 * k, 0.3, 0.5), scale=(0.4, 0.4, 0.5)))
+        mat_ids.append(-1)
+        colours.append((0.8, 0.3, 0.2, 1))
+    layers = (0.0, 0.3) if stacked else (0.0,)
+    for k, a in enumerate(alphas if panes else ()):
+        for j, dz in enumerate(layers):
+            names.append(f"pane{int(round(a * 100))}_{j}")
+            mids.append(1)
+            mats.append(trs((pane_x - 1.6 + 3.2 * k, 0.0, 1.6 + dz), scale=(1.4, 1.8, 1)))
+            mat_ids.append(1 + k)
+            colours.append((0.2, 0.5, 0.9, 1))
+    inst = Instances(names=names, model_ids=mids, matrices=np.array(mats), material_ids=mat_ids,
+                     base_color=colours)
+    sun = Light("sun", "SUN", power=3.0, matrix=trs((0, 0, 10), rot_z=sun_rot[0], rot_x=sun_rot[1]))
+    cam = Camera(matrix=look_at((0.0, -6.5, 7.0), (0, 0.3, 0.6)), lens=32.0)
+    return Scene(models=models, instances=inst, lights=[sun], camera=cam, resolution=(160, 120),
+                 materials=materials, images=images, world_color=(0.05, 0.05, 0.05)).validate()

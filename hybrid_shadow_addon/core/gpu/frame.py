@@ -133,7 +133,9 @@ class FrameJob:
     unshadowed), then ``image`` (the RGBA32F lighting texture). ``on_light(index)`` is called
     by the shadow passes before each light (progress and cancel). ``dark``: lights a shadow pass
     found to light no pixel (their reach holds no visible surface, their mask is 0 on every
-    one): the lighting leaves them out, as it would add nothing of theirs."""
+    one): the lighting leaves them out, as it would add nothing of theirs. ``alpha_sample``: the
+    sample index of a see-through accumulation (the G-buffer's stochastic alpha cut), None: the
+    cut at 0.5."""
 
     scene: object
     settings: object
@@ -146,6 +148,7 @@ class FrameJob:
     image: moderngl.Texture | None = None
     on_light: Callable[[int], None] | None = None
     dark: set = field(default_factory=set)
+    alpha_sample: int | None = None
 
     @property
     def size(self) -> tuple:

@@ -28,6 +28,7 @@ from .frame import FrameJob, read_mask
 from .lights import select_shadowed_lights
 from .passes import GBufferPass, LightingPass, NoShadowPass, RaytracePass, ShadowMapPass, UpsamplePass
 from .resources import GpuResources
+from .see_through import SeeThroughAccumulation, SeeThroughScene, split_progress, sub_frame_settings, target_samples
 from .targets import read_texture
 
 #: ``Settings.mode`` -> the shadow pass that makes its masks
@@ -44,10 +45,13 @@ class Frame:
     timings: dict = field(default_factory=dict)  # ms per pass
     stats: dict = field(default_factory=dict)
     gbuffer: object = None
+    mask_arrays: dict = None  # light index -> float32 mask (a see-through average), else read
     _coverage: np.ndarray = field(default=None, repr=False)
 
     def mask_array(self, light_index: int) -> np.ndarray:
         """float32 (H, W), row 0 = top, 1 lit / 0 shadowed, NaN where there is no geometry."""
+        if self.mask_arrays is not None:
+            return self.mask_arrays[light_index].copy()
         if self._coverage is None:  # one G-buffer read for all the frame's masks
             self._coverage = self.gbuffer.coverage()
         return read_mask(self.masks[light_index], self.gbuffer, self._coverage)
@@ -94,6 +98,9 @@ class Pipeline:
         self.upsample = UpsamplePass(self.gpu)
         self.lighting = LightingPass(self.gpu)
         self._shadow: dict = {}  # mode -> shadow pass, created on first use
+        self.see_through = SeeThroughScene()
+        self._st = SeeThroughAccumulation(self.ctx)  # the viewport's running see-through average
+        self.gbuffer_renders = 0  # G-buffer passes rendered (a see-through frame renders several)
 
     def view(self) -> Pipeline:
         """Another pipeline sharing this one's context, programs, model buffers and bake, with
@@ -161,6 +168,7 @@ class Pipeline:
         """Camera, light or setting change: no pass may reuse what earlier frames left."""
         for p in self._passes():
             p.reset_history()
+        self._st.reset()
         self._generation = self._bake.generation
 
     # -- frame ------------------------------------------------------------------------------------
@@ -171,7 +179,11 @@ class Pipeline:
         shadowed light (whatever it raises aborts the frame: a place to cancel). The shadows are
         traced through the baked scene: the first render bakes ``scene``, and so does one that
         asks for another structure; for another scene call :meth:`set_scene` first (for moved
-        instances and edited models, :meth:`move_instances` and :meth:`update_model`)."""
+        instances and edited models, :meth:`move_instances` and :meth:`update_model`).
+
+        With see-through surfaces in view (:mod:`.see_through`) and ``transparency_samples`` > 1
+        the frame averages that many sub-frames of stochastic transparency (``accumulate``: one
+        more per call, up to them; ``stats["see_through_samples"]`` counts them)."""
         make_current(self.ctx)
         settings = settings or Settings()
         if scene.camera is None:
@@ -179,6 +191,57 @@ class Pipeline:
         width = int(width or scene.resolution[0])
         height = int(height or scene.resolution[1])
         check_render_size(self.ctx, width, height)
+        n = target_samples(settings)
+        if n > 1 and self.see_through.in_view(scene, width, height):
+            return self._render_see_through(scene, settings, width, height, film_transparent, progress, n)
+        return self._render_frame(scene, settings, width, height, film_transparent, read_image, progress)
+
+    def _render_see_through(self, scene, settings, width, height, film_transparent, progress, n) -> Frame:
+        """The average of ``n`` sub-frames (all now, or with ``settings.accumulate`` one more than
+        the last call's, restarting when the settings, size or film differ). A final frame's
+        G-buffer (its data passes) is then drawn once more with the cut at 0.5, as Cycles writes
+        its data passes at the first surface of alpha 0.5 or more, and its masks are NaN where
+        that G-buffer has no geometry; the viewport's G-buffer is the last sub-frame's and its
+        masks NaN where no sub-frame had geometry."""
+        if self._generation != self._bake.generation:
+            self.reset_history()
+        sub = sub_frame_settings(settings)
+        if self.shadow_pass(sub.mode).needs_bake and (self.baked is None or self.baked.structure != sub.structure):
+            self.set_scene(scene, sub.structure)  # (before the sub-frames: a bake resets history)
+        acc = self._st
+        key = (settings, width, height, bool(film_transparent))
+        if acc.key != key:
+            acc.reset(key)
+            for p in self._passes():  # (the sub-frames' shadows start without history)
+                p.reset_history()
+        elif acc.count >= n and acc.frame is not None:
+            return acc.frame
+        todo = range(acc.count, acc.count + 1) if settings.accumulate else range(n)
+        frame = None
+        for i in todo:
+            frame = self._render_frame(scene, sub, width, height, film_transparent, True,
+                                       split_progress(progress, i - todo.start, len(todo)), alpha_sample=i)
+            acc.add(frame)
+        stats = dict(frame.stats, see_through_samples=acc.count, see_through_target=n)
+        timings = dict(acc.timings) if not settings.accumulate else dict(frame.timings)
+        gbuffer, coverage = frame.gbuffer, None
+        if not settings.accumulate:  # the data passes: the surfaces of alpha >= 0.5, as Cycles' are
+            job = FrameJob(scene, sub, width, height, film_transparent)
+            gbuffer = self._timed(timings, "gbuffer_data", self.gbuffer_pass.render, job)
+            timings["total_ms"] += timings["gbuffer_data_ms"]
+            self.gbuffer_renders += 1
+            coverage = gbuffer.coverage()
+        out = Frame(image=(acc.image / acc.count).astype(np.float32), masks=acc.mask_textures(coverage),
+                    lights=list(acc.lights), timings=timings, stats=stats, gbuffer=gbuffer,
+                    mask_arrays={li: acc.mask(li, coverage) for li in acc.lights})
+        acc.frame = out
+        if not settings.accumulate:
+            acc.reset()
+        return out
+
+    def _render_frame(self, scene, settings, width, height, film_transparent, read_image, progress,
+                      alpha_sample: int | None = None) -> Frame:
+        """One frame's passes (``alpha_sample``: a see-through sub-frame's sample index)."""
         if self._generation != self._bake.generation:
             self.reset_history()  # another view of this bake changed it
         shadow = self.shadow_pass(settings.mode)
@@ -187,7 +250,8 @@ class Pipeline:
         self._reset_gl_state()  # (a frame aborted by its progress callback may have left any)
         self.gpu.linking.update(scene)  # (linking lives apart from the bake: an upload at most)
         job = FrameJob(scene, settings, width, height, film_transparent,
-                       lights=select_shadowed_lights(scene, settings))
+                       lights=select_shadowed_lights(scene, settings), alpha_sample=alpha_sample)
+        self.gbuffer_renders += 1
         step = _Steps(progress, 4 + len(job.lights))
         if shadow.light_label is not None:
             job.on_light = lambda li: step(f"{shadow.light_label}: {scene.lights[li].name}")
@@ -242,5 +306,6 @@ class Pipeline:
         make_current(self.ctx)
         for p in self._passes():
             p.release()
+        self._st.release()
         if self._owns_gpu:
             self.gpu.release()

@@ -9,8 +9,8 @@
   render requests for the
   same view coalesce (only the newest pending one runs). A render request carries the fast and
   the full settings: the worker renders the fast pass, then the full-quality frames (four with
-  interlacing, more while soft shadows accumulate) as long as nothing newer arrives, one frame
-  per step. Each view renders through its own
+  interlacing, more while soft shadows or see-through surfaces accumulate) as long as nothing
+  newer arrives, one frame per step. Each view renders through its own
   :meth:`Pipeline.view` (own targets and history, the worker's bake). Errors are kept for the
   caller's :meth:`RenderWorker.poll`. ``synchronous=True`` (or :data:`SYNCHRONOUS`) runs the
   same steps inline, one render step per :meth:`RenderWorker.pump`, for debugging.
@@ -400,6 +400,9 @@ class RenderWorker:
         acc = frame.stats.get("accumulated_samples")
         if acc is not None and settings.accumulate and acc < settings.samples:
             job.refine = max(job.refine, 1)  # soft lights still converging: one more frame
+        seen = frame.stats.get("see_through_samples")
+        if seen is not None and settings.accumulate and seen < frame.stats["see_through_target"]:
+            job.refine = max(job.refine, 1)  # see-through surfaces still converging: one more frame
         result = ViewResult(view=req.view, seq=req.seq, step=job.step, image=image, settings=settings,
                             refine_left=job.refine, stats=dict(frame.stats), timings=dict(frame.timings))
         job.step += 1

@@ -16,6 +16,9 @@ Everything follows the rules documented on :class:`core.scene.Image` and
 - :func:`transmittance`: what a shadow ray keeps crossing the surface: 0 when opaque (no
   material, a material without alpha, or ``transparent_shadow`` off); BLEND ``1 - alpha``;
   CLIP ``1 if alpha < alpha_threshold else 0``.
+- :func:`camera_keeps`: whether a camera ray keeps the surface (the G-buffer's cut): CLIP at its
+  threshold; BLEND at ``alpha >= 0.5``, or on sample ``s`` of a see-through accumulation where
+  ``alpha > see_through_threshold(pixel, s, surface)`` (stochastic transparency).
 - :func:`albedo`: instance base colour x the colour image's (decoded) RGB, bilinear in place of
   cubic (as the G-buffer's mip-mapped colour).
 
@@ -29,7 +32,7 @@ import numpy as np
 from ..scene import LUMA
 
 __all__ = ["sample_image", "srgb_to_linear", "apply_uv_transform", "material_alpha", "transmittance",
-           "albedo", "is_opaque"]
+           "albedo", "is_opaque", "see_through_threshold", "camera_keeps"]
 
 
 # ------------------------------------------------------------------------------------------
@@ -208,3 +211,57 @@ def albedo(scene, instance_rows, uv) -> np.ndarray:
             rgb = srgb_to_linear(rgb)
         out[sel] *= rgb
     return out
+
+
+# ------------------------------------------------------------------------------------------
+# the camera's cut (stochastic transparency)
+# ------------------------------------------------------------------------------------------
+def _hash(x: np.ndarray) -> np.ndarray:
+    """lowbias32 on uint32 arrays (``shaders/common/alpha.glsl`` hs_hash)."""
+    x = np.asarray(x, np.uint32).copy()
+    x ^= x >> np.uint32(16)
+    x *= np.uint32(0x7FEB352D)
+    x ^= x >> np.uint32(15)
+    x *= np.uint32(0x846CA68B)
+    x ^= x >> np.uint32(16)
+    return x
+
+
+def _bit_reverse(s: np.ndarray) -> np.ndarray:
+    s = np.asarray(s, np.uint32)
+    out = np.zeros_like(s)
+    for b in range(32):
+        out |= ((s >> np.uint32(b)) & np.uint32(1)) << np.uint32(31 - b)
+    return out
+
+
+def see_through_threshold(x, y, sample, surface) -> np.ndarray:
+    """float32 thresholds in (0, 1) of sample ``sample`` at GL pixels (``x``, ``y``: column, row
+    from the bottom) of surface ``surface`` (the instance index): the bit-reversed sample index
+    (a van der Corput sequence) plus a hash of pixel and surface, modulo 2^32, its top 23 bits
+    as ``(k + 0.5) / 2^23`` (hs_alpha_threshold)."""
+    x, y, surface = np.broadcast_arrays(np.asarray(x, np.int64), np.asarray(y, np.int64),
+                                        np.asarray(surface, np.int64))
+    with np.errstate(over="ignore"):
+        h = _hash(surface.astype(np.uint32) + np.uint32(0x9E3779B9))
+        r = _hash(_hash(h ^ y.astype(np.uint32)) ^ x.astype(np.uint32))
+        t = _bit_reverse(np.full(r.shape, int(sample), np.uint32)) + r
+    return ((t >> np.uint32(9)).astype(np.float32) + np.float32(0.5)) * np.float32(1.0 / 8388608.0)
+
+
+def camera_keeps(scene, material_index: int, uv, sample=None, x=None, y=None, surface=None) -> np.ndarray:
+    """(N,) bool: whether a camera ray keeps a surface of material ``material_index`` at mesh
+    UVs ``uv`` (N, 2). CLIP: ``alpha >= alpha_threshold``; BLEND: ``alpha >= 0.5``, or with
+    ``sample`` (a see-through sub-frame) ``alpha > see_through_threshold(x, y, sample, surface)``,
+    the alpha in float32 as the GPU holds it. No material (-1): kept."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    k = int(material_index)
+    if k < 0:
+        return np.ones(len(uv), bool)
+    mat = scene.materials[k]
+    a = material_alpha(scene, k, uv)
+    if mat.alpha_mode == "CLIP":
+        return a >= np.float32(mat.alpha_threshold)
+    if sample is None:
+        return a >= 0.5
+    return a.astype(np.float32) > see_through_threshold(x, y, sample, surface)

@@ -17,7 +17,8 @@ material's w -1 so that the lighting leaves a hole (alpha 0, no colour) there.
 Sphere primitives (``Instances.sphere``) are drawn as their model's bounding sphere
 (ray/ellipsoid per fragment). Models with UVs shown with a textured material draw with the
 ``TEXTURED`` variant: the UVs of the indexed buffer, the material per instance, the colour image's texel (mip
-mapped) times the instance colour, and the fragments that the material's alpha cuts discarded.
+mapped) times the instance colour, and the fragments that the material's alpha cuts discarded
+(``FrameJob.alpha_sample``: a see-through accumulation's sample, :mod:`..see_through`).
 
 World positions are the pixel-centre camera ray intersected with the triangle's plane (see
 ``shaders/gbuffer.glsl``), so they match an exact ray cast of ``Camera.pixel_rays``. The depth
@@ -159,6 +160,7 @@ class GBufferPass(Pass):
         self.chunked = True  # draw big models by chunks, leaving out those outside the view (tests compare)
         self.triangles = 0  # triangles drawn by the last render (instances x triangles of each draw)
         self._frame_programs: dict = {}  # smooth -> (program, textured program): this render's
+        self._alpha_sample = None  # this render's see-through sample index (None: the 0.5 cut)
 
     # -- targets -------------------------------------------------------------------------------
     def _targets(self, width, height) -> GBuffer:
@@ -205,10 +207,15 @@ class GBufferPass(Pass):
         return np.ascontiguousarray(np.concatenate(cols, axis=1), dtype=np.float32)
 
     def _model_vao(self, key, scene, model, rows, cam_pos, prog, tprog, vbo, ibo):
-        """The vao drawing instances ``rows`` of ``model`` (textured where shown so)."""
+        """The vao drawing instances ``rows`` of ``model`` (textured where shown so; a mesh
+        without UVs too when its materials read no image: a constant alpha cuts it, its UVs
+        read as zeros)."""
         inst = scene.instances
         data = self.instance_data(scene, rows, cam_pos)
-        if tprog is not None and model.uvs is not None and (inst.material_ids[rows] >= 0).any():
+        mids = np.unique(inst.material_ids[rows])
+        mids = mids[mids >= 0]
+        if tprog is not None and len(mids) and (model.uvs is not None
+                                                 or not any(scene.materials[k].textured for k in mids)):
             data = np.ascontiguousarray(np.concatenate(
                 [data, inst.material_ids[rows].astype(np.float32)[:, None]], axis=1))
             return self._batch(key).upload(data, tprog, vbo, INDEXED_FORMAT, INDEXED_ATTRS, TEXTURED_FORMAT,
@@ -232,6 +239,8 @@ class GBufferPass(Pass):
             prog["u_log_depth_scale"].value = log_depth_scale(scene.camera)
         if len(progs) > 1:
             self.gpu.bind_materials(progs[1], scene)
+            sample = self._alpha_sample
+            progs[1]["u_alpha_sample"].value = -1 if sample is None else int(sample)
         got = self._frame_programs[smooth] = (progs[0], progs[1] if len(progs) > 1 else None)
         return got
 
@@ -254,6 +263,7 @@ class GBufferPass(Pass):
         self.draw_calls = 0
         self.triangles = 0
         self._frame_programs = {}
+        self._alpha_sample = job.alpha_sample
         self.models.prune(scene.models)
         inst = scene.instances
         planes = frustum_planes(cam.clip_from_rel)
