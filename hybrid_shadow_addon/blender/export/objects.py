@@ -27,8 +27,10 @@ import bpy
 import numpy as np
 
 from ...core.scene import Instances, Scene, affine_inverse
+from ...core.scene.curves import sphere_matrices, tube_model, unit_sphere_model
 from .camera import export_camera, render_resolution
 from .common import GEOMETRY_TYPES, collect_report, to_matrices, to_matrix
+from .curves import curves_strands, hair_systems, particle_strands, pointcloud_points, report_tubes
 from .dropped import report_dropped
 from .lights import export_light, is_portal
 from .linking import apply_linking
@@ -37,6 +39,9 @@ from .ray_visibility import DEFAULT, RayVisibility
 from .shading import ShadingTable
 from .visibility import RenderVisibility
 from .world import world_color
+
+#: Object types drawn as tubes or sphere primitives
+STRAND_TYPES = ("CURVES", "POINTCLOUD")
 
 
 class SceneExporter:
@@ -87,8 +92,8 @@ class SceneExporter:
             if inst.is_instance:
                 parent = inst.parent
                 pptr = parent.as_pointer()
-                if pptr in vectorised:
-                    continue
+                if pptr in vectorised and inst.object.type not in STRAND_TYPES:
+                    continue  # strands and points are components the GeometrySet path leaves
                 iterated.add(pptr)
                 ob = inst.object
                 if not self.renderable(parent.original):
@@ -100,6 +105,9 @@ class SceneExporter:
                 if not self.renderable(ob.original):
                     continue
                 name = ob.name
+                self.row_flags = self.rays.flags(ob)
+                for ps in hair_systems(ob):
+                    self._add_hair(ob, ps, inst.matrix_world, name)
                 if (ob.type == "MESH" and ob.as_pointer() not in iterated
                         and any(m.type == "NODES" for m in ob.modifiers)
                         and self._vectorise(ob)):
@@ -112,6 +120,10 @@ class SceneExporter:
                 self._add_mesh_instance(ob, ob.data, ob.data.as_pointer(), inst.matrix_world, name)
             elif kind == "LIGHT" and not is_portal(ob):
                 self.lights.append(export_light(ob, to_matrix(inst.matrix_world), name))
+            elif kind == "CURVES":
+                self._add_curves(ob, inst.matrix_world, name)
+            elif kind == "POINTCLOUD":
+                self._add_points(ob, inst.matrix_world, name)
             elif kind in GEOMETRY_TYPES and bpy.types.GeometrySet.from_evaluated_object(ob).mesh is None:
                 self._add_converted_instance(ob, inst.matrix_world, name)
             report_dropped(ob, name, inst.is_instance)
@@ -168,6 +180,69 @@ class SceneExporter:
                 ob.to_mesh_clear()
         else:  # UVs already read (or found missing)
             self._add_rows(ob, slots, models, matrix.copy(), name, None)
+
+    # -- strands and points -------------------------------------------------------------------
+    def _tube_rows(self, ob, key, label: str, strands, material_index: int, matrix, name) -> None:
+        """One iterated row of the tube model of ``strands`` (``(points, radii, offsets,
+        subdivisions)``, read once per ``key``) with material slot ``material_index``."""
+        models = self.model_table.models_of.get(key)
+        if models is None:
+            points, radii, offsets, sub = strands()
+            model = tube_model(label, points, radii, offsets, subdivisions=sub)
+            models = []
+            if model is not None:
+                report_tubes(label, len(offsets) - 1, len(points) * sub, self.dg.scene_eval)
+                models = [(material_index, len(self.models))]
+                self.models.append(model)
+            self.model_table.models_of[key] = models
+        if models:
+            self._add_rows(ob, ob.material_slots, models, matrix.copy(), name, None)
+
+    def _add_curves(self, ob, matrix, name) -> None:
+        """A Curves object (or instance): its strands as one tube model."""
+        self._tube_rows(ob, ("curves", ob.data.as_pointer()), f"Curves object '{ob.original.name}'",
+                        lambda: curves_strands(ob.data), 0, matrix, name)
+
+    def _add_hair(self, ob, ps, matrix, name) -> None:
+        """Particle hair ``ps`` of evaluated object ``ob``: its strands as one tube model."""
+        render = self.dg.mode == "RENDER"
+        for m in ob.modifiers:
+            if m.type == "PARTICLE_SYSTEM" and m.particle_system.name == ps.name:
+                if not (m.show_render if render else m.show_viewport):
+                    return
+        slot = max(ps.settings.material - 1, 0)
+        if slot >= len(ob.material_slots):
+            slot = 0
+        self._tube_rows(ob, ("hair", ob.original.as_pointer(), ps.name),
+                        f"particle hair '{ps.name}' of object '{ob.original.name}'",
+                        lambda: particle_strands(ob, ps, render) + (2,), slot, matrix, f"{name}/{ps.name}")
+
+    def _add_points(self, ob, matrix, name) -> None:
+        """A point cloud: one sphere primitive of a shared unit model per point."""
+        positions, radii = pointcloud_points(ob.data)
+        n = len(positions)
+        if not n:
+            return
+        key = "unit sphere"
+        if key not in self.model_table.models_of:
+            self.model_table.models_of[key] = [(0, len(self.models))]
+            self.models.append(unit_sphere_model())
+        mid = self.model_table.models_of[key][0][1]
+        material = self._slot_material(ob.material_slots, 0)
+        aid = self.shading.checked(self.shading.attributes(ob, material), mid, None, name)
+        shadow, _, rgba, spec, rough, material_id, _, terminator = self.shading.attrs[aid]
+        matrices = sphere_matrices(to_matrix(matrix), positions, radii)
+        rays = self.row_flags
+        self.part_sources.append(ob.original.name)
+        self.parts.append(Instances(
+            names=[f"{name}[{i}]" for i in range(n)], model_ids=np.full(n, mid, np.int32),
+            matrices=matrices, inverse=affine_inverse(matrices),
+            casts_shadow=np.full(n, shadow and rays.shadow), sphere=np.ones(n, bool),
+            base_color=np.tile(np.float32(rgba), (n, 1)), specular=np.full(n, spec, np.float32),
+            roughness=np.full(n, rough, np.float32), material_ids=np.full(n, material_id, np.int32),
+            terminator=np.full(n, terminator, np.float32),
+            emission=np.tile(np.float32(self.shading.emission(ob, material)), (n, 1)),
+            visible_camera=np.full(n, rays.camera), holdout=np.full(n, rays.holdout)))
 
     def _iterated_instances(self) -> Instances:
         if not self.names:

@@ -155,7 +155,7 @@ class ShadingTable:
         ok = self.uv_of.get(key)
         if ok is None:
             model = self.model_table.models[mid]
-            layer = mesh_uv_layer(mesh, uv_map)
+            layer = mesh_uv_layer(mesh, uv_map) if mesh is not None else None
             if layer is None:
                 ok = False
                 warn_export(f"object '{name}': its material '{self.materials[k].name}' is textured but its mesh "
