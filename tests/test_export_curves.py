@@ -1,0 +1,188 @@
+"""Particle hair, Curves objects (also instanced by geometry nodes) and point clouds: strands
+exported as tube models with their radii, points as sphere primitives; and the tube geometry."""
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from hybrid_shadow_addon.core.scene.curves import (catmull_rom, prism_scale, sphere_matrices, tube_model,
+                                                   unit_sphere_model)
+from tests.helpers.export_scenes import add_object, empty_scene, export_scene, gn_instancer, object_info
+
+
+# -- tube geometry (bpy-free) -------------------------------------------------------------------
+def _axis_distance(model, axis_xy=(0.0, 0.0)):
+    return np.hypot(model.vertices[:, 0] - axis_xy[0], model.vertices[:, 1] - axis_xy[1])
+
+
+def test_straight_tube_radius_counts_and_silhouette():
+    pts = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 2]], float)
+    m = tube_model("t", pts, [0.1, 0.1, 0.1], [0, 3], sides=5)
+    rim = m.vertices[:15]
+    np.testing.assert_allclose(_axis_distance(m)[:15], 0.1 * prism_scale(5), rtol=1e-5)
+    assert len(m.triangles) == 2 * 5 * 2 + 2 * 5  # two segments of quads, two end caps
+    # mean silhouette width over directions equals the diameter
+    dirs = np.linspace(0, np.pi, 360, endpoint=False)
+    widths = [np.ptp(rim[:, :2] @ (math.cos(a), math.sin(a))) for a in dirs]
+    assert np.mean(widths) == pytest.approx(0.2, rel=0.01)
+    assert max(widths) / min(widths) < 1.06
+
+
+def test_tube_radius_follows_points_and_strands_with_one_point_are_dropped():
+    pts = np.array([[0, 0, 0], [0, 0, 1], [5, 5, 5], [1, 0, 0], [1, 0, 1]], float)
+    radii = np.array([0.2, 0.05, 9.0, 0.1, 0.1])
+    m = tube_model("t", pts, radii, [0, 2, 3, 5], sides=3)
+    assert m.bounds_max[2] <= 1.0 + 1e-6 and m.bounds_max[0] < 2  # the lone point is gone
+    d = _axis_distance(m)[:6] / prism_scale(3)
+    np.testing.assert_allclose(d, [0.2] * 3 + [0.05] * 3, rtol=1e-5)
+    assert len(m.triangles) == 2 * (2 * 3 + 2 * 3)
+    assert tube_model("none", pts[:1], radii[:1], [0, 1]) is None
+
+
+def test_catmull_rom_passes_through_points_and_keeps_ends():
+    rng = np.random.default_rng(1)
+    pts = rng.normal(size=(7, 3))
+    radii = rng.uniform(0.1, 0.2, 7)
+    p, r, off = catmull_rom(pts, radii, np.array([0, 4, 7]), 3)
+    assert off.tolist() == [0, 10, 17]
+    np.testing.assert_allclose(p[[0, 3, 6, 9, 10, 13, 16]], pts, atol=1e-12)
+    np.testing.assert_allclose(r[[0, 3, 6, 9, 10, 13, 16]], radii, atol=1e-12)
+
+
+def test_unit_sphere_and_point_matrices():
+    m = unit_sphere_model()
+    assert m.sphere_radius == 1.0 and np.allclose(m.sphere_center, 0)
+    assert np.linalg.norm(m.vertices, axis=1).max() <= 1.0 + 1e-6
+    world = np.eye(4)
+    world[:3, 3] = (1, 2, 3)
+    mats = sphere_matrices(world, [[0, 0, 1], [1, 0, 0]], [0.5, 0.25])
+    np.testing.assert_allclose(mats[:, :3, 3], [[1, 2, 4], [2, 2, 3]])
+    np.testing.assert_allclose(mats[:, 0, 0], [0.5, 0.25])
+
+
+# -- export (Blender) ---------------------------------------------------------------------------
+@pytest.fixture
+def scene():
+    """An empty scene with a camera."""
+    return empty_scene()
+
+
+def _curves(name, n_strands, keys=4, radius=None, height=1.0):
+    data = bpy.data.hair_curves.new(name)
+    data.add_curves([keys] * n_strands)
+    xs = np.arange(n_strands, dtype=np.float32)
+    pos = np.stack([np.repeat(xs, keys), np.zeros(n_strands * keys),
+                    np.tile(np.linspace(0, height, keys), n_strands)], axis=1)
+    data.attributes["position"].data.foreach_set("vector", pos.astype(np.float32).ravel())
+    if radius is not None:
+        attr = data.attributes.new("radius", "FLOAT", "POINT")
+        attr.data.foreach_set("value", np.tile(np.asarray(radius, np.float32), n_strands))
+    return data
+
+
+def _model_of(s, name):
+    return s.models[int(s.instances.model_ids[s.instances.names.index(name)])]
+
+
+def _tube_radii(model, n_strands, keys_x):
+    """Distance of each tube vertex from its strand's axis (strand k along z at x = k)."""
+    v = model.vertices
+    return np.hypot(v[:, 0] - np.round(v[:, 0]), v[:, 1])
+
+
+
+@pytest.mark.blender
+def test_curves_object_strands_and_radii(scene):
+    add_object("Fur", _curves("Fur", 3, radius=[0.04, 0.03, 0.02, 0.01]), location=(0, 0, 1))
+    s = export_scene()
+    m = _model_of(s, "Fur")
+    assert "Curves object 'Fur': 3 strands drawn as 5-sided tubes along their splines" in s.report[0], s.report
+    assert not any("not drawn" in w for w in s.report)
+    r = _tube_radii(m, 3, None)
+    assert r.max() == pytest.approx(0.04 * prism_scale(5), rel=1e-4)
+    assert r[r > 0].min() == pytest.approx(0.01 * prism_scale(5), rel=1e-4)
+    np.testing.assert_allclose(s.instances.matrices[s.instances.names.index("Fur")][:3, 3], (0, 0, 1))
+    assert s.instances.casts_shadow.all()
+    # three strands: three tube runs plus caps, spline-sampled (two samples per segment)
+    assert len(m.triangles) == 3 * ((4 - 1) * 2 * 2 * 5 + 2 * 5)
+
+
+@pytest.mark.blender
+def test_curves_without_radius_take_cycles_default(scene):
+    add_object("Bare", _curves("Bare", 2))
+    r = _tube_radii(_model_of(export_scene(), "Bare"), 2, None)
+    assert r.max() == pytest.approx(0.005 * prism_scale(5), rel=1e-4)
+
+
+@pytest.mark.blender
+def test_curves_instanced_by_geometry_nodes_share_one_model(scene):
+    fur = add_object("Fur", _curves("Fur", 2, radius=[0.02] * 4))
+    fur.hide_render = True
+    gn_instancer("Tufts", [(0, 0, 0), (5, 0, 0)], object_info(fur, True))
+    s = export_scene(render_visibility=True)
+    rows = [i for i, n in enumerate(s.instances.names) if n.startswith("Tufts")]
+    assert len(rows) == 2, s.instances.names
+    assert len({int(s.instances.model_ids[i]) for i in rows}) == 1
+    xs = sorted(float(s.instances.matrices[i][0, 3]) for i in rows)
+    assert xs == [0.0, 5.0]
+
+
+@pytest.mark.blender
+def test_particle_hair_strands_and_root_radius(scene):
+    me = bpy.data.meshes.new("Skin")
+    me.from_pydata([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], [], [(0, 1, 2, 3)])
+    ob = add_object("Skin", me, location=(3, 0, 0))
+    ob.modifiers.new("Hair", "PARTICLE_SYSTEM")
+    ps = ob.particle_systems[0].settings
+    ps.type, ps.count, ps.hair_length, ps.child_type = "HAIR", 40, 0.5, "NONE"
+    ps.radius_scale, ps.root_radius, ps.tip_radius, ps.use_close_tip = 0.1, 1.0, 0.5, False
+    s = export_scene()
+    assert any(w.startswith("particle hair 'Hair' of object 'Skin': 40 strands") for w in s.report), s.report
+    m = _model_of(s, "Skin/Hair")
+    np.testing.assert_allclose(s.instances.matrices[s.instances.names.index("Skin/Hair")][:3, 3], (3, 0, 0))
+    # object space: roots on the plane z = 0 within the quad, tips at the hair length
+    assert m.bounds_min[2] >= -0.1 and m.bounds_max[2] == pytest.approx(0.5, abs=0.06)
+    assert np.abs(m.vertices[:, :2]).max() <= 1.0 + 0.06
+    root = m.vertices[np.abs(m.vertices[:, 2]) < 1e-6]
+    assert len(root)
+    # root rings: radius_scale / 2 x root radius, widened for the prism; tip: half of it
+    rim = root[:5]
+    centre = rim.mean(axis=0)
+    np.testing.assert_allclose(np.linalg.norm(rim - centre, axis=1), 0.05 * prism_scale(5), rtol=1e-3)
+    ps.child_type = "SIMPLE"
+    ps.rendered_child_count = ps.child_percent = 3
+    s = export_scene()
+    assert any(w.startswith("particle hair 'Hair' of object 'Skin': 120 strands") for w in s.report), s.report
+
+
+@pytest.mark.blender
+def test_point_cloud_points_are_sphere_primitives(scene):
+    n = 6
+    me = bpy.data.meshes.new("Cloud")
+    me.vertices.add(n)
+    co = np.arange(3 * n, dtype=np.float32).reshape(n, 3) * 0.1
+    me.vertices.foreach_set("co", co.ravel())
+    radii = np.linspace(0.05, 0.3, n).astype(np.float32)
+    me.attributes.new("r", "FLOAT", "POINT").data.foreach_set("value", radii)
+    tree = bpy.data.node_groups.new("ToPoints", "GeometryNodeTree")
+    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    gin, gout = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
+    to_points = tree.nodes.new("GeometryNodeMeshToPoints")
+    named = tree.nodes.new("GeometryNodeInputNamedAttribute")
+    named.inputs["Name"].default_value = "r"
+    tree.links.new(gin.outputs[0], to_points.inputs["Mesh"])
+    tree.links.new(named.outputs["Attribute"], to_points.inputs["Radius"])
+    tree.links.new(to_points.outputs[0], gout.inputs[0])
+    ob = add_object("Cloud", me, location=(0, 0, 2))
+    ob.modifiers.new("GN", "NODES").node_group = tree
+    s = export_scene()
+    rows = [i for i, name in enumerate(s.instances.names) if name.startswith("Cloud[")]
+    assert len(rows) == n
+    inst = s.instances
+    assert inst.sphere[rows].all() and inst.casts_shadow[rows].all()
+    np.testing.assert_allclose(inst.matrices[rows][:, :3, 3], co + (0, 0, 2), atol=1e-6)
+    np.testing.assert_allclose(inst.matrices[rows][:, 0, 0], radii, rtol=1e-6)
+    assert s.models[int(inst.model_ids[rows[0]])].sphere_radius == 1.0
+    assert not any("point cloud" in w for w in s.report), s.report
