@@ -19,6 +19,7 @@ KEYS = 6  # points per Curves strand
 
 scene = lib["setup_scene"]("hair", (int(PARAMS.get("width", 320)), int(PARAMS.get("height", 240))))
 lib["set_world"](scene, (0.05, 0.06, 0.08))
+scene.cycles_curves.shape = "THICK"  # Cycles' round 3D curves
 grey = lib["material"]("Grey", (0.6, 0.6, 0.6))
 brown = lib["material"]("Brown", (0.5, 0.3, 0.1))
 blond = lib["material"]("Blond", (0.8, 0.7, 0.4))

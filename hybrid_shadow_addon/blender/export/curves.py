@@ -117,9 +117,10 @@ def pointcloud_points(pc):
 
 def report_tubes(label: str, n_strands: int, n_segments: int, scene) -> None:
     """Say once per object how its strands are drawn, against Cycles' curve shape (its rounded
-    ribbons face each ray, so they are as wide as round curves from every direction)."""
+    ribbons face each ray, as wide as round curves from every direction, but they do not shadow
+    their own far side as tubes do)."""
     sides = SIDES if n_segments <= LARGE_SEGMENTS else SIDES_LARGE
     shape = getattr(getattr(scene, "cycles_curves", None), "shape", "THICK")
-    cycles = "rounded ribbons facing each ray" if shape == "RIBBONS" else "round 3D curves"
+    cycles = "rounded ribbons facing each ray, which do not shadow themselves" if shape == "RIBBONS" else "round 3D curves"
     warn_export(f"{label}: {n_strands} strands drawn as {sides}-sided tubes along their splines "
                 f"(Cycles: {cycles})")
