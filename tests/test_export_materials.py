@@ -724,11 +724,13 @@ def test_report_names_subsurface_volume_and_curves(scene):
     vol = mat.node_tree.nodes.new("ShaderNodeVolumePrincipled")
     mat.node_tree.links.new(vol.outputs[0], mat.node_tree.nodes["Material Output"].inputs["Volume"])
     _on_quad("Face", mat)
-    add_object("Fur", bpy.data.hair_curves.new("Fur"))
+    fur = bpy.data.hair_curves.new("Fur")
+    fur.add_curves([3, 3])
+    add_object("Fur", fur)
     s = export_scene()
     assert "material 'Skin': Subsurface read as Diffuse" in s.report, s.report
     assert "material 'Skin': volume ignored" in s.report, s.report
-    assert any(w.startswith("Curves object 'Fur': not drawn") for w in s.report), s.report
+    assert any(w.startswith("Curves object 'Fur': 2 strands drawn as 5-sided tubes") for w in s.report), s.report
     assert len(s.report) == len(set(s.report))
 
 

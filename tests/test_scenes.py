@@ -27,6 +27,7 @@ SMALL = {
     "visibility": "visibility",
     "linking": "linking",
     "see_through": "see_through",
+    "hair": "hair:hair=60,strands=40,points=50",
 }
 # the shading-normal scenes and third-party models (against Cycles in test_real_meshes.py)
 SMALL.update({n: n for n in ("normals/smooth_primitives", "normals/weighted_normals", "normals/custom_split",
@@ -39,13 +40,48 @@ def test_every_builtin_scene_is_covered():
     assert {n for n in builtin_scenes() if not n.startswith("stiff/")} == set(SMALL)
 
 
+def _tube_triangles(points_per_strand, subdivisions=2, sides=5):
+    """Triangles of the tubes around strands of these point counts (spline-sampled, closed)."""
+    samples = (np.asarray(points_per_strand) - 1) * subdivisions + 1
+    return int(np.sum((samples - 1) * 2 * sides + 2 * sides))
+
+
+def _strands_and_points(inst, ob, matrices, meshes):
+    """Triangles of particle hair, Curves and point clouds as rows, models and matrices."""
+    tris = 0
+    if not inst.is_instance:
+        for ps in ob.particle_systems:
+            if ps.settings.type == "HAIR" and ps.settings.render_type == "PATH":
+                keys = 2 ** ps.settings.display_step + 1
+                tris += _tube_triangles([keys] * len(ps.particles))
+                meshes.add(("hair", ps.as_pointer()))
+                matrices.append(np.array(ob.matrix_world))
+    if ob.type == "CURVES":
+        sizes = [c.points_length for c in ob.data.curves]
+        tris += _tube_triangles(sizes)
+        meshes.add(ob.data.as_pointer())
+        matrices.append(np.array(inst.matrix_world.copy()))
+    elif ob.type == "POINTCLOUD":
+        world = np.array(inst.matrix_world.copy())
+        for p in ob.data.points:
+            local = np.diag([p.radius, p.radius, p.radius, 1.0])
+            local[:3, 3] = p.co
+            matrices.append(world @ local)
+            tris += 2 * 12 * (6 - 1)  # the unit UV sphere of 12 segments, 6 rings
+        meshes.add("unit sphere")
+    return tris
+
+
 def _reference(depsgraph):
     """What bpy reports, read independently: rendered mesh instances with triangles, their world
-    matrices, triangle count, distinct evaluated meshes, lights by type."""
+    matrices, triangle count, distinct evaluated meshes, lights by type; strands and points as
+    tube rows and one sphere row per point."""
     matrices, tris, meshes, lights = [], 0, set(), {}
     for inst in depsgraph.object_instances:
         ob = inst.object
         owner = (inst.parent if inst.is_instance else ob).original
+        if not owner.hide_render:
+            tris += _strands_and_points(inst, ob, matrices, meshes)
         if owner.hide_render or not inst.is_instance and ob.is_instancer and not owner.show_instancer_for_render:
             continue  # not rendered: hidden, or an emitter that does not show itself
         if ob.type == "MESH":
