@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core.scene.curves import LARGE_SEGMENTS, SIDES, SIDES_LARGE
+from ...core.scene.curves import tube_sides
 from .common import warn_export
 
 #: Cycles' radius of a Curves point without a ``radius`` attribute
@@ -119,8 +119,10 @@ def report_tubes(label: str, n_strands: int, n_segments: int, scene) -> None:
     """Say once per object how its strands are drawn, against Cycles' curve shape (its rounded
     ribbons face each ray, as wide as round curves from every direction, but they do not shadow
     their own far side as tubes do)."""
-    sides = SIDES if n_segments <= LARGE_SEGMENTS else SIDES_LARGE
+    sides = tube_sides(n_segments)
     shape = getattr(getattr(scene, "cycles_curves", None), "shape", "THICK")
-    cycles = "rounded ribbons facing each ray, which do not shadow themselves" if shape == "RIBBONS" else "round 3D curves"
+    cycles = "round 3D curves"
+    if shape == "RIBBONS":
+        cycles = "rounded ribbons facing each ray, which do not shadow themselves"
     warn_export(f"{label}: {n_strands} strands drawn as {sides}-sided tubes along their splines "
                 f"(Cycles: {cycles})")

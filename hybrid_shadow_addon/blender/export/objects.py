@@ -191,7 +191,7 @@ class SceneExporter:
             model = tube_model(label, points, radii, offsets, subdivisions=sub)
             models = []
             if model is not None:
-                report_tubes(label, len(offsets) - 1, len(points) * sub, self.dg.scene_eval)
+                report_tubes(label, len(offsets) - 1, (len(points) - len(offsets) + 1) * sub, self.dg.scene_eval)
                 models = [(material_index, len(self.models))]
                 self.models.append(model)
             self.model_table.models_of[key] = models

@@ -22,6 +22,11 @@ SIDES_LARGE = 3
 LARGE_SEGMENTS = 400_000
 
 
+def tube_sides(segments: int) -> int:
+    """Sides of the tubes of an object with this many spline-sampled segments."""
+    return SIDES if segments <= LARGE_SEGMENTS else SIDES_LARGE
+
+
 def prism_scale(sides: int) -> float:
     """Circumradius of a regular ``sides``-gon whose mean width over all directions is 2 (the
     mean width of a convex polygon is its perimeter over pi)."""
@@ -103,7 +108,7 @@ def tube_model(name: str, points, radii, offsets, sides: int | None = None, subd
         offsets = np.concatenate([[0], np.cumsum(counts[keep])])
     points, radii, offsets = catmull_rom(points, radii, offsets, subdivisions)
     if sides is None:
-        sides = SIDES if len(points) - (len(offsets) - 1) <= LARGE_SEGMENTS else SIDES_LARGE
+        sides = tube_sides(len(points) - (len(offsets) - 1))
     _, n, b = _frames(points, offsets)
     a = 2 * np.pi * np.arange(sides) / sides
     radial = np.cos(a)[None, :, None] * n[:, None] + np.sin(a)[None, :, None] * b[:, None]  # (P, S, 3)
