@@ -6,8 +6,13 @@ import bpy
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.scene.curves import catmull_rom, prism_scale, sphere_matrices, tube_model
-from hybrid_shadow_addon.core.scene.curves import unit_sphere_model
+from hybrid_shadow_addon.core.scene.curves import (
+    catmull_rom,
+    prism_scale,
+    sphere_matrices,
+    tube_model,
+    unit_sphere_model,
+)
 from tests.helpers.export_scenes import add_object, empty_scene, export_scene, gn_instancer, object_info
 
 
