@@ -71,19 +71,22 @@ def hair_systems(ob):
 
 def particle_strands(ob, ps, render: bool):
     """``(points (P, 3) in ``ob``'s space, radii, offsets)`` of particle system ``ps`` of evaluated
-    object ``ob`` as Cycles exports them: children when there are any (parents too with
-    Parents shown), else parents; ``2 ** steps + 1`` keys each; repeated keys skipped."""
+    object ``ob`` as Cycles exports them (``blender/curves.cpp``): the children when there are
+    any (Cycles leaves the parents out then, whatever Blender's Parents display option), else the
+    parents; ``2 ** steps + 1`` keys each, plus a spiral kink's extra steps; repeated keys skipped
+    (zero-length segments draw nothing)."""
     s = ps.settings
     n_parents = len(ps.particles)
     n_children = len(ps.child_particles)
     if not render:
         n_children = int(n_children * s.display_percentage / 100.0)
     if s.child_type != "NONE" and n_children:
-        ids = list(range(n_parents + n_children)) if s.use_parent_particles else \
-            list(range(n_parents, n_parents + n_children))
+        ids = list(range(n_parents, n_parents + n_children))
     else:
         ids = list(range(n_parents))
     steps = 2 ** (s.render_step if render else s.display_step)
+    if s.kink == "SPIRAL":
+        steps += s.kink_extra_steps
     flat = [c for p in ids for k in range(steps + 1) for c in ps.co_hair(ob, particle_no=p, step=k)]
     world = np.array(flat, np.float64).reshape(len(ids), steps + 1, 3)
     inv = np.linalg.inv(np.array(ob.matrix_world, np.float64))
