@@ -162,3 +162,27 @@ def test_soft_masks_weigh_by_the_shading_normal_from_lifted_origins(pipeline):
         assert (np.abs(cos) < 0.1).sum() > 30, f"{name}: the ball's terminator in view"
         assert err.mean() < 0.01, f"{name}: mean error {err.mean():.4f}"
         assert (err > 0.15).mean() < 0.01, f"{name}: {(err > 0.15).sum()} pixels off by more than 0.15"
+
+
+def test_textured_smooth_models_write_the_same_lift(gpass):
+    """A smooth model shown with a textured material (the TEXTURED and TERMINATOR variants
+    together): the same lift and shading normals as untextured, its albedo from the image."""
+    from hybrid_shadow_addon.core.scene import Image, Material
+    from tests.helpers.scenes import colour_image
+
+    plain = ball_scene()
+    gb = gpass.gbuffer(plain, W, H)
+    want = {k: gb.read(k).copy() for k in ("terminator", "shading_normal", "albedo")}
+    textured = ball_scene()
+    ball = textured.models[2]
+    ball.uvs = np.random.default_rng(1).random((ball.triangle_count, 3, 2)).astype(np.float32)
+    textured.images = [Image("colours", colour_image())]
+    textured.materials = [Material("colours", color_image=0)]
+    textured.instances.material_ids[BALL] = 0
+    textured.validate()
+    gb = gpass.gbuffer(textured, W, H)
+    on = gb.coverage() & (np.round(gb.read("material")[..., 2]) == BALL)
+    assert on.sum() > 300
+    for k in ("terminator", "shading_normal"):
+        np.testing.assert_array_equal(gb.read(k)[on], want[k][on])
+    assert np.abs(gb.read("albedo")[on] - want["albedo"][on]).max() > 0.1
