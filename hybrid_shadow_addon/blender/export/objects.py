@@ -27,10 +27,10 @@ import bpy
 import numpy as np
 
 from ...core.scene import Instances, Scene, affine_inverse
-from ...core.scene.curves import sphere_matrices, tube_model, unit_sphere_model
+from ...core.scene.curves import sphere_matrices, unit_sphere_model
 from .camera import export_camera, render_resolution
 from .common import GEOMETRY_TYPES, collect_report, to_matrices, to_matrix
-from .curves import curves_strands, hair_systems, particle_strands, pointcloud_points, report_tubes
+from .curves import TUBES, curves_strands, hair_systems, particle_strands, pointcloud_points, report_tubes
 from .dropped import report_dropped
 from .lights import export_light, is_portal
 from .linking import apply_linking
@@ -184,11 +184,12 @@ class SceneExporter:
     # -- strands and points -------------------------------------------------------------------
     def _tube_rows(self, ob, key, label: str, strands, material_index: int, matrix, name) -> None:
         """One iterated row of the tube model of ``strands`` (``(points, radii, offsets,
-        subdivisions)``, read once per ``key``) with material slot ``material_index``."""
+        subdivisions)``, read once per ``key``) with material slot ``material_index``; the model
+        comes from :data:`.curves.TUBES` when these strands were exported before."""
         models = self.model_table.models_of.get(key)
         if models is None:
             points, radii, offsets, sub = strands()
-            model = tube_model(label, points, radii, offsets, subdivisions=sub)
+            model = TUBES.model(key, label, points, radii, offsets, sub)
             models = []
             if model is not None:
                 report_tubes(label, len(offsets) - 1, (len(points) - len(offsets) + 1) * sub, self.dg.scene_eval)
