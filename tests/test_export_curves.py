@@ -161,6 +161,26 @@ def test_tube_cache_is_bounded_and_keyed_by_content():
 
 
 @pytest.mark.blender
+@pytest.mark.parametrize("render_visibility", [None, False])
+def test_the_view_layers_hair_filter_drops_strands_not_points(render_visibility):
+    """Cycles draws no particle hair and no Curves when the view layer's Hair filter is off;
+    meshes and point clouds stay."""
+    from hybrid_shadow_addon.blender.load import open_scene
+
+    open_scene("hair:hair=30,strands=20,points=15,width=96,height=72")
+
+    def names():
+        return set(export_scene(render_visibility=render_visibility).instances.names)
+
+    with_hair = names()
+    assert {"Fur", "Head", "Head/Hair"} <= with_hair and any(n.startswith("Points[") for n in with_hair)
+    bpy.context.view_layer.use_strand = False
+    assert names() == with_hair - {"Fur", "Head/Hair"}
+    bpy.context.view_layer.use_strand = True
+    assert names() == with_hair
+
+
+@pytest.mark.blender
 def test_curves_without_radius_take_cycles_default(scene):
     add_object("Bare", _curves("Bare", 2))
     r = _tube_radii(_model_of(export_scene(), "Bare"), 2, None)

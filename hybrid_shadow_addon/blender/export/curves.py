@@ -62,6 +62,12 @@ def shape_radius(shape: float, root: float, tip: float, time: np.ndarray) -> np.
     return r * (root - tip) + tip
 
 
+def view_layer_hair(depsgraph) -> bool:
+    """Whether the depsgraph's view layer renders strands: its Hair filter (``use_strand``),
+    without which Cycles draws neither particle hair nor Curves objects (point clouds stay)."""
+    return bool(getattr(getattr(depsgraph, "view_layer", None), "use_strand", True))
+
+
 def hair_systems(ob):
     """The particle systems of evaluated object ``ob`` that Cycles draws as strands."""
     out = []
