@@ -181,6 +181,31 @@ def test_the_view_layers_hair_filter_drops_strands_not_points(render_visibility)
 
 
 @pytest.mark.blender
+def test_the_viewport_follows_the_hair_filter():
+    """Toggling the view layer's Hair filter (a bare Scene update) re-exports the viewport's scene."""
+    from hybrid_shadow_addon.blender.load import open_scene
+    from hybrid_shadow_addon.blender.viewport import ViewportSync
+
+    open_scene("hair:hair=30,strands=20,points=15,width=96,height=72")
+    sync = ViewportSync()
+    sync.full_export(bpy.context.evaluated_depsgraph_get())
+    shown = []
+
+    def handler(_scene, depsgraph):
+        sync.update(depsgraph)
+
+    bpy.app.handlers.depsgraph_update_post.append(handler)
+    try:
+        for on in (False, True):
+            bpy.context.view_layer.use_strand = on
+            bpy.context.view_layer.update()
+            shown.append({"Fur", "Head/Hair"} & set(sync.scene.instances.names))
+    finally:
+        bpy.app.handlers.depsgraph_update_post.remove(handler)
+    assert shown == [set(), {"Fur", "Head/Hair"}]
+
+
+@pytest.mark.blender
 def test_curves_without_radius_take_cycles_default(scene):
     add_object("Bare", _curves("Bare", 2))
     r = _tube_radii(_model_of(export_scene(), "Bare"), 2, None)
