@@ -164,6 +164,8 @@ class ViewportSync:
         - an object whose geometry changed → ``geometry`` (that model is re-built);
         - a light or light data → ``lights``; a world → ``world``; a material → ``shading``;
           none of them re-bakes anything;
+        - a view-layer toggle (Hair filter, a collection's holdout or indirect-only) or a light
+          linking change → ``shading`` (re-export; the bake stays if the instances do);
         - a new object, an instancer (collection instances, particles, geometry-nodes instances),
           a collection change, or a change of what the exporter reads from an object (shadow
           visibility, sphere flag, material slot) → ``full``. Objects hidden from render are shown
@@ -193,11 +195,18 @@ class ViewportSync:
                     plan.need_full(f"collection '{idb.name}' changed")
             # Scene, meshes (their objects come as well), cameras, node groups (their objects
             # come as well), ...: nothing of their own
-        if not plan.full and (_layer_state(depsgraph) != self.layer_state
-                              or _linking_state(depsgraph) != self.linking_state):
+        if not plan.full and self._layer_or_linking_changed(depsgraph, updates):
             plan.shading = True  # the instances' flags or light sets, or the strands shown
             plan.reasons.append("view layer or light linking changed")
         return plan
+
+    def _layer_or_linking_changed(self, depsgraph, updates) -> bool:
+        """Whether the view layer's toggles (they come as a Scene update) or the light linking
+        (with a Collection or a light) differ from the last export's."""
+        if not any(isinstance(u.id, (bpy.types.Scene, bpy.types.Collection, *_LIGHT_TYPES))
+                   or isinstance(u.id, bpy.types.Object) and u.id.type == "LIGHT" for u in updates):
+            return False
+        return _layer_state(depsgraph) != self.layer_state or _linking_state(depsgraph) != self.linking_state
 
     def _classify_object(self, u, ob, plan: UpdatePlan) -> None:
         name = ob.name
