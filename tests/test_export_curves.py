@@ -114,6 +114,98 @@ def test_curves_object_strands_and_radii(scene):
 
 
 @pytest.mark.blender
+def test_unchanged_strands_reuse_their_tube_model_and_edits_rebuild_it(scene):
+    """Re-exporting unchanged strands takes the cached tube model (as the viewport re-exports on
+    unrelated changes); moved points or a changed radius build a new one that shows the edit."""
+    from hybrid_shadow_addon.blender.export.curves import TUBES
+
+    data = _curves("Fur", 3, radius=[0.04, 0.03, 0.02, 0.01])
+    add_object("Fur", data)
+    first = _model_of(export_scene(), "Fur")
+    builds = TUBES.builds
+    again = export_scene()
+    assert _model_of(again, "Fur") is first and TUBES.builds == builds
+    assert any("Curves object 'Fur': 3 strands" in w for w in again.report), again.report
+    pos = np.empty(3 * len(data.points), np.float32)
+    data.attributes["position"].data.foreach_get("vector", pos)
+    data.attributes["position"].data.foreach_set("vector", pos + np.float32(0.5))
+    moved = _model_of(export_scene(), "Fur")
+    assert moved is not first
+    np.testing.assert_allclose(moved.bounds_min, first.bounds_min + 0.5, atol=1e-5)
+    data.attributes["position"].data.foreach_set("vector", pos)
+    data.attributes["radius"].data.foreach_set("value", np.full(len(data.points), 0.1, np.float32))
+    thick = _model_of(export_scene(), "Fur")
+    assert thick is not moved
+    assert _tube_radii(thick, 3, None).max() == pytest.approx(0.1 * prism_scale(5), rel=1e-4)
+
+
+def test_tube_cache_is_bounded_and_keyed_by_content():
+    from hybrid_shadow_addon.blender.export.curves import TubeCache
+
+    cache = TubeCache(max_entries=2)
+    pts = np.array([[0, 0, 0], [0, 0, 1]], np.float32)
+    radii, offsets = np.full(2, 0.1, np.float32), np.array([0, 2], np.int32)
+    a = cache.model("a", "A", pts, radii, offsets, 1)
+    assert cache.model("a", "A", pts.copy(), radii, offsets, 1) is a
+    assert cache.model("a", "A", pts, radii * 2, offsets, 1) is not a  # content changed
+    assert cache.model("a", "A", pts, radii * 2, offsets, 2).triangle_count > a.triangle_count
+    cache.model("b", "B", pts, radii, offsets, 1)
+    cache.model("c", "C", pts, radii, offsets, 1)
+    assert list(cache.entries) == ["b", "c"]
+    small = TubeCache(max_bytes=1)  # over budget: only the newest stays
+    small.model("a", "A", pts, radii, offsets, 1)
+    small.model("b", "B", pts, radii, offsets, 1)
+    assert list(small.entries) == ["b"]
+    cache.clear()
+    assert not cache.entries
+
+
+@pytest.mark.blender
+@pytest.mark.parametrize("render_visibility", [None, False])
+def test_the_view_layers_hair_filter_drops_strands_not_points(render_visibility):
+    """Cycles draws no particle hair and no Curves when the view layer's Hair filter is off;
+    meshes and point clouds stay."""
+    from hybrid_shadow_addon.blender.load import open_scene
+
+    open_scene("hair:hair=30,strands=20,points=15,width=96,height=72")
+
+    def names():
+        return set(export_scene(render_visibility=render_visibility).instances.names)
+
+    with_hair = names()
+    assert {"Fur", "Head", "Head/Hair"} <= with_hair and any(n.startswith("Points[") for n in with_hair)
+    bpy.context.view_layer.use_strand = False
+    assert names() == with_hair - {"Fur", "Head/Hair"}
+    bpy.context.view_layer.use_strand = True
+    assert names() == with_hair
+
+
+@pytest.mark.blender
+def test_the_viewport_follows_the_hair_filter():
+    """Toggling the view layer's Hair filter (a bare Scene update) re-exports the viewport's scene."""
+    from hybrid_shadow_addon.blender.load import open_scene
+    from hybrid_shadow_addon.blender.viewport import ViewportSync
+
+    open_scene("hair:hair=30,strands=20,points=15,width=96,height=72")
+    sync = ViewportSync()
+    sync.full_export(bpy.context.evaluated_depsgraph_get())
+    shown = []
+
+    def handler(_scene, depsgraph):
+        sync.update(depsgraph)
+
+    bpy.app.handlers.depsgraph_update_post.append(handler)
+    try:
+        for on in (False, True):
+            bpy.context.view_layer.use_strand = on
+            bpy.context.view_layer.update()
+            shown.append({"Fur", "Head/Hair"} & set(sync.scene.instances.names))
+    finally:
+        bpy.app.handlers.depsgraph_update_post.remove(handler)
+    assert shown == [set(), {"Fur", "Head/Hair"}]
+
+
+@pytest.mark.blender
 def test_curves_without_radius_take_cycles_default(scene):
     add_object("Bare", _curves("Bare", 2))
     r = _tube_radii(_model_of(export_scene(), "Bare"), 2, None)

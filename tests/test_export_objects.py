@@ -331,6 +331,63 @@ def test_the_viewport_sync_follows_ray_visibility_changes(scene):
     assert flags == {"Box": (False, True, True), "E/A": (False, True, False)}
 
 
+def _linked(s, light_name: str) -> dict:
+    """``{instance name: (lit by the light, casts its shadow)}`` as its linking sets say."""
+    from hybrid_shadow_addon.core.scene.linking import in_set
+
+    light = next(li for li in s.lights if li.name == light_name)
+    i = s.instances
+    lit = in_set(i.light_sets, light.receiver_set)
+    blocks = in_set(i.shadow_sets, light.blocker_set)
+    return {n: (bool(lit[k]), bool(blocks[k])) for k, n in enumerate(i.names)}
+
+
+def test_the_viewport_sync_follows_layer_holdout_and_light_linking_changes(scene):
+    """A view-layer collection's holdout and indirect-only toggles and a light's receiver and
+    blocker collections (set, edited, link state changed) reach the viewport's scene; moving a
+    linked light keeps its sets."""
+    from hybrid_shadow_addon.blender.viewport import ViewportSync
+
+    me = cube_mesh()
+    add_object("Box", me)
+    mattes = bpy.data.collections.new("Mattes")
+    scene.collection.children.link(mattes)
+    add_object("Matte", me, mattes, location=(4, 0, 0))
+    lamp = add_object("Lamp", bpy.data.lights.new("Lamp", "POINT"), location=(0, 0, 5))
+    recv = bpy.data.collections.new("Recv")
+    sync = ViewportSync()
+    sync.full_export(bpy.context.evaluated_depsgraph_get())
+    layer = scene.view_layers[0].layer_collection.children["Mattes"]
+    seen = {}
+
+    def handler(_scene, depsgraph):
+        sync.update(depsgraph)
+
+    def step(label, fn):
+        fn()
+        bpy.context.view_layer.update()
+        seen[label] = (_ray_flags(sync.scene), _linked(sync.scene, "Lamp"))
+
+    bpy.app.handlers.depsgraph_update_post.append(handler)
+    try:
+        step("holdout", lambda: setattr(layer, "holdout", True))
+        step("indirect", lambda: (setattr(layer, "holdout", False), setattr(layer, "indirect_only", True)))
+        step("receivers", lambda: (recv.objects.link(bpy.data.objects["Box"]),
+                                   setattr(lamp.light_linking, "receiver_collection", recv)))
+        step("excluded", lambda: setattr(recv.collection_objects[0].light_linking, "link_state", "EXCLUDE"))
+        step("blockers", lambda: setattr(lamp.light_linking, "blocker_collection", recv))
+        step("moved", lambda: setattr(lamp, "location", (1, 0, 5)))
+    finally:
+        bpy.app.handlers.depsgraph_update_post.remove(handler)
+    assert seen["holdout"][0]["Matte"] == (True, True, True)
+    assert seen["indirect"][0]["Matte"] == (False, True, False)
+    assert seen["receivers"][1] == {"Box": (True, True), "Matte": (False, True)}
+    assert seen["excluded"][1] == {"Box": (False, True), "Matte": (True, True)}
+    assert seen["blockers"][1] == {"Box": (False, False), "Matte": (True, True)}
+    assert seen["moved"][1] == seen["blockers"][1]
+    assert sync.scene.lights[0].position[0] == pytest.approx(1.0)
+
+
 # --------------------------------------------------------------------------------------------
 # transforms
 # --------------------------------------------------------------------------------------------

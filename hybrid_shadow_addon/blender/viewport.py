@@ -19,6 +19,7 @@ import numpy as np
 from ..core.gpu.worker import writable_matrices
 from ..core.scene import Camera, Model
 from . import export
+from .export.linking import collection_states
 
 #: data-block types whose change only needs the lights re-read (nothing re-baked)
 _LIGHT_TYPES = (bpy.types.Light,)
@@ -35,7 +36,7 @@ class UpdatePlan:
     geometry: set = field(default_factory=set)  # object names: geometry edited
     lights: bool = False
     world: bool = False
-    shading: bool = False  # materials: re-export without re-baking
+    shading: bool = False  # materials, light linking, view-layer filters: re-export, bake kept if it can
     reasons: list = field(default_factory=list)
 
     @property
@@ -58,6 +59,34 @@ def _ray_attributes(ob) -> tuple:
     return (bool(ob.visible_camera), bool(ob.is_holdout), bool(ob.show_instancer_for_viewport))
 
 
+def _layer_state(depsgraph) -> tuple:
+    """What the exporter reads from the view layer (changes to it come as a bare Scene update):
+    its Hair filter and each layer collection's holdout, indirect-only and exclude states."""
+    vl = depsgraph.view_layer
+    out = [bool(getattr(vl, "use_strand", True))]
+    stack = [vl.layer_collection]
+    while stack:
+        lc = stack.pop()
+        out.append((lc.name, bool(lc.holdout), bool(lc.indirect_only), bool(lc.exclude)))
+        stack.extend(lc.children)
+    return tuple(out)
+
+
+def _linking_state(depsgraph) -> tuple:
+    """Every light's receiver and blocker collections with their objects' link states (a change
+    of a link state comes as a bare Collection update)."""
+    out = []
+    for ob in depsgraph.objects:
+        ll = getattr(ob, "light_linking", None) if ob.type == "LIGHT" else None
+        if ll is None:
+            continue
+        colls = (ll.receiver_collection, ll.blocker_collection)
+        if any(c is not None for c in colls):
+            out.append((ob.name,) + tuple(
+                None if c is None else (c.name, tuple(sorted(collection_states(c).items()))) for c in colls))
+    return tuple(out)
+
+
 class ViewportSync:
     """The core scene of a viewport depsgraph and the incremental updates of a pipeline.
 
@@ -75,6 +104,8 @@ class ViewportSync:
         self.baked = False  # the pipeline's bake matches self.scene
         self.log: list = []  # (action, detail) of the updates applied, newest last
         self.only = None  # local view: names of the objects it shows (None: every object)
+        self.layer_state = None  # _layer_state at the last export
+        self.linking_state = None  # _linking_state at the last export
 
     # -- full export ------------------------------------------------------------------------------
     def full_export(self, depsgraph) -> None:
@@ -92,6 +123,8 @@ class ViewportSync:
             self.known.add(ob.name)
             if ob.name in self.rows or ob.is_instancer:
                 self.attributes[ob.name] = _object_attributes(ob)
+        self.layer_state = _layer_state(depsgraph)
+        self.linking_state = _linking_state(depsgraph)
         if self.scene is not None:
             scene.camera = self.scene.camera
         self.scene = scene
@@ -131,6 +164,8 @@ class ViewportSync:
         - an object whose geometry changed → ``geometry`` (that model is re-built);
         - a light or light data → ``lights``; a world → ``world``; a material → ``shading``;
           none of them re-bakes anything;
+        - a view-layer toggle (Hair filter, a collection's holdout or indirect-only) or a light
+          linking change → ``shading`` (re-export; the bake stays if the instances do);
         - a new object, an instancer (collection instances, particles, geometry-nodes instances),
           a collection change, or a change of what the exporter reads from an object (shadow
           visibility, sphere flag, material slot) → ``full``. Objects hidden from render are shown
@@ -160,7 +195,18 @@ class ViewportSync:
                     plan.need_full(f"collection '{idb.name}' changed")
             # Scene, meshes (their objects come as well), cameras, node groups (their objects
             # come as well), ...: nothing of their own
+        if not plan.full and self._layer_or_linking_changed(depsgraph, updates):
+            plan.shading = True  # the instances' flags or light sets, or the strands shown
+            plan.reasons.append("view layer or light linking changed")
         return plan
+
+    def _layer_or_linking_changed(self, depsgraph, updates) -> bool:
+        """Whether the view layer's toggles (they come as a Scene update) or the light linking
+        (with a Collection or a light) differ from the last export's."""
+        if not any(isinstance(u.id, (bpy.types.Scene, bpy.types.Collection, *_LIGHT_TYPES))
+                   or isinstance(u.id, bpy.types.Object) and u.id.type == "LIGHT" for u in updates):
+            return False
+        return _layer_state(depsgraph) != self.layer_state or _linking_state(depsgraph) != self.linking_state
 
     def _classify_object(self, u, ob, plan: UpdatePlan) -> None:
         name = ob.name
@@ -212,7 +258,10 @@ class ViewportSync:
         if moved:
             self._move(depsgraph, moved)
         if plan.lights:
+            sets = {light.name: (light.receiver_set, light.blocker_set) for light in self.scene.lights}
             self.scene.lights = self._local_lights(export.export_lights(depsgraph, render_visibility=False))
+            for light in self.scene.lights:  # the linking did not change: the same sets
+                light.receiver_set, light.blocker_set = sets.get(light.name, (-1, -1))
             self._reset_history()
             self.log.append(("lights", len(self.scene.lights)))
         if plan.world:

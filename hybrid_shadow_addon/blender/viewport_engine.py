@@ -31,6 +31,7 @@ import bpy
 from ..core.errors import HybridShadowError
 from ..core.gpu.worker import RenderRequest, RenderWorker, SharedRegistry, SharedViewport
 from . import gl
+from .export.curves import TUBES
 from .final_render import settings_label
 from .viewport import ViewportDisplay, ViewportSync, debug_image, viewport_camera
 
@@ -297,8 +298,10 @@ def _count_evaluation(*_args) -> None:
 @bpy.app.handlers.persistent
 def _release_on_load(*_args) -> None:
     """Another file is loaded: its scenes may reuse the old ones' addresses (the registry's
-    keys), so no shared state may outlive the file; engines left over find nothing to release."""
+    keys), so no shared state may outlive the file; engines left over find nothing to release.
+    The export's cached tube models go with it."""
     release_all()
+    TUBES.clear()
 
 
 _HANDLERS = (("depsgraph_update_post", _count_evaluation), ("load_pre", _release_on_load))

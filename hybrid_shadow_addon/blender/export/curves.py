@@ -4,9 +4,12 @@ with the particle settings' root/tip radius and shape) and point clouds (``posit
 ``radius``). Strands become tubes and points sphere primitives (:mod:`...core.scene.curves`)."""
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
+
 import numpy as np
 
-from ...core.scene.curves import tube_sides
+from ...core.scene.curves import tube_model, tube_sides
 from .common import warn_export
 
 #: Cycles' radius of a Curves point without a ``radius`` attribute
@@ -57,6 +60,12 @@ def shape_radius(shape: float, root: float, tip: float, time: np.ndarray) -> np.
     elif shape > 0.0:
         r = np.power(r, 1.0 / (1.0 - shape))
     return r * (root - tip) + tip
+
+
+def view_layer_hair(depsgraph) -> bool:
+    """Whether the depsgraph's view layer renders strands: its Hair filter (``use_strand``),
+    without which Cycles draws neither particle hair nor Curves objects (point clouds stay)."""
+    return bool(getattr(getattr(depsgraph, "view_layer", None), "use_strand", True))
 
 
 def hair_systems(ob):
@@ -129,3 +138,57 @@ def report_tubes(label: str, n_strands: int, n_segments: int, scene) -> None:
         cycles = "rounded ribbons facing each ray, which do not shadow themselves"
     warn_export(f"{label}: {n_strands} strands drawn as {sides}-sided tubes along their splines "
                 f"(Cycles: {cycles})")
+
+
+def strands_digest(label: str, points, radii, offsets, subdivisions: int) -> bytes:
+    """A digest of everything a tube model is built from (its name, the strands' points, radii,
+    offsets and spline subdivisions)."""
+    h = hashlib.blake2b(digest_size=16)
+    h.update(f"{label}\0{subdivisions}".encode())
+    for a in (points, radii, offsets):
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(a.data)
+    return h.digest()
+
+
+def _model_bytes(model) -> int:
+    if model is None:
+        return 0
+    return sum(a.nbytes for a in (model.vertices, model.triangles, model.normals, model.uvs) if a is not None)
+
+
+class TubeCache:
+    """The tube models of the strand sets exported last, so that re-exporting unchanged strands
+    (the viewport re-exports on unrelated changes) does not rebuild them. One entry per strand
+    source (``key``): the digest of its strands and its model, rebuilt when the digest differs;
+    the least recently used sources go first past ``max_entries`` or ``max_bytes``."""
+
+    def __init__(self, max_entries: int = 8, max_bytes: int = 1 << 30):
+        self.max_entries = max_entries
+        self.max_bytes = max_bytes
+        self.entries: OrderedDict = OrderedDict()  # key -> (digest, model or None, bytes)
+        self.builds = 0  # models built (misses), for the tests
+
+    def model(self, key, label: str, points, radii, offsets, subdivisions: int):
+        """The tube model of these strands (None: no strand has a segment), built or cached."""
+        digest = strands_digest(label, points, radii, offsets, subdivisions)
+        entry = self.entries.get(key)
+        if entry is not None and entry[0] == digest:
+            self.entries.move_to_end(key)
+            return entry[1]
+        model = tube_model(label, points, radii, offsets, subdivisions=subdivisions)
+        self.builds += 1
+        self.entries[key] = (digest, model, _model_bytes(model))
+        self.entries.move_to_end(key)
+        while len(self.entries) > 1 and (len(self.entries) > self.max_entries or sum(
+                e[2] for e in self.entries.values()) > self.max_bytes):
+            self.entries.popitem(last=False)
+        return model
+
+    def clear(self) -> None:
+        self.entries.clear()
+
+
+#: the export's tube models, kept across exports (cleared when another file is loaded)
+TUBES = TubeCache()

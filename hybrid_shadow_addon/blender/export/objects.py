@@ -27,10 +27,18 @@ import bpy
 import numpy as np
 
 from ...core.scene import Instances, Scene, affine_inverse
-from ...core.scene.curves import sphere_matrices, tube_model, unit_sphere_model
+from ...core.scene.curves import sphere_matrices, unit_sphere_model
 from .camera import export_camera, render_resolution
 from .common import GEOMETRY_TYPES, collect_report, to_matrices, to_matrix
-from .curves import curves_strands, hair_systems, particle_strands, pointcloud_points, report_tubes
+from .curves import (
+    TUBES,
+    curves_strands,
+    hair_systems,
+    particle_strands,
+    pointcloud_points,
+    report_tubes,
+    view_layer_hair,
+)
 from .dropped import report_dropped
 from .lights import export_light, is_portal
 from .linking import apply_linking
@@ -53,6 +61,7 @@ class SceneExporter:
         self.renderable = RenderVisibility(depsgraph, render_visibility)
         self.rays = RayVisibility(depsgraph, self.renderable.check)
         self.row_flags = DEFAULT  # the RayFlags of the depsgraph row being walked
+        self.use_hair = view_layer_hair(depsgraph)  # the view layer's Hair filter
         self.model_table = ModelTable()
         self.models = self.model_table.models
         self.shading = ShadingTable(self.model_table)
@@ -184,11 +193,12 @@ class SceneExporter:
     # -- strands and points -------------------------------------------------------------------
     def _tube_rows(self, ob, key, label: str, strands, material_index: int, matrix, name) -> None:
         """One iterated row of the tube model of ``strands`` (``(points, radii, offsets,
-        subdivisions)``, read once per ``key``) with material slot ``material_index``."""
+        subdivisions)``, read once per ``key``) with material slot ``material_index``; the model
+        comes from :data:`.curves.TUBES` when these strands were exported before."""
         models = self.model_table.models_of.get(key)
         if models is None:
             points, radii, offsets, sub = strands()
-            model = tube_model(label, points, radii, offsets, subdivisions=sub)
+            model = TUBES.model(key, label, points, radii, offsets, sub)
             models = []
             if model is not None:
                 report_tubes(label, len(offsets) - 1, (len(points) - len(offsets) + 1) * sub, self.dg.scene_eval)
@@ -199,12 +209,18 @@ class SceneExporter:
             self._add_rows(ob, ob.material_slots, models, matrix.copy(), name, None)
 
     def _add_curves(self, ob, matrix, name) -> None:
-        """A Curves object (or instance): its strands as one tube model."""
+        """A Curves object (or instance): its strands as one tube model (none when the view
+        layer's Hair filter is off)."""
+        if not self.use_hair:
+            return
         self._tube_rows(ob, ("curves", ob.data.as_pointer()), f"Curves object '{ob.original.name}'",
                         lambda: curves_strands(ob.data), 0, matrix, name)
 
     def _add_hair(self, ob, ps, matrix, name) -> None:
-        """Particle hair ``ps`` of evaluated object ``ob``: its strands as one tube model."""
+        """Particle hair ``ps`` of evaluated object ``ob``: its strands as one tube model (none
+        when the view layer's Hair filter is off)."""
+        if not self.use_hair:
+            return
         render = self.dg.mode == "RENDER"
         for m in ob.modifiers:
             if m.type == "PARTICLE_SYSTEM" and m.particle_system.name == ps.name:
