@@ -109,15 +109,11 @@ def _neighbour_max(a: np.ndarray) -> np.ndarray:
 
 
 def _read_exr(path: str) -> dict:
-    """All channels of a (multi-part, multi-layer) EXR as ``{name: (H, W[, C]) float32}``."""
-    import OpenEXR
+    """All channels of a (multi-part, multi-layer) EXR as ``{name: (H, W[, C]) float32}``,
+    through the OpenImageIO module Blender ships (:func:`..tools.exr.read_exr`)."""
+    from ..tools.exr import read_exr
 
-    out = {}
-    with OpenEXR.File(path, separate_channels=False) as f:
-        for part in f.parts:
-            for name, ch in part.channels.items():
-                out[name] = np.asarray(ch.pixels, dtype=np.float32)
-    return out
+    return read_exr(path)
 
 
 def _find(channels: dict, *suffixes) -> np.ndarray:

@@ -18,6 +18,7 @@ import numpy as np
 from ..core.errors import HybridShadowError, SceneError
 from ..core.gpu.context import check_light_count
 from ..core.image import to_srgb8, write_png
+from .exr import write_exr
 
 IMAGE_SUFFIXES = (".png", ".exr", ".npy")
 
@@ -25,16 +26,6 @@ IMAGE_SUFFIXES = (".png", ".exr", ".npy")
 def mask_filename(light_name: str) -> str:
     """``mask_<light object name>.npy``; path separators become ``_``."""
     return "mask_" + re.sub(r"[/\\\x00]", "_", light_name) + ".npy"
-
-
-def write_exr(path: str, rgba: np.ndarray) -> None:
-    """Linear float RGBA EXR (row 0 = top)."""
-    import OpenEXR
-
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    channels = {"RGBA": np.ascontiguousarray(rgba, dtype=np.float32)}
-    with OpenEXR.File(header, channels) as f:
-        f.write(path)
 
 
 def write_image(path: str, rgba: np.ndarray) -> None:
