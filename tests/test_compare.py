@@ -109,9 +109,13 @@ def test_resolve_variants():
         resolve_variants(["shadowmap-1"])
 
 
-def test_operator_background(tmp_path):
-    """The Blender operator, run at once in background mode, writes the same report."""
+def test_operator_background(tmp_path, monkeypatch):
+    """The Blender operator, run at once in background mode, writes the same report, with
+    neither OpenEXR nor matplotlib (Blender's own Python has neither)."""
     import bpy
+
+    for name in ("OpenEXR", "matplotlib"):
+        monkeypatch.setitem(sys.modules, name, None)
 
     from hybrid_shadow_addon.blender import compare_operator
     from hybrid_shadow_addon.blender.load import open_scene
@@ -125,6 +129,7 @@ def test_operator_background(tmp_path):
         assert res == {"FINISHED"}
         m = json.loads((out / "metrics.json").read_text())
         assert m["resolution"] == [80, 60] and (out / "report.html").is_file()
+        assert (out / "error_vs_time.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert m["variants"][0]["overall"]["mismatch_pct"] <= 0.1
         assert bpy.context.scene.render.resolution_x == 160
     finally:

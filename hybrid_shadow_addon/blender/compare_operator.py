@@ -26,36 +26,16 @@ from ..core.errors import HybridShadowError
 from .engine import ENGINE_ID
 
 OPERATOR_ID = "render.hybrid_shadows_compare"
-#: Python packages the comparison needs beyond Blender's own (import name -> pip name): the
-#: Cycles reference is read from multilayer EXR files, the report's plot is drawn with matplotlib
-REQUIRED_PACKAGES = {"OpenEXR": "OpenEXR", "matplotlib": "matplotlib"}
 
 
-def missing_packages() -> list:
-    """pip names of the :data:`REQUIRED_PACKAGES` that Blender's Python cannot import."""
-    import importlib.util
-    import sys
+def exr_reader_missing() -> str | None:
+    """Why Cycles' EXRs cannot be read here (one line), or None: they are read through the
+    OpenImageIO module Blender ships (OpenEXR where installed); the plot needs no package."""
+    from ..tools.exr import can_read_exr
 
-    missing = []
-    for module, pip_name in REQUIRED_PACKAGES.items():
-        if module in sys.modules:
-            found = sys.modules[module] is not None
-        else:
-            try:
-                found = importlib.util.find_spec(module) is not None
-            except (ImportError, ValueError):
-                found = False
-        if not found:
-            missing.append(pip_name)
-    return missing
-
-
-def missing_packages_message(missing: list) -> str:
-    """One line: what is missing and the command that installs it into Blender's Python."""
-    import sys
-
-    return (f"Compare with Cycles needs the Python package{'s' if len(missing) > 1 else ''} "
-            f"{', '.join(missing)} in Blender's Python: \"{sys.executable}\" -m pip install {' '.join(missing)}")
+    if can_read_exr():
+        return None
+    return "Compare with Cycles cannot read EXR files: this Blender has no OpenImageIO Python module"
 
 
 def default_output_dir(scene) -> str:
@@ -98,9 +78,9 @@ class RENDER_OT_hybrid_shadows_compare(bpy.types.Operator):
 
     # -- the work --------------------------------------------------------------------------------
     def _start(self, context):
-        missing = missing_packages()
+        missing = exr_reader_missing()
         if missing:
-            raise HybridShadowError(missing_packages_message(missing))
+            raise HybridShadowError(missing)
         from ..tools.compare import compare_steps
         from ..tools.variants import resolve_variants
         from .cycles_reference import CyclesReferenceProvider

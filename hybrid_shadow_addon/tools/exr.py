@@ -58,6 +58,11 @@ def _open_exr():
         return None
 
 
+def can_read_exr() -> bool:
+    """Whether :func:`read_exr` has a module to read with."""
+    return open_image_io() is not None or _open_exr() is not None
+
+
 def group_channels(names: list, pixels: np.ndarray) -> dict:
     """``{name: (H, W[, C])}`` from the channel names and the (H, W, N) pixels of one image:
     ``layer.R``, ``layer.G``... in that order become one ``layer`` array; every other channel

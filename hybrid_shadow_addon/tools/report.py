@@ -42,9 +42,16 @@ def write_report(m: dict, out) -> None:
 
 
 def plot_error_vs_time(m: dict, path) -> None:
-    import matplotlib.ticker
-    from matplotlib.figure import Figure  # no pyplot: no global backend (safe inside Blender)
+    """The plot with matplotlib where it is installed, else drawn with numpy alone
+    (:mod:`.raster_plot`: Blender's Python has no matplotlib)."""
+    try:
+        import matplotlib.ticker
+        from matplotlib.figure import Figure  # no pyplot: no global backend (safe inside Blender)
+    except ImportError:
+        from .raster_plot import plot_error_vs_time_png
 
+        plot_error_vs_time_png(m, path, plot_axes(m))
+        return
     rows = m["variants"]
     panels = plot_axes(m)
     fig = Figure(figsize=(8 * len(panels), 5), dpi=110)
@@ -223,6 +230,8 @@ Interlaced ray tracing: error of the first frame after a change. Bold: on the Pa
 <table><thead>{head}</thead><tbody>{''.join(body)}</tbody></table>
 {_warnings_html(m)}<h2>Error against time</h2>
 <p><img src="error_vs_time.png" alt="error against time"></p>
+<p>Both axes logarithmic. Red: ray tracing, blue: shadow maps, grey: no shadows; ringed in black: on the
+Pareto front (dashed); green line: the Cycles reference's time.</p>
 <h2>Masks and differences</h2>
 {''.join(grids)}
 <p><a href="metrics.json">metrics.json</a></p>
