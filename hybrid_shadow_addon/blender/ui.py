@@ -78,6 +78,11 @@ class RENDER_PT_hybrid_shadows_limits(RenderSubPanel, bpy.types.Panel):
         col = layout.column(align=True)
         col.prop(props, "viewport_max_shadowed_lights", text="Shadowed Lights Viewport")
         col.prop(props, "max_shadowed_lights", text="Render")
+        casting = sum(1 for ob in context.view_layer.objects if ob.type == "LIGHT" and ob.data.use_shadow)
+        limit = props.viewport_max_shadowed_lights
+        if 0 < limit < casting:
+            layout.label(text=f"Viewport: {casting - limit} of {casting} shadow-casting lights unshadowed "
+                              "(0 shadows all)", icon="ERROR")
         layout.prop(props, "max_distance")
         layout.prop(context.scene.render, "use_persistent_data", text="Persistent Data")
 
