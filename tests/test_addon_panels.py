@@ -258,3 +258,75 @@ def test_preview_pixel_size(empty):
         assert preview_pixel_size(ctx) == want
     bpy.context.scene.render.preview_pixel_size = "AUTO"
     assert preview_pixel_size(ctx) == max(1, round(bpy.context.preferences.system.pixel_size))
+
+
+PASS_SCRIPT = r'''
+import json, sys
+import bpy
+import hybrid_shadow_addon
+hybrid_shadow_addon.register()
+try:
+    s = bpy.context.scene
+    s.render.engine = "HYBRID_SHADOWS"
+    s.use_nodes = True
+    rl = [n for n in s.node_tree.nodes if n.type == "R_LAYERS"][0]
+    sockets = lambda: [o.name for o in rl.outputs if o.enabled]
+    vl = s.view_layers[0]
+    out = {"before": sockets()}
+    vl.hybrid_shadows.use_pass_albedo = True
+    out["albedo"] = sockets()
+    vl.hybrid_shadows.use_pass_shadow = True
+    out["shadow"] = sockets()
+    vl.hybrid_shadows.use_pass_albedo = False
+    out["no_albedo"] = sockets()
+    props = s.hybrid_shadows
+    out["default_limit"] = props.to_settings(viewport=True).max_shadowed_lights
+    props.viewport_max_shadowed_lights = 0
+    out["zero_limit"] = props.to_settings(viewport=True).max_shadowed_lights
+finally:
+    hybrid_shadow_addon.unregister()
+print(json.dumps(out))
+'''
+
+
+def test_pass_toggles_update_the_render_layers_sockets_and_zero_shadows_all(tmp_path):
+    """Toggling the engine's passes re-registers them: the compositor's Render Layers node gains
+    and loses the sockets; the viewport's light limit defaults to 4 and 0 means every light."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from tests.helpers.blender_env import isolated_env
+
+    repo = Path(__file__).resolve().parents[1]
+    p = subprocess.run([sys.executable, "-c", PASS_SCRIPT], cwd=repo, env=isolated_env(tmp_path),
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+    out = json.loads(p.stdout.strip().splitlines()[-1])
+    assert "Albedo" not in out["before"] and "Albedo" in out["albedo"]
+    assert any(n.startswith("Shadow ") for n in out["shadow"]), out["shadow"]  # the default scene's light
+    assert "Albedo" not in out["no_albedo"] and any(n.startswith("Shadow ") for n in out["no_albedo"])
+    assert out["default_limit"] == 4 and out["zero_limit"] is None
+
+
+def test_status_text_counts_the_lights_the_viewport_limit_leaves_unshadowed(monkeypatch):
+    """The viewport's stats line names the unshadowed lights only when the limit drops some."""
+    from types import SimpleNamespace
+
+    from hybrid_shadow_addon.blender import viewport_engine as vpe
+
+    assert vpe.unshadowed_note(6, 4, 4).startswith(", 2 lights unshadowed (viewport limit 4")
+    assert "0 shadows all" in vpe.unshadowed_note(5, 4, 4)
+    assert vpe.unshadowed_note(5, 4, 4).startswith(", 1 light unshadowed")
+    assert vpe.unshadowed_note(4, 4, 4) == "" and vpe.unshadowed_note(3, 3, 4) == ""
+    lights = [SimpleNamespace(use_shadow=True)] * 6 + [SimpleNamespace(use_shadow=False)]
+    state = SimpleNamespace(sync=SimpleNamespace(scene=SimpleNamespace(lights=lights)))
+    monkeypatch.setattr(vpe, "shared", lambda engine: state)
+    result = SimpleNamespace(settings=SimpleNamespace(mode="raytrace", max_shadowed_lights=4),
+                             stats={"shadowed_lights": 4})
+    assert vpe.light_limit_note(None, result).startswith(", 2 lights unshadowed")
+    result.settings.max_shadowed_lights = None  # 0 in the panel: every light shadowed
+    assert vpe.light_limit_note(None, result) == ""
+    result.settings.mode, result.settings.max_shadowed_lights = "none", 4
+    assert vpe.light_limit_note(None, result) == ""

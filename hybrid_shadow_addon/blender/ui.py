@@ -12,8 +12,8 @@ import bpy
 from ..core.bake.structures import STRUCTURES
 from .compare_operator import draw_compare_button
 from .engine import ENGINE_ID
-from .stock_panels import stock_panels
 from .export import principled_node, world_background
+from .stock_panels import stock_panels
 
 
 class HybridShadowsPanel:
