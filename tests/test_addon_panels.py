@@ -117,6 +117,8 @@ def test_light_shadow_panel_says_soft_or_hard_as_the_engine_does(empty, kind, si
     off = ui.shadow_note(light, SceneStub(use_soft_shadows=False).hybrid_shadows)
     assert off.startswith("Hard") and "Soft Shadows is off" in off
     assert ui.shadow_note(light, SceneStub(mode="NONE").hybrid_shadows).startswith("No shadows")
+    assert ui.shadow_note(light, SceneStub(mode="SHADOWMAP", use_soft_shadows=False).hybrid_shadows).startswith(
+        "Hard (PCF")
     setattr(light, size, 0.0)
     assert ui.shadow_note(light, SceneStub().hybrid_shadows).startswith("Hard")
     light.use_shadow = False

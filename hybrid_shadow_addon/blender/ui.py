@@ -279,10 +279,11 @@ def shadow_note(light, props) -> str:
     if not light.use_shadow:
         return "Casts no shadow"
     name, what = LIGHT_SIZE.get(light.type, (None, "size"))
+    hard = "Hard (PCF shadow map)" if props.mode == "SHADOWMAP" else "Hard (one ray towards the light's centre)"
     if not props.use_soft_shadows:
-        return "Hard (one ray towards the light's centre): Soft Shadows is off (Render ▸ Shadows)"
+        return f"{hard}: Soft Shadows is off (Render ▸ Shadows)"
     if name is None or not getattr(light, name, 0.0) > 0.0:
-        return f"Hard (one ray towards the light's centre): the light's {what} is 0"
+        return f"{hard}: the light's {what} is 0"
     if props.mode == "SHADOWMAP":
         return f"Soft: shadow maps filtered by the light's {what} (PCSS)"
     return f"Soft: up to {props.samples} shadow rays per pixel over the light's {what}"
@@ -302,10 +303,7 @@ class DATA_PT_hybrid_shadows_light(LightPanel, bpy.types.Panel):
         light = context.light
         props = context.scene.hybrid_shadows
         layout.active = light.use_shadow
-        layout.prop(props, "use_soft_shadows")
-        name, _what = LIGHT_SIZE.get(light.type, (None, ""))
-        if name is not None and name != "size":  # (an area light's size is drawn above)
-            layout.prop(light, name)
+        layout.prop(props, "use_soft_shadows")  # (the size: Light Settings above)
         layout.label(text=shadow_note(light, props), icon="INFO")
 
 
