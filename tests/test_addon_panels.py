@@ -270,8 +270,12 @@ hybrid_shadow_addon.register()
 try:
     s = bpy.context.scene
     s.render.engine = "HYBRID_SHADOWS"
-    s.use_nodes = True
-    rl = [n for n in s.node_tree.nodes if n.type == "R_LAYERS"][0]
+    if hasattr(s, "compositing_node_group"):  # Blender 5: the compositor is a node group
+        s.compositing_node_group = bpy.data.node_groups.new("Compositor", "CompositorNodeTree")
+        rl = s.compositing_node_group.nodes.new("CompositorNodeRLayers")
+    else:
+        s.use_nodes = True
+        rl = [n for n in s.node_tree.nodes if n.type == "R_LAYERS"][0]
     sockets = lambda: [o.name for o in rl.outputs if o.enabled]
     vl = s.view_layers[0]
     out = {"before": sockets()}
