@@ -57,7 +57,16 @@ def test_settings_declared(tmp_path):
     out = compile_job(tmp_path)
     assert out["label"] == "Hybrid Shadows Render"
     assert {"frames", "chunk_size", "blendfile", "render_output_path", "shadow_mode", "shadow_quality",
-            "samples", "format"} <= set(out["setting_keys"])
+            "samples", "soft_shadows", "format"} <= set(out["setting_keys"])
+
+
+def test_descriptions_match_the_engine():
+    """The job type describes the engine's soft shadows (no claim that it has none)."""
+    import re
+
+    text = JOB_TYPE.read_text() + (REPO / "tools/flamenco/README.md").read_text()
+    assert not re.search(r"no soft|not passed|passes it to nothing", text, re.I)
+    assert "use_soft_shadows" in text and "s.hybrid_shadows.samples" in text
 
 
 def test_chunks_become_blender_commands_with_this_engine(tmp_path):
@@ -79,23 +88,26 @@ def test_chunks_become_blender_commands_with_this_engine(tmp_path):
         assert "use_persistent_data = True" in expr
         # Blender applies arguments in order: the settings before the frames are rendered
         assert args.index("--scene") < args.index("-E") < args.index("--python-expr") < args.index("--render-frame")
-        assert "16" not in args  # samples: accepted, not passed (no soft-shadow sampling yet)
+        assert "16" not in args  # samples: set in the --python-expr, not a command-line argument
+        assert "s.hybrid_shadows.samples = 16" in expr and "s.hybrid_shadows.use_soft_shadows = True" in expr
     assert out["settings"]["render_output_path"] == "/farm/renders/shot/2026-12-01_213005/######"
 
 
 def test_settings_map_to_the_scene(tmp_path):
     out = compile_job(tmp_path, shadow_mode="SHADOWMAP", shadow_quality="LOW", persistent_bake=False,
-                      frames="3,5-6", chunk_size=10)
+                      frames="3,5-6", chunk_size=10, soft_shadows=False, samples=7)
     (task,) = out["tasks"]
     args = blender_args(task)
     assert arg(args, "--render-frame") == "3,5..6"
     expr = arg(args, "--python-expr")
     assert "'SHADOWMAP'" in expr and "'LOW'" in expr and "use_persistent_data = False" in expr
+    assert "s.hybrid_shadows.use_soft_shadows = False" in expr and "s.hybrid_shadows.samples = 7" in expr
 
 
 @pytest.mark.parametrize("settings, words", [
     ({"shadow_mode": "CYCLES"}, "shadow_mode"), ({"shadow_quality": "ULTRA"}, "shadow_quality"),
-    ({"chunk_size": 0}, "chunk_size"), ({"render_output_path": "/farm/out/frame.png"}, "#"),
+    ({"chunk_size": 0}, "chunk_size"), ({"samples": 0}, "samples"), ({"samples": 2.5}, "samples"),
+    ({"soft_shadows": "yes"}, "soft_shadows"), ({"render_output_path": "/farm/out/frame.png"}, "#"),
 ])
 def test_bad_settings_fail_the_job(tmp_path, settings, words):
     out = compile_job(tmp_path, **settings)

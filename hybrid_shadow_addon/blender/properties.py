@@ -19,13 +19,15 @@ from ..core.bake.structures import DEFAULT_STRUCTURE, STRUCTURES
 from ..core.settings import Settings
 
 MODE_ITEMS = (
-    ("RAYTRACE", "Ray Traced", "Exact hard shadows: one shadow ray per pixel and light through the baked grid",
+    ("RAYTRACE", "Ray Traced", "Shadow rays through the baked scene: soft shadows from the lights' sizes "
+                               "(Soft Shadows on), else one ray per pixel towards each light's centre",
      "SHADING_RENDERED", 0),
-    ("SHADOWMAP", "Shadow Map", "Rasterised shadow maps filtered with PCF (fast, may alias or leak)", "LIGHT_SUN", 1),
+    ("SHADOWMAP", "Shadow Map", "Rasterised shadow maps filtered with PCF, softened by the lights' sizes "
+                                "(PCSS) with Soft Shadows on (fast, may alias or leak)", "LIGHT_SUN", 1),
     ("NONE", "None", "No shadows: every light reaches every surface", "LIGHT", 2),
 )
 QUALITY_ITEMS = (
-    ("HIGH", "High", "One shadow ray per pixel and light", 0),
+    ("HIGH", "High", "Shadow rays at every pixel, for each light", 0),
     ("MEDIUM", "Medium", "Ray-traced: rays at every 2nd pixel per side, and a ray of its own for each pixel they "
                          "cannot stand for (shadow edges, creases, thin or grazing surfaces): nearly High's masks. "
                          "On a software rasteriser it costs more than High. Shadow maps: half-resolution masks", 1),
@@ -217,11 +219,28 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
         )
 
 
+def owning_view_layer(settings):
+    """The view layer whose ``hybrid_shadows`` is ``settings`` (None when not found)."""
+    scene = settings.id_data
+    for view_layer in getattr(scene, "view_layers", ()):
+        if view_layer.hybrid_shadows.as_pointer() == settings.as_pointer():
+            return view_layer
+    return None
+
+
+def _update_render_passes(self, _context) -> None:
+    """A pass toggle re-registers the engine's passes (``RenderEngine.update_render_passes``),
+    so the compositor's Render Layers sockets follow, as Cycles' pass toggles do."""
+    view_layer = owning_view_layer(self)
+    if view_layer is not None:
+        view_layer.update_render_passes()
+
+
 class HybridShadowsViewLayerSettings(bpy.types.PropertyGroup):
-    use_pass_shadow: BoolProperty(name="Shadow", default=False,
+    use_pass_shadow: BoolProperty(name="Shadow", default=False, update=_update_render_passes,
                                   description="One pass per shadow-casting light, named 'Shadow <light>': 1 lit, "
                                               "0 shadowed (1 where there is no geometry)")
-    use_pass_albedo: BoolProperty(name="Albedo", default=False,
+    use_pass_albedo: BoolProperty(name="Albedo", default=False, update=_update_render_passes,
                                   description="The base colour of the surfaces (Principled BSDF Base Color)")
 
 

@@ -2,7 +2,7 @@
 tabs), the shadow mode in the 3D viewport header, and the standard panels shown for this engine.
 
 Every panel polls on the engine (Cycles' ``COMPAT_ENGINES`` pattern). :func:`get_panels` lists
-the standard panels that make sense for this engine; :func:`register` adds the engine to their
+the stock panels whose settings the engine reads (:mod:`.stock_panels`); :func:`register` adds the engine to their
 ``COMPAT_ENGINES`` and :func:`unregister` removes it again.
 """
 from __future__ import annotations
@@ -13,6 +13,7 @@ from ..core.bake.structures import STRUCTURES
 from .compare_operator import draw_compare_button
 from .engine import ENGINE_ID
 from .export import principled_node, world_background
+from .stock_panels import stock_panels
 
 
 class HybridShadowsPanel:
@@ -77,6 +78,11 @@ class RENDER_PT_hybrid_shadows_limits(RenderSubPanel, bpy.types.Panel):
         col = layout.column(align=True)
         col.prop(props, "viewport_max_shadowed_lights", text="Shadowed Lights Viewport")
         col.prop(props, "max_shadowed_lights", text="Render")
+        casting = sum(1 for ob in context.view_layer.objects if ob.type == "LIGHT" and ob.data.use_shadow)
+        limit = props.viewport_max_shadowed_lights
+        if 0 < limit < casting:
+            layout.label(text=f"Viewport: {casting - limit} of {casting} shadow-casting lights unshadowed "
+                              "(0 shadows all)", icon="ERROR")
         layout.prop(props, "max_distance")
         layout.prop(context.scene.render, "use_persistent_data", text="Persistent Data")
 
@@ -259,16 +265,46 @@ class DATA_PT_hybrid_shadows_light_settings(LightPanel, bpy.types.Panel):
             col.prop(light, "show_cone")
 
 
+#: the property that gives each light type its size, and its label
+LIGHT_SIZE = {"SUN": ("angle", "angle"), "POINT": ("shadow_soft_size", "radius"),
+              "SPOT": ("shadow_soft_size", "radius"), "AREA": ("size", "size")}
+
+
+def shadow_note(light, props) -> str:
+    """What the engine makes of ``light``'s shadow under the scene settings ``props``, in words
+    (the Light ▸ Shadow panel's line): soft from the light's size unless Soft Shadows is off
+    or the size is 0, hard otherwise."""
+    if props.mode == "NONE":
+        return "No shadows: the shadow mode is None (Render ▸ Shadows)"
+    if not light.use_shadow:
+        return "Casts no shadow"
+    name, what = LIGHT_SIZE.get(light.type, (None, "size"))
+    hard = "Hard (PCF shadow map)" if props.mode == "SHADOWMAP" else "Hard (one ray towards the light's centre)"
+    if not props.use_soft_shadows:
+        return f"{hard}: Soft Shadows is off (Render ▸ Shadows)"
+    if name is None or not getattr(light, name, 0.0) > 0.0:
+        return f"{hard}: the light's {what} is 0"
+    if props.mode == "SHADOWMAP":
+        return f"Soft: shadow maps filtered by the light's {what} (PCSS)"
+    return f"Soft: up to {props.samples} shadow rays per pixel over the light's {what}"
+
+
 class DATA_PT_hybrid_shadows_light(LightPanel, bpy.types.Panel):
+    """The light's shadow switch and what the engine makes of it (soft from the light's size
+    while Render ▸ Shadows ▸ Soft Shadows is on, which is the default)."""
+
     bl_label = "Shadow"
 
     def draw_header(self, context):
         self.layout.prop(context.light, "use_shadow", text="")
 
     def draw(self, context):
-        layout = self.layout
-        layout.active = context.light.use_shadow
-        layout.label(text="Shadows are hard (one ray towards the light's centre)", icon="INFO")
+        layout = self.split_layout()
+        light = context.light
+        props = context.scene.hybrid_shadows
+        layout.active = light.use_shadow
+        layout.prop(props, "use_soft_shadows")  # (the size: Light Settings above)
+        layout.label(text=shadow_note(light, props), icon="INFO")
 
 
 def _draw_input(layout, node, name, text=None):
@@ -342,6 +378,29 @@ class MATERIAL_PT_hybrid_shadows_surface(HybridShadowsPanel, bpy.types.Panel):
             _draw_input(layout, node, name, text)
 
 
+class MATERIAL_PT_hybrid_shadows_settings(HybridShadowsPanel, bpy.types.Panel):
+    """The material settings the export reads for shadows: Transparent Shadows (an alpha-cut or
+    see-through material lets light through in its shadow; off, it casts a full shadow) and
+    the Alpha Clip method of Blender before 4.2."""
+
+    bl_label = "Settings"
+    bl_context = "material"
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.material is not None
+
+    def draw(self, context):
+        layout = self.split_layout()
+        mat = context.material
+        if hasattr(mat, "use_transparent_shadow"):
+            layout.prop(mat, "use_transparent_shadow", text="Transparent Shadows")
+        elif hasattr(mat, "shadow_method"):
+            layout.prop(mat, "shadow_method", text="Shadow Mode")
+        if getattr(mat, "blend_method", None) == "CLIP" and hasattr(mat, "alpha_threshold"):
+            layout.prop(mat, "alpha_threshold", text="Clip Threshold")
+
+
 class WORLD_PT_hybrid_shadows(HybridShadowsPanel, bpy.types.Panel):
     """The world colour the engine uses as ambient light: the Background node's colour and
     strength, else the world's viewport colour."""
@@ -382,26 +441,13 @@ CLASSES = (
     VIEWLAYER_PT_hybrid_shadows_passes, OBJECT_PT_hybrid_shadows, OBJECT_PT_hybrid_shadows_terminator,
     DATA_PT_hybrid_shadows_light_settings,
     DATA_PT_hybrid_shadows_light, MATERIAL_PT_hybrid_shadows_context, MATERIAL_PT_hybrid_shadows_surface,
-    WORLD_PT_hybrid_shadows,
+    MATERIAL_PT_hybrid_shadows_settings, WORLD_PT_hybrid_shadows,
 )
 
-#: standard panels (carrying the legacy 'BLENDER_RENDER' marker) that do not fit this engine
-EXCLUDED_PANELS = {
-    "VIEWLAYER_PT_filter", "VIEWLAYER_PT_layer_passes", "RENDER_PT_freestyle",
-    "RENDER_PT_color_management_curves", "DATA_PT_light_animation", "DATA_PT_preview",
-}
-
-
 def get_panels() -> list:
-    """The standard panels shown for this engine: those marked for ``BLENDER_RENDER`` (Blender's
-    convention for panels any engine may reuse: Light, Spot Shape, Object, Output, Color
-    Management, ...) minus :data:`EXCLUDED_PANELS`."""
-    panels = []
-    for panel in bpy.types.Panel.__subclasses__():
-        compat = getattr(panel, "COMPAT_ENGINES", None)
-        if compat is not None and "BLENDER_RENDER" in compat and panel.__name__ not in EXCLUDED_PANELS:
-            panels.append(panel)
-    return panels
+    """The stock panels shown for this engine: the allow-list of :mod:`.stock_panels` (those
+    whose settings the engine reads or Blender writes from its result)."""
+    return stock_panels()
 
 
 _added_to: list = []

@@ -239,9 +239,32 @@ def show_result(engine, worker) -> bool:
     seen = result.stats.get("see_through_samples")
     if seen is not None:
         left += f", {seen}/{result.stats['see_through_target']} see-through samples"
-    engine.update_stats("", f"Hybrid Shadows | {settings_label(result)} | "
+    engine.update_stats("", f"Hybrid Shadows | {settings_label(result)}{light_limit_note(engine, result)} | "
                             f"{result.timings.get('total_ms', 0):.0f} ms{left}{report_note(engine)}")
     return True
+
+
+def unshadowed_note(casting: int, shadowed: int, limit) -> str:
+    """The stats line's note when the viewport's light limit leaves ``casting - shadowed``
+    shadow-casting lights unshadowed ("" when none is)."""
+    left = casting - shadowed
+    if left <= 0:
+        return ""
+    return (f", {left} light{'s' if left != 1 else ''} unshadowed (viewport limit {limit}: "
+            f"Render > Shadows > Limits, 0 shadows all)")
+
+
+def light_limit_note(engine, result) -> str:
+    """:func:`unshadowed_note` of a viewport frame: the shadow-casting lights of the engine's
+    scene against those the frame shadowed."""
+    settings = result.settings
+    if getattr(settings, "mode", "none") == "none" or getattr(settings, "max_shadowed_lights", None) is None:
+        return ""
+    scene = getattr(getattr(shared(engine), "sync", None), "scene", None)
+    lights = getattr(scene, "lights", None) or ()
+    casting = sum(1 for light in lights if light.use_shadow)
+    return unshadowed_note(casting, int(result.stats.get("shadowed_lights", casting)),
+                           settings.max_shadowed_lights)
 
 
 def report_note(engine) -> str:

@@ -9,7 +9,8 @@ const HYBRID_SHADOW_QUALITIES = ["HIGH", "MEDIUM", "LOW"];
 
 const JOB_TYPE = {
     label: "Hybrid Shadows Render",
-    description: "Render a sequence of frames with the Hybrid Shadows engine (ray-traced shadows)",
+    description: "Render a sequence of frames with the Hybrid Shadows engine (ray-traced or shadow-mapped, " +
+                 "soft or hard shadows)",
     settings: [
         // Settings for artists to determine:
         { key: "frames", type: "string", required: true,
@@ -25,9 +26,14 @@ const JOB_TYPE = {
         { key: "shadow_quality", type: "string", required: true, choices: HYBRID_SHADOW_QUALITIES,
           eval: "C.scene.hybrid_shadows.quality", visible: "submission",
           description: "Ray-traced shadow-mask resolution: HIGH (full), MEDIUM (1/2) or LOW (1/4) per side" },
-        { key: "samples", type: "int32", default: 1, propargs: { min: 1 }, visible: "submission",
-          description: "Soft-shadow samples per pixel. Accepted for forward compatibility: the engine has no " +
-                       "soft-shadow sampling yet, so this is not passed to Blender (see README.md)" },
+        { key: "soft_shadows", type: "bool", default: true,
+          eval: "C.scene.hybrid_shadows.use_soft_shadows", visible: "submission",
+          description: "Soft shadows from the lights' sizes (sun angle, point and spot radius, area size); " +
+                       "off: every light casts a hard shadow, one ray towards its centre" },
+        { key: "samples", type: "int32", default: 64, propargs: { min: 1, max: 4096 },
+          eval: "C.scene.hybrid_shadows.samples", visible: "submission",
+          description: "Soft shadows: shadow rays per pixel towards each light with a size (pixels away " +
+                       "from any penumbra take 1)" },
         { key: "persistent_bake", type: "bool", default: true, visible: "submission",
           description: "Keep the bake between the frames of a task (Blender's Persistent Data)" },
 
@@ -74,6 +80,12 @@ function checkSettings(settings) {
     if (!HYBRID_SHADOW_QUALITIES.includes(settings.shadow_quality)) {
         throw `shadow_quality must be one of ${HYBRID_SHADOW_QUALITIES.join(", ")}, not "${settings.shadow_quality}"`;
     }
+    if (!Number.isInteger(settings.samples) || settings.samples < 1) {
+        throw `samples must be a whole number of at least 1, not ${settings.samples}`;
+    }
+    if (typeof settings.soft_shadows !== "boolean") {
+        throw `soft_shadows must be true or false, not ${settings.soft_shadows}`;
+    }
     if (!(settings.chunk_size >= 1)) {
         throw `chunk_size must be at least 1, not ${settings.chunk_size}`;
     }
@@ -109,6 +121,8 @@ function engineSetupExpr(settings) {
         "s.render.engine = 'HYBRID_SHADOWS'",
         `s.hybrid_shadows.mode = '${settings.shadow_mode}'`,
         `s.hybrid_shadows.quality = '${settings.shadow_quality}'`,
+        `s.hybrid_shadows.use_soft_shadows = ${settings.soft_shadows ? "True" : "False"}`,
+        `s.hybrid_shadows.samples = ${settings.samples}`,
         `s.render.use_persistent_data = ${settings.persistent_bake ? "True" : "False"}`,
     ].join("; ");
 }
