@@ -356,3 +356,20 @@ def textured_material(name, image, color=(0.8, 0.8, 0.8), use_color=True, use_al
     if hasattr(mat, "use_transparent_shadow"):  # EEVEE's setting (Cycles' shadows are always transparent)
         mat.use_transparent_shadow = True
     return mat
+
+
+def mesh_to_points(ob, radius_attribute):
+    """Turn mesh object ``ob`` into a point cloud with a geometry-nodes modifier: a point per
+    vertex, its radius from the float point attribute ``radius_attribute``."""
+    tree = bpy.data.node_groups.new("ToPoints", "GeometryNodeTree")
+    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    gin, gout = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
+    to_points = tree.nodes.new("GeometryNodeMeshToPoints")
+    named = tree.nodes.new("GeometryNodeInputNamedAttribute")
+    named.inputs["Name"].default_value = radius_attribute
+    tree.links.new(gin.outputs[0], to_points.inputs["Mesh"])
+    tree.links.new(named.outputs["Attribute"], to_points.inputs["Radius"])
+    tree.links.new(to_points.outputs[0], gout.inputs[0])
+    ob.modifiers.new("ToPoints", "NODES").node_group = tree
+    return ob

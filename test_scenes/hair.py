@@ -70,18 +70,7 @@ cloud.vertices.foreach_set("co", (rng.uniform(-0.7, 0.7, (N_POINTS, 3)) + (0, 0,
 r = cloud.attributes.new("r", "FLOAT", "POINT")
 r.data.foreach_set("value", rng.uniform(0.03, 0.07, N_POINTS))
 cloud.materials.append(teal)
-tree = bpy.data.node_groups.new("ToPoints", "GeometryNodeTree")
-tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-gin, gout = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
-to_points = tree.nodes.new("GeometryNodeMeshToPoints")
-named = tree.nodes.new("GeometryNodeInputNamedAttribute")
-named.inputs["Name"].default_value = "r"
-tree.links.new(gin.outputs[0], to_points.inputs["Mesh"])
-tree.links.new(named.outputs["Attribute"], to_points.inputs["Radius"])
-tree.links.new(to_points.outputs[0], gout.inputs[0])
-points_ob = add("Points", cloud, location=(0.2, 2.0, 0.0))
-points_ob.modifiers.new("ToPoints", "NODES").node_group = tree
+lib["mesh_to_points"](add("Points", cloud, location=(0.2, 2.0, 0.0)), "r")
 
 lib["add_sun"]("Sun", elevation=40, azimuth=30, energy=3.0)
 lib["add_light"]("Point", "POINT", location=(-1.0, -3.0, 4.0), energy=1500.0)

@@ -36,6 +36,17 @@ def pipeline(gl_ctx):
 
 
 @pytest.fixture(scope="module")
+def pass_rig(gl_ctx):
+    """A :class:`~tests.helpers.rig.PassRig` (the passes one by one) on the session's context,
+    for one test module."""
+    from tests.helpers.rig import PassRig
+
+    r = PassRig(gl_ctx)
+    yield r
+    r.release()
+
+
+@pytest.fixture(scope="module")
 def loaded():
     """``loaded(name)``: the core Scene of a TEST_SCENES entry (or any SCENE argument), loaded
     once per test module."""

@@ -1,6 +1,8 @@
 """Particle hair, Curves objects (also instanced by geometry nodes) and point clouds: strands
 exported as tube models with their radii, points as sphere primitives; and the tube geometry."""
 import math
+import runpy
+from pathlib import Path
 
 import bpy
 import numpy as np
@@ -14,6 +16,9 @@ from hybrid_shadow_addon.core.scene.curves import (
     unit_sphere_model,
 )
 from tests.helpers.export_scenes import add_object, empty_scene, export_scene, gn_instancer, object_info
+
+#: the scene scripts' library (test_scenes/_lib.py)
+SCENE_LIB = runpy.run_path(str(Path(__file__).resolve().parents[1] / "test_scenes" / "_lib.py"))
 
 
 # -- tube geometry (bpy-free) -------------------------------------------------------------------
@@ -262,18 +267,7 @@ def test_point_cloud_points_are_sphere_primitives(scene):
     me.vertices.foreach_set("co", co.ravel())
     radii = np.linspace(0.05, 0.3, n).astype(np.float32)
     me.attributes.new("r", "FLOAT", "POINT").data.foreach_set("value", radii)
-    tree = bpy.data.node_groups.new("ToPoints", "GeometryNodeTree")
-    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-    gin, gout = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
-    to_points = tree.nodes.new("GeometryNodeMeshToPoints")
-    named = tree.nodes.new("GeometryNodeInputNamedAttribute")
-    named.inputs["Name"].default_value = "r"
-    tree.links.new(gin.outputs[0], to_points.inputs["Mesh"])
-    tree.links.new(named.outputs["Attribute"], to_points.inputs["Radius"])
-    tree.links.new(to_points.outputs[0], gout.inputs[0])
-    ob = add_object("Cloud", me, location=(0, 0, 2))
-    ob.modifiers.new("GN", "NODES").node_group = tree
+    SCENE_LIB["mesh_to_points"](add_object("Cloud", me, location=(0, 0, 2)), "r")
     s = export_scene()
     rows = [i for i, name in enumerate(s.instances.names) if name.startswith("Cloud[")]
     assert len(rows) == n

@@ -3,7 +3,6 @@ import numpy as np
 import pytest
 
 from tests.helpers.rays import interior, ray_cast
-from tests.helpers.rig import PassRig
 from tests.helpers.scenes import basic_scene, trs
 
 pytestmark = [pytest.mark.gpu]
@@ -11,18 +10,11 @@ pytestmark = [pytest.mark.gpu]
 W, H = 160, 120
 
 
-@pytest.fixture(scope="module")
-def gpass(gl_ctx):
-    r = PassRig(gl_ctx)
-    yield r
-    r.release()
-
-
 @pytest.mark.parametrize("camera_type,offset", [("PERSP", (0, 0, 0)), ("ORTHO", (0, 0, 0)),
                                                 ("PERSP", (3000.0, -2000.0, 150.0))])
-def test_positions_match_exact_ray_cast(gpass, camera_type, offset):
+def test_positions_match_exact_ray_cast(pass_rig, camera_type, offset):
     scene = basic_scene(offset=offset, camera_type=camera_type, with_sphere=True)
-    gb = gpass.gbuffer(scene, W, H)
+    gb = pass_rig.gbuffer(scene, W, H)
     pos = gb.read("position")
     nrm = gb.read("normal")
     mat = gb.read("material")
@@ -61,24 +53,24 @@ def test_positions_match_exact_ray_cast(gpass, camera_type, offset):
     assert np.allclose(alb[sel], scene.instances.base_color[inst[sel]], atol=2e-3)
 
 
-def test_top_row_is_top_and_moving_reuses_model_buffers(gpass):
+def test_top_row_is_top_and_moving_reuses_model_buffers(pass_rig):
     scene = basic_scene()
-    gb = gpass.gbuffer(scene, W, H)
+    gb = pass_rig.gbuffer(scene, W, H)
     pos = gb.read("position")
     # the camera looks down: the bottom rows are the ground nearest the camera
     cov = pos[..., 3] > 0.5
     assert cov[-1].all()
-    vbos = gpass.gpu.models.buffer_ids()
+    vbos = pass_rig.gpu.models.buffer_ids()
     scene.instances.set_matrices([1], trs((1.0, 1.0, 1.0))[None])
-    gb = gpass.gbuffer(scene, W, H)
-    assert gpass.gpu.models.buffer_ids() == vbos
-    assert gpass.gbuffer_pass.draw_calls == 2  # one per model
+    gb = pass_rig.gbuffer(scene, W, H)
+    assert pass_rig.gpu.models.buffer_ids() == vbos
+    assert pass_rig.gbuffer_pass.draw_calls == 2  # one per model
     pos2 = gb.read("position")
     assert not np.array_equal(pos, pos2)
 
 
 @pytest.mark.parametrize("wound", ["outwards", "inwards"])
-def test_smooth_shading_normals(gpass, wound):
+def test_smooth_shading_normals(pass_rig, wound):
     """A model with corner normals shades smoothly (shading normal interpolated); flat models keep
     shading == geometric normal. A ball wound inwards (the camera sees its triangles' backs) with
     outward corner normals gets them turned over with the geometric normal, as Cycles turns N
@@ -99,7 +91,7 @@ def test_smooth_shading_normals(gpass, wound):
     scene.instances.model_ids[2] = 2  # the rotated box becomes a smooth ball
     scene.instances.matrices[2] = trs((1.5, -1.5, 1.0))
     scene.instances.set_matrices([2], scene.instances.matrices[2])
-    gb = gpass.gbuffer(scene, W, H)
+    gb = pass_rig.gbuffer(scene, W, H)
     inst = gb.read("material")[..., 2]
     geo, shade = gb.read("normal")[..., :3], gb.read("shading_normal")[..., :3]
     pos = gb.read("position")[..., :3]
@@ -117,7 +109,7 @@ def test_smooth_shading_normals(gpass, wound):
 
 
 @pytest.mark.parametrize("camera_type", ["PERSP", "ORTHO"])
-def test_instances_outside_the_view_are_not_drawn_and_change_nothing(gpass, monkeypatch, camera_type):
+def test_instances_outside_the_view_are_not_drawn_and_change_nothing(pass_rig, monkeypatch, camera_type):
     """Frustum culling leaves out the instances whose bounding sphere misses the view (behind
     the camera, beside it, beyond clip_end, a sphere primitive too) and keeps the one that
     straddles the image's edge: the G-buffer is the same, bit for bit, as drawing every one."""
@@ -139,14 +131,14 @@ def test_instances_outside_the_view_are_not_drawn_and_change_nothing(gpass, monk
                       base_color=[(0.5, 0.5, 0.5, 1)] * len(where), sphere=sphere)
     scene = base.__class__(**{**base.__dict__, "instances": Instances.concatenate([base.instances, extra])})
     n0 = len(base.instances)
-    gb = gpass.gbuffer(scene, W, H)
-    assert gpass.gbuffer_pass.culled == len(outside) + 1
+    gb = pass_rig.gbuffer(scene, W, H)
+    assert pass_rig.gbuffer_pass.culled == len(outside) + 1
     names = ("position", "normal", "shading_normal", "albedo", "material", "depth")
     culled = {k: gb.read(k).copy() for k in names}
     assert (culled["material"][..., 2].round() == n0 + len(outside)).any()  # the edge cube is drawn
     monkeypatch.setattr(gbuffer_module, "frustum_visible", lambda s, *a: np.ones(len(s.instances), bool))
-    gb = gpass.gbuffer(scene, W, H)
-    assert gpass.gbuffer_pass.culled == 0
+    gb = pass_rig.gbuffer(scene, W, H)
+    assert pass_rig.gbuffer_pass.culled == 0
     for k in names:
         assert np.array_equal(culled[k], gb.read(k)), k
 
@@ -208,7 +200,7 @@ def test_indexed_layout_keeps_every_corner_and_face():
         assert np.allclose(face_normals(m), fnr / np.linalg.norm(fnr, axis=1, keepdims=True), atol=1e-7)
 
 
-def test_face_normals_of_a_bumpy_grid(gpass):
+def test_face_normals_of_a_bumpy_grid(pass_rig):
     """A bumpy 48 x 48-quad grid (4608 triangles, each of whose provoking corners carries its
     face normal, many of them copies): every pixel's normal is its hit triangle's, the position
     the ray's."""
@@ -227,7 +219,7 @@ def test_face_normals_of_a_bumpy_grid(gpass):
                                       base_color=[(0.6, 0.6, 0.6, 1)]),
                   lights=base.lights, camera=base.camera, world_color=base.world_color, resolution=(96, 72))
     w, h = 96, 72
-    gb = gpass.gbuffer(scene, w, h)
+    gb = pass_rig.gbuffer(scene, w, h)
     o, d = scene.camera.pixel_rays(w, h)
     t, inst, face = ray_cast(scene, o, d)
     sel = np.isfinite(t)
@@ -263,7 +255,7 @@ def _bumpy_grid(n, size, seed, uv=False):
     return Model("terrain", verts, tris, normals=normals, uvs=uvs)
 
 
-def test_big_models_are_drawn_by_chunks_in_view(gpass, monkeypatch):
+def test_big_models_are_drawn_by_chunks_in_view(pass_rig, monkeypatch):
     """A model of many triangles is drawn by chunks of nearby triangles, those outside the view
     left out: the G-buffer is bit-identical to the whole model drawn in its own triangle order,
     with fewer triangles drawn; each pixel's face normal is that of the triangle under it."""
@@ -283,17 +275,17 @@ def test_big_models_are_drawn_by_chunks_in_view(gpass, monkeypatch):
                                 base_color=[(0.8, 0.2, 0.1, 1)])]),
                   lights=base.lights, camera=base.camera, world_color=base.world_color, resolution=(W, H))
     names = ("position", "normal", "shading_normal", "albedo", "material", "depth")
-    gp = gpass.gbuffer_pass
+    gp = pass_rig.gbuffer_pass
     got = {}
     for key, chunked, minimum in (("chunks", True, geometry.CHUNK_MIN), ("whole", False, geometry.CHUNK_MIN),
                                   ("own order", True, 10 ** 9)):
         monkeypatch.setattr(geometry, "CHUNK_MIN", minimum)
         monkeypatch.setattr(gp, "chunked", chunked)
-        gpass.gpu.models.prune([])
+        pass_rig.gpu.models.prune([])
         # (a model's first frame draws it whole, in its own order: its chunks come from the next on)
-        gb = gpass.gbuffer(scene, W, H)
+        gb = pass_rig.gbuffer(scene, W, H)
         first = gp.triangles
-        gb = gpass.gbuffer(scene, W, H)
+        gb = pass_rig.gbuffer(scene, W, H)
         got[key] = ({k: gb.read(k).copy() for k in names}, gp.triangles, gp.draw_calls)
         assert first == 2 * terrain.triangle_count + 12
     (img, tris, draws), (whole, whole_tris, _), (own, own_tris, own_draws) = (got["chunks"], got["whole"],

@@ -15,19 +15,11 @@ from hybrid_shadow_addon.core.oracle import lighting as lighting_reference
 from hybrid_shadow_addon.core.scene import Light
 from hybrid_shadow_addon.core.settings import Settings
 from tests.helpers.rays import interior
-from tests.helpers.rig import PassRig
 from tests.helpers.scenes import all_lights, basic_scene, look_at
 
 pytestmark = [pytest.mark.gpu]
 
 W, H = 160, 120
-
-
-@pytest.fixture(scope="module")
-def rig(gl_ctx):
-    r = PassRig(gl_ctx)
-    yield r
-    r.release()
 
 
 def gbuffer_arrays(gb):
@@ -40,42 +32,42 @@ def assert_close(img, ref, tol=1e-3):
 
 
 @pytest.mark.parametrize("camera_type", ["PERSP", "ORTHO"])
-def test_none_mode_matches_numpy(rig, camera_type):
+def test_none_mode_matches_numpy(pass_rig, camera_type):
     lights = all_lights()
     lights[2].spot_blend = 0.4
     lights[1].color = np.float32([1.0, 0.6, 0.3])
     scene = basic_scene(lights=lights, camera_type=camera_type, with_sphere=True)
-    gb = rig.gbuffer(scene, W, H)
-    masks = rig.none(scene, gb, Settings(mode="none"))
-    rig.light(scene, gb, masks)
-    img = rig.image()
+    gb = pass_rig.gbuffer(scene, W, H)
+    masks = pass_rig.none(scene, gb, Settings(mode="none"))
+    pass_rig.light(scene, gb, masks)
+    img = pass_rig.image()
     ref = lighting_reference.shade(scene, gbuffer_arrays(gb))
     assert_close(img, ref)
     assert img[..., :3].max() > 0.05  # really lit
     # no masks at all gives the same picture
-    rig.light(scene, gb, None)
-    assert_close(rig.image(), ref)
+    pass_rig.light(scene, gb, None)
+    assert_close(pass_rig.image(), ref)
 
 
-def test_each_light_type_alone_and_masks_multiply(rig):
+def test_each_light_type_alone_and_masks_multiply(pass_rig):
     for light in all_lights():
         light.spot_blend = 0.0 if light.type == "SPOT" else light.spot_blend
         scene = basic_scene(lights=[light])
-        gb = rig.gbuffer(scene, W, H)
-        rig.light(scene, gb, None, Settings(specular=False))
-        img = rig.image()
+        gb = pass_rig.gbuffer(scene, W, H)
+        pass_rig.light(scene, gb, None, Settings(specular=False))
+        img = pass_rig.image()
         ref = lighting_reference.shade(scene, gbuffer_arrays(gb), use_specular=False)
         assert_close(img, ref)
         ambient = lighting_reference.shade(scene.__class__(**{**scene.__dict__, "lights": []}), gbuffer_arrays(gb))
         assert (img[..., :3] - ambient[..., :3]).max() > 0.02, light.type
     # shadow-map masks: GPU lighting with masks == numpy lighting with the same masks read back
     scene = basic_scene(lights=all_lights())
-    gb = rig.gbuffer(scene, W, H)
-    masks = rig.shadowmap(scene, gb, Settings(mode="shadowmap", shadowmap_size=512))
-    rig.light(scene, gb, masks)
+    gb = pass_rig.gbuffer(scene, W, H)
+    masks = pass_rig.shadowmap(scene, gb, Settings(mode="shadowmap", shadowmap_size=512))
+    pass_rig.light(scene, gb, masks)
     arrays = {k: read_mask(v) for k, v in masks.items()}
     ref = lighting_reference.shade(scene, gbuffer_arrays(gb), arrays)
-    assert_close(rig.image(), ref)
+    assert_close(pass_rig.image(), ref)
 
 
 def _area_kinds():
@@ -89,7 +81,7 @@ def _area_kinds():
             (Light("dot", "AREA", power=300.0, matrix=m, size=0.0), "HS_LIT_AREA_POINT")]
 
 
-def test_lighting_compiles_only_the_kinds_of_light_the_scene_has(rig):
+def test_lighting_compiles_only_the_kinds_of_light_the_scene_has(pass_rig):
     """Each kind alone builds the variant of just that kind (``lighting_defines`` of the table)
     and matches the numpy oracle; every kind together matches it too. A kind compiled out
     contributes nothing, so a define missing from the set fails the oracle check."""
@@ -98,9 +90,9 @@ def test_lighting_compiles_only_the_kinds_of_light_the_scene_has(rig):
     for light, define in kinds:
         scene = basic_scene(lights=[light])
         assert lighting_defines(light_table([light])) == {define: 1}, light.name
-        gb = rig.gbuffer(scene, W, H)
-        rig.light(scene, gb, None)
-        img = rig.image()
+        gb = pass_rig.gbuffer(scene, W, H)
+        pass_rig.light(scene, gb, None)
+        img = pass_rig.image()
         # a spread is integrated by 8 x 8 Gauss-Legendre nodes on the GPU, 16 x 16 by the oracle
         assert_close(img, lighting_reference.shade(scene, gbuffer_arrays(gb)), 1e-2 if light.spread < 3 else 1e-3)
         ambient = lighting_reference.shade(scene.__class__(**{**scene.__dict__, "lights": []}), gbuffer_arrays(gb))
@@ -108,33 +100,33 @@ def test_lighting_compiles_only_the_kinds_of_light_the_scene_has(rig):
     lights = [k[0] for k in kinds]
     assert set(lighting_defines(light_table(lights))) == {k[1] for k in kinds}
     scene = basic_scene(lights=lights)
-    gb = rig.gbuffer(scene, W, H)
-    rig.light(scene, gb, None)
-    assert_close(rig.image(), lighting_reference.shade(scene, gbuffer_arrays(gb)), 1e-2)
+    gb = pass_rig.gbuffer(scene, W, H)
+    pass_rig.light(scene, gb, None)
+    assert_close(pass_rig.image(), lighting_reference.shade(scene, gbuffer_arrays(gb)), 1e-2)
 
 
-def test_more_masked_lights_than_one_batch(rig):
+def test_more_masked_lights_than_one_batch(pass_rig):
     lights = [Light(f"p{i}", "POINT", power=40.0 + 5 * i, matrix=np.eye(4)) for i in range(11)]
     for i, light in enumerate(lights):
         light.matrix[:3, 3] = (np.cos(i), np.sin(i), 3.0 + 0.1 * i)
     scene = basic_scene(lights=lights)
-    gb = rig.gbuffer(scene, W, H)
+    gb = pass_rig.gbuffer(scene, W, H)
     rng = np.random.default_rng(1)
     mask_arrays = {i: rng.random((H, W)).astype(np.float32) for i in range(0, 11, 1) if i != 4}
     masks = {}
     for i, a in mask_arrays.items():
-        t = create_mask_texture(rig.ctx, W, H)
+        t = create_mask_texture(pass_rig.ctx, W, H)
         t.write(np.ascontiguousarray(a[::-1]).tobytes())  # numpy top row -> GL top row
         masks[i] = t
-    rig.light(scene, gb, masks)
-    assert rig.lighting.batches == 2
+    pass_rig.light(scene, gb, masks)
+    assert pass_rig.lighting.batches == 2
     ref = lighting_reference.shade(scene, gbuffer_arrays(gb), mask_arrays)
-    assert_close(rig.image(), ref)
+    assert_close(pass_rig.image(), ref)
     for t in masks.values():
         t.release()
 
 
-def test_each_kind_in_a_loop_of_its_own(rig):
+def test_each_kind_in_a_loop_of_its_own(pass_rig):
     """Sized area lights and the other lights are lit in loops of their own (masked and unmasked,
     over batches that hold both kinds): lights interleaved in the scene's order match the numpy
     oracle, whatever batch and loop they land in."""
@@ -149,7 +141,7 @@ def test_each_kind_in_a_loop_of_its_own(rig):
             lights.append(areas.pop(0))
     lights += areas
     scene = basic_scene(lights=lights)
-    gb = rig.gbuffer(scene, W, H)
+    gb = pass_rig.gbuffer(scene, W, H)
     rng = np.random.default_rng(3)
     # unmasked: a rectangle and an ellipse among other lights (the masked batches: other lights and
     # a spread); then an area light of size 0 and a spot (the second batch: every kind)
@@ -157,12 +149,12 @@ def test_each_kind_in_a_loop_of_its_own(rig):
         mask_arrays = {i: rng.random((H, W)).astype(np.float32) for i in range(len(lights)) if i not in unmasked}
         masks = {}
         for i, a in mask_arrays.items():
-            t = create_mask_texture(rig.ctx, W, H)
+            t = create_mask_texture(pass_rig.ctx, W, H)
             t.write(np.ascontiguousarray(a[::-1]).tobytes())
             masks[i] = t
-        rig.light(scene, gb, masks)
-        assert rig.lighting.batches == 2
-        img = rig.image()
+        pass_rig.light(scene, gb, masks)
+        assert pass_rig.lighting.batches == 2
+        img = pass_rig.image()
         # (a spread is integrated by 8 x 8 Gauss-Legendre nodes on the GPU, 16 x 16 by the oracle)
         assert_close(img, lighting_reference.shade(scene, gbuffer_arrays(gb), mask_arrays), 1e-2)
         assert img[..., :3].max() > 0.05
@@ -189,24 +181,24 @@ def test_srgb_and_png(tmp_path):
 
 
 @pytest.mark.parametrize("quality", ["medium", "low"])
-def test_edge_aware_upsample_beats_nearest(rig, quality):
+def test_edge_aware_upsample_beats_nearest(pass_rig, quality):
     """A low-res mask sampled from an exact full-res mask: the bilateral upsample reproduces the
     full-res mask better than nearest, especially across geometric edges."""
     scene = basic_scene(lights=all_lights()[:1], with_sphere=True)
-    gb = rig.gbuffer(scene, W, H)
+    gb = pass_rig.gbuffer(scene, W, H)
     settings = Settings(mode="shadowmap", quality=quality, shadowmap_size=1024, pcf=0)
-    full = read_mask(rig.shadowmap(scene, gb, settings)[0])
+    full = read_mask(pass_rig.shadowmap(scene, gb, settings)[0])
     mw, mh = settings.mask_size(W, H)
     rows, cols = mask_source_pixels((mw, mh), (W, H), settings.mask_scale)
     assert rows.shape == (mh, mw)
     low = full[rows, cols].astype(np.float32)
-    tex = create_mask_texture(rig.ctx, mw, mh)
+    tex = create_mask_texture(pass_rig.ctx, mw, mh)
     tex.write(np.ascontiguousarray(low[::-1]).tobytes())
     cov = gb.coverage()
     # read_mask maps a reduced mask onto its source pixels' coverage
     assert np.array_equal(np.isnan(read_mask(tex, gb)), ~cov[rows, cols])
-    up = read_mask(rig.upsample({0: tex}, gb, settings)[0], gb)
-    near = read_mask(rig.upsample({0: tex}, gb, settings.replace(upsample="nearest"))[0], gb)
+    up = read_mask(pass_rig.upsample({0: tex}, gb, settings)[0], gb)
+    near = read_mask(pass_rig.upsample({0: tex}, gb, settings.replace(upsample="nearest"))[0], gb)
     inst = gb.read("material")[..., 2]
     edges = cov & ~interior(np.where(cov, inst, -1))
     err_up = np.abs(up - full)[cov]
@@ -235,7 +227,7 @@ def test_settings_validation():
         s.mode = "none"  # frozen
 
 
-def test_light_table_in_a_uniform_block_or_a_texture(rig, monkeypatch):
+def test_light_table_in_a_uniform_block_or_a_texture(pass_rig, monkeypatch):
     """The light table in a uniform block (where it fits) and in a texture light bit-identically,
     with every kind of light, masked and unmasked; a table too big for the driver's block takes
     the texture."""
@@ -244,26 +236,26 @@ def test_light_table_in_a_uniform_block_or_a_texture(rig, monkeypatch):
     for i, light in enumerate(lights[-10:]):
         light.matrix[:3, 3] = (np.cos(i), np.sin(i), 3.0 + 0.1 * i)
     scene = basic_scene(lights=lights)
-    gb = rig.gbuffer(scene, W, H)
+    gb = pass_rig.gbuffer(scene, W, H)
     rng = np.random.default_rng(2)
     masks = {}
     for i in range(0, len(lights), 2):  # every other light masked: unmasked ones in the first batch
-        t = create_mask_texture(rig.ctx, W, H)
+        t = create_mask_texture(pass_rig.ctx, W, H)
         t.write(rng.random((H, W)).astype(np.float32).tobytes())
         masks[i] = t
     got = {}
     for on in (True, False):
-        monkeypatch.setattr(rig.lighting, "uniform_block", on)
-        rig.light(scene, gb, masks)
-        got[on] = rig.image().copy()
-        assert (rig.lighting._light_block(light_table(lights)) is not None) == on
+        monkeypatch.setattr(pass_rig.lighting, "uniform_block", on)
+        pass_rig.light(scene, gb, masks)
+        got[on] = pass_rig.image().copy()
+        assert (pass_rig.lighting._light_block(light_table(lights)) is not None) == on
     assert np.array_equal(got[True], got[False])
     assert got[True][..., :3].max() > 0.05
     # a driver whose blocks are too small for the table: the texture, the same image
-    monkeypatch.setattr(rig.lighting, "uniform_block", True)
-    monkeypatch.setitem(rig.ctx.info, "GL_MAX_UNIFORM_BLOCK_SIZE", 16 * 5 * 8)
-    assert rig.lighting._light_block(light_table(lights)) is None
-    rig.light(scene, gb, masks)
-    assert np.array_equal(rig.image(), got[False])
+    monkeypatch.setattr(pass_rig.lighting, "uniform_block", True)
+    monkeypatch.setitem(pass_rig.ctx.info, "GL_MAX_UNIFORM_BLOCK_SIZE", 16 * 5 * 8)
+    assert pass_rig.lighting._light_block(light_table(lights)) is None
+    pass_rig.light(scene, gb, masks)
+    assert np.array_equal(pass_rig.image(), got[False])
     for t in masks.values():
         t.release()

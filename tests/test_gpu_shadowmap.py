@@ -7,19 +7,11 @@ from hybrid_shadow_addon.core.gpu.lights import select_shadowed_lights
 from hybrid_shadow_addon.core.scene import Light
 from hybrid_shadow_addon.core.settings import Settings
 from tests.helpers.rays import interior, ray_cast
-from tests.helpers.rig import PassRig
 from tests.helpers.scenes import all_lights, basic_scene, trs
 
 pytestmark = [pytest.mark.gpu]
 
 W, H = 160, 120
-
-
-@pytest.fixture(scope="module")
-def passes(gl_ctx):
-    r = PassRig(gl_ctx)
-    yield r
-    r.release()
 
 
 def reference_mask(scene, pos, nrm, light):
@@ -40,8 +32,8 @@ def reference_mask(scene, pos, nrm, light):
 
 
 @pytest.mark.parametrize("light_index", [0, 1, 2, 3])
-def test_shadow_map_matches_ray_cast(passes, light_index):
-    rig = passes
+def test_shadow_map_matches_ray_cast(pass_rig, light_index):
+    rig = pass_rig
     scene = basic_scene(lights=all_lights(), with_sphere=True)
     gb = rig.gbuffer(scene, W, H)
     masks = rig.shadowmap(scene, gb, Settings(mode="shadowmap", shadowmap_size=1024), lights=[light_index])
@@ -62,11 +54,11 @@ def test_shadow_map_matches_ray_cast(passes, light_index):
 
 
 @pytest.mark.parametrize("light_index", [0, 1, 2])
-def test_shadow_map_is_dark_where_the_shading_normal_faces_away(passes, light_index):
+def test_shadow_map_is_dark_where_the_shading_normal_faces_away(pass_rig, light_index):
     """As the ray-traced masks: 0 wherever the shading normal turns from a hard light."""
     scene = basic_scene(lights=all_lights())
-    gb = passes.gbuffer(scene, W, H)
-    m = read_mask(passes.shadowmap(scene, gb, Settings(mode="shadowmap", shadowmap_size=1024),
+    gb = pass_rig.gbuffer(scene, W, H)
+    m = read_mask(pass_rig.shadowmap(scene, gb, Settings(mode="shadowmap", shadowmap_size=1024),
                                    lights=[light_index])[light_index], gb)
     light = scene.lights[light_index]
     p = gb.read("position")[..., :3].astype(np.float64)
@@ -77,8 +69,8 @@ def test_shadow_map_is_dark_where_the_shading_normal_faces_away(passes, light_in
     assert (m[away] == 0).all()
 
 
-def test_cube_on_plane_under_sun_is_shadowed_behind(passes):
-    rig = passes
+def test_cube_on_plane_under_sun_is_shadowed_behind(pass_rig):
+    rig = pass_rig
     scene = basic_scene(lights=all_lights()[:1])
     gb = rig.gbuffer(scene, W, H)
     m = read_mask(rig.shadowmap(scene, gb, Settings(mode="shadowmap", shadowmap_size=1024, pcf=0))[0], gb)
@@ -95,8 +87,8 @@ def test_cube_on_plane_under_sun_is_shadowed_behind(passes):
     assert (m[behind] == 0).all() and (m[front] == 1).all()
 
 
-def test_max_distance_and_none_mode(passes):
-    rig = passes
+def test_max_distance_and_none_mode(pass_rig):
+    rig = pass_rig
     scene = basic_scene(lights=all_lights())
     gb = rig.gbuffer(scene, W, H)
     depth = gb.read("depth")

@@ -19,7 +19,6 @@ from hybrid_shadow_addon.core.oracle.terminator import smooth_surface_offset, wo
 from hybrid_shadow_addon.core.scene import Light, Model
 from hybrid_shadow_addon.core.settings import Settings
 from tests.helpers.rays import interior, ray_cast
-from tests.helpers.rig import PassRig
 from tests.helpers.scenes import basic_scene, trs
 
 pytestmark = [pytest.mark.gpu]
@@ -48,17 +47,10 @@ def ball_scene(wound="outwards", lights=None):
     return scene
 
 
-@pytest.fixture(scope="module")
-def gpass(gl_ctx):
-    r = PassRig(gl_ctx)
-    yield r
-    r.release()
-
-
 @pytest.mark.parametrize("wound", ["outwards", "inwards", "against"])
-def test_lift_is_cycles_smooth_surface_offset(gpass, wound):
+def test_lift_is_cycles_smooth_surface_offset(pass_rig, wound):
     scene = ball_scene(wound)
-    gb = gpass.gbuffer(scene, W, H)
+    gb = pass_rig.gbuffer(scene, W, H)
     lift = gb.read("terminator")
     inst = np.round(gb.read("material")[..., 2]).astype(int)
     o, d = scene.camera.pixel_rays(W, H)
@@ -164,14 +156,14 @@ def test_soft_masks_weigh_by_the_shading_normal_from_lifted_origins(pipeline):
         assert (err > 0.15).mean() < 0.01, f"{name}: {(err > 0.15).sum()} pixels off by more than 0.15"
 
 
-def test_textured_smooth_models_write_the_same_lift(gpass):
+def test_textured_smooth_models_write_the_same_lift(pass_rig):
     """A smooth model shown with a textured material (the TEXTURED and TERMINATOR variants
     together): the same lift and shading normals as untextured, its albedo from the image."""
     from hybrid_shadow_addon.core.scene import Image, Material
     from tests.helpers.scenes import colour_image
 
     plain = ball_scene()
-    gb = gpass.gbuffer(plain, W, H)
+    gb = pass_rig.gbuffer(plain, W, H)
     want = {k: gb.read(k).copy() for k in ("terminator", "shading_normal", "albedo")}
     textured = ball_scene()
     ball = textured.models[2]
@@ -180,7 +172,7 @@ def test_textured_smooth_models_write_the_same_lift(gpass):
     textured.materials = [Material("colours", color_image=0)]
     textured.instances.material_ids[BALL] = 0
     textured.validate()
-    gb = gpass.gbuffer(textured, W, H)
+    gb = pass_rig.gbuffer(textured, W, H)
     on = gb.coverage() & (np.round(gb.read("material")[..., 2]) == BALL)
     assert on.sum() > 300
     for k in ("terminator", "shading_normal"):

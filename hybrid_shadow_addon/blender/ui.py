@@ -350,16 +350,21 @@ class MATERIAL_PT_hybrid_shadows_context(HybridShadowsPanel, bpy.types.Panel):
             row.template_ID(context.space_data, "pin_id")
 
 
-class MATERIAL_PT_hybrid_shadows_surface(HybridShadowsPanel, bpy.types.Panel):
-    """The surface values the engine reads: the Principled BSDF's base colour, alpha, specular
-    and roughness (or the material's viewport values without one)."""
+class MaterialPanel(HybridShadowsPanel):
+    """A panel of the Material tab about the shown material."""
 
-    bl_label = "Surface"
     bl_context = "material"
 
     @classmethod
     def poll(cls, context):
         return super().poll(context) and context.material is not None
+
+
+class MATERIAL_PT_hybrid_shadows_surface(MaterialPanel, bpy.types.Panel):
+    """The surface values the engine reads: the Principled BSDF's base colour, alpha, specular
+    and roughness (or the material's viewport values without one)."""
+
+    bl_label = "Surface"
 
     def draw(self, context):
         layout = self.split_layout()
@@ -378,17 +383,12 @@ class MATERIAL_PT_hybrid_shadows_surface(HybridShadowsPanel, bpy.types.Panel):
             _draw_input(layout, node, name, text)
 
 
-class MATERIAL_PT_hybrid_shadows_settings(HybridShadowsPanel, bpy.types.Panel):
+class MATERIAL_PT_hybrid_shadows_settings(MaterialPanel, bpy.types.Panel):
     """The material settings the export reads for shadows: Transparent Shadows (an alpha-cut or
     see-through material lets light through in its shadow; off, it casts a full shadow) and
     the Alpha Clip method of Blender before 4.2."""
 
     bl_label = "Settings"
-    bl_context = "material"
-
-    @classmethod
-    def poll(cls, context):
-        return super().poll(context) and context.material is not None
 
     def draw(self, context):
         layout = self.split_layout()

@@ -32,16 +32,23 @@ def _attribute(data, name: str, n: int, width: int, dtype=np.float32, prop: str 
     return out.reshape(n, width) if width > 1 else out
 
 
+def _points_and_radii(data, default_radius: float):
+    """``(positions (N, 3), radii (N,))`` of the points of a Curves or PointCloud data-block,
+    ``default_radius`` where it has no ``radius`` attribute (as Cycles does)."""
+    n = len(data.points)
+    points = _attribute(data, "position", n, 3, prop="vector")
+    if points is None:
+        points = np.zeros((0, 3), np.float32)
+    radii = _attribute(data, "radius", n, 1)
+    if radii is None:
+        radii = np.full(n, default_radius, np.float32)
+    return points, radii
+
+
 def curves_strands(curves):
     """``(points (P, 3) object space, radii (P,), offsets (C + 1,), subdivisions)`` of a Curves
     data-block; poly curves are straight between their points, others follow the spline."""
-    n = len(curves.points)
-    points = _attribute(curves, "position", n, 3, prop="vector")
-    if points is None:
-        points = np.zeros((0, 3), np.float32)
-    radii = _attribute(curves, "radius", n, 1)
-    if radii is None:
-        radii = np.full(n, CURVES_DEFAULT_RADIUS, np.float32)
+    points, radii = _points_and_radii(curves, CURVES_DEFAULT_RADIUS)
     offsets = np.empty(len(curves.curves) + 1, np.int32)
     if len(curves.curves):
         curves.curve_offset_data.foreach_get("value", offsets)
@@ -117,14 +124,7 @@ def particle_strands(ob, ps, render: bool):
 
 def pointcloud_points(pc):
     """``(positions (N, 3) object space, radii (N,))`` of a PointCloud data-block."""
-    n = len(pc.points)
-    points = _attribute(pc, "position", n, 3, prop="vector")
-    if points is None:
-        points = np.zeros((0, 3), np.float32)
-    radii = _attribute(pc, "radius", n, 1)
-    if radii is None:
-        radii = np.full(n, POINTS_DEFAULT_RADIUS, np.float32)
-    return points, radii
+    return _points_and_radii(pc, POINTS_DEFAULT_RADIUS)
 
 
 def report_tubes(label: str, n_strands: int, n_segments: int, scene) -> None:

@@ -18,14 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..bake.materials import srgb_decode
 from ..scene import LUMA
 from .frame import CameraUniforms, mask_source_pixels
 from .passes.gbuffer import frustum_visible
 from .targets import create_mask_texture
-
-
-def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    return np.where(c <= 0.04045, c / 12.92, ((np.maximum(c, 0.04045) + 0.055) / 1.055) ** 2.4)
 
 
 class SeeThroughScene:
@@ -44,7 +41,7 @@ class SeeThroughScene:
         px = np.asarray(image.pixels)
         if channel == "LUMA":
             rgb = px[..., :3].astype(np.float32) / 255.0
-            v = (_srgb_to_linear(rgb) if image.srgb else rgb) @ np.asarray(LUMA, np.float32)
+            v = (srgb_decode(rgb) if image.srgb else rgb) @ np.asarray(LUMA, np.float64)
             frac = bool(((v > 1e-6) & (v < 1.0 - 1e-6)).any())
         else:
             a = px[..., 3]
