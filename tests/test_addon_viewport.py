@@ -16,6 +16,7 @@ tests/test_addon_viewport.py OUT``):
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -38,7 +39,8 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
     from hybrid_shadow_addon.blender.export import export_depsgraph
     from hybrid_shadow_addon.blender.gl import create_pipeline, gl_scope, release_pipeline
     from hybrid_shadow_addon.blender.load import open_scene
-    from hybrid_shadow_addon.blender.viewport import ViewportDisplay, ViewportSync, viewport_camera
+    from hybrid_shadow_addon.blender.viewport import DisplayImage, ViewportDisplay, ViewportSync, viewport_camera
+    from hybrid_shadow_addon.core.gpu.remote import RemoteWorker
     from hybrid_shadow_addon.core.settings import Settings
 
     r = {}
@@ -144,7 +146,7 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
             def __init__(self):
                 vpe.init(self)
                 self._display = ViewportDisplay()
-                self._display.upload = lambda image: setattr(self, "shown", image.copy())
+                self._display.upload = lambda image: setattr(self, "shown", shown_image(image))
                 self.redraws, self.stats, self.reports = 0, [], []
 
             def tag_redraw(self):
@@ -155,6 +157,13 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
 
             def report(self, kind, msg):
                 self.reports.append(msg)
+
+        def shown_image(image):
+            """What the display shows, as float32 top-down: a renderer process's frame decoded,
+            an in-process one through the same half floats."""
+            if isinstance(image, DisplayImage):
+                return image.image()
+            return np.clip(image, -65504.0, 65504.0).astype(np.float16).astype(np.float32)
 
         class RV3D:
             view_matrix, window_matrix = view, win
@@ -217,10 +226,11 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
         scene.hybrid_shadows.use_soft_shadows = False
         a = stand()
         wk = vpe.shared(a).worker
-        r["threaded"] = wk._thread is not None and wk.thread_alive
+        r["threaded"] = not wk.synchronous and wk.thread_alive
         calls.clear()
         t0 = time.perf_counter()
         seq = run(a, 2, wait=True)
+        r["renderer_process"] = isinstance(wk, RemoteWorker) and wk.pid not in (None, os.getpid())
         r["thread_first_call_ms"] = calls[0] * 1e3
         r["thread_until_idle_ms"] = (time.perf_counter() - t0 - calls[1]) * 1e3
         steps = [(s_, q, left) for v, _, s_, q, left in wk.log if v == a._vp_user]
@@ -259,7 +269,7 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
             ref.set_scene(fresh)
             ref.render(fresh, props.to_settings(viewport=True, navigating=True), w, h)
             want = ref.render(fresh, props.to_settings(viewport=True), w, h).image
-        r["moved_image_error"] = float(np.abs(a.shown - want).max())
+        r["moved_image_error"] = float(np.abs(a.shown - shown_image(want)).max())
         r["bakes_while_shared"] = [x for x, _ in shared_state.sync.log].count("bake") - bakes_before
         # the redraw timer (no event loop runs timers here: called directly) tags the engines
         # with a new frame, and only those
@@ -279,8 +289,8 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
         vpe.free(a)
         r["after_first_free"] = {"alive": wk.thread_alive, "registry": len(vpe._registry)}
         vpe.free(b)
-        wk._thread.join(5)
-        r["after_last_free"] = {"alive": wk.thread_alive, "registry": len(vpe._registry), "pipe": wk._pipe is None}
+        gone(lambda: not wk.thread_alive)
+        r["after_last_free"] = {"alive": wk.thread_alive, "registry": len(vpe._registry), "pipe": getattr(wk, "_pipe", None) is None}
         # unregister stops what is still running
         c = stand()
         wc = vpe.shared(c).worker
@@ -324,7 +334,7 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
         hybrid_shadow_addon.unregister()
     import threading
 
-    wc._thread.join(5)
+    gone(lambda: not wc.thread_alive and not [t for t in threading.enumerate() if t.name.startswith("hybrid-shadows")])
     r["after_unregister"] = {"alive": wc.thread_alive, "registry": len(vpe._registry),
                              "threads": [t.name for t in threading.enumerate() if t.name.startswith("hybrid-shadows")]}
     Path(out_dir, "viewport.json").write_text(json.dumps(r, indent=1))
@@ -405,7 +415,7 @@ def test_refine_runs_inline_in_the_synchronous_mode(report):
 
 
 def test_the_worker_thread_renders_the_same_frames(report):
-    assert report["threaded"]
+    assert report["threaded"] and report["renderer_process"]
     t = report["thread_plain"]
     assert t["steps"] == [[0, "low", 1], [1, "high", 0]]  # fast pass, then full quality
     assert "Ray traced high" in t["stats"][-1] and "refining" not in t["stats"][-1]
@@ -444,6 +454,15 @@ def test_the_last_engine_and_unregister_stop_the_worker(report):
 def test_draw_into_offscreen(report):
     assert report["offscreen_mean"] > 0.01
     assert report["offscreen_error"] < 2e-3  # RGBA16F texture
+
+
+def gone(done, timeout: float = 5.0) -> None:
+    """Wait until ``done()`` (a renderer process exits, its threads end) or ``timeout`` s."""
+    import time
+
+    end = time.monotonic() + timeout
+    while not done() and time.monotonic() < end:
+        time.sleep(0.02)
 
 
 if __name__ == "__main__":

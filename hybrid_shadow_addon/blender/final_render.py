@@ -20,9 +20,9 @@ import traceback
 import numpy as np
 
 from ..core.errors import Cancelled, HybridShadowError
-from ..core.scene_sync import FULL, INCREMENTAL, NONE, sync_scene
+from ..core.scene_sync import FULL, INCREMENTAL, NONE
 from . import export
-from .gl import final_scope, final_state
+from .gl import final_renderer
 
 #: final-render bakes of this process by kind (``full``, ``incremental``, ``none``)
 BAKES = {FULL: 0, INCREMENTAL: 0, NONE: 0}
@@ -138,16 +138,14 @@ def _print_stats() -> bool:
 
 
 class _Progress:
-    """``Pipeline.render``'s ``progress``: checks ``test_break`` before each pass and light (raising
-    :class:`Cancelled`), and maps the pipeline's steps onto ``start..end`` of the progress bar."""
+    """The final-render process's progress: its steps mapped onto ``start..end`` of the progress
+    bar, their labels in the stats line."""
 
     def __init__(self, engine, start: float, end: float):
         self.engine = engine
         self.start, self.end = start, end
 
     def __call__(self, done: int, total: int, label: str = "") -> None:
-        if self.engine.test_break():
-            raise Cancelled()
         _stats(self.engine, f"Hybrid Shadows | {label}")
         self.engine.update_progress(self.start + (self.end - self.start) * min(1.0, done / max(1, total)))
 
@@ -162,8 +160,10 @@ def _fail(engine, message: str) -> None:
 
 
 def render(engine, depsgraph) -> None:
-    """``RenderEngine.render``: export, bake (ray tracing), render, write the passes. A cancel
-    (``test_break``) ends it quietly; errors are reported on the render."""
+    """``RenderEngine.render``: export, then bake, render and read back in the final-render
+    process (:func:`~.gl.final_renderer`: this thread waits without holding Python's lock), then
+    write the passes. Esc (``test_break``, polled every 20 ms) stops it within 0.2 s, writing
+    nothing; errors are reported on the render."""
     scene = depsgraph.scene
     view_layer = depsgraph.view_layer
     width, height = export.render_resolution(scene)
@@ -171,21 +171,20 @@ def render(engine, depsgraph) -> None:
         settings = scene.hybrid_shadows.to_settings()
         _stats(engine, "Hybrid Shadows | Exporting scene")
         engine.update_progress(0.0)
-        core = export.export_depsgraph(depsgraph, resolution=(width, height)).validate()
+        core = export.export_depsgraph(depsgraph, resolution=(width, height),
+                                       should_stop=engine.test_break).validate()
         for line in core.report:  # what is approximated: the Info report
             engine.report({"WARNING"}, f"Hybrid Shadows: {line}")
         if engine.test_break():
             return
-        with final_scope() as pipe:
-            engine.update_progress(0.1)
-            bake = prepare_bake(engine, pipe, core, scene, view_layer, settings)
-            if engine.test_break():
-                return
-            frame = pipe.render(core, settings, width, height,
-                                film_transparent=bool(scene.render.film_transparent),
-                                progress=_Progress(engine, 0.2, 0.8))
-            frame.stats["bake"] = bake
-            write_result(engine, core, frame, scene, view_layer, width, height)
+        engine.update_progress(0.1)
+        frame = final_renderer().render(
+            core, settings, width, height, should_stop=engine.test_break, on_progress=_Progress(engine, 0.1, 0.8),
+            film_transparent=bool(scene.render.film_transparent), persistent_key=persistent_key(scene, view_layer),
+            want=wanted_buffers(scene, view_layer), masks=bool(shadow_pass_lights(scene, view_layer)),
+            max_draw_ms=MAX_DRAW_MS)
+        BAKES[frame.stats.get("bake", NONE)] += 1
+        write_result(engine, core, frame, scene, view_layer, width, height)
     except Cancelled:  # before HybridShadowError, its base class: a cancel is no error
         return
     except HybridShadowError as exc:
@@ -195,35 +194,26 @@ def render(engine, depsgraph) -> None:
         _fail(engine, f"Hybrid Shadows internal error: {type(exc).__name__}: {exc}")
 
 
-def prepare_bake(engine, pipe, core, scene, view_layer, settings) -> str:
-    """Bake ``core`` for the frame, or with persistent data update the bake the previous frame
-    of this scene left; returns the kind (``full``, ``incremental``, ``none``)."""
-    state = final_state()
-    raytrace = settings.mode == "raytrace"
+#: the longest single draw of a final render (ms on this machine's software rasteriser): tiles
+#: keep each under a GPU driver's watchdog and let Esc stop between them
+MAX_DRAW_MS = 100.0
+
+
+def persistent_key(scene, view_layer):
+    """With persistent data, what identifies the scene the final-render process keeps baked
+    between frames (the file, scene and view layer); None without it (bake afresh, give it back
+    after)."""
     if not scene.render.use_persistent_data:
-        state.clear()
-        if not raytrace:
-            return NONE
-        _stats(engine, f"Hybrid Shadows | Baking {len(core.instances)} objects")
-        pipe.set_scene(core, settings.structure)
-        BAKES[FULL] += 1
-        return FULL
+        return None
     import bpy
 
-    key = (bpy.data.filepath, scene.name_full, view_layer.name)
-    prev = state.get("scene") if state.get("key") == key else None
-    if raytrace:
-        _stats(engine, f"Hybrid Shadows | {'Updating the bake' if prev is not None else 'Baking'} "
-                                f"({len(core.instances)} objects)")
-    try:
-        kind = sync_scene(pipe, prev, core, bake=raytrace, structure=settings.structure).kind
-    except BaseException:
-        state.clear()
-        pipe.baked = None  # half-updated: the next frame bakes afresh
-        raise
-    state.update(key=key, scene=core)
-    BAKES[kind] += 1
-    return kind
+    return (bpy.data.filepath, scene.name_full, view_layer.name)
+
+
+def wanted_buffers(scene, view_layer) -> tuple:
+    """The G-buffer targets the view layer's passes need."""
+    names = {"Depth": "depth", "Normal": "shading_normal", "Albedo": "albedo"}
+    return tuple(names[n] for n, *_ in pass_layout(scene, view_layer) if n in names)
 
 
 def write_result(engine, core, frame, scene, view_layer, width, height) -> None:

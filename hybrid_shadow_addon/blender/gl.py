@@ -89,33 +89,26 @@ def release_pipeline(pipeline) -> None:
         pass
 
 
-# one pipeline for final renders, shared by the engine instances of this process (compiled
-# programs survive from one F12 to the next); released when the add-on is disabled
-_final = {"pipeline": None, "state": {}}
+# one renderer process for final renders, shared by the engine instances of this process
+# (programs stay compiled from one F12 to the next; with persistent data the bake too); ended
+# when the add-on is disabled
+_final = {"renderer": None}
 _final_lock = threading.Lock()
 
 
-@contextlib.contextmanager
-def final_scope():
-    """The shared final-render pipeline (created on first use), held for this thread alone and
-    current meanwhile, as in :func:`gl_scope`."""
+def final_renderer():
+    """The shared final-render :class:`~..core.gpu.remote.FinalRenderer` (started on first use)."""
+    from ..core.gpu.remote import FinalRenderer
+
     with _final_lock:
-        if _final["pipeline"] is None:
-            _final["pipeline"] = create_pipeline()
-        with gl_scope(_final["pipeline"]) as pipeline:
-            yield pipeline
-
-
-def final_state() -> dict:
-    """What final renders keep with the shared pipeline between frames (persistent data: the
-    last exported scene its bake holds); call it inside :func:`final_scope`. Emptied when the
-    pipeline is released."""
-    return _final["state"]
+        if _final["renderer"] is None:
+            _final["renderer"] = FinalRenderer()
+        return _final["renderer"]
 
 
 def release_shared() -> None:
-    """Release the shared final-render pipeline (and what was kept with it)."""
+    """End the shared final-render process (and what it kept)."""
     with _final_lock:
-        release_pipeline(_final["pipeline"])
-        _final["pipeline"] = None
-        _final["state"] = {}
+        renderer, _final["renderer"] = _final["renderer"], None
+    if renderer is not None:
+        renderer.close()

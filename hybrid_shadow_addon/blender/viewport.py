@@ -4,7 +4,6 @@
 - :class:`ViewportSync`: the core scene of a viewport depsgraph, kept up to date from
   ``depsgraph.updates`` with the least work (see :meth:`ViewportSync.classify`).
 - :func:`viewport_camera`: a core ``Camera`` from a 3D view's view and window matrices.
-- :func:`debug_image`: the debug views (a light's mask, grid occupancy, G-buffer channels).
 - :class:`ViewportDisplay`: numpy RGBA → ``gpu.types.GPUTexture`` → ``draw_texture_2d``.
   ``gpu`` is imported lazily: it is unavailable in background mode until Blender has a GPU
   context.
@@ -16,6 +15,7 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
+from ..core.gpu.debug_views import debug_image, grid_occupancy  # noqa: F401 - (re-exported)
 from ..core.gpu.worker import writable_matrices
 from ..core.scene import Camera, Model
 from . import export
@@ -386,77 +386,65 @@ def viewport_camera(view_matrix, window_matrix, width: int, height: int) -> Came
 
 
 # ------------------------------------------------------------------------------------------------
-# Debug views
-# ------------------------------------------------------------------------------------------------
-def _heat(t: np.ndarray) -> np.ndarray:
-    """0..1 → a blue-green-yellow-red ramp (H, W, 3)."""
-    t = np.clip(t, 0.0, 1.0)[..., None]
-    stops = np.float32([[0.0, 0.0, 0.3], [0.0, 0.6, 1.0], [0.1, 0.9, 0.2], [1.0, 0.9, 0.0], [1.0, 0.1, 0.0]])
-    x = t * (len(stops) - 1)
-    i = np.minimum(x.astype(np.int64), len(stops) - 2)[..., 0]
-    f = x - i[..., None]
-    return (stops[i] * (1 - f) + stops[i + 1] * f).astype(np.float32)
-
-
-def grid_occupancy(baked, position: np.ndarray) -> np.ndarray:
-    """Per pixel, the baked structure's occupancy over the pixel's world XY
-    (:meth:`AccelerationStructure.occupancy`: the grid's casters in the nodes of every level over
-    it, the two-level BVH's instance boxes over it); -1 where there is no geometry.
-    ``position``: the G-buffer's (H, W, 4) world position."""
-    valid = position[..., 3] > 0.5
-    out = np.full(position.shape[:2], -1.0, np.float32)
-    if valid.any():
-        out[valid] = baked.occupancy(position[valid][:, :2])
-    return out
-
-
-def debug_image(view: str, frame, scene, pipeline, light_name: str | None = None) -> np.ndarray:
-    """(H, W, 4) float32, row 0 = top: the ``view`` debug image of a rendered ``frame``.
-    Raises ValueError with a readable message when the view cannot be shown."""
-    gb = frame.gbuffer
-    valid = gb.coverage()
-    h, w = valid.shape
-    rgb = np.zeros((h, w, 3), np.float32)
-    if view == "LIGHT_MASK":
-        if not frame.lights:
-            raise ValueError("no shadowed light: nothing to show in the Light Mask view")
-        names = [scene.lights[i].name for i in frame.lights]
-        li = frame.lights[names.index(light_name)] if light_name in names else frame.lights[0]
-        m = frame.mask_array(li)
-        bad = np.isnan(m)
-        rgb[:] = np.nan_to_num(m, nan=0.0)[..., None]
-        rgb[bad] = (0.05, 0.1, 0.4)
-    elif view == "GRID_HEAT":
-        baked = getattr(pipeline, "baked", None)
-        if baked is None:
-            raise ValueError("the grid occupancy view needs the ray-traced mode (no structure is baked)")
-        occ = grid_occupancy(baked, gb.read("position"))
-        top = max(1.0, float(occ.max()))
-        rgb[:] = _heat(np.log1p(np.maximum(occ, 0)) / np.log1p(top))
-        rgb[occ < 0] = 0.0
-    elif view == "NORMAL":
-        rgb[:] = gb.read("shading_normal")[..., :3] * 0.5 + 0.5
-    elif view == "ALBEDO":
-        rgb[:] = gb.read("albedo")[..., :3]
-    elif view == "DEPTH":
-        d = gb.read("depth")
-        d = d[..., 0] if d.ndim == 3 else d
-        if valid.any():
-            lo, hi = float(d[valid].min()), float(d[valid].max())
-            rgb[:] = (1.0 - (d - lo) / max(hi - lo, 1e-9))[..., None]
-    elif view == "POSITION":
-        rgb[:] = np.mod(gb.read("position")[..., :3], 1.0)
-    else:
-        raise ValueError(f"unknown debug view {view!r}")
-    rgb[~valid] = np.where(view == "LIGHT_MASK", rgb[~valid], 0.0)
-    out = np.ones((h, w, 4), np.float32)
-    out[..., :3] = rgb
-    return out
-
-
-# ------------------------------------------------------------------------------------------------
 # Display through Blender's gpu module
 # ------------------------------------------------------------------------------------------------
+def display_encoding(scene) -> str:
+    """How frames cross to the display: ``"srgb8"`` (8-bit sRGB, a quarter of the bytes of RGBA
+    float) where the scene's view transform is the plain sRGB curve (Standard, no look, no
+    exposure, gamma or curves, an sRGB display), where 8 bits lose nothing the display shows;
+    else ``"float"`` (half floats: values above 1 matter to the other view transforms)."""
+    vs, ds = scene.view_settings, scene.display_settings
+    plain = (vs.view_transform == "Standard" and vs.look in ("None", "") and abs(vs.exposure) < 1e-6
+             and abs(vs.gamma - 1.0) < 1e-6 and not vs.use_curve_mapping and ds.display_device == "sRGB")
+    return "srgb8" if plain else "float"
+
+
+@dataclass
+class DisplayImage:
+    """A frame ready for the display: rows bottom-up, ``format`` the ``GPUTexture`` format and
+    ``buffer`` the ``gpu.types.Buffer`` made where the frame arrived (None: made at upload)."""
+
+    width: int
+    height: int
+    format: str
+    array: np.ndarray
+    buffer: object = None
+
+    def image(self) -> np.ndarray:
+        """The frame as float32 (H, W, 4), row 0 = top (for tests and debugging)."""
+        a = self.array[::-1]
+        if self.format == "SRGB8_A8":
+            from ..core.bake.materials import srgb_decode
+
+            out = a.astype(np.float32) / 255.0
+            out[..., :3] = srgb_decode(out[..., :3])
+            return out
+        return a.astype(np.float32)
+
+
+def prepare_display(array: np.ndarray) -> DisplayImage:
+    """A renderer process's frame (:func:`~..core.gpu.render_server.encode_image`) as a
+    :class:`DisplayImage`; made on the thread that receives frames, so the draw callback only
+    uploads it."""
+    h, w = array.shape[:2]
+    srgb = array.dtype == np.uint8
+    out = DisplayImage(w, h, "SRGB8_A8" if srgb else "RGBA16F", array)
+    try:
+        out.buffer = _gpu_buffer(out)
+    except Exception:  # (no gpu module in background mode before Blender has a GPU context)
+        pass
+    return out
+
+
+def _gpu_buffer(img: DisplayImage):
+    import gpu
+
+    n = img.width * img.height * 4
+    if img.format == "SRGB8_A8":
+        return gpu.types.Buffer("UBYTE", n, img.array.reshape(-1))
+    return gpu.types.Buffer("FLOAT", n, np.asarray(img.array, np.float32).reshape(-1))
+
+
 class ViewportDisplay:
     """Holds the last image as a ``GPUTexture`` and draws it into the bound framebuffer."""
 
@@ -464,15 +452,18 @@ class ViewportDisplay:
         self.texture = None
         self.size = (0, 0)
 
-    def upload(self, image: np.ndarray) -> None:
-        """``image``: float32 (H, W, 4), row 0 = top (flipped here: textures are bottom-up)."""
+    def upload(self, image) -> None:
+        """``image``: a :class:`DisplayImage`, or float32 (H, W, 4) with row 0 = top (encoded
+        here, as the in-process worker's frames are)."""
         import gpu
 
-        h, w = image.shape[:2]
-        data = np.ascontiguousarray(np.clip(image[::-1], -65504.0, 65504.0), np.float32)
-        buf = gpu.types.Buffer("FLOAT", w * h * 4, data.ravel())
-        self.texture = gpu.types.GPUTexture((w, h), format="RGBA16F", data=buf)
-        self.size = (w, h)
+        if not isinstance(image, DisplayImage):
+            from ..core.gpu.render_server import encode_image
+
+            image = DisplayImage(image.shape[1], image.shape[0], "RGBA16F", encode_image(image, "float"))
+        buf = image.buffer if image.buffer is not None else _gpu_buffer(image)
+        self.texture = gpu.types.GPUTexture((image.width, image.height), format=image.format, data=buf)
+        self.size = (image.width, image.height)
 
     def draw(self, scene, width: int, height: int, engine=None) -> None:
         """Draw the texture over ``width`` x ``height`` pixels, alpha premultiplied, through the

@@ -1,16 +1,19 @@
 """The engine's rendered viewport: what ``view_update`` and ``view_draw`` do on an engine instance.
 
-Rendering happens off the draw callback, in a :class:`~..core.gpu.worker.RenderWorker` (its own
-thread, OpenGL context and bake). The viewports of one scene, view layer and local view share
-one (:data:`_registry`: a :class:`~..core.gpu.worker.SharedViewport` with the worker and one
-:class:`~.viewport.ViewportSync`, released with its last engine); each engine is a view of its
-own there (camera, size, render targets, interlacing and soft-shadow history). The main thread
-does everything that touches bpy (export, ``depsgraph.updates``: applied once for all the
-engines that receive them) and hands the worker copies of the scene. ``view_draw`` only queues
-a render when the view, the settings or the scene changed, and shows the newest finished
-frame; a timer (:func:`_poll`) tags a redraw when one arrives (headless, without timers,
-``view_draw`` tags redraws itself while work is pending). ``HYBRID_SHADOWS_VIEWPORT_SYNC=1``
-(or ``worker.SYNCHRONOUS``) renders inline instead, one frame per redraw, for debugging.
+Rendering happens off the draw callback and out of Blender's process, in a renderer process
+(:class:`~..core.gpu.remote.RemoteWorker`: its own OpenGL context and bake; waiting for it never
+holds Python's lock, and its frames arrive as half floats or 8-bit sRGB, flipped and wrapped in a
+``gpu.types.Buffer`` on the receiving thread, so the draw callback only uploads them). The
+viewports of one scene, view layer and local view share one (:data:`_registry`: a
+:class:`~..core.gpu.worker.SharedViewport` with the worker and one
+:class:`~.viewport.ViewportSync`, released with its last engine); each engine is a view of its own
+there (camera, size, render targets, interlacing and soft-shadow history). The main thread does
+everything that touches bpy (export, ``depsgraph.updates``: applied once for all the engines that
+receive them) and hands the worker copies of the scene. ``view_draw`` only queues a render when the
+view, the settings or the scene changed, and shows the newest finished frame; a timer
+(:func:`_poll`) tags a redraw when one arrives (headless, without timers, ``view_draw`` tags
+redraws itself while work is pending). ``HYBRID_SHADOWS_VIEWPORT_SYNC=1`` (or
+``worker.SYNCHRONOUS``) renders inline instead, one frame per redraw, for debugging.
 
 State on the engine instance (:func:`init`): ``_vp_user`` (its token in the registry and its
 view in the worker), ``_display`` (:class:`~.viewport.ViewportDisplay`), ``_vp_state`` (view and
@@ -23,17 +26,21 @@ from __future__ import annotations
 import dataclasses
 import functools
 import itertools
+import os
 import traceback
 import weakref
 
 import bpy
 
 from ..core.errors import HybridShadowError
+from ..core.gpu import worker as worker_mod
+from ..core.gpu.debug_views import DebugView
+from ..core.gpu.remote import RemoteWorker
 from ..core.gpu.worker import RenderRequest, RenderWorker, SharedRegistry, SharedViewport
 from . import gl
 from .export.curves import TUBES
 from .final_render import settings_label
-from .viewport import ViewportDisplay, ViewportSync, debug_image, viewport_camera
+from .viewport import ViewportDisplay, ViewportSync, display_encoding, prepare_display, viewport_camera
 
 #: the shared state of the viewports of each (scene, view layer, local view)
 _registry = SharedRegistry()
@@ -79,8 +86,17 @@ def shared(engine) -> SharedViewport | None:
     return _registry.get(engine._vp_user)
 
 
+def make_worker():
+    """The viewport's worker: a renderer process (:class:`~..core.gpu.remote.RemoteWorker`;
+    frames arrive ready for the display), or with ``HYBRID_SHADOWS_RENDERER=thread`` (or the
+    inline debugging mode) a thread of this process, whose GL calls hold Python's lock."""
+    if worker_mod.SYNCHRONOUS or os.environ.get("HYBRID_SHADOWS_RENDERER", "").strip() == "thread":
+        return RenderWorker(create=gl.create_pipeline, scope=gl.gl_scope, release=gl.release_pipeline)
+    return RemoteWorker(prepare=prepare_display)
+
+
 def _make_shared(local) -> SharedViewport:
-    worker = RenderWorker(create=gl.create_pipeline, scope=gl.gl_scope, release=gl.release_pipeline)
+    worker = make_worker()
     sync = ViewportSync(worker)  # the worker stands in for the pipeline: same calls, queued
     sync.only = None if local is None else frozenset(local)
     return SharedViewport(worker, sync)
@@ -175,11 +191,6 @@ def report_error(engine, exc) -> None:
     engine.update_stats("", f"Hybrid Shadows error: {msg}")
 
 
-def _debug(view: str, light_name, frame, scene, pipeline):
-    """The debug image of a frame, in the worker (it reads the frame's GPU targets)."""
-    return debug_image(view, frame, scene, pipeline, light_name)
-
-
 def view_render(engine, scene, rv3d, width, height) -> None:
     """Queue a render of the engine's view when the view, the settings or the scene changed
     (the worker renders the navigation quality first, then full viewport quality: four frames
@@ -203,10 +214,11 @@ def view_render(engine, scene, rv3d, width, height) -> None:
             state.sync.ensure_baked()
         core = dataclasses.replace(state.scene_snapshot(), resolution=(width, height),
                                    camera=viewport_camera(rv3d.view_matrix, rv3d.window_matrix, width, height))
-        post = None if props.debug_view == "NONE" else functools.partial(_debug, props.debug_view, light)
+        post = None if props.debug_view == "NONE" else DebugView(props.debug_view, light)
         engine._vp_sent = worker.render(RenderRequest(view=engine._vp_user, scene=core, fast=fast, full=full,
                                                       width=width, height=height, film_transparent=film, post=post,
-                                                      fast_auto=props.navigation_quality == "AUTO"))
+                                                      fast_auto=props.navigation_quality == "AUTO",
+                                                      display=display_encoding(scene)))
         engine._vp_refining = True
     worker.pump()  # (inline mode only: one frame now)
     show_result(engine, worker)
@@ -239,8 +251,10 @@ def show_result(engine, worker) -> bool:
     seen = result.stats.get("see_through_samples")
     if seen is not None:
         left += f", {seen}/{result.stats['see_through_target']} see-through samples"
+    mem = result.stats.get("gpu_memory_mb")
+    mem = "" if mem is None else f" | GPU {mem:.0f} MB"
     engine.update_stats("", f"Hybrid Shadows | {settings_label(result)}{light_limit_note(engine, result)} | "
-                            f"{result.timings.get('total_ms', 0):.0f} ms{left}{report_note(engine)}")
+                            f"{result.timings.get('total_ms', 0):.0f} ms{left}{mem}{report_note(engine)}")
     return True
 
 

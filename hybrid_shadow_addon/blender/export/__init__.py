@@ -42,7 +42,8 @@ from .visibility import RenderVisibility
 from .world import world_background, world_color
 
 
-def export_depsgraph(depsgraph, *, resolution=None, render_visibility: bool | None = None) -> Scene:
+def export_depsgraph(depsgraph, *, resolution=None, render_visibility: bool | None = None,
+                     should_stop=None) -> Scene:
     """The scene of an evaluated depsgraph at its current frame.
 
     ``render_visibility``: drop what is hidden from render (default: for a viewport depsgraph,
@@ -52,8 +53,9 @@ def export_depsgraph(depsgraph, *, resolution=None, render_visibility: bool | No
     ``resolution``: ``(width, height)`` overriding the render settings (default: resolution x/y
     times the percentage). Raises :class:`SceneError` naming the object for a NaN or infinite
     transform (``Scene.check_transforms``); the remaining checks are ``Scene.validate``'s.
+    ``should_stop()``: asked before each object; True raises :class:`Cancelled`.
     """
-    return SceneExporter(depsgraph, render_visibility).run(resolution)
+    return SceneExporter(depsgraph, render_visibility, should_stop).run(resolution)
 
 
 __all__ = [

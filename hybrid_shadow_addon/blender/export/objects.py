@@ -26,6 +26,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
+from ...core.errors import Cancelled
 from ...core.scene import Instances, Scene, affine_inverse
 from ...core.scene.curves import sphere_matrices, unit_sphere_model
 from .camera import export_camera, render_resolution
@@ -56,8 +57,9 @@ class SceneExporter:
     """One export of a depsgraph: the instance rows found by the iterator, the vectorised
     geometry-nodes parts, the lights, and the model and shading tables they index."""
 
-    def __init__(self, depsgraph, render_visibility: bool | None = None):
+    def __init__(self, depsgraph, render_visibility: bool | None = None, should_stop=None):
         self.dg = depsgraph
+        self.should_stop = should_stop  # () -> bool, asked before each row: True cancels
         self.renderable = RenderVisibility(depsgraph, render_visibility)
         self.rays = RayVisibility(depsgraph, self.renderable.check)
         self.row_flags = DEFAULT  # the RayFlags of the depsgraph row being walked
@@ -98,6 +100,8 @@ class SceneExporter:
         vectorised = set()  # evaluated instancers whose instances came from their GeometrySet
         iterated = set()  # evaluated instancers with duplis taken from the iterator
         for inst in self.dg.object_instances:
+            if self.should_stop is not None and self.should_stop():
+                raise Cancelled()
             if inst.is_instance:
                 parent = inst.parent
                 pptr = parent.as_pointer()

@@ -17,6 +17,7 @@ import sys
 import moderngl
 
 from ..errors import GPUError
+from .memory import track as track_memory
 
 MIN_GL_VERSION = 410
 DEBIAN_FIX = "sudo apt-get install libegl1 libgl1-mesa-dri libgl1"
@@ -94,6 +95,7 @@ def create_context(share: moderngl.Context | None = None) -> moderngl.Context:
     if ctx.version_code < MIN_GL_VERSION:
         raise GPUError(f"OpenGL {ctx.version_code // 100}.{ctx.version_code % 100 // 10} found, "
                        f"4.1 core or newer is needed ({ctx.info.get('GL_RENDERER', '?')})")
+    track_memory(ctx)
     return ctx
 
 

@@ -23,6 +23,7 @@ from ..bake import BakeConfig, bake_scene
 from ..errors import SceneError
 from ..progress import Progress
 from ..settings import Settings
+from . import memory
 from .context import check_render_size, create_context, make_current
 from .frame import FrameJob, read_mask
 from .lights import select_shadowed_lights
@@ -282,6 +283,7 @@ class Pipeline:
             "shadowed_lights": len(job.lights),
             "lights_culled": shadow_stats.get("lights_culled", 0),
             "defines": shadow_stats["defines"],
+            "gpu_memory_mb": round(memory.in_use(self.ctx) / 2**20, 1),
         }
         return Frame(image=image, masks=job.masks, lights=job.lights, timings=timings, stats=stats,
                      gbuffer=job.gbuffer)
@@ -300,6 +302,26 @@ class Pipeline:
         self.ctx.finish()
         timings[f"{name}_ms"] = (time.perf_counter() - t0) * 1e3
         return out
+
+    def release_targets(self) -> None:
+        """Give back what the frames left: every pass's render targets and history (the next
+        frame makes its own again); programs, model buffers and the bake stay."""
+        make_current(self.ctx)
+        for p in self._passes():
+            p.release()
+        self._st.release()
+        self.gbuffer_pass = GBufferPass(self.gpu)
+        self.upsample = UpsamplePass(self.gpu)
+        self.lighting = LightingPass(self.gpu)
+        self._shadow = {}
+        self._st = SeeThroughAccumulation(self.ctx)
+
+    def drop_bake(self) -> None:
+        """Give back the baked scene's textures (the next ray-traced frame bakes again)."""
+        make_current(self.ctx)
+        self.scene_textures.release()
+        self.baked = None
+        self._bake_changed()
 
     def release(self) -> None:
         """Release the passes' GPU objects, and the shared resources unless this is a view."""

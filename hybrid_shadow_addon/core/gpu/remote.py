@@ -1,0 +1,434 @@
+"""GL work in a renderer process, so that waiting for the driver never holds the caller's Python.
+
+moderngl keeps Python's lock while the driver works: GL on any thread of Blender's process
+holds the interface for the length of every call. Here a child process (the same Python,
+``sys.executable``, importing only this core: :mod:`.render_server`) owns the OpenGL context;
+the caller's threads only queue messages, which a sender thread pickles and writes to the
+child's stdin, and a receiver thread reads the replies from its stdout. Both wait in system
+calls that release the lock. A child that dies (a driver fault, a failed context, a kill) is an
+error on the next poll; the next message starts a new one.
+
+- :class:`RemoteWorker`: the viewport's :class:`~.worker.RenderWorker` interface, with a
+  ``prepare(image)`` hook that turns each arriving frame (rows bottom-up, half floats or 8-bit
+  sRGB) into what the display takes, on the receiver thread.
+- :class:`FinalRenderer`: one final frame at a time; ``should_stop`` is polled every 20 ms and a
+  cancel the child does not acknowledge within :data:`CANCEL_S` ends the child.
+"""
+from __future__ import annotations
+
+import atexit
+import collections
+import dataclasses
+import itertools
+import json
+import os
+import subprocess
+import sys
+import threading
+import types
+import weakref
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import Cancelled
+from .channel import RendererError, read_message, rebuild_error, write_message
+from .worker import snapshot
+
+#: how long a cancelled final render may take to stop before its process is ended
+CANCEL_S = 0.15
+#: how long :meth:`RendererProcess.close` waits for the child to exit before ending it
+CLOSE_S = 2.0
+
+# The child imports the package under the caller's own module name (in Blender an extension's
+# is ``bl_ext.<repository>.<id>.hybrid_shadow_addon``), so that pickled classes name the same
+# modules on both sides: the packages above it become plain namespace stubs, their code unrun.
+_BOOT = """
+import importlib, json, os, sys, types
+f = sys.stdin.buffer
+cfg = json.loads(f.readline())
+sys.path[:0] = cfg["path"]
+parts, d = cfg["root"].split("."), cfg["root_dir"]
+for i in range(len(parts) - 1, 0, -1):
+    d = os.path.dirname(d)
+    name = ".".join(parts[:i])
+    if name not in sys.modules:
+        stub = types.ModuleType(name)
+        stub.__path__ = [d]
+        sys.modules[name] = stub
+importlib.import_module(cfg["root"] + ".core.gpu.render_server").serve(f)
+"""
+_ROOT = __name__.rsplit(".core.gpu.", 1)[0]
+
+
+def _package_dir() -> Path:
+    return Path(__file__).resolve().parents[2]
+
+
+class RendererProcess:
+    """One renderer child and its channel. :meth:`post` queues a message body (any thread; the
+    child starts on the first); ``on_message(msg)`` and ``on_exit(code)`` run on the receiver
+    thread. After an exit the next :meth:`post` starts a new child."""
+
+    def __init__(self, on_message, on_exit, name: str = "hybrid-shadows-renderer"):
+        self._on_message = on_message
+        self._on_exit = on_exit
+        self.name = name
+        self._cond = threading.Condition()
+        self._outbox: collections.deque = collections.deque()  # (seq, body)
+        self._seq = itertools.count(1)
+        self.posted = 0  # seq of the newest message posted
+        self._proc = None
+        self._closing = False
+        self.starts = 0
+        self._sender = threading.Thread(target=self._send_loop, name=f"{name}-send", daemon=True)
+        self._sender.start()
+        _live.add(self)
+
+    # -- caller side ------------------------------------------------------------------------------
+    def post(self, body, replace=None) -> int:
+        """Queue ``body``; ``replace(body)``: unsent messages it matches are dropped first.
+        Returns ``(message seq, dropped count)``."""
+        with self._cond:
+            if self._closing:
+                return 0, 0
+            dropped = 0
+            if replace is not None:
+                keep = [m for m in self._outbox if not replace(m[1])]
+                dropped = len(self._outbox) - len(keep)
+                self._outbox = collections.deque(keep)
+            seq = next(self._seq)
+            self.posted = seq
+            self._outbox.append((seq, body))
+            self._cond.notify_all()
+            return seq, dropped
+
+    def unsent(self, pred) -> bool:
+        with self._cond:
+            return any(pred(m[1]) for m in self._outbox)
+
+    @property
+    def running(self) -> bool:
+        p = self._proc
+        return p is not None and p.poll() is None
+
+    @property
+    def pid(self):
+        p = self._proc
+        return None if p is None else p.pid
+
+    @property
+    def sender_alive(self) -> bool:
+        return self._sender.is_alive()
+
+    def kill(self) -> None:
+        """End the child now (its work is lost; the next message starts a new one)."""
+        p = self._proc
+        if p is not None and p.poll() is None:
+            p.kill()
+
+    def close(self, timeout: float = CLOSE_S) -> None:
+        """Ask the child to exit, end it after ``timeout`` s, stop the sender. Safe twice."""
+        with self._cond:
+            if self._closing:
+                return
+            self._closing = True
+            self._outbox.clear()
+            self._cond.notify_all()
+        p = self._proc
+        if p is not None:
+            try:
+                p.stdin.close()  # the child's reader sees the end and the child exits
+            except OSError:
+                pass
+            try:
+                p.wait(timeout)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(5)
+        _live.discard(self)
+
+    # -- threads ----------------------------------------------------------------------------------
+    def _spawn(self):
+        pkg = _package_dir()
+        cfg = {"path": [str(pkg.parent)] + [p for p in sys.path if p], "root": _ROOT, "root_dir": str(pkg)}
+        flags = getattr(subprocess, "CREATE_NO_WINDOW", 0) if os.name == "nt" else 0
+        proc = subprocess.Popen([sys.executable, "-I", "-c", _BOOT], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                creationflags=flags)
+        proc.stdin.write((json.dumps(cfg) + "\n").encode())
+        proc.stdin.flush()
+        self.starts += 1
+        threading.Thread(target=self._receive_loop, args=(proc,), name=f"{self.name}-receive", daemon=True).start()
+        return proc
+
+    def _send_loop(self) -> None:
+        while True:
+            with self._cond:
+                while not self._outbox and not self._closing:
+                    self._cond.wait()
+                if self._closing:
+                    return
+                msg = self._outbox.popleft()
+            try:
+                if self._proc is None or self._proc.poll() is not None:
+                    self._proc = self._spawn()
+                write_message(self._proc.stdin, msg)
+            except (OSError, ValueError):  # the child is gone: the receiver reports it
+                pass
+            except Exception as exc:  # noqa: BLE001 - a message that cannot be sent (a bug)
+                self._on_message(("send_error", msg[0], exc))
+
+    def _receive_loop(self, proc) -> None:
+        try:
+            while True:
+                self._on_message(read_message(proc.stdout))
+        except (EOFError, OSError, ValueError):
+            pass
+        code = proc.wait()
+        if not self._closing:
+            self._on_exit(code)
+
+
+_live: weakref.WeakSet = weakref.WeakSet()
+
+
+@atexit.register
+def close_all() -> None:
+    """End every renderer process (interpreter exit, the add-on's unregister)."""
+    for p in list(_live):
+        p.close(timeout=1.0)
+
+
+class RemoteWorker:
+    """:class:`~.worker.RenderWorker`'s interface over a renderer process (module docstring).
+    The scene of render requests crosses once per change: each request carries only its camera,
+    resolution and settings."""
+
+    synchronous = False
+
+    def __init__(self, prepare=None, name: str = "hybrid-shadows-viewport"):
+        self._prepare = prepare
+        self._cond = threading.Condition()
+        self._results: dict = {}
+        self._errors: list = []  # (n, view, exception)
+        self._error_n = 0
+        self._seen: dict = {}
+        self._acked = 0
+        self._busy: dict = {}  # view -> the child's last word on its work
+        self._busy_any = False
+        self._closing = False
+        self._scene_key = None
+        self._scene_refs = None  # (the objects the key's ids name stay alive)
+        self._tokens = itertools.count(1)
+        self._token = 0
+        self._seq = itertools.count(1)
+        self.log: list = []
+        self.coalesced = 0
+        self._proc = RendererProcess(self._on_message, self._on_exit, name)
+
+    # -- commands ---------------------------------------------------------------------------------
+    def set_scene(self, scene, structure=None) -> None:
+        self._proc.post(("bake", snapshot(scene), structure))
+
+    def move_instances(self, scene, indices) -> None:
+        self._proc.post(("move", snapshot(scene), np.array(indices, np.int64)))
+
+    def update_model(self, scene, model_id: int) -> None:
+        self._proc.post(("model", snapshot(scene), int(model_id)))
+
+    def reset_history(self) -> None:
+        self._proc.post(("reset",))
+
+    def drop_view(self, view) -> None:
+        with self._cond:
+            self._results.pop(view, None)
+            self._seen.pop(view, None)
+            self._busy.pop(view, None)
+        self._proc.post(("drop", view), replace=lambda b: b[0] == "render" and b[1].view == view)
+
+    def render(self, request) -> int:
+        """Queue ``request`` in place of an unsent one of its view; returns its number."""
+        with self._cond:
+            if self._closing:
+                return 0
+            seq = next(self._seq)
+            self._seen.setdefault(request.view, self._error_n)
+        scene = request.scene
+        refs = (scene.instances, scene.models, scene.lights, scene.materials, scene.images, scene.world_color)
+        key = tuple(map(id, refs)) + (scene.name,)
+        if key != self._scene_key:
+            self._scene_key, self._scene_refs, self._token = key, refs, next(self._tokens)
+            self._proc.post(("scene", self._token, dataclasses.replace(scene, camera=None)))
+        view_of = types.SimpleNamespace(camera=scene.camera, resolution=scene.resolution)
+        body = ("render", dataclasses.replace(request, scene=view_of, seq=seq), self._token, seq)
+        _, dropped = self._proc.post(body, replace=lambda b: b[0] == "render" and b[1].view == request.view)
+        self.coalesced += dropped
+        return seq
+
+    # -- results ----------------------------------------------------------------------------------
+    def poll(self, view):
+        with self._cond:
+            result = self._results.pop(view, None)
+            seen = self._seen.get(view, 0)
+            errors = [e for n, v, e in self._errors if n > seen and (v is None or v == view)]
+            self._seen[view] = self._error_n
+            return result, errors
+
+    def has_news(self, view) -> bool:
+        with self._cond:
+            seen = self._seen.get(view, 0)
+            return view in self._results or any(n > seen and (v is None or v == view) for n, v, _ in self._errors)
+
+    def busy(self, view=None) -> bool:
+        """Whether messages are unapplied or the child reported work for ``view`` (any: None)."""
+        with self._cond:
+            if self._acked < self._proc.posted:
+                return True
+            return self._busy_any if view is None else bool(self._busy.get(view) or self._busy_any)
+
+    def wait_idle(self, timeout: float = 60.0) -> bool:
+        with self._cond:
+            return self._cond.wait_for(lambda: self._closing or (self._acked >= self._proc.posted
+                                                                 and not self._busy_any), timeout)
+
+    def pump(self) -> None:
+        """Nothing to do here (the child renders on its own)."""
+
+    @property
+    def alive(self) -> bool:
+        return not self._closing
+
+    @property
+    def thread_alive(self) -> bool:
+        """Whether it can still render: the sender runs, or the child does."""
+        return self._proc.sender_alive or self._proc.running
+
+    @property
+    def pid(self):
+        return self._proc.pid
+
+    def close(self, timeout: float = 5.0) -> None:
+        with self._cond:
+            self._closing = True
+            self._cond.notify_all()
+        self._proc.close(min(timeout, CLOSE_S))
+
+    # -- receiver thread --------------------------------------------------------------------------
+    def _add_error(self, view, exc) -> None:
+        self._error_n += 1
+        self._errors.append((self._error_n, view, exc))
+        del self._errors[:-64]
+
+    def _on_message(self, msg) -> None:
+        kind = msg[0]
+        if kind == "result":
+            _, view, result, infos = msg
+            if result is not None and self._prepare is not None:
+                result.image = self._prepare(result.image)  # (outside the lock: it may take a while)
+            with self._cond:
+                for info in infos:
+                    self._add_error(view, rebuild_error(info))
+                if result is not None:
+                    self._results[view] = result
+                    self.log.append((view, result.seq, result.step, result.settings.quality, result.refine_left))
+                    del self.log[:-1000]
+                self._cond.notify_all()
+        elif kind == "state":
+            with self._cond:
+                self._acked = max(self._acked, msg[1])
+                self._busy = dict(msg[2])
+                self._busy_any = bool(msg[3])
+                self._cond.notify_all()
+        elif kind == "send_error":
+            with self._cond:
+                self._acked = max(self._acked, msg[1])
+                self._add_error(None, RendererError(f"could not send to the renderer process: {msg[2]}"))
+                self._cond.notify_all()
+
+    def _on_exit(self, code) -> None:
+        with self._cond:
+            self._add_error(None, RendererError(
+                f"the renderer process ended unexpectedly (exit code {code}); the next frame starts a new one"))
+            self._acked = self._proc.posted
+            self._busy, self._busy_any = {}, False
+            self._scene_key = self._scene_refs = None  # (the new child has no scene yet)
+            self._cond.notify_all()
+
+
+class FinalRenderer:
+    """Final frames in a renderer process of their own (module docstring)."""
+
+    def __init__(self, name: str = "hybrid-shadows-final"):
+        self._cond = threading.Condition()
+        self._events: collections.deque = collections.deque()
+        self._jobs = itertools.count(1)
+        self._exited = None
+        self._proc = RendererProcess(self._on_message, self._on_exit, name)
+
+    @property
+    def pid(self):
+        return self._proc.pid
+
+    @property
+    def starts(self) -> int:
+        return self._proc.starts
+
+    def render(self, scene, settings, width: int, height: int, *, should_stop=None, on_progress=None,
+               **options):
+        """A :class:`~.render_server.FrameData` of ``scene``. ``options``: ``film_transparent``,
+        ``persistent_key`` (None: bake afresh and give the bake back after), ``want`` (G-buffer
+        targets to read), ``masks``, ``max_draw_ms``. ``should_stop()`` polled every 20 ms: True
+        cancels (raises :class:`Cancelled`); ``on_progress(done, total, label)`` follows the child."""
+        job = next(self._jobs)
+        with self._cond:
+            self._events.clear()
+            self._exited = None
+        self._proc.post(("final", job, scene, settings, int(width), int(height), options))
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._events or self._exited is not None, 0.02)
+                events = list(self._events)
+                self._events.clear()
+                exited = self._exited
+            for ev in events:
+                if ev[1] != job:
+                    continue
+                if ev[0] == "progress":
+                    if on_progress is not None:
+                        on_progress(*ev[2:])
+                    continue
+                data, info = ev[2], ev[3]
+                if info is not None:
+                    raise rebuild_error(info)
+                return data
+            if exited is not None:
+                raise RendererError(f"the renderer process ended unexpectedly (exit code {exited})")
+            if should_stop is not None and should_stop():
+                self._cancel(job)
+                raise Cancelled()
+
+    def _cancel(self, job) -> None:
+        """Stop ``job``: the child drops it between two steps, or is ended after :data:`CANCEL_S`."""
+        if self._proc.unsent(lambda b: b[0] == "final" and b[1] == job):
+            self._proc.post(("cancel", job), replace=lambda b: b[0] == "final" and b[1] == job)
+            return
+        self._proc.post(("cancel", job))
+        with self._cond:
+            done = self._cond.wait_for(lambda: self._exited is not None or any(
+                e[0] == "final" and e[1] == job for e in self._events), CANCEL_S)
+        if not done:
+            self._proc.kill()
+
+    def close(self) -> None:
+        self._proc.close()
+
+    def _on_message(self, msg) -> None:
+        if msg[0] in ("progress", "final"):
+            with self._cond:
+                self._events.append(msg)
+                self._cond.notify_all()
+
+    def _on_exit(self, code) -> None:
+        with self._cond:
+            self._exited = code
+            self._cond.notify_all()

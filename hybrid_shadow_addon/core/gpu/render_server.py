@@ -1,0 +1,295 @@
+"""The renderer process's side (:mod:`.remote` starts it): it owns the OpenGL context.
+
+:func:`serve` reads messages ``(seq, body)`` on one thread (a ``cancel`` takes effect at once)
+and runs them in order on the main thread:
+
+- the viewport's commands (``bake``, ``move``, ``model``, ``reset``, ``scene``, ``render``,
+  ``drop``) go to a synchronous :class:`~.worker.RenderWorker`, pumped one render step at a
+  time while messages keep arriving; each finished frame goes back as ``result`` with its image
+  already in the display's layout (:func:`encode_image`);
+- ``final`` renders one final frame (:class:`FinalJobs`): bake or persistent-data update,
+  render, every array the render passes need back in one ``final`` reply, then the frame's
+  targets are released (and, without persistent data, the bake);
+- after each round a ``state`` message tells the caller which messages were applied and which
+  views still have work.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import os
+import sys
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import Cancelled
+from ..image import to_srgb8
+from . import memory
+from .channel import error_info, read_message, write_message
+
+MB = float(1 << 20)
+
+
+def encode_image(image: np.ndarray, display: str) -> np.ndarray:
+    """A frame (float32 (H, W, 4), row 0 = top) as the display takes it: rows bottom-up (GL's
+    order), half floats (``"float"``), or 8-bit sRGB where the view transform is the plain sRGB
+    curve (``"srgb8"``)."""
+    flipped = image[::-1]
+    if display == "srgb8":
+        return np.ascontiguousarray(to_srgb8(flipped))
+    return np.clip(flipped, -65504.0, 65504.0).astype(np.float16)
+
+
+@dataclass
+class FrameData:
+    """A final frame's arrays (row 0 = top), read back in the renderer process: what
+    ``Frame``, its G-buffer and its masks give, without GL objects."""
+
+    image: np.ndarray
+    lights: list
+    timings: dict
+    stats: dict
+    buffers: dict = field(default_factory=dict)  # G-buffer target name -> array
+    masks: dict = field(default_factory=dict)  # light index -> float32 (H, W), NaN off geometry
+    coverage_mask: np.ndarray = None
+
+    @property
+    def gbuffer(self):
+        return self
+
+    def coverage(self) -> np.ndarray:
+        return self.coverage_mask
+
+    def read(self, name: str) -> np.ndarray:
+        return self.buffers[name]
+
+    def mask_array(self, light_index: int) -> np.ndarray:
+        return self.masks[light_index].copy()
+
+
+def frame_data(frame, want=("depth", "shading_normal", "albedo"), masks: bool = True) -> FrameData:
+    """Read a rendered ``Frame``'s image, coverage, the G-buffer targets ``want`` and (``masks``)
+    every light's mask into a :class:`FrameData`."""
+    gb = frame.gbuffer
+    return FrameData(image=frame.image, lights=list(frame.lights), timings=dict(frame.timings),
+                     stats=dict(frame.stats), buffers={name: gb.read(name) for name in want},
+                     masks={li: frame.mask_array(li) for li in frame.lights} if masks else {},
+                     coverage_mask=gb.coverage())
+
+
+class FinalJobs:
+    """Final frames in this process: one pipeline (programs stay compiled between frames) and,
+    with persistent data, the last scene its bake holds."""
+
+    def __init__(self, send, cancel: threading.Event):
+        self.send = send
+        self.cancel = cancel
+        self.pipe = None
+        self.state: dict = {}
+
+    def run(self, job, scene, settings, width, height, options: dict) -> None:
+        """Render and reply ``("final", job, FrameData or None, error_info or None)``."""
+        from .pipeline import Pipeline
+
+        def progress(done, total, label=""):
+            if self.cancel.is_set():
+                raise Cancelled()
+            self.send(("progress", job, done, total, label))
+
+        try:
+            if self.pipe is None:
+                self.pipe = Pipeline()
+            pipe = self.pipe
+            ledger = memory.track(pipe.ctx)
+            before = ledger.bytes
+            ledger.reset_peak()
+            progress(0, 1, "Baking")
+            kind = self._bake(pipe, scene, settings, options.get("persistent_key"))
+            kwargs = {"max_draw_ms": options["max_draw_ms"]} if options.get("max_draw_ms") else {}
+            frame = pipe.render(scene, settings, width, height, film_transparent=options.get("film_transparent", False),
+                                progress=progress, **kwargs)
+            data = frame_data(frame, options.get("want", ()), options.get("masks", True))
+            data.stats.update(bake=kind, gpu_memory_before_mb=round(before / MB, 1),
+                              gpu_peak_mb=round(ledger.peak / MB, 1))
+            self._free(pipe, keep_bake=options.get("persistent_key") is not None)
+            data.stats["gpu_memory_after_mb"] = round(ledger.bytes / MB, 1)
+            self.send(("final", job, data, None))
+        except BaseException as exc:  # noqa: BLE001 - the caller gets every failure
+            if self.pipe is not None:
+                try:
+                    self._free(self.pipe, keep_bake=False)
+                except Exception:
+                    pass
+            self.state.clear()
+            self.send(("final", job, None, error_info(exc)))
+            if not isinstance(exc, Exception):
+                raise
+
+    def _bake(self, pipe, scene, settings, key) -> str:
+        from ..scene_sync import FULL, NONE, sync_scene
+
+        raytrace = settings.mode == "raytrace"
+        if key is None:
+            self.state.clear()
+            if not raytrace:
+                return NONE
+            pipe.set_scene(scene, settings.structure)
+            return FULL
+        prev = self.state.get("scene") if self.state.get("key") == key else None
+        self.state.clear()  # (until the update below succeeded)
+        kind = sync_scene(pipe, prev, scene, bake=raytrace, structure=settings.structure).kind
+        self.state.update(key=key, scene=scene)
+        return kind
+
+    @staticmethod
+    def _free(pipe, keep_bake: bool) -> None:
+        """Give back the frame's targets (every pass's), and the bake unless it is kept."""
+        pipe.release_targets()
+        if not keep_bake:
+            pipe.drop_bake()
+
+    def close(self) -> None:
+        if self.pipe is not None:
+            try:
+                self.pipe.release()
+                self.pipe.ctx.release()
+            except Exception:
+                pass
+            self.pipe = None
+
+
+class Server:
+    """The message loop of the renderer process (see the module docstring)."""
+
+    def __init__(self, out):
+        self.out = out
+        self.send_lock = threading.Lock()
+        self.cond = threading.Condition()
+        self.inbox: collections.deque = collections.deque()
+        self.cancel = threading.Event()
+        self.acked = 0
+        self.worker = None
+        self.views: dict = {}  # view -> display encoding
+        self.scenes: dict = {}  # token -> scene (without a camera) of render requests
+        self.seqs: dict = {}  # the worker's request numbers -> the caller's
+        self.final = FinalJobs(self.send, self.cancel)
+
+    def send(self, obj) -> None:
+        with self.send_lock:
+            write_message(self.out, obj)
+
+    def read_loop(self, rfile) -> None:
+        try:
+            while True:
+                seq, body = read_message(rfile)
+                if body[0] == "cancel":
+                    self.cancel.set()
+                with self.cond:
+                    self.inbox.append((seq, body))
+                    self.cond.notify_all()
+        except (EOFError, OSError, ValueError):
+            with self.cond:
+                self.inbox.append((0, ("close",)))
+                self.cond.notify_all()
+
+    def _has_work(self) -> bool:
+        return self.worker is not None and self.worker.busy()
+
+    def run(self) -> None:
+        while True:
+            with self.cond:
+                while not self.inbox and not self._has_work():
+                    self.cond.wait()
+                msgs = list(self.inbox)
+                self.inbox.clear()
+            for seq, body in msgs:
+                if body[0] == "close":
+                    return
+                self.handle(body)
+                self.acked = max(self.acked, seq)
+            if self.worker is not None:
+                self.worker.pump()
+                self._send_results()
+            self.send(("state", self.acked, {v: self.worker.busy(v) for v in self.views} if self.worker else {},
+                       self._has_work()))
+
+    def _viewport(self):
+        if self.worker is None:
+            from .worker import RenderWorker
+
+            self.worker = RenderWorker(synchronous=True)
+        return self.worker
+
+    def handle(self, body) -> None:
+        kind = body[0]
+        if kind == "cancel":
+            return  # (it stopped what was running; nothing queued is cancelled)
+        if kind == "final":
+            self.cancel.clear()
+            self.final.run(*body[1:])
+            self.cancel.clear()
+            return
+        w = self._viewport()
+        if kind == "bake":
+            w.set_scene(body[1], body[2])
+        elif kind == "move":
+            w.move_instances(body[1], body[2])
+        elif kind == "model":
+            w.update_model(body[1], body[2])
+        elif kind == "reset":
+            w.reset_history()
+        elif kind == "scene":
+            self.scenes[body[1]] = body[2]
+            for old in sorted(self.scenes)[:-4]:
+                del self.scenes[old]
+        elif kind == "render":
+            request, token, seq = body[1], body[2], body[3]
+            base = self.scenes[token]
+            request.scene = dataclasses.replace(base, camera=request.scene.camera, resolution=request.scene.resolution)
+            self.seqs[w.render(request)] = seq
+            self.views[request.view] = request.display
+            for old in sorted(self.seqs)[:-64]:
+                del self.seqs[old]
+        elif kind == "drop":
+            w.drop_view(body[1])
+            self.views.pop(body[1], None)
+
+    def _send_results(self) -> None:
+        for view, display in list(self.views.items()):
+            result, errors = self.worker.poll(view)
+            if result is None and not errors:
+                continue
+            if result is not None:
+                result.seq = self.seqs.get(result.seq, 0)
+                result.image = encode_image(result.image, display)
+                result.stats["gpu_memory_mb"] = round(memory.in_use(self.worker._pipe.ctx) / MB, 1) \
+                    if self.worker._pipe is not None else 0.0
+            self.send(("result", view, result, [error_info(e) for e in errors]))
+
+    def close(self) -> None:
+        if self.worker is not None:
+            self.worker.close()
+        self.final.close()
+
+
+def _claim_stdout():
+    """The channel to the caller: the process's original stdout; what anything else prints
+    (Python or the driver) goes to stderr from now on."""
+    sys.stdout.flush()
+    fd = os.dup(1)
+    os.dup2(2, 1)
+    sys.stdout = sys.stderr
+    return os.fdopen(fd, "wb")
+
+
+def serve(rfile) -> None:
+    """The renderer process's main function: messages from ``rfile`` (its stdin)."""
+    server = Server(_claim_stdout())
+    reader = threading.Thread(target=server.read_loop, args=(rfile,), name="hybrid-shadows-reader", daemon=True)
+    reader.start()
+    try:
+        server.run()
+    finally:
+        server.close()
