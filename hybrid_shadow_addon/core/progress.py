@@ -90,10 +90,51 @@ def stage(done: float, label: str) -> None:
 def checkpoint(share: float = 0.0) -> None:
     """A point in a long loop where the work may be stopped: the current stage's callback is
     called if :data:`CHECK_INTERVAL` has passed since its last call (``share``: how far the loop
-    is through the stage, 0..1). Raises what the callback raises."""
+    is through the stage, 0..1). Raises what the callback raises; on a :func:`run_reporting`
+    worker whose wait was given up, :class:`Cancelled`."""
+    stop = getattr(_local, "stop", None)
+    if stop is not None and stop.is_set():
+        raise Cancelled("stopped")
     r = _current()
     if r is not None:
         r.tick(share)
 
 
-__all__ = ["Cancelled", "Progress", "call", "checkpoint", "null_progress", "reporting", "stage"]
+def run_reporting(fn, *args, progress: Progress | None = None, label: str = "", expected_s: float = 1.0,
+                  interval: float = CHECK_INTERVAL):
+    """``fn(*args)`` for work made of a few long numpy calls (a light grid's build): run on a
+    worker thread while this one calls ``progress(share, 1, label)`` every ``interval`` seconds
+    (``share``: the time waited over ``expected_s``, below 1). What ``progress`` raises ends the
+    wait at once and stops the worker at its next :func:`checkpoint` (its result is dropped).
+    Without ``progress``: ``fn(*args)`` here."""
+    if progress is None:
+        return fn(*args)
+    stop = threading.Event()
+    box: dict = {}
+
+    def work():
+        _local.stop = stop
+        try:
+            box["out"] = fn(*args)
+        except BaseException as e:  # (re-raised by the caller)
+            box["error"] = e
+
+    worker = threading.Thread(target=work, name="hybrid-shadows-stage", daemon=True)
+    t0 = time.perf_counter()
+    worker.start()
+    try:
+        progress(0.0, 1, label)
+        while True:
+            worker.join(interval)
+            if not worker.is_alive():
+                break
+            progress(min(0.99, (time.perf_counter() - t0) / max(expected_s, 1e-6)), 1, label)
+    except BaseException:
+        stop.set()
+        raise
+    if "error" in box:
+        raise box["error"]
+    return box["out"]
+
+
+__all__ = ["Cancelled", "Progress", "call", "checkpoint", "null_progress", "reporting", "run_reporting", "stage"]
