@@ -22,9 +22,9 @@ import moderngl
 from ..progress import Progress
 
 ALIGN = 16  # tile edges on multiples of this many pixels (llvmpipe's 16x16 blocks, a GPU's quads)
-FIRST_PIXELS = 64 * ALIGN  # a draw's first tile: small, its time sizes the next
-AIM = 0.5  # a tile aims at this share of the budget (room for costlier pixels further on)
-GROWTH = (2.0, 4.0)  # the next tile is at most this many times larger (4: the last took < AIM / 8)
+FIRST_PIXELS = ALIGN * ALIGN  # a draw's first tile: one block (it also pays the shader's first use)
+AIM = 0.4  # a tile aims at this share of the budget (room for costlier pixels further on)
+GROWTH = 2.0  # the next tile is at most this many times larger than the last
 
 
 class DrawBudget:
@@ -89,6 +89,7 @@ class DrawBudget:
         """(x, y, width, height) of each tile, bottom-up row strips of whole width or, where
         even :data:`ALIGN` rows take too long, strips of tiles; sized from :attr:`_last`."""
         self._last = None
+        self._rate = 0.0  # ms per pixel of the draw's tiles after the first, the older halved
         pixels = FIRST_PIXELS
         y = 0
         while y < h:
@@ -108,14 +109,17 @@ class DrawBudget:
     def _done_tile(self, rect, ms: float) -> None:
         self.tiles += 1
         self.longest_ms = max(self.longest_ms, ms)
+        if self._last is not None:
+            self._rate = max(0.5 * self._rate, ms / (rect[2] * rect[3]))
         self._last = (rect[2] * rect[3], ms)
         if self.tick is not None:
             self.tick()
 
     def _next_pixels(self, pixels: int) -> float:
-        """The next tile's pixels: :data:`AIM` of the budget at the last tile's time per pixel,
-        at most :data:`GROWTH` times the last tile's."""
-        aim = AIM * self.max_draw_ms
+        """The next tile's pixels: :data:`AIM` of the budget at the time per pixel of the last
+        tile, or half the highest of those before it where that is more (the first tile's alone
+        only for the second: it holds the shader's first use); at most :data:`GROWTH` times the
+        last tile's."""
         n, ms = self._last
-        growth = GROWTH[1] if ms < aim / 8 else GROWTH[0]
-        return min(growth * pixels, aim * n / max(ms, 1e-3))
+        rate = self._rate or ms / n
+        return min(GROWTH * pixels, AIM * self.max_draw_ms / max(rate, 1e-9))
