@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 
+from ..progress import Progress, reporting, stage
 from .materials import MaterialBake, bake_materials
 from .state import BakeConfig, UpdateReport
 from .structures import AccelerationStructure, structure_class
@@ -113,32 +114,41 @@ class BakedScene:
         return self.accel.occupancy(xy)
 
     # ------------------------------------------------------------------ updates ------------
-    def update_instances(self, scene, indices) -> UpdateReport:
-        """Instances ``indices`` moved (``scene.instances`` already holds their new matrices)."""
-        return self._timed(self.accel.update_instances, scene, indices)
+    def update_instances(self, scene, indices, progress: Progress | None = None) -> UpdateReport:
+        """Instances ``indices`` moved (``scene.instances`` already holds their new matrices).
+        ``progress``: as :func:`bake_scene`'s; stopped by it, the bake is half updated (drop it)."""
+        return self._timed(progress, "Updating moved objects", self.accel.update_instances, scene, indices)
 
-    def update_model(self, scene, model_id: int) -> UpdateReport:
+    def update_model(self, scene, model_id: int, progress: Progress | None = None) -> UpdateReport:
         """Mesh ``model_id`` was edited (or appended to ``scene.models``): rebuild that model's
-        tree and triangles only, then re-place its instances."""
-        return self._timed(self.accel.update_model, scene, model_id)
+        tree and triangles only, then re-place its instances (``progress``: as
+        :meth:`update_instances`)."""
+        return self._timed(progress, "Updating an edited model", self.accel.update_model, scene, model_id)
 
-    def _timed(self, update, *args) -> UpdateReport:
+    def _timed(self, progress, label, update, *args) -> UpdateReport:
         t0 = time.perf_counter()
-        rep = update(*args)
+        with reporting(progress):
+            stage(0, label)
+            rep = update(*args)
         self.refresh_stats()
         rep.ms = (time.perf_counter() - t0) * 1e3
         self.stats["last_update_ms"] = rep.ms
         return rep
 
 
-def bake_scene(scene, config: BakeConfig | None = None) -> BakedScene:
-    """Bake ``scene`` into GPU textures with the structure ``config.structure``."""
+def bake_scene(scene, config: BakeConfig | None = None, progress: Progress | None = None) -> BakedScene:
+    """Bake ``scene`` into GPU textures with the structure ``config.structure``. ``progress(done,
+    total, label)`` is called through the bake's loops (:func:`..progress.checkpoint`); what it
+    raises stops the bake, which then returns nothing."""
     cfg = config or BakeConfig()
     t0 = time.perf_counter()
-    materials = bake_materials(scene, cfg.tex_width)
-    origin = choose_origin(scene) if cfg.origin is None else np.asarray(cfg.origin, np.float64).reshape(3)
-    accel = structure_class(cfg.structure).bake(scene, cfg, origin, materials)
-    baked = BakedScene(cfg, origin, accel, materials)
-    accel.stats = {"bake_ms": (time.perf_counter() - t0) * 1e3, **accel.stats}
-    baked.refresh_stats()
+    with reporting(progress, total=2):
+        stage(0, "Baking materials")
+        materials = bake_materials(scene, cfg.tex_width)
+        origin = choose_origin(scene) if cfg.origin is None else np.asarray(cfg.origin, np.float64).reshape(3)
+        stage(1, f"Baking the scene ({cfg.structure})")
+        accel = structure_class(cfg.structure).bake(scene, cfg, origin, materials)
+        baked = BakedScene(cfg, origin, accel, materials)
+        accel.stats = {"bake_ms": (time.perf_counter() - t0) * 1e3, **accel.stats}
+        baked.refresh_stats()
     return baked

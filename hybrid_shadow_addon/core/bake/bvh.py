@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..progress import checkpoint
 from .textures import REL_EPS
 
 
@@ -74,16 +75,20 @@ def build_bvhs(models, leaf_size: int = 4) -> BVHBuild:
     tri_src = np.empty(total, np.int64)
     third = np.float32(1.0 / 3.0)
     for m, s0 in zip(models, tri_start.tolist()):
+        checkpoint()
         T = m.triangle_count
         if not T:
             continue
         tr = m.vertices.take(m.triangles.ravel(), axis=0).reshape(T, 3, 3)
+        checkpoint()
         cen = (tr[:, 0] + tr[:, 1] + tr[:, 2]) * third
         cmin = np.array([cen[:, k].min() for k in range(3)], np.float32)
         cmax = np.array([cen[:, k].max() for k in range(3)], np.float32)
         span = np.maximum(cmax - cmin, np.float32(1e-30))
         q = np.clip((cen - cmin) * (np.float32(1023.0) / span), 0, 1023).astype(np.uint32)
+        checkpoint()
         order = np.argsort(_morton3(q), kind="stable")
+        checkpoint()
         tris[s0:s0 + T] = tr.reshape(T, 9).take(order, axis=0).reshape(T, 3, 3)
         tri_src[s0:s0 + T] = order
 
@@ -136,6 +141,7 @@ def build_trees(item_min, item_max, item_start, item_count, leaf_size: int):
     inner_levels = []
     level = 0
     while a.size:
+        checkpoint()
         k = b - a
         escape[df] = df + 2 * k - 1
         is_leaf = k == 1
@@ -164,6 +170,7 @@ def build_trees(item_min, item_max, item_start, item_count, leaf_size: int):
     if n_leaves:
         leaf6p = np.concatenate([leaf6, leaf6[:1]])
         for df, a_, b_ in inner_levels:
+            checkpoint()
             o = np.argsort(a_)
             ab = np.empty(2 * len(o), np.int64)
             ab[0::2], ab[1::2] = a_[o], b_[o]

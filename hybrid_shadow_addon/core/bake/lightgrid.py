@@ -46,6 +46,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from ..progress import checkpoint
 from .textures import SPHERE_FLAG, TextureData, alloc_texture, f32_bits, f32_up
 
 #: cells per caster aimed at (the cell size follows from the casters' extent, or the cube's faces)
@@ -116,6 +117,7 @@ def world_casters(scene, origin) -> WorldCasters:
             model = scene.models[m]
             if not model.triangle_count:
                 continue
+            checkpoint()
             idx = np.nonzero(mesh & (mids == m))[0]
             v = model.vertices.astype(np.float64)
             mats = inst.matrices[idx]
@@ -208,6 +210,7 @@ def edge_planes(a, b, c):
     offsets = np.empty((len(a), 3))
     for k, (p, q) in enumerate(((a, b), (b, c), (c, a))):
         e = q - p
+        checkpoint()
         n = np.stack([e[:, 1], -e[:, 0]], axis=1) * sgn
         normals[:, k] = n
         offsets[:, k] = (n * p).sum(axis=1)
@@ -268,16 +271,20 @@ def _file(it: _Items, g0, ext, n_casters: int, n_tri: int, sphere_codes, cells_p
         cs *= 2.0
     else:
         return None
+    checkpoint()
     # items highest key first: a stable sort by cell keeps that order within every cell
     order = np.argsort(-it.key, kind="stable")
     per_o = per[order]
     own = np.repeat(order.astype(np.int32), per_o)
+    checkpoint()
     loc = np.arange(total, dtype=np.int32) - np.repeat((np.cumsum(per_o) - per_o).astype(np.int32), per_o)
     cxo = np.repeat(cx[order].astype(np.int32), per_o)
     row = loc // cxo
+    checkpoint()
     cix = np.repeat(i0[order, 0].astype(np.int32), per_o) + (loc - row * cxo)
     ciy = np.repeat(i0[order, 1].astype(np.int32), per_o) + row
     del loc, row, cxo
+    checkpoint()
     # a triangle's box covers cells the triangle does not (a long sliver): keep only the cells
     # (widened by the margin) that no edge of it leaves outside
     big = (per >= SLIVER_CELLS) & np.any(it.normals != 0, axis=(1, 2))
@@ -290,43 +297,53 @@ def _file(it: _Items, g0, ext, n_casters: int, n_tri: int, sphere_codes, cells_p
         for k in range(3):
             nxk, nyk = np.ascontiguousarray(it.normals[:, k, 0]), np.ascontiguousarray(it.normals[:, k, 1])
             lim = it.offsets[:, k] + (np.abs(nxk) + np.abs(nyk)) * (0.5 * cs + it.margin)
+            checkpoint()
             out |= nxk[t] * px + nyk[t] * py > lim[t]
         if out.any():
             keep = np.ones(total, bool)
             keep[test[out]] = False
             own, cix, ciy = own[keep], cix[keep], ciy[keep]
             total = len(own)
+    checkpoint()
     # cells in TILE x TILE tiles, tile after tile (row-major), row-major within a tile: the cells
     # of neighbouring pixels, and so their lists, lie close together (texel cache)
     ntx, nty = -(-nx // TILE), -(-ny // TILE)
     cell = ((ciy >> TILE_LOG2) * np.int32(ntx) + (cix >> TILE_LOG2)) * np.int32(TILE * TILE) \
         + (ciy & (TILE - 1)) * np.int32(TILE) + (cix & (TILE - 1))
+    checkpoint()
     # each entry's box within its cell, in 1/SUB of the cell, rounded outward
     sub = np.zeros(total, np.uint32)
     for shift, (ci, axis) in enumerate(((cix, 0), (ciy, 1))):
         # (item boxes in cells relative to the grid's corner; the entry's cell subtracted)
         lo_c = np.ascontiguousarray((it.lo[:, axis] - g0[axis]) * inv)
         hi_c = np.ascontiguousarray((it.hi[:, axis] - g0[axis]) * inv)
+        checkpoint()
         a = np.clip(np.floor((lo_c[own] - ci) * SUB), 0, SUB).astype(np.uint32)
         b = np.clip(np.ceil((hi_c[own] - ci) * SUB), 0, SUB).astype(np.uint32)
         sub |= (a << np.uint32(16 * shift)) | (b << np.uint32(16 * shift + 8))
     del cix, ciy
+    checkpoint()
     srt = np.argsort(cell, kind="stable")
+    checkpoint()
     cell = cell[srt]
     own = own[srt]
     sub = sub[srt]
+    checkpoint()
     counts = np.bincount(cell, minlength=ntx * nty * TILE * TILE)
     max_cell = int(counts.max()) if total else 0
     if max_cell > MAX_CELL:
         return None
     start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.uint32)
     cells = np.stack([start, counts.astype(np.uint32)], axis=1)
+    checkpoint()
     cst = it.caster[own]
     code = cst.astype(np.uint32)
     sp = cst >= n_tri
     if sp.any():
         code[sp] = SPHERE_FLAG | sphere_codes[cst[sp] - n_tri].astype(np.uint32)
+    checkpoint()
     key_bits = f32_bits(f32_up(it.key))
+    checkpoint()
     entries = np.stack([code, key_bits[own], sub], axis=1) if total else np.zeros((0, 3), np.uint32)
     return cells, entries, (nx, ny), ntx, inv, max_cell
 
@@ -356,8 +373,10 @@ def caster_boxes(wc: WorldCasters, basis: np.ndarray):
     the sun (:func:`edge_planes`; zero for the spheres)."""
     t = wc.tris
     p0, p1, p2 = (t[:, k].astype(np.float64) @ basis.T for k in range(3))
+    checkpoint()
     lo = np.minimum(np.minimum(p0, p1), p2)
     hi = np.maximum(np.maximum(p0, p1), p2)
+    checkpoint()
     normals, offsets = edge_planes(p0[:, :2], p1[:, :2], p2[:, :2])
     if len(wc.sphere_inst):
         c = wc.sphere_center @ basis.T
@@ -380,6 +399,7 @@ def build_sun_grid(wc: WorldCasters, direction, tex_width: int = 4096,
     n = wc.count
     margin = REL_MARGIN * max(wc.scale, 1e-6)
     if n:
+        checkpoint()
         lo, hi, normals, offsets = caster_boxes(wc, basis)
         lo, hi = lo - margin, hi + margin
         g0 = lo[:, :2].min(axis=0)
@@ -389,6 +409,7 @@ def build_sun_grid(wc: WorldCasters, direction, tex_width: int = 4096,
         normals, offsets = np.zeros((0, 3, 2)), np.zeros((0, 3))
         g0, ext = np.zeros(2), np.ones(2)
     items = _Items(np.arange(n), lo[:, :2], hi[:, :2], hi[:, 2], np.full(n, margin), normals, offsets)
+    checkpoint()
     filed = _file(_kept(items, keep), g0, ext, n, len(wc.tris), wc.sphere_inst, cells_per_caster)
     b32 = basis.astype(np.float32)
     uniforms = {"hs_lg_ux": b32[0], "hs_lg_uy": b32[1], "hs_lg_dz": b32[2], "hs_lg_base": g0.astype(np.float32)}
@@ -425,6 +446,7 @@ def _face_items(q, dist, margin_face, everywhere, f: int):
     big = np.inf
     zs = np.where(inside, z, 1.0)
     pu, pv = b / zs, c / zs
+    checkpoint()
     ulo = np.where(inside, pu, big).min(axis=1)
     uhi = np.where(inside, pu, -big).max(axis=1)
     vlo = np.where(inside, pv, big).min(axis=1)
@@ -433,6 +455,7 @@ def _face_items(q, dist, margin_face, everywhere, f: int):
     some = inside.any(axis=1)
     clipped = some & ~inside.all(axis=1)
     for i, j in ((0, 1), (1, 2), (2, 0)):  # edges crossing the plane z = delta
+        checkpoint()
         cross = inside[:, i] != inside[:, j]
         if not cross.any():
             continue
@@ -445,6 +468,7 @@ def _face_items(q, dist, margin_face, everywhere, f: int):
         uhi = np.where(cross, np.maximum(uhi, cu), uhi)
         vlo = np.where(cross, np.minimum(vlo, cv), vlo)
         vhi = np.where(cross, np.maximum(vhi, cv), vhi)
+    checkpoint()
     zmin = np.where(clipped, np.minimum(zmin, delta), zmin)
     m = margin_face
     ulo, uhi, vlo, vhi = ulo - m, uhi + m, vlo - m, vhi + m
@@ -459,6 +483,7 @@ def _face_items(q, dist, margin_face, everywhere, f: int):
     if tri.any():
         j = idx[tri]
         qu, qv = pu[j] + 1.0, pv[j] + 1.0 + 2.0 * f
+        checkpoint()
         normals[tri], offsets[tri] = edge_planes(np.stack([qu[:, 0], qv[:, 0]], 1),
                                                  np.stack([qu[:, 1], qv[:, 1]], 1),
                                                  np.stack([qu[:, 2], qv[:, 2]], 1))
@@ -502,12 +527,14 @@ def build_local_grid(wc: WorldCasters, position, tex_width: int = 4096,
     size = max(wc.scale, float(np.abs(L).max()), 1e-6)
     # casters' points relative to the light, their boxes and distances
     q_t = wc.tris.astype(np.float64) - L  # (T, 3, 3)
+    checkpoint()
     lo_t, hi_t = q_t.min(axis=1), q_t.max(axis=1)
     # spheres widened by the float32 error of their centre and of the sphere test
     s_c = wc.sphere_center - L
     s_r = wc.sphere_radius * (1.0 + 2.0 ** -20) + REL_MARGIN * size
     lo_b = np.concatenate([lo_t, s_c - s_r[:, None]])
     hi_b = np.concatenate([hi_t, s_c + s_r[:, None]])
+    checkpoint()
     dist = np.linalg.norm(np.maximum(np.maximum(lo_b, -hi_b), 0.0), axis=1)  # box to the light
     margin_face = FACE_MARGIN + DIR_ERROR * size / np.maximum(dist, 1e-300)
     everywhere = margin_face > 0.25  # (touching the light, or nearly: filed in every cell)
@@ -522,11 +549,14 @@ def build_local_grid(wc: WorldCasters, position, tex_width: int = 4096,
         a = np.abs(q_t)
         major = np.argmax(a, axis=2)  # (T, 3)
         fv = 2 * major + (np.take_along_axis(q_t, major[:, :, None], axis=2)[:, :, 0] < 0)
+        checkpoint()
         srt = np.sort(a, axis=2)  # (the major component last, the larger of the other two before it)
+        checkpoint()
         room = srt[:, :, 2] * (1.0 - 2.0 * margin_face[:n_tri, None]) - srt[:, :, 1]
         single = (fv[:, 0] == fv[:, 1]) & (fv[:, 1] == fv[:, 2]) & np.all(room > 0, axis=1) & ~everywhere[:n_tri]
         home = np.where(single, fv[:, 0], -1)
     for f in range(6):
+        checkpoint()
         found = []
         if n_tri:
             sel = np.nonzero((home == f) | (home < 0))[0]
@@ -540,6 +570,7 @@ def build_local_grid(wc: WorldCasters, position, tex_width: int = 4096,
     items = _Items(*(np.concatenate([getattr(p, k.name) for p in parts]) for k in fields(_Items))) if parts \
         else _Items(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0),
                     np.zeros((0, 3, 2)), np.zeros((0, 3)), np.zeros(0, np.int64))
+    checkpoint()
     filed = _file(_kept(items, keep), np.zeros(2), np.array([2.0, 12.0]), wc.count, n_tri, wc.sphere_inst,
                   cells_per_caster)
     uniforms = {"hs_lg_pos": L.astype(np.float32)}

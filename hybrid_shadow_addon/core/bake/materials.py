@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import GPUError
+from ..progress import checkpoint
 from .textures import TextureData, alloc_texture, f32_bits
 
 # (bits(uv row 0), bits(alpha)), (bits(uv row 1), bits(threshold)), (colour image, alpha image, flags, 0)
@@ -143,6 +144,7 @@ def bake_materials(scene, width: int, layer_size: int = DEFAULT_LAYER_SIZE) -> M
             alpha_use[m.alpha_image] = True
     levels = {}
     for i, img in enumerate(images):
+        checkpoint()
         if color_use[i]:
             levels[i] = mip_chain(img.pixels, img.srgb)
         elif alpha_use[i]:

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..progress import checkpoint
+
 
 @dataclass
 class SAHBuild:
@@ -100,6 +102,7 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
     c = gc[has].copy()
     grp = np.nonzero(has)[0]
     while s.size:
+        checkpoint()
         leaf = c <= L
         lv = {"s": s, "c": c, "grp": grp, "leaf": leaf}
         levels.append(lv)
@@ -171,6 +174,7 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
         c[0::2], c[1::2] = nleft, ci_all - nleft
         grp = np.repeat(grp[inner], 2)
         lv["kids"] = inner
+    checkpoint()
     # subtree sizes, bottom up
     sizes = [None] * len(levels)
     for d in range(len(levels) - 1, -1, -1):
@@ -179,6 +183,7 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
         if "kids" in lv:
             sz[lv["kids"]] = 1 + sizes[d + 1][0::2] + sizes[d + 1][1::2]
         sizes[d] = sz
+    checkpoint()
     node_count = np.zeros(G, np.int64)
     depth = np.zeros(G, np.int64)
     if levels:
@@ -190,6 +195,7 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
     escape = np.zeros(n_nodes, np.int64)
     leaf_start = np.full(n_nodes, -1, np.int64)
     leaf_count = np.zeros(n_nodes, np.int64)
+    checkpoint()
     # depth-first (pre-order) index of every node, top down
     dfs = []
     if levels:
@@ -204,6 +210,7 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
                 ldf = df[lv["kids"]] + 1
                 df = np.empty(2 * ldf.size, np.int64)
                 df[0::2], df[1::2] = ldf, ldf + sizes[d + 1][0::2]
+    checkpoint()
     # boxes by component: the leaves (in pre-order they tile the item positions) by one reduceat,
     # then the inner nodes bottom up, one depth at a time from the next (every depth is in
     # pre-order: the reads and writes run forward)
@@ -224,6 +231,7 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
             bmx[:, leaf_nodes] = np.maximum.reduceat(cmx, ls, axis=1)
     for d in range(len(levels) - 2, -1, -1):
         lv = levels[d]
+        checkpoint()
         if "kids" in lv:
             k = dfs[d][lv["kids"]]
             ch = dfs[d + 1]

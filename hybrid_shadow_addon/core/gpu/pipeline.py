@@ -59,17 +59,38 @@ class Frame:
 
 
 class _Steps:
-    """Counts the steps of one frame for a ``progress(done, total, label)`` callback."""
+    """Counts the steps of one frame for a ``progress(done, total, label)`` callback; within a
+    step, :meth:`tile` and :meth:`within` move ``done`` on by a share of the step (a float)."""
 
     def __init__(self, progress: Progress | None, total: int):
         self.progress = progress
         self.total = total
         self.done = 0
+        self.label = ""
+        self.tiles = 0  # tiles drawn in the current step
 
     def __call__(self, label: str) -> None:
         if self.progress is not None:
             self.progress(self.done, self.total, label)
         self.done += 1
+        self.label = label
+        self.tiles = 0
+
+    def tile(self) -> None:
+        """After each tile of a tiled draw: the step's share grows with its tiles (tiles / (tiles
+        + 8): their number is not known ahead) and never reaches the next step."""
+        self.tiles += 1
+        self._report(self.tiles / (self.tiles + 8), f"{self.label} (tile {self.tiles})")
+
+    def within(self, done: float, total: float, label: str) -> None:
+        """A stage's own ``progress(done, total, label)`` inside the current step (a bake, a
+        light grid's build) as a share of that step."""
+        share = 0.99 * min(max(done / max(total, 1e-9), 0.0), 1.0)
+        self._report(share, f"{self.label}: {label}" if self.label else label)
+
+    def _report(self, share: float, label: str) -> None:
+        if self.progress is not None:
+            self.progress(max(self.done - 1, 0) + share, self.total, label)
 
 
 class _SharedBake:
@@ -132,33 +153,49 @@ class Pipeline:
         return [self.gbuffer_pass, *self._shadow.values(), self.upsample, self.lighting]
 
     # -- scene ------------------------------------------------------------------------------------
-    def set_scene(self, scene, structure: str | None = None) -> float:
+    def set_scene(self, scene, structure: str | None = None, progress: Progress | None = None) -> float:
         """Bake ``scene`` with acceleration ``structure`` (``Settings.structure``; None: the
         default) and upload its textures; returns the bake time in ms. A render whose settings ask
-        for another structure bakes again."""
+        for another structure bakes again. ``progress`` is called through the bake; what it
+        raises stops the bake and leaves the bake before it in place."""
         make_current(self.ctx)
         t0 = time.perf_counter()
         if structure is None:
             structure = Settings.structure
-        self.baked = bake_scene(scene, BakeConfig(structure=structure))
-        self.scene_textures.upload(self.baked)
-        self._bake_changed()
+        baked = bake_scene(scene, BakeConfig(structure=structure), progress=progress)
+        self.baked = baked
+        try:
+            self.scene_textures.upload(baked)
+        except BaseException:
+            self.baked = None  # (textures half uploaded: the next render bakes again)
+            raise
+        finally:
+            self._bake_changed()
         self._bake.bake_ms = (time.perf_counter() - t0) * 1e3
         return self.bake_ms
 
-    def move_instances(self, scene, indices) -> None:
-        """Instances ``indices`` moved (their matrices in ``scene`` already changed)."""
+    def move_instances(self, scene, indices, progress: Progress | None = None) -> None:
+        """Instances ``indices`` moved (their matrices in ``scene`` already changed). Stopped
+        by ``progress`` (whatever it raises), the bake is dropped: the next render bakes anew."""
         make_current(self.ctx)
-        self._apply(self.baked.update_instances(scene, indices))
+        self._update(self.baked.update_instances, scene, indices, progress)
 
-    def update_model(self, scene, model_id: int) -> None:
-        """Model ``model_id`` was edited or added."""
+    def update_model(self, scene, model_id: int, progress: Progress | None = None) -> None:
+        """Model ``model_id`` was edited or added (``progress``: as :meth:`move_instances`)."""
         make_current(self.ctx)
-        self._apply(self.baked.update_model(scene, model_id))
+        self._update(self.baked.update_model, scene, model_id, progress)
 
-    def _apply(self, report) -> None:
-        self.scene_textures.apply(self.baked, report)
-        self._bake_changed()
+    def _update(self, update, scene, arg, progress) -> None:
+        """An incremental update applied to the bake and its textures; a half-made one (an
+        error, a cancel) drops the bake."""
+        try:
+            report = update(scene, arg, progress=progress)
+            self.scene_textures.apply(self.baked, report)
+        except BaseException:
+            self.baked = None
+            raise
+        finally:
+            self._bake_changed()
 
     def _bake_changed(self) -> None:
         """The shared bake changed: this pipeline's history now, its views' at their next render."""
@@ -175,9 +212,12 @@ class Pipeline:
     # -- frame ------------------------------------------------------------------------------------
     def render(self, scene, settings: Settings | None = None, width: int | None = None,
                height: int | None = None, film_transparent: bool = False, read_image: bool = True,
-               progress: Progress | None = None) -> Frame:
+               progress: Progress | None = None, max_draw_ms: float | None = None) -> Frame:
         """Run the passes. ``progress(done, total, label)`` is called before each pass and each
-        shadowed light (whatever it raises aborts the frame: a place to cancel). The shadows are
+        shadowed light, through the implicit bake and the light grids' builds (whatever it raises
+        aborts the frame: a place to cancel). ``max_draw_ms``: the heavy draws (rays, lighting)
+        are drawn in tiles of about that time at most (:mod:`.tiles`; a final render's watchdog
+        limit), ``progress`` called after each; None: each whole. The shadows are
         traced through the baked scene: the first render bakes ``scene``, and so does one that
         asks for another structure; for another scene call :meth:`set_scene` first (for moved
         instances and edited models, :meth:`move_instances` and :meth:`update_model`).
@@ -194,10 +234,13 @@ class Pipeline:
         check_render_size(self.ctx, width, height)
         n = target_samples(settings)
         if n > 1 and self.see_through.in_view(scene, width, height):
-            return self._render_see_through(scene, settings, width, height, film_transparent, progress, n)
-        return self._render_frame(scene, settings, width, height, film_transparent, read_image, progress)
+            return self._render_see_through(scene, settings, width, height, film_transparent, progress, n,
+                                            max_draw_ms)
+        return self._render_frame(scene, settings, width, height, film_transparent, read_image, progress,
+                                  max_draw_ms=max_draw_ms)
 
-    def _render_see_through(self, scene, settings, width, height, film_transparent, progress, n) -> Frame:
+    def _render_see_through(self, scene, settings, width, height, film_transparent, progress, n,
+                            max_draw_ms=None) -> Frame:
         """The average of ``n`` sub-frames (all now, or with ``settings.accumulate`` one more than
         the last call's, restarting when the settings, size or film differ). A final frame's
         G-buffer (its data passes) is then drawn once more with the cut at 0.5, as Cycles writes
@@ -208,7 +251,7 @@ class Pipeline:
             self.reset_history()
         sub = sub_frame_settings(settings)
         if self.shadow_pass(sub.mode).needs_bake and (self.baked is None or self.baked.structure != sub.structure):
-            self.set_scene(scene, sub.structure)  # (before the sub-frames: a bake resets history)
+            self.set_scene(scene, sub.structure, progress)  # (before the sub-frames: a bake resets history)
         acc = self._st
         key = (settings, width, height, bool(film_transparent))
         if acc.key != key:
@@ -221,7 +264,8 @@ class Pipeline:
         frame = None
         for i in todo:
             frame = self._render_frame(scene, sub, width, height, film_transparent, True,
-                                       split_progress(progress, i - todo.start, len(todo)), alpha_sample=i)
+                                       split_progress(progress, i - todo.start, len(todo)), alpha_sample=i,
+                                       max_draw_ms=max_draw_ms)
             acc.add(frame)
         stats = dict(frame.stats, see_through_samples=acc.count, see_through_target=n)
         timings = dict(acc.timings) if not settings.accumulate else dict(frame.timings)
@@ -241,19 +285,27 @@ class Pipeline:
         return out
 
     def _render_frame(self, scene, settings, width, height, film_transparent, read_image, progress,
-                      alpha_sample: int | None = None) -> Frame:
+                      alpha_sample: int | None = None, max_draw_ms: float | None = None) -> Frame:
         """One frame's passes (``alpha_sample``: a see-through sub-frame's sample index)."""
         if self._generation != self._bake.generation:
             self.reset_history()  # another view of this bake changed it
         shadow = self.shadow_pass(settings.mode)
+        lights = select_shadowed_lights(scene, settings)
+        step = _Steps(progress, 4 + len(lights))
         if shadow.needs_bake and (self.baked is None or self.baked.structure != settings.structure):
-            self.set_scene(scene, settings.structure)
+            self.set_scene(scene, settings.structure, step.within if progress is not None else None)
         self._reset_gl_state()  # (a frame aborted by its progress callback may have left any)
+        with self.gpu.budget.frame(max_draw_ms, step.tile if progress is not None else None,
+                                   step.within if progress is not None else None):
+            return self._passes_of_frame(scene, settings, shadow, step, FrameJob(
+                scene, settings, width, height, film_transparent, lights=lights, alpha_sample=alpha_sample),
+                read_image)
+
+    def _passes_of_frame(self, scene, settings, shadow, step, job, read_image) -> Frame:
+        """The passes of :meth:`_render_frame` over ``job``, counted by ``step``."""
+        width, height = job.size
         self.gpu.linking.update(scene)  # (linking lives apart from the bake: an upload at most)
-        job = FrameJob(scene, settings, width, height, film_transparent,
-                       lights=select_shadowed_lights(scene, settings), alpha_sample=alpha_sample)
         self.gbuffer_renders += 1
-        step = _Steps(progress, 4 + len(job.lights))
         if shadow.light_label is not None:
             job.on_light = lambda li: step(f"{shadow.light_label}: {scene.lights[li].name}")
         timings = {}

@@ -1,5 +1,5 @@
 """What every pass of one OpenGL context shares: the context, the compiled programs, the model
-vertex buffers and the baked scene textures."""
+vertex buffers, the baked scene textures and the frame's draw budget."""
 from __future__ import annotations
 
 import moderngl
@@ -10,6 +10,7 @@ from .geometry import ModelBufferCache
 from .linking import LinkTextures
 from .programs import ProgramCache
 from .scene_textures import SceneTextures
+from .tiles import DrawBudget
 
 
 class GpuResources:
@@ -22,6 +23,7 @@ class GpuResources:
         self.models = ModelBufferCache(ctx)
         self.scene_textures = SceneTextures(ctx)
         self.linking = LinkTextures(ctx)  # light and shadow linking, apart from the bake
+        self.budget = DrawBudget(ctx)  # the frame's per-draw time budget (tiled heavy draws)
         self._own_materials = None  # (material_signature, None, {sampler: texture}) made without a bake
 
     def material_textures(self, scene) -> dict:

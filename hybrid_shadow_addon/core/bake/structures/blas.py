@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...progress import checkpoint
 from ..bvh import _morton3
 from ..sah import build_sah
 from ..textures import f32_down, f32_up
@@ -115,17 +116,22 @@ def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None) -> BlasBu
     tmin = np.empty((3, total), np.float32)  # triangle boxes by component (while the model's
     tmax = np.empty((3, total), np.float32)  # triangles are in cache)
     for mi, (m, s0) in enumerate(zip(models, t0.tolist())):
+        checkpoint()
         T = m.triangle_count
         if not T:
             continue
         tr = m.vertices.take(m.triangles.ravel(), axis=0).reshape(T, 3, 3)
+        checkpoint()
         cen = (tr[:, 0] + tr[:, 1] + tr[:, 2]) * third
         cmin = np.array([cen[:, k].min() for k in range(3)], np.float32)  # (a column is faster
         cmax = np.array([cen[:, k].max() for k in range(3)], np.float32)  # than min(axis=0))
         span = np.maximum(cmax - cmin, np.float32(1e-30))
         q = np.clip((cen - cmin) * (np.float32(1023.0) / span), 0, 1023).astype(np.uint32)
+        checkpoint()
         order = np.argsort(_morton3(q), kind="stable")
+        checkpoint()
         np.take(tr, order, axis=0, out=tris[s0:s0 + T])
+        checkpoint()
         tm = t9[s0:s0 + T]
         for k in range(3):
             np.minimum(np.minimum(tm[:, k], tm[:, 3 + k]), tm[:, 6 + k], out=tmin[k, s0:s0 + T])
@@ -145,13 +151,16 @@ def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None) -> BlasBu
         cmn = np.take(tmin, cl_tri0, axis=1)
         cmx = np.take(tmax, cl_tri0, axis=1)
         for jj in range(1, L):
+            checkpoint()
             nxt = cl_tri0 + np.minimum(jj, cl_cnt - 1)
             np.minimum(cmn, np.take(tmin, nxt, axis=1), out=cmn)
             np.maximum(cmx, np.take(tmax, nxt, axis=1), out=cmx)
         cmn, cmx = np.ascontiguousarray(cmn.T), np.ascontiguousarray(cmx.T)
     else:
         cmn = cmx = np.zeros((0, 3))
+    checkpoint()
     tree = build_sah(cmn, cmx, c0, ncl, leaf_size=1, bins=8, sah_min=RUN_SAH_MIN)
+    checkpoint()
     # model frames
     lo = np.zeros((M, 3))
     hi = np.zeros((M, 3))
@@ -178,20 +187,25 @@ def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None) -> BlasBu
         tri4, uv4 = alloc(n_tex, want_uv)
     ltri0 = cl_tri0[lcl]
     for cnt in np.unique(lcnt).tolist():  # leaves of ``cnt`` triangles: blocks of ceil(9 cnt / 4) texels
+        checkpoint()
         sel = np.nonzero(lcnt == cnt)[0]
         tt = -(-cnt * TRI4_FLOATS // 4)
         t_first = ltri0[sel]
         _put_blocks(tri4, lfirst[sel], t9, t_first, cnt, TRI4_FLOATS, tt)
         if want_uv:
             _put_blocks(uv4, lfirst[sel], uvs.reshape(total, 6), t_first, cnt, 6, tt)
+    checkpoint()
     # packed nodes
     qlo, qhi = quantise(tree.node_min, tree.node_max, np.repeat(base.T, tree.node_count, axis=1).T,
                         np.repeat(inv_s, tree.node_count))
+    checkpoint()
     w = np.where(leaf, 0, tree.escape).astype(np.uint32)
     lpay = ((lfirst - tri_start[lmod]) << 3) | lcnt
     w[leaf] = LEAF_FLAG | lpay.astype(np.uint32)
+    nodes = pack_nodes(qlo, qhi, w)
+    checkpoint()
     return BlasBuild(tree, tree.node_start, tree.node_count, tri_start, tri_texels_m, tc, tree.depth, base, inv_s,
-                     pack_nodes(qlo, qhi, w), tri4, uv4)
+                     nodes, tri4, uv4)
 
 
 def _run(a, step) -> bool:

@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 
+from ...progress import checkpoint
 from .. import grid as _grid
 from ..bvh import build_bvhs
 from ..materials import model_uvs
@@ -92,6 +93,7 @@ class HierarchicalGrid(GridUpdates, AccelerationStructure):
                 tex.uv = new_texture("uv", tex.tri_tail * UV_TEXELS, cfg.tex_width)
                 slots = structure.models
                 for m in np.nonzero(uvm)[0].tolist():
+                    checkpoint()
                     ts, tc = int(build.tri_start[m]), int(build.tri_count[m])
                     structure.write_model_uvs(scene, m, build.tri_src[ts:ts + tc], int(slots.tri_start[m]))
         t_bvh = time.perf_counter() - t_models

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...progress import checkpoint
 from ..state import UpdateReport
 from ..textures import (
     MAX_ROWS_LOG2,
@@ -148,6 +149,7 @@ class TwoLevelBVH(AccelerationStructure):
         if blas.uv4 is not None:
             self.uv_models = np.asarray(uv_models, bool).copy()
             self.tex["uv"].used = self.leaf_tail
+        checkpoint()
         # [node]: model trees, then the top level (with spare room)
         ncast = int(scene.instances.casts_shadow.sum()) if n else 0
         spare = max(1024, int(0.25 * (self.node_tail + 2 * ncast)))
@@ -158,8 +160,10 @@ class TwoLevelBVH(AccelerationStructure):
             nodes[:] = blas.nodes
             relocate_nodes(nodes, trees.node_start, blas.node_start, blas.node_count, trees.tri_start,
                            blas.tri_start)
+        checkpoint()
         if n:
             self.write_instance_records(scene, np.arange(n))
+        checkpoint()
         self.place_top(top["count"])
         tlas_ms = top["ms"] + (time.perf_counter() - t0) * 1e3  # (its tree overlaps the model trees)
         self.stats = {"bake_ms": (time.perf_counter() - t_start) * 1e3, "blas_ms": blas_ms, "tlas_ms": tlas_ms}

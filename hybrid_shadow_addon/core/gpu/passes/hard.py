@@ -138,7 +138,7 @@ class HardVisibility(LightVisibility):
             size = full if plan == "full" else settings.mask_size(*full)
             out = self._target((li, "out" if plan == "full" else "coarse"), *size)
             _, vao, _ = self._program(defines, ray, gbuffer, settings, scale)
-            draw_fullscreen(ctx, vao, out)
+            self.gpu.budget.fullscreen(vao, out)
             return out.texture
         plain = {k: v for k, v in defines.items() if k != "HS_INTERLACE"}
         uniforms = self.trace.uniforms(ray, gbuffer, settings)
@@ -148,7 +148,7 @@ class HardVisibility(LightVisibility):
             scale = settings.mask_scale
             _, vao, _ = self._program(plain, ray, gbuffer, settings, scale)
             coarse = self._target((li, "coarse"), *settings.mask_size(*full))
-            draw_fullscreen(ctx, vao, coarse)
+            self.gpu.budget.fullscreen(vao, coarse)
             dst = self._target((li, "out"), *full)
             self.refiner.classify((li, "out"), dst, gbuffer, coarse.texture, class_defs, uniforms)
         else:  # interlace: this frame's phase pixel of each 2x2 block traced densely, with the history
@@ -158,7 +158,7 @@ class HardVisibility(LightVisibility):
             # (one size for every phase: an odd side's last texel then traces the edge pixel
             # again; a scratch target, not _target's: it carries nothing from frame to frame)
             traced = self._targets.get((li, "traced"), (full[0] + 1) // 2, (full[1] + 1) // 2)
-            draw_fullscreen(ctx, vao, traced)
+            self.gpu.budget.fullscreen(vao, traced)
             out = self._target((li, "out"), *full)
             hist = self._target((li, "hist"), *full)
             mprog, mvao = self.programs.fullscreen("interlace_merge")

@@ -33,6 +33,7 @@ import numpy as np
 
 from ...bake.lightgrid import build_local_grid, build_sun_grid, caster_keep, tri_texture, world_casters
 from ...errors import GPUError
+from ...progress import run_reporting
 from ...scene.linking import blockers
 from ..scene_textures import SceneTextures
 
@@ -85,6 +86,7 @@ class LightGridCache:
     def __init__(self, gpu, eager: bool = False):
         self.ctx = gpu.ctx
         self.scene_textures = gpu.scene_textures
+        self.budget = gpu.budget  # (its progress: the frame's, for a build in the frame)
         self._generation = None
         self._casters = None
         self._tri = None  # SceneTextures of the shared triangle texture
@@ -164,18 +166,22 @@ class LightGridCache:
                     if seen is None or n * self._us_per_caster * 1e-3 > PAYBACK_FRAMES * seen:
                         return None
                 t0 = time.perf_counter()
-                if self._casters is None:
-                    self._casters = world_casters(scene, textures.baked.origin)
-                build = build_local_grid if local else build_sun_grid
-                keep = None if keep_inst is None else caster_keep(self._casters, keep_inst)
-                args = (self._casters, light_vec, textures.baked.config.tex_width, None, keep)
                 if not self.eager:  # (the frames go on through the tree meanwhile)
+                    if self._casters is None:
+                        self._casters = world_casters(scene, textures.baked.origin)
                     if self._pool is None:
                         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="light-grid")
-                    self._pending[key] = self._pool.submit(_result, build, *args)
+                    self._pending[key] = self._pool.submit(_result, *self._build_args(scene, local, light_vec,
+                                                                                       keep_inst))
                     self._spent(t0)
                     return None
-                hit = self._upload(_result(build, *args))
+                # in the frame: reported to (and stopped by) the frame's progress; a stopped build
+                # leaves nothing behind
+                casters, grid = run_reporting(self._build_now, scene, local, light_vec, keep_inst,
+                                              progress=self.budget.progress, label=f"light grid of {light.name}",
+                                              expected_s=self._estimate_s(scene))
+                self._casters = casters
+                hit = self._upload(grid)
                 self._spent(t0)
         self._grids[key] = hit  # (most recently used last)
         tex, grid = hit
@@ -184,6 +190,27 @@ class LightGridCache:
                                      "max_cell": grid.max_cell, "build_ms": round(grid.build_ms, 1),
                                      "bytes": grid.nbytes}
         return None if grid is None else LightGridHandle(tex, grid, self._tri)
+
+    def _build_args(self, scene, local: bool, light_vec, keep_inst, casters=None) -> tuple:
+        """(build function, its arguments) of a light's grid over ``casters`` (None: the cached)."""
+        casters = self._casters if casters is None else casters
+        keep = None if keep_inst is None else caster_keep(casters, keep_inst)
+        build = build_local_grid if local else build_sun_grid
+        return build, casters, light_vec, self.scene_textures.baked.config.tex_width, None, keep
+
+    def _build_now(self, scene, local: bool, light_vec, keep_inst) -> tuple:
+        """(casters, grid or None): the world casters (the cached ones, else made) and the grid."""
+        casters = self._casters
+        if casters is None:
+            casters = world_casters(scene, self.scene_textures.baked.origin)
+        return casters, _result(*self._build_args(scene, local, light_vec, keep_inst, casters))
+
+    def _estimate_s(self, scene) -> float:
+        """The expected build time (s) of a grid over the scene's casters."""
+        inst = scene.instances
+        n = self._casters.count if self._casters is not None else sum(
+            scene.models[m].triangle_count for m in inst.model_ids[inst.casts_shadow].tolist())
+        return max(n * self._us_per_caster * 1e-6, 1e-3)
 
     def _spent(self, t0: float) -> None:
         ms = (time.perf_counter() - t0) * 1e3

@@ -133,7 +133,7 @@ class LightingPass(Pass):
                 ctx.enable(moderngl.BLEND)
                 ctx.blend_equation = moderngl.FUNC_ADD
                 ctx.blend_func = moderngl.ONE, moderngl.ONE
-            vao.render(moderngl.TRIANGLES, vertices=3)
+            self.gpu.budget.draw(vao, gbuffer.size)
         ctx.disable(moderngl.BLEND)
         return out.texture
 

@@ -44,6 +44,7 @@ class Refiner:
             raise ValueError(f"unknown refinement rule(s) {', '.join(unknown)}; the rules are {', '.join(self.RULES)}")
         self.ctx = gpu.ctx
         self.programs = gpu.programs
+        self.budget = gpu.budget
         self.rules = {**self.RULES, **rules}
         self.can_vote = "GL_ARB_shader_group_vote" in self.ctx.extensions
         if self.rules["group"] is None:
@@ -179,7 +180,7 @@ class Refiner:
         fbo = self._fbo(key, target)
         with self._masked(fbo, target):
             with self._query("refined", key):
-                vao.render(moderngl.TRIANGLES, vertices=3)
+                self.budget.draw(vao, target.texture.size)
 
     def mark(self, key, target, vao, color: bool = True) -> None:
         """Draw ``vao``, a full-screen program that writes its answers and marks (``gl_FragDepth``
@@ -212,7 +213,7 @@ class Refiner:
             if add:
                 self.ctx.enable(moderngl.BLEND)
                 self.ctx.blend_func = moderngl.ONE, moderngl.ONE
-            vao.render(moderngl.TRIANGLES, vertices=3)
+            self.budget.draw(vao, target.texture.size)
             self.ctx.disable(moderngl.BLEND)
 
     # -- depth-masked targets -----------------------------------------------------------------

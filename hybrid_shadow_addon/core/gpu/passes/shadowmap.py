@@ -238,7 +238,7 @@ class ShadowMapPass(ShadowPass):
                     "u_max_kernel": float(PCSS_MAX_KERNEL * views.tiles[0][2]),
                     "u_depth_min": float(views.depth_min),
                     "u_seed": zlib.crc32(light.name.encode("utf-8")) & 0x7FFFFFFF})
-            vao.render(moderngl.TRIANGLES, vertices=3)
+            self.gpu.budget.draw(vao, gbuffer.size)
         return out
 
     def _draws(self, scene, rows, origin, depth_prog, alpha_prog, tag=()) -> list:

@@ -120,7 +120,6 @@ class SoftVisibility(LightVisibility):
         """A soft light's ``settings.samples`` rays per pixel into ``out``: a few probe rays per
         pixel, then the rest only near the pixels whose probes disagree (penumbrae); elsewhere
         the probes are exact. ``defines`` with ``HS_SOFT_ACCUM``: ``out`` gets the sums (RG)."""
-        ctx = self.ctx
         li = ray.index
         full = gbuffer.size
         accum = "HS_SOFT_ACCUM" in defines
@@ -139,7 +138,7 @@ class SoftVisibility(LightVisibility):
         probe_defs = {k: v for k, v in defines.items() if k != "HS_SOFT_ACCUM"}  # (the same probes either way)
         _, pvao, _ = self._program({**probe_defs, "HS_SOFT_PROBE": 1}, ray, gbuffer, settings)
         probe = self._target((li, "probe"), *full, components=2)  # (sums: raytrace.glsl)
-        draw_fullscreen(ctx, pvao, probe)
+        self.gpu.budget.fullscreen(pvao, probe)
         # the probe ranges' second pass writes the probe answers where they stand and marks the
         # rest in the depth buffer: only those are shaded by the refinement
         sums = out
@@ -245,7 +244,7 @@ class SoftVisibility(LightVisibility):
                     if j:
                         ctx.enable(moderngl.BLEND)
                         ctx.blend_func = moderngl.ONE, moderngl.ONE
-                    draw_fullscreen(ctx, vao, new)
+                    self.gpu.budget.fullscreen(vao, new)
                     ctx.disable(moderngl.BLEND)
             self.sample_base = base
             acc_prog, acc_vao = self.programs.fullscreen("soft_accumulate", {"ACCUMULATE": 1})
