@@ -7,7 +7,7 @@
 // MARK (hard lights): per pixel, the answer without a ray (shadow_ray_prelude), else the previous
 // mask at the previous frame's pixel of its world position where hs_history_pixel accepts it and
 // the previous mask's 3x3 neighbourhood there is all 0 or all 1 (no shadow edge) and its samples
-// were no sparser than u_spacing_ratio of this frame's pixel footprint (a zoom in retraces, so a
+// (u_still, the same camera: the same pixel, edge or not) were no sparser than u_spacing_ratio of this frame's pixel footprint (a zoom in retraces, so a
 // shadow thinner than the old spacing is found); else a mark for a ray (gl_FragDepth 0). o_spacing:
 // the surface spacing of the samples the value stands on, positive where it was reused, negative
 // (minus this frame's footprint) where it is this frame's.
@@ -18,7 +18,7 @@
 //
 // hs_history_pixel rejects: background, a point behind or outside the previous view, another
 // instance there, normals apart (u_normal_cos), a point off the previous sample's surface by more
-// than u_pos_tol footprints (or 1.5 footprints / the view's cosine along it), a grazing view in either frame (u_view_cos), a point beyond the
+// than u_pos_tol footprints (6 times that / the view's cosine along it), a grazing view in either frame (u_view_cos), a point beyond the
 // previous frame's max distance, and a shadow segment (or a soft light's cone, widened by
 // u_pad_abs + u_pad_slope x distance) that meets one of the u_boxes edited boxes (bake space).
 
@@ -63,6 +63,7 @@ uniform vec3 u_cam_delta;       // this camera's position - the previous one's (
 uniform float u_pos_tol;
 uniform float u_normal_cos;
 uniform float u_view_cos;
+uniform int u_same_instance;    // 1: another instance there rejects (0 only in the tests)
 uniform int u_boxes;
 uniform vec3 u_box_min[HS_MAX_BOXES];
 uniform vec3 u_box_max[HS_MAX_BOXES];
@@ -110,12 +111,12 @@ ivec2 hs_history_pixel(ivec2 px, out float footprint)
     ivec2 lim = textureSize(u_prev_geo, 0) - 1;
     if (any(lessThan(q, ivec2(1))) || any(greaterThanEqual(q, lim))) return ivec2(-1);
     vec4 g = texelFetch(u_prev_geo, q, 0);
-    if (g.w != texelFetch(u_gb_material, px, 0).z + 1.0) return ivec2(-1);
+    if (g.w == 0.0 || (u_same_instance == 1 && g.w != texelFetch(u_gb_material, px, 0).z + 1.0)) return ivec2(-1);
     vec4 pn = texelFetch(u_prev_nrm, q, 0);
     if (dot(pn.xyz, n) < u_normal_cos) return ivec2(-1);
     vec3 off = pos.xyz - g.xyz;
     float fp = max(footprint, pn.w);
-    if (abs(dot(off, n)) > u_pos_tol * fp || length(off) > 1.5 * fp / cv) return ivec2(-1);
+    if (abs(dot(off, n)) > u_pos_tol * fp || length(off) > 6.0 * u_pos_tol * fp / cv) return ivec2(-1);
     vec3 prev_view = normalize(-p_rel);
     if (u_ortho == 0 && abs(dot(n, prev_view)) < u_view_cos) return ivec2(-1);
 #ifdef HS_MAX_DISTANCE
@@ -157,6 +158,7 @@ void main()
 uniform sampler2D u_prev_mask;
 uniform sampler2D u_prev_spacing;
 uniform float u_spacing_ratio;
+uniform int u_still;            // 1: the same camera: the same pixel's value stands, edge or not
 layout(location = 0) out float o_mask;
 layout(location = 1) out float o_spacing;
 
@@ -173,8 +175,9 @@ void main()
     if (q.x >= 0) {
         float c = texelFetch(u_prev_mask, q, 0).r;
         float spacing = 0.0;
-        bool flat_ = c == 0.0 || c == 1.0;
-        for (int k = 0; k < 9 && flat_; ++k) {
+        bool flat_ = (c == 0.0 || c == 1.0) && u_still == 0;
+        if (u_still == 1 && q == px) { flat_ = true; spacing = abs(texelFetch(u_prev_spacing, q, 0).r); }
+        for (int k = 0; k < 9 && flat_ && u_still == 0; ++k) {
             ivec2 r = q + ivec2(k % 3 - 1, k / 3 - 1);
             flat_ = texelFetch(u_prev_mask, r, 0).r == c;
             spacing = max(spacing, abs(texelFetch(u_prev_spacing, r, 0).r));

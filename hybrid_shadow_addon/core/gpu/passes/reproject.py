@@ -46,7 +46,7 @@ class MaskReprojection(Pass):
     light's last mask (hard: mask and sample spacing; soft: the accumulated sums) in ping-pong
     targets. ``rules``: :attr:`RULES` (see ``shaders/reproject.glsl``)."""
 
-    RULES = dict(pos_tol=0.25, normal_cos=0.99, view_cos=0.2, spacing_ratio=1.5)
+    RULES = dict(pos_tol=0.25, normal_cos=0.99, view_cos=0.2, spacing_ratio=1.5, same_instance=True)
 
     def __init__(self, gpu, refiner, **rules):
         super().__init__(gpu)
@@ -118,7 +118,8 @@ class MaskReprojection(Pass):
                             "u_prev_clip": cam.clip_from_rel.T.astype("f4").tobytes(),
                             "u_cam_delta": tuple(float(v) for v in gbuffer.camera.cam_pos - cam.cam_pos),
                             "u_pos_tol": float(r["pos_tol"]), "u_normal_cos": float(r["normal_cos"]),
-                            "u_view_cos": float(r["view_cos"]), "u_boxes": len(self._boxes),
+                            "u_view_cos": float(r["view_cos"]), "u_same_instance": int(bool(r["same_instance"])),
+                            "u_boxes": len(self._boxes),
                             "u_pad_abs": float(pad[0]), "u_pad_slope": float(pad[1])})
         for name, col in (("u_box_min", 0), ("u_box_max", 1)):
             if name in prog:
@@ -132,7 +133,10 @@ class MaskReprojection(Pass):
         unit = self.bind(prog, gbuffer, ray_uniforms)
         prev[0].texture.use(unit)
         prev[1].texture.use(unit + 1)
-        set_uniforms(prog, {"u_prev_mask": unit, "u_prev_spacing": unit + 1,
+        cam = self._prev[0]
+        still = (np.array_equal(cam.clip_from_rel, gbuffer.camera.clip_from_rel)
+                 and np.array_equal(cam.cam_pos, gbuffer.camera.cam_pos) and self._prev[1] == tuple(gbuffer.size))
+        set_uniforms(prog, {"u_prev_mask": unit, "u_prev_spacing": unit + 1, "u_still": int(still),
                             "u_spacing_ratio": float(self.rules["spacing_ratio"])})
         self.refiner.mark(key, now[0], vao, extra=(now[1],))
         self.reused_lights += 1
