@@ -290,7 +290,8 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
         r["after_first_free"] = {"alive": wk.thread_alive, "registry": len(vpe._registry)}
         vpe.free(b)
         gone(lambda: not wk.thread_alive)
-        r["after_last_free"] = {"alive": wk.thread_alive, "registry": len(vpe._registry), "pipe": getattr(wk, "_pipe", None) is None}
+        r["after_last_free"] = {"alive": wk.thread_alive, "registry": len(vpe._registry),
+                                "pipe": getattr(wk, "_pipe", None) is None}
         # unregister stops what is still running
         c = stand()
         wc = vpe.shared(c).worker

@@ -25,9 +25,10 @@ from ..progress import Progress
 from ..settings import Settings
 from . import memory
 from .context import check_render_size, create_context, make_current
-from .frame import FrameJob, read_mask
+from .frame import CameraUniforms, FrameJob, read_mask
 from .lights import select_shadowed_lights
 from .passes import GBufferPass, LightingPass, NoShadowPass, RaytracePass, ShadowMapPass, UpsamplePass
+from .passes.reproject import instance_boxes, merged_boxes
 from .resources import GpuResources
 from .see_through import SeeThroughAccumulation, SeeThroughScene, split_progress, sub_frame_settings, target_samples
 from .targets import read_texture
@@ -101,6 +102,23 @@ class _SharedBake:
         self.baked = None
         self.bake_ms = 0.0
         self.generation = 0
+        self.edits: list = []  # (generation, bake-space boxes it invalidates; None: everything)
+        self.boxes = None  # (n, 2, 3) world boxes of the baked instances
+
+    def changed(self, boxes=None) -> None:
+        """A change of the bake: ``boxes`` (world) are what it can touch, None: anything."""
+        self.generation += 1
+        if boxes is not None and self.baked is not None:
+            boxes = boxes - np.asarray(self.baked.origin, np.float64)
+        self.edits.append((self.generation, boxes))
+        del self.edits[:-64]
+
+    def since(self, generation: int):
+        """The bake-space boxes changed after ``generation``, None where anything may have."""
+        edits = [b for g, b in self.edits if g > generation]
+        if len(edits) != self.generation - generation or any(b is None for b in edits):
+            return None
+        return np.concatenate(edits) if edits else np.zeros((0, 2, 3))
 
 
 class Pipeline:
@@ -114,6 +132,8 @@ class Pipeline:
             self.ctx, self.gpu, self._bake = share.ctx, share.gpu, share._bake
         self._owns_gpu = share is None
         self._generation = self._bake.generation
+        self._camera = None  # the last frame's camera (its CameraUniforms' values)
+        self.reuse = True  # reuse visibility across camera moves and edits (else forget)
         self.programs = self.gpu.programs
         self.scene_textures = self.gpu.scene_textures
         self.gbuffer_pass = GBufferPass(self.gpu)
@@ -170,6 +190,7 @@ class Pipeline:
             self.baked = None  # (textures half uploaded: the next render bakes again)
             raise
         finally:
+            self._bake.boxes = instance_boxes(scene)
             self._bake_changed()
         self._bake.bake_ms = (time.perf_counter() - t0) * 1e3
         return self.bake_ms
@@ -178,36 +199,75 @@ class Pipeline:
         """Instances ``indices`` moved (their matrices in ``scene`` already changed). Stopped
         by ``progress`` (whatever it raises), the bake is dropped: the next render bakes anew."""
         make_current(self.ctx)
-        self._update(self.baked.update_instances, scene, indices, progress)
+        idx = np.asarray(indices, np.int64).reshape(-1)
+        self._update(self.baked.update_instances, scene, indices, progress, idx)
 
     def update_model(self, scene, model_id: int, progress: Progress | None = None) -> None:
         """Model ``model_id`` was edited or added (``progress``: as :meth:`move_instances`)."""
         make_current(self.ctx)
-        self._update(self.baked.update_model, scene, model_id, progress)
+        idx = np.flatnonzero(scene.instances.model_ids == int(model_id))
+        self._update(self.baked.update_model, scene, model_id, progress, idx)
 
-    def _update(self, update, scene, arg, progress) -> None:
-        """An incremental update applied to the bake and its textures; a half-made one (an
-        error, a cancel) drops the bake."""
+    def _update(self, update, scene, arg, progress, idx) -> None:
+        """An incremental update of instances ``idx`` applied to the bake and its textures; a
+        half-made one (an error, a cancel) drops the bake. Their old and new boxes are what it
+        can touch (everything where the instances are not those of the last bake)."""
         try:
             report = update(scene, arg, progress=progress)
             self.scene_textures.apply(self.baked, report)
         except BaseException:
             self.baked = None
-            raise
-        finally:
             self._bake_changed()
+            raise
+        old = self._bake.boxes
+        if old is None or len(old) != len(scene.instances):
+            self._bake.boxes = instance_boxes(scene)
+            self._bake_changed()
+            return
+        new = instance_boxes(scene, idx)
+        boxes = merged_boxes(old[idx], new)
+        old[idx] = new
+        self._bake.changed(boxes)
 
     def _bake_changed(self) -> None:
         """The shared bake changed: this pipeline's history now, its views' at their next render."""
-        self._bake.generation += 1
+        self._bake.changed(None)
         self.reset_history()
 
     def reset_history(self) -> None:
-        """Camera, light or setting change: no pass may reuse what earlier frames left."""
+        """Forget all: no pass may reuse what earlier frames left (a camera move alone needs no
+        call: the passes carry over what stays exact, :mod:`.passes.reproject`)."""
         for p in self._passes():
             p.reset_history()
         self._st.reset()
         self._generation = self._bake.generation
+
+    def reset_light(self, index: int) -> None:
+        """Light ``index`` changed: its history alone is forgotten."""
+        for p in self._passes():
+            p.reset_light(index)
+        self._st.reset()
+
+    def _catch_up(self, scene, width: int, height: int) -> None:
+        """Bring the passes' history up to the bake's edits and this frame's camera."""
+        if self._generation != self._bake.generation:
+            boxes = self._bake.since(self._generation) if self.reuse else None
+            if boxes is None:
+                self.reset_history()  # (another view, or a full bake, changed it)
+            else:
+                for p in self._passes():
+                    p.invalidate(boxes)
+                self._st.reset()
+                self._generation = self._bake.generation
+        c = CameraUniforms.from_camera(scene.camera, width, height)
+        cam = (c.clip_from_rel.tobytes(), c.cam_pos.tobytes(), c.viewplane, c.resolution, c.clip_start, c.ortho)
+        if cam != self._camera and self._camera is not None:
+            if self.reuse:
+                for p in self._passes():
+                    p.camera_moved()
+            else:
+                self.reset_history()
+        self._camera = cam
 
     # -- frame ------------------------------------------------------------------------------------
     def render(self, scene, settings: Settings | None = None, width: int | None = None,
@@ -287,11 +347,12 @@ class Pipeline:
     def _render_frame(self, scene, settings, width, height, film_transparent, read_image, progress,
                       alpha_sample: int | None = None, max_draw_ms: float | None = None) -> Frame:
         """One frame's passes (``alpha_sample``: a see-through sub-frame's sample index)."""
-        if self._generation != self._bake.generation:
-            self.reset_history()  # another view of this bake changed it
+        self._catch_up(scene, width, height)
         shadow = self.shadow_pass(settings.mode)
         lights = select_shadowed_lights(scene, settings)
         step = _Steps(progress, 4 + len(lights))
+        if hasattr(shadow, "reuse"):
+            shadow.reuse.enabled = self.reuse
         if shadow.needs_bake and (self.baked is None or self.baked.structure != settings.structure):
             self.set_scene(scene, settings.structure, step.within if progress is not None else None)
         self._reset_gl_state()  # (a frame aborted by its progress callback may have left any)
@@ -328,6 +389,7 @@ class Pipeline:
             "mask_resolution": shadow_stats["mask_resolution"],
             "rays": shadow_stats["rays"],
             "rays_traced": shadow_stats.get("rays_traced", 0),
+            "pixels_reused": shadow_stats.get("pixels_reused", 0),
             "pixels": shadow_stats.get("pixels", 0),
             "samples": shadow_stats.get("samples", 1),
             "accumulated_samples": shadow_stats.get("accumulated_samples"),

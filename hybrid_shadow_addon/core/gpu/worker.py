@@ -375,8 +375,9 @@ class RenderWorker:
                 pipe.move_instances(item[1], item[2])
             else:
                 pipe.update_model(item[1], item[2])
-        for vp in self._views.values():  # (bake changes reach the views anyway: Pipeline.view)
-            vp.reset_history()
+        if kind == "reset":  # (bake changes reach the views through Pipeline.view, edits as what they touch)
+            for vp in self._views.values():
+                vp.reset_history()
 
     @staticmethod
     def _renderer(pipe) -> str:
@@ -389,8 +390,7 @@ class RenderWorker:
         vp = self._views.get(req.view)
         if vp is None:
             vp = self._views[req.view] = pipe.view()
-        if job.step == 0:
-            vp.reset_history()
+        if job.step == 0:  # (a camera move keeps the history: the view reprojects what stays exact)
             settings = fast_settings(req, self._renderer(pipe))
             job.refine = refine_frames(settings, req.full)
         else:

@@ -27,6 +27,18 @@ class Pass:
     def reset_history(self) -> None:
         """Forget anything carried over from earlier frames (camera, scene or setting change)."""
 
+    def camera_moved(self) -> None:
+        """The camera moved (nothing else): what the pass cannot carry over is forgotten."""
+        self.reset_history()
+
+    def invalidate(self, boxes) -> None:
+        """Objects whose old and new bounds are ``boxes`` ((n, 2, 3), bake space) changed."""
+        self.reset_history()
+
+    def reset_light(self, index: int) -> None:
+        """Light ``index`` changed."""
+        self.reset_history()
+
     def release(self) -> None:
         """Release the pass's own GL objects (not the shared resources)."""
 

@@ -25,6 +25,7 @@ import time
 from ..targets import TargetCache, draw_fullscreen, set_uniforms
 from .base import LightVisibility
 from .light_grid import LightGridCache
+from .reproject import light_key
 from .trace import LightRay, RaytraceOptions, TraceProgram
 
 #: the defines of the trace that the refinement's classify program takes over
@@ -47,9 +48,10 @@ class HardVisibility(LightVisibility):
     """Masks of the lights traced by the frame's plan (:func:`plan_of`), with the interlacing
     history and the hard lights' grids (:attr:`light_grids`)."""
 
-    def __init__(self, gpu, refiner, program: TraceProgram, options: RaytraceOptions):
+    def __init__(self, gpu, refiner, program: TraceProgram, options: RaytraceOptions, reuse=None):
         super().__init__(gpu)
         self.refiner = refiner
+        self.reuse = reuse  # a MaskReprojection: the full plan's hard lights reuse their history
         self.trace = program
         self.options = options
         self.light_grids = LightGridCache(gpu, eager=options.eager_light_grids)
@@ -133,6 +135,8 @@ class HardVisibility(LightVisibility):
         li, defines = ray.index, ray.defines
         full = gbuffer.size
         ctx = self.ctx
+        if plan == "full" and ray.soft is None and self.reuse is not None:
+            return self._trace_reusing(job, ray)
         if plan in ("full", "coarse"):
             scale = 1 if plan == "full" else settings.mask_scale
             size = full if plan == "full" else settings.mask_size(*full)
@@ -178,6 +182,25 @@ class HardVisibility(LightVisibility):
         _, vao, _ = self._program(plain, ray, gbuffer, settings, 1)
         self.refiner.refine(key, dst, vao)
         return dst.texture
+
+    def _trace_reusing(self, job, ray: LightRay):
+        """A hard light's full-resolution mask: the history that stands (:mod:`.reproject`) and
+        rays for the other pixels, or every pixel traced where it has none."""
+        gbuffer, settings, rp = job.gbuffer, job.settings, self.reuse
+        li = ray.index
+        prev, now = rp.history(li, "hard", light_key(ray.light, settings), gbuffer.size)
+        defs = {k: v for k, v in ray.defines.items() if k in CLASSIFY_DEFINES}
+        uniforms = self.trace.uniforms(ray, gbuffer, settings)
+        if prev is None:
+            _, vao, _ = self._program(ray.defines, ray, gbuffer, settings, 1)
+            draw_fullscreen(self.ctx, vao, now[0])
+            rp.fresh(gbuffer, defs, uniforms, now)
+            return now[0].texture
+        rp.mark((li, "reuse"), gbuffer, defs, uniforms, prev, now)
+        _, vao, _ = self._program(ray.defines, ray, gbuffer, settings, 1)
+        self.refiner.refine((li, "retrace"), now[0], vao, kind="retraced")
+        rp.count_reused(now[1])
+        return now[0].texture
 
     def release(self) -> None:
         self.light_grids.close()

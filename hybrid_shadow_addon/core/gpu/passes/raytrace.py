@@ -39,6 +39,7 @@ from .base import ShadowPass
 from .hard import HardVisibility
 from .light_cull import LightCull, cull_candidate
 from .refine import Refiner
+from .reproject import MaskReprojection
 from .soft import SOFT_PROBES, SoftVisibility
 from .trace import LightRay, RaytraceOptions, RaytraceStats, TraceProgram
 
@@ -56,8 +57,9 @@ class RaytracePass(ShadowPass):
         self.trace = TraceProgram(gpu)
         self.refiner = Refiner(gpu)
         self._options = options or RaytraceOptions()
-        self.hard = HardVisibility(gpu, self.refiner, self.trace, self._options)
-        self.soft = SoftVisibility(gpu, self.refiner, self.trace, self._options)
+        self.reuse = MaskReprojection(gpu, self.refiner)
+        self.hard = HardVisibility(gpu, self.refiner, self.trace, self._options, self.reuse)
+        self.soft = SoftVisibility(gpu, self.refiner, self.trace, self._options, self.reuse)
         self.cull = LightCull(gpu)
         self.maps = None  # ConservativeMaps, made by the first frame with Settings.conservative on
         self.last_map_ms = 0.0  # time spent building the maps in the last render (incl. finish)
@@ -80,21 +82,41 @@ class RaytracePass(ShadowPass):
         return self.hard.light_grids
 
     def reset_history(self) -> None:
-        """Forget interlacing and accumulation history (any camera, object, light or setting
-        change)."""
+        """Forget interlacing, accumulation and reuse history."""
         self.hard.reset_history()
         self.soft.reset_history()
+        self.reuse.reset_history()
+
+    def camera_moved(self) -> None:
+        """The camera moved: interlacing starts over; the masks and sums are reprojected."""
+        self.hard.reset_history()
+        self.soft.camera_moved()
+
+    def invalidate(self, boxes) -> None:
+        """Objects with these old and new bounds ((n, 2, 3), bake space) changed: pixels whose
+        shadow rays can meet them trace again, the rest keep their history."""
+        self.hard.reset_history()
+        self.soft.camera_moved()
+        self.reuse.invalidate(boxes)
+
+    def reset_light(self, index: int) -> None:
+        """Light ``index`` changed: its history alone is forgotten."""
+        self.hard.reset_history()
+        self.soft.reset_light(index)
+        self.reuse.reset_light(index)
 
     def shadow_stats(self, job) -> RaytraceStats:
         mw, mh = job.settings.mask_size(*job.size)
         n = len(job.lights)
         valid = self.refiner.count("valid") if n else 0
         if self.hard.plan == "full":
-            traced = valid * (n - len(self.culled))
+            reused = self.reuse.reused_lights
+            traced = valid * (n - len(self.culled) - reused) + (self.refiner.count("retraced") if reused else 0)
         else:
             traced = self.refiner.count("coarse") * (n - len(self.culled)) + self.refiner.count("refined")
         return RaytraceStats(
             mask_resolution=[mw, mh], rays=int(mw * mh * n), rays_traced=int(traced), pixels=int(valid * n),
+            pixels_reused=self.refiner.count("reused") + self.soft.pixels_carried,
             samples=int(max(self._soft_samples, self.soft.most_samples)),
             accumulated_samples=self.soft.accumulated, lights_culled=len(self.culled),
             noise={k: round(v, 6) for k, v in self.soft.last_noise.items()},
@@ -109,6 +131,7 @@ class RaytracePass(ShadowPass):
         self.last_defines = {}
         self.last_map_ms = 0.0
         self.refiner.begin_frame()
+        self.reuse.begin_frame()
         self.hard.begin_frame(job)
         self.soft.begin_frame(job)
         maps = None
@@ -154,6 +177,7 @@ class RaytracePass(ShadowPass):
         self.last_defines.update(self.soft.defines_used)
         self.hard.end_frame(job)
         self.soft.end_frame(job)
+        self.reuse.end_frame(gbuffer)
         if maps is not None:
             self.last_map_ms = maps.last_ms
         if not settings.max_distance > 0:  # (beyond it the no-rays mask is 1: the light may shine there)
@@ -188,6 +212,7 @@ class RaytracePass(ShadowPass):
     def release(self) -> None:
         self.hard.release()
         self.soft.release()
+        self.reuse.release()
         self.cull.release()
         self.refiner.release()
         if self.maps is not None:

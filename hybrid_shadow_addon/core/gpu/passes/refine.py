@@ -75,6 +75,14 @@ class Refiner:
         """Samples passed by the last frame's draws of ``kind`` (waits for the GPU)."""
         return int(sum(q.samples for k, _, q in self.counted if k == kind))
 
+    def counted_draw(self, kind: str, target, vao) -> None:
+        """Draw the full-screen ``vao`` into ``target``, the pixels it does not discard counted
+        as ``kind``."""
+        self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+        target.use(self.ctx)
+        with self._query(kind, None):
+            vao.render(moderngl.TRIANGLES, vertices=3)
+
     def count_valid(self, gbuffer, size, scale: int, kind: str, offset=None) -> None:
         """Count the texels of a ``size`` grid whose source pixel (texel q: ``q * scale + offset``,
         ``offset`` ``scale // 2`` by default, as ``mask_source_pixel``) has geometry."""
@@ -174,25 +182,26 @@ class Refiner:
         d = np.frombuffer(self._depth.read(), np.float32).reshape(h, w)[::-1]
         return d < 0.5
 
-    def refine(self, key, target, vao) -> None:
+    def refine(self, key, target, vao, kind: str = "refined") -> None:
         """Draw the (already set up) full-resolution trace ``vao`` into ``target``
-        where :meth:`classify` marked pixels."""
+        where :meth:`classify` (or :meth:`mark`) marked pixels, counted as ``kind``."""
         fbo = self._fbo(key, target)
         with self._masked(fbo, target):
-            with self._query("refined", key):
+            with self._query(kind, key):
                 self.budget.draw(vao, target.texture.size)
 
-    def mark(self, key, target, vao, color: bool = True) -> None:
+    def mark(self, key, target, vao, color: bool = True, extra=()) -> None:
         """Draw ``vao``, a full-screen program that writes its answers and marks (``gl_FragDepth``
         0: the next :meth:`draw_marked` shades the pixel, 1: done), into ``target`` (``color``
-        False: the marks alone, ``target`` kept)."""
+        False: the marks alone, ``target`` kept; ``extra``: targets of its further outputs)."""
         self.ctx.disable(moderngl.BLEND)
-        fbo = self._fbo(key, target)
-        fbo.color_mask = (color,) * 4
+        fbo = self._fbo(key, target, extra)
+        n = 1 + len(extra)
+        fbo.color_mask = ((color,) * 4,) * n if n > 1 else (color,) * 4
         try:
             self._draw_marks(fbo, target, vao)
         finally:
-            fbo.color_mask = (True,) * 4
+            fbo.color_mask = ((True,) * 4,) * n if n > 1 else (True,) * 4
 
     def _draw_marks(self, fbo, target, vao) -> None:
         """A full-screen draw into ``fbo`` (``target``'s) that writes the depth marks."""
@@ -236,14 +245,14 @@ class Refiner:
     def _masked(self, fbo, target):
         return self._Masked(self.ctx, fbo, target)
 
-    def _fbo(self, key, target):
+    def _fbo(self, key, target, extra=()):
         size = target.texture.size
         if self._depth is None or self._depth.size != size:
             self._release_fbos()
             if self._depth is not None:
                 self._depth.release()
             self._depth = self.ctx.depth_texture(size)
-        colors = [target.texture]
+        colors = [target.texture, *(t.texture for t in extra)]
         hit = self._fbos.get(key)
         if hit is None or len(hit[0]) != len(colors) or any(a is not b for a, b in zip(hit[0], colors)):
             if hit is not None:

@@ -76,9 +76,11 @@ class SoftVisibility(LightVisibility):
     """Masks of the soft lights of a ``full`` plan: probes and refinement, or a frame of the
     accumulation; each filtered within its penumbrae."""
 
-    def __init__(self, gpu, refiner, program: TraceProgram, options: RaytraceOptions):
+    def __init__(self, gpu, refiner, program: TraceProgram, options: RaytraceOptions, reuse=None):
         super().__init__(gpu)
         self.refiner = refiner
+        self.reuse = reuse  # a MaskReprojection: the accumulation carries its sums across moves
+        self.pixels_carried = 0  # pixels (times lights) whose sums the last frame carried over
         self.trace = program
         self.options = options
         self._targets = TargetCache(self.ctx, fill=1.0, what="mask")  # (light, role) -> target
@@ -93,6 +95,14 @@ class SoftVisibility(LightVisibility):
     def reset_history(self) -> None:
         """Forget the accumulation."""
         self._accum.clear()
+
+    def camera_moved(self) -> None:
+        """The camera moved or objects changed."""
+        self.reset_history()
+
+    def reset_light(self, index: int) -> None:
+        """Forget one light's accumulation."""
+        self._accum.pop(index, None)
 
     def begin_frame(self, job) -> None:
         self.most_samples = 1

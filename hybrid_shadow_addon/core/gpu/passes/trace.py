@@ -43,13 +43,15 @@ class RaytraceOptions:
 class RaytraceStats:
     """The ray-traced pass's stats of the last frame (``Frame.stats`` takes them as a dict).
     ``rays_traced`` counts the pixels the trace shaded (occlusion queries), ``pixels`` the
-    pixels with geometry times the shadowed lights, ``lights_culled`` the lights traced by no
+    pixels with geometry times the shadowed lights, ``pixels_reused`` the pixels (times lights)
+    whose visibility came from an earlier frame (:mod:`.reproject`), ``lights_culled`` the lights traced by no
     ray (:mod:`.light_cull`)."""
 
     mask_resolution: list
     rays: int = 0
     rays_traced: int = 0
     pixels: int = 0
+    pixels_reused: int = 0
     samples: int = 1
     accumulated_samples: int | None = None
     lights_culled: int = 0

@@ -1,0 +1,127 @@
+"""Shadow visibility reused across camera moves (``core/gpu/passes/reproject.py``) against fresh
+``high`` frames, same run: per frame of each camera path the rays traced, the shadow ms and the
+share of valid pixels whose reused mask differs from the fresh one.
+
+The paths are the scenes' own camera animations (``forest``, ``city``, ``clusters``: the
+thesis' paths), ``--frames`` consecutive frames from the start of each (a viewport's camera moves
+a little between redraws: ``--step`` animation frames apart), and an orbit of the built-in
+``smooth_shapes``. Lights hard, mode ``raytrace``, quality ``high``; each frame is rendered by a
+reusing pipeline and by a view of it that never reuses (the first frame of each path is fresh
+for both and left out of the ratios).
+
+    .venv/bin/python benchmarks/bench_reuse.py [forest city clusters smooth_shapes] [--size 640x360]
+        [--frames 8] [--step 1] [--json OUT]
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
+from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+
+HARD = Settings(mode="raytrace", quality="high", hard=True)
+
+
+def orbit_cameras(scene, n: int, step: float = 0.02):
+    """``n`` cameras turning about the vertical through the scene's bounds' centre."""
+    lo, hi = scene.world_bounds()
+    c = (np.asarray(lo) + np.asarray(hi)) * 0.5
+    out = []
+    for k in range(n):
+        a = step * k
+        rot = np.array([[np.cos(a), -np.sin(a), 0, 0], [np.sin(a), np.cos(a), 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+        t = np.eye(4)
+        t[:3, 3] = c
+        ti = np.eye(4)
+        ti[:3, 3] = -c
+        out.append(dataclasses.replace(scene.camera, matrix=t @ rot @ ti @ scene.camera.matrix))
+    return out
+
+
+def path_cameras(name: str, n: int, step: int):
+    """The scene and ``n`` cameras of its animation, ``step`` frames apart from its start."""
+    import bpy
+
+    scene = load_scene(name)
+    f0 = bpy.context.scene.frame_start
+    cams = []
+    for k in range(n):
+        bpy.context.scene.frame_set(f0 + k * step)
+        from hybrid_shadow_addon.blender.export import export_depsgraph
+
+        cams.append(export_depsgraph(bpy.context.evaluated_depsgraph_get()).camera)
+    return scene, cams
+
+
+def mismatch(a, b) -> float:
+    bad = valid = 0
+    for li in b.lights:
+        ma, mb = a.mask_array(li), b.mask_array(li)
+        ok = ~np.isnan(mb)
+        bad += int((np.abs(ma - mb)[ok] > 1e-3).sum())
+        valid += int(ok.sum())
+    return bad / max(valid, 1)
+
+
+def run_path(label, scene, cams, w, h) -> dict:
+    pipe = Pipeline()
+    fresh = pipe.view()
+    fresh.reuse = False
+    pipe.set_scene(scene)
+    rows = []
+    try:
+        for k, cam in enumerate(cams):
+            s = dataclasses.replace(scene, camera=cam)
+            a = pipe.render(s, HARD, w, h)
+            b = fresh.render(s, HARD, w, h)
+            rows.append(dict(frame=k, rays_traced=a.stats["rays_traced"], fresh_rays=b.stats["rays_traced"],
+                             pixels_reused=a.stats["pixels_reused"], shadow_ms=round(a.timings["shadow_ms"], 2),
+                             fresh_shadow_ms=round(b.timings["shadow_ms"], 2), mismatch=mismatch(a, b)))
+            r = rows[-1]
+            print(f"{label} {k}: rays {r['rays_traced']} / {r['fresh_rays']}, shadow {r['shadow_ms']:.1f} / "
+                  f"{r['fresh_shadow_ms']:.1f} ms, mismatch {100 * r['mismatch']:.4f} %", flush=True)
+    finally:
+        fresh.release()
+        pipe.release()
+    later = rows[1:]
+    summary = dict(rays_ratio=sum(r["rays_traced"] for r in later) / max(1, sum(r["fresh_rays"] for r in later)),
+                   ms_ratio=float(np.median([r["shadow_ms"] / max(r["fresh_shadow_ms"], 1e-9) for r in later])),
+                   worst_mismatch=max(r["mismatch"] for r in later))
+    print(f"{label}: rays {summary['rays_ratio']:.3f} of fresh, shadow ms {summary['ms_ratio']:.2f}x (median), "
+          f"worst mismatch {100 * summary['worst_mismatch']:.4f} %", flush=True)
+    return dict(frames=rows, **summary)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("scenes", nargs="*", default=["forest", "city", "clusters", "smooth_shapes"])
+    ap.add_argument("--size", default="640x360")
+    ap.add_argument("--frames", type=int, default=8)
+    ap.add_argument("--step", type=int, default=1)
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args(argv)
+    w, h = (int(v) for v in args.size.split("x"))
+    out = {}
+    for name in args.scenes:
+        if name == "smooth_shapes":
+            scene = load_scene(name)
+            cams = orbit_cameras(scene, args.frames)
+        else:
+            scene, cams = path_cameras(name, args.frames, args.step)
+        out[name] = run_path(name, scene, cams, w, h)
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

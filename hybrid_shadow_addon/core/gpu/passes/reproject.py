@@ -1,0 +1,232 @@
+"""Shadow visibility reused across camera moves and scene edits (``shaders/reproject.glsl``).
+
+Visibility of a light from a surface point does not depend on the camera. Each frame keeps its
+G-buffer (world positions, normals, instances: STORE) and camera; the next frame looks each
+pixel's world position up in that image and keeps what was known there where the surface is the
+same (same instance, normals and position within tolerances scaled to the pixel footprint, no
+grazing view), and, for a hard light's mask, where the old mask's 3x3 neighbourhood holds no
+shadow edge and its samples are no sparser than this frame's pixels. The other pixels (disoccluded,
+at an edge, grazing, zoomed into) are marked for the trace under the refinement's depth test.
+
+Edits invalidate only what they can touch: :meth:`MaskReprojection.invalidate` takes the old and
+new bounds of edited objects; a pixel whose shadow segment (a soft light's cone: the segment to
+its centre, the boxes widened by its extent) can meet one gives up its history.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..targets import TargetCache, draw_fullscreen, set_uniforms
+from .base import Pass
+
+MAX_BOXES = 32  # HS_MAX_BOXES of shaders/reproject.glsl: more edited boxes forget everything
+
+
+def light_key(light, settings) -> tuple:
+    """What a light's mask depends on besides the scene and the surface point (a change of any
+    of it starts that light over)."""
+    return (light.type, np.asarray(light.matrix, np.float64).tobytes(), float(light.radius), float(light.angle),
+            float(light.spot_size), float(light.size), float(light.size_y), str(light.area_shape),
+            float(light.spread), int(light.receiver_set), int(light.blocker_set), bool(light.use_shadow),
+            float(settings.max_distance), bool(settings.hard))
+
+
+def light_pad(light, soft) -> tuple:
+    """``(absolute, per metre)`` widening of edited boxes that covers a soft light's cone around
+    the segment to its centre (0, 0 for a hard light)."""
+    if soft is None:
+        return 0.0, 0.0
+    if light.type == "SUN":
+        return 0.0, float(np.tan(min(float(light.angle), 3.0) / 2.0))
+    return float(max(light.radius, light.size, light.size_y, 0.0)), 0.0
+
+
+class MaskReprojection(Pass):
+    """One view's history for reuse: the last frame's packed G-buffer and camera, and each
+    light's last mask (hard: mask and sample spacing; soft: the accumulated sums) in ping-pong
+    targets. ``rules``: :attr:`RULES` (see ``shaders/reproject.glsl``)."""
+
+    RULES = dict(pos_tol=0.25, normal_cos=0.99, view_cos=0.2, spacing_ratio=1.5, same_instance=True)
+
+    def __init__(self, gpu, refiner, **rules):
+        super().__init__(gpu)
+        self.refiner = refiner
+        self.rules = {**self.RULES, **rules}
+        self.enabled = True
+        self._targets = TargetCache(self.ctx, fill=1.0, what="reprojection target")
+        self._prev = None  # (CameraUniforms, size, frame id) of the stored G-buffer
+        self._frame = 0
+        self._lights: dict = {}  # (light, kind) -> (ping-pong index, key, frame id of its targets)
+        self._touched: dict = {}  # the same for this frame's lights
+        self._boxes: list = []  # (min, max) bake-space boxes edited since the stored frame
+        self.reused_lights = 0  # lights of the last frame that drew on their history
+
+    def reset_history(self) -> None:
+        """Forget everything (``Pipeline.reset_history``)."""
+        self._prev = None
+        self._lights.clear()
+        self._boxes = []
+
+    def reset_light(self, index: int) -> None:
+        """Forget one light's history."""
+        for k in [k for k in self._lights if k[0] == index]:
+            del self._lights[k]
+
+    def invalidate(self, boxes) -> None:
+        """Objects whose old or new bounds are ``boxes`` ((n, 2, 3) bake space) changed: the
+        next frame's pixels whose shadow segments can meet one trace again."""
+        boxes = np.asarray(boxes, np.float64).reshape(-1, 2, 3)
+        if len(self._boxes) + len(boxes) > MAX_BOXES:
+            self.reset_history()
+            return
+        self._boxes.extend((b[0], b[1]) for b in boxes)
+
+    # -- per frame --------------------------------------------------------------------------------
+    def begin_frame(self) -> None:
+        self._touched = {}
+        self.reused_lights = 0
+
+    def history(self, index: int, kind: str, key, size):
+        """``(previous, current)`` targets of light ``index``'s ``kind`` (``hard``: (mask,
+        spacing) pairs; ``soft``: sums), the previous None where it has no usable history."""
+        h = self._lights.get((index, kind))
+        usable = (self.enabled and h is not None and self._prev is not None and h[1] == key
+                  and h[2] == self._prev[2] and self._prev[1] == tuple(size))
+        cur = 0 if h is None else 1 - h[0]
+        self._touched[(index, kind)] = (cur, key)
+        comps = (1, 1) if kind == "hard" else (4,)
+        names = ("mask", "spacing") if kind == "hard" else ("sums",)
+
+        def pair(i):
+            return tuple(self._targets.get((index, kind, name, i), *size, components=c)
+                         for name, c in zip(names, comps))
+
+        return (pair(1 - cur) if usable else None), pair(cur)
+
+    def bind(self, prog, gbuffer, ray_uniforms: dict, pad=(0.0, 0.0)) -> int:
+        """Bind the G-buffer, the stored one and the rules to ``prog``: the next free unit."""
+        cam, _, _ = self._prev
+        unit = gbuffer.bind(prog)
+        geo, nrm = (self._targets.get(("gbuffer", name), *self._prev[1], components=4) for name in ("geo", "nrm"))
+        geo.texture.use(unit)
+        nrm.texture.use(unit + 1)
+        boxes = np.zeros((MAX_BOXES, 2, 3), np.float32)
+        for i, (lo, hi) in enumerate(self._boxes):
+            boxes[i] = lo, hi
+        r = self.rules
+        set_uniforms(prog, {**ray_uniforms, "u_prev_geo": unit, "u_prev_nrm": unit + 1,
+                            "u_prev_clip": cam.clip_from_rel.T.astype("f4").tobytes(),
+                            "u_cam_delta": tuple(float(v) for v in gbuffer.camera.cam_pos - cam.cam_pos),
+                            "u_pos_tol": float(r["pos_tol"]), "u_normal_cos": float(r["normal_cos"]),
+                            "u_view_cos": float(r["view_cos"]), "u_same_instance": int(bool(r["same_instance"])),
+                            "u_boxes": len(self._boxes),
+                            "u_pad_abs": float(pad[0]), "u_pad_slope": float(pad[1])})
+        for name, col in (("u_box_min", 0), ("u_box_max", 1)):
+            if name in prog:
+                prog[name].write(np.ascontiguousarray(boxes[:, col]).tobytes())
+        return unit + 2
+
+    def mark(self, key, gbuffer, defines: dict, ray_uniforms: dict, prev, now) -> None:
+        """Hard light: write into ``now`` (mask, spacing) the answers known without a ray and the
+        history that stands, and mark the rest for the trace (:meth:`Refiner.refine`)."""
+        prog, vao = self.programs.fullscreen("reproject", defines)
+        unit = self.bind(prog, gbuffer, ray_uniforms)
+        prev[0].texture.use(unit)
+        prev[1].texture.use(unit + 1)
+        cam = self._prev[0]
+        still = (np.array_equal(cam.clip_from_rel, gbuffer.camera.clip_from_rel)
+                 and np.array_equal(cam.cam_pos, gbuffer.camera.cam_pos) and self._prev[1] == tuple(gbuffer.size))
+        set_uniforms(prog, {"u_prev_mask": unit, "u_prev_spacing": unit + 1, "u_still": int(still),
+                            "u_spacing_ratio": float(self.rules["spacing_ratio"])})
+        self.refiner.mark(key, now[0], vao, extra=(now[1],))
+        self.reused_lights += 1
+
+    def count_reused(self, spacing) -> None:
+        """Count (occlusion query ``reused``) the pixels of the last :meth:`mark` that kept their
+        history."""
+        prog, vao = self.programs.fullscreen("reproject", {"COUNT": 1})
+        spacing.texture.use(0)
+        set_uniforms(prog, {"u_spacing": 0})
+        self.refiner.counted_draw("reused", self._targets.get("count", *spacing.texture.size), vao)
+
+    def fresh(self, gbuffer, defines: dict, ray_uniforms: dict, now) -> None:
+        """A freshly traced mask's spacing target (no history used)."""
+        self._store_spacing(gbuffer, defines, ray_uniforms, now)
+
+    def _store_spacing(self, gbuffer, defines, ray_uniforms, now) -> None:
+        prog, vao = self.programs.fullscreen("reproject", {**defines, "FRESH": 1})
+        gbuffer.bind(prog)
+        set_uniforms(prog, ray_uniforms)
+        draw_fullscreen(self.ctx, vao, now[1])
+
+    def carry_sums(self, gbuffer, defines: dict, ray_uniforms: dict, pad, prev, out) -> None:
+        """Soft light: ``out`` = the previous sums where the surface is the same, else 0."""
+        prog, vao = self.programs.fullscreen("reproject", {**defines, "SOFT": 1})
+        unit = self.bind(prog, gbuffer, ray_uniforms, pad)
+        prev.texture.use(unit)
+        set_uniforms(prog, {"u_prev_sums": unit})
+        draw_fullscreen(self.ctx, vao, out)
+        self.reused_lights += 1
+
+    def end_frame(self, gbuffer) -> None:
+        """Keep this frame's G-buffer and camera, and the history of the lights it drew."""
+        if not self._touched:
+            return
+        self._frame += 1
+        size = gbuffer.size
+        geo, nrm = (self._targets.get(("gbuffer", name), *size, components=4) for name in ("geo", "nrm"))
+        fb = self._store_fbo(geo, nrm)
+        prog, vao = self.programs.fullscreen("reproject", {"STORE": 1})
+        gbuffer.bind(prog)
+        fb.use()
+        self.ctx.viewport = (0, 0, *size)
+        vao.render(vertices=3)
+        self._prev = (gbuffer.camera, tuple(size), self._frame)
+        for k, (cur, key) in self._touched.items():
+            self._lights[k] = (cur, key, self._frame)
+        for k in [k for k in self._lights if self._lights[k][2] != self._frame]:
+            del self._lights[k]
+        self._boxes = []
+
+    def _store_fbo(self, geo, nrm):
+        cached = getattr(self, "_fb", None)
+        if cached is not None and cached[0] is geo.texture and cached[1] is nrm.texture:
+            return cached[2]
+        if cached is not None:
+            cached[2].release()
+        fb = self.ctx.framebuffer(color_attachments=[geo.texture, nrm.texture])
+        self._fb = (geo.texture, nrm.texture, fb)
+        return fb
+
+    def release(self) -> None:
+        cached = getattr(self, "_fb", None)
+        if cached is not None:
+            cached[2].release()
+            self._fb = None
+        self._targets.release()
+
+
+def instance_boxes(scene, indices=None) -> np.ndarray:
+    """(n, 2, 3) float64 world boxes (min, max) of instances ``indices`` (None: all)."""
+    inst = scene.instances
+    idx = np.arange(len(inst)) if indices is None else np.asarray(indices, np.int64).reshape(-1)
+    if not len(idx):
+        return np.zeros((0, 2, 3))
+    mids = inst.model_ids[idx]
+    bmin = np.array([m.bounds_min for m in scene.models], np.float64).reshape(-1, 3)[mids]
+    bmax = np.array([m.bounds_max for m in scene.models], np.float64).reshape(-1, 3)[mids]
+    mats = inst.matrices[idx]
+    c = np.einsum("nij,nj->ni", mats[:, :3, :3], (bmin + bmax) * 0.5) + mats[:, :3, 3]
+    h = np.einsum("nij,nj->ni", np.abs(mats[:, :3, :3]), (bmax - bmin) * 0.5)
+    return np.stack([c - h, c + h], axis=1)
+
+
+def merged_boxes(old: np.ndarray, new: np.ndarray) -> np.ndarray:
+    """The boxes an edit invalidates: ``old`` and ``new`` (each (n, 2, 3)), or where they are
+    more than a quarter of MAX_BOXES, each side's union (coarser, never smaller)."""
+    parts = []
+    for b in (old, new):
+        if len(b) > MAX_BOXES // 4:
+            b = np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])[None]
+        parts.append(b)
+    return np.concatenate(parts).reshape(-1, 2, 3)
