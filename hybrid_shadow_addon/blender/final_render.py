@@ -26,6 +26,8 @@ from .gl import final_renderer
 
 #: final-render bakes of this process by kind (``full``, ``incremental``, ``none``)
 BAKES = {FULL: 0, INCREMENTAL: 0, NONE: 0}
+#: the stats of the last final frame (its GPU memory before, at the peak and after, in MB)
+LAST_STATS: dict = {}
 
 SHADOW_PASS_PREFIX = "Shadow "
 BACKGROUND_DEPTH = 1.0e10
@@ -184,6 +186,8 @@ def render(engine, depsgraph) -> None:
             want=wanted_buffers(scene, view_layer), masks=bool(shadow_pass_lights(scene, view_layer)),
             max_draw_ms=MAX_DRAW_MS)
         BAKES[frame.stats.get("bake", NONE)] += 1
+        LAST_STATS.clear()
+        LAST_STATS.update(frame.stats)
         write_result(engine, core, frame, scene, view_layer, width, height)
     except Cancelled:  # before HybridShadowError, its base class: a cancel is no error
         return
@@ -262,8 +266,9 @@ def write_result(engine, core, frame, scene, view_layer, width, height) -> None:
             rp.rect.foreach_set(_bottom_up(m, region).ravel())
         t = frame.timings
         bake = frame.stats.get("bake")
+        peak = frame.stats.get("gpu_peak_mb")
         _stats(engine, f"Hybrid Shadows | {settings_label(frame)} | {t.get('total_ms', 0):.0f} ms"
-                                + (f" | bake: {bake}" if bake else ""))
+                                + (f" | bake: {bake}" if bake else "") + (f" | GPU peak {peak:.0f} MB" if peak else ""))
         engine.update_progress(1.0)
     finally:
         engine.end_result(result, cancel=cancelled)

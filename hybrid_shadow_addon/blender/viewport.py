@@ -388,38 +388,21 @@ def viewport_camera(view_matrix, window_matrix, width: int, height: int) -> Came
 # ------------------------------------------------------------------------------------------------
 # Display through Blender's gpu module
 # ------------------------------------------------------------------------------------------------
-def display_encoding(scene) -> str:
-    """How frames cross to the display: ``"srgb8"`` (8-bit sRGB, a quarter of the bytes of RGBA
-    float) where the scene's view transform is the plain sRGB curve (Standard, no look, no
-    exposure, gamma or curves, an sRGB display), where 8 bits lose nothing the display shows;
-    else ``"float"`` (half floats: values above 1 matter to the other view transforms)."""
-    vs, ds = scene.view_settings, scene.display_settings
-    plain = (vs.view_transform == "Standard" and vs.look in ("None", "") and abs(vs.exposure) < 1e-6
-             and abs(vs.gamma - 1.0) < 1e-6 and not vs.use_curve_mapping and ds.display_device == "sRGB")
-    return "srgb8" if plain else "float"
-
-
 @dataclass
 class DisplayImage:
-    """A frame ready for the display: rows bottom-up, ``format`` the ``GPUTexture`` format and
-    ``buffer`` the ``gpu.types.Buffer`` made where the frame arrived (None: made at upload)."""
+    """A frame ready for the display: rows bottom-up as half floats, and the ``gpu.types.Buffer``
+    of its float32 values made where the frame arrived (None: made at upload). The texture is
+    RGBA32F: Blender's ``GPUTexture`` takes float32 data only, and a float32 texture takes it
+    without a conversion on the drawing thread."""
 
     width: int
     height: int
-    format: str
     array: np.ndarray
     buffer: object = None
 
     def image(self) -> np.ndarray:
         """The frame as float32 (H, W, 4), row 0 = top (for tests and debugging)."""
-        a = self.array[::-1]
-        if self.format == "SRGB8_A8":
-            from ..core.bake.materials import srgb_decode
-
-            out = a.astype(np.float32) / 255.0
-            out[..., :3] = srgb_decode(out[..., :3])
-            return out
-        return a.astype(np.float32)
+        return self.array[::-1].astype(np.float32)
 
 
 def prepare_display(array: np.ndarray) -> DisplayImage:
@@ -427,8 +410,7 @@ def prepare_display(array: np.ndarray) -> DisplayImage:
     :class:`DisplayImage`; made on the thread that receives frames, so the draw callback only
     uploads it."""
     h, w = array.shape[:2]
-    srgb = array.dtype == np.uint8
-    out = DisplayImage(w, h, "SRGB8_A8" if srgb else "RGBA16F", array)
+    out = DisplayImage(w, h, array)
     try:
         out.buffer = _gpu_buffer(out)
     except Exception:  # (no gpu module in background mode before Blender has a GPU context)
@@ -439,10 +421,8 @@ def prepare_display(array: np.ndarray) -> DisplayImage:
 def _gpu_buffer(img: DisplayImage):
     import gpu
 
-    n = img.width * img.height * 4
-    if img.format == "SRGB8_A8":
-        return gpu.types.Buffer("UBYTE", n, img.array.reshape(-1))
-    return gpu.types.Buffer("FLOAT", n, np.asarray(img.array, np.float32).reshape(-1))
+    data = img.array.astype(np.float32)  # (numpy's cast runs without Python's lock)
+    return gpu.types.Buffer("FLOAT", img.width * img.height * 4, data.reshape(-1))
 
 
 class ViewportDisplay:
@@ -460,9 +440,9 @@ class ViewportDisplay:
         if not isinstance(image, DisplayImage):
             from ..core.gpu.render_server import encode_image
 
-            image = DisplayImage(image.shape[1], image.shape[0], "RGBA16F", encode_image(image, "float"))
+            image = DisplayImage(image.shape[1], image.shape[0], encode_image(image))
         buf = image.buffer if image.buffer is not None else _gpu_buffer(image)
-        self.texture = gpu.types.GPUTexture((image.width, image.height), format=image.format, data=buf)
+        self.texture = gpu.types.GPUTexture((image.width, image.height), format="RGBA32F", data=buf)
         self.size = (image.width, image.height)
 
     def draw(self, scene, width: int, height: int, engine=None) -> None:

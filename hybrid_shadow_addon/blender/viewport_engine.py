@@ -2,7 +2,7 @@
 
 Rendering happens off the draw callback and out of Blender's process, in a renderer process
 (:class:`~..core.gpu.remote.RemoteWorker`: its own OpenGL context and bake; waiting for it never
-holds Python's lock, and its frames arrive as half floats or 8-bit sRGB, flipped and wrapped in a
+holds Python's lock, and its frames arrive as half floats, flipped and wrapped in a
 ``gpu.types.Buffer`` on the receiving thread, so the draw callback only uploads them). The
 viewports of one scene, view layer and local view share one (:data:`_registry`: a
 :class:`~..core.gpu.worker.SharedViewport` with the worker and one
@@ -40,7 +40,7 @@ from ..core.gpu.worker import RenderRequest, RenderWorker, SharedRegistry, Share
 from . import gl
 from .export.curves import TUBES
 from .final_render import settings_label
-from .viewport import ViewportDisplay, ViewportSync, display_encoding, prepare_display, viewport_camera
+from .viewport import ViewportDisplay, ViewportSync, prepare_display, viewport_camera
 
 #: the shared state of the viewports of each (scene, view layer, local view)
 _registry = SharedRegistry()
@@ -217,8 +217,7 @@ def view_render(engine, scene, rv3d, width, height) -> None:
         post = None if props.debug_view == "NONE" else DebugView(props.debug_view, light)
         engine._vp_sent = worker.render(RenderRequest(view=engine._vp_user, scene=core, fast=fast, full=full,
                                                       width=width, height=height, film_transparent=film, post=post,
-                                                      fast_auto=props.navigation_quality == "AUTO",
-                                                      display=display_encoding(scene)))
+                                                      fast_auto=props.navigation_quality == "AUTO"))
         engine._vp_refining = True
     worker.pump()  # (inline mode only: one frame now)
     show_result(engine, worker)

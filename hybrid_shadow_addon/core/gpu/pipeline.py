@@ -431,9 +431,10 @@ class Pipeline:
         self._st = SeeThroughAccumulation(self.ctx)
 
     def drop_bake(self) -> None:
-        """Give back the baked scene's textures (the next ray-traced frame bakes again)."""
+        """Give back the scene: the bake's textures, the model buffers, material and linking
+        textures (the next frame makes them again; a ray-traced one bakes again)."""
         make_current(self.ctx)
-        self.scene_textures.release()
+        self.gpu.release_scene()
         self.baked = None
         self._bake_changed()
 

@@ -9,8 +9,8 @@ calls that release the lock. A child that dies (a driver fault, a failed context
 error on the next poll; the next message starts a new one.
 
 - :class:`RemoteWorker`: the viewport's :class:`~.worker.RenderWorker` interface, with a
-  ``prepare(image)`` hook that turns each arriving frame (rows bottom-up, half floats or 8-bit
-  sRGB) into what the display takes, on the receiver thread.
+  ``prepare(image)`` hook that turns each arriving frame (rows bottom-up, half floats) into what
+  the display takes, on the receiver thread.
 - :class:`FinalRenderer`: one final frame at a time; ``should_stop`` is polled every 20 ms and a
   cancel the child does not acknowledge within :data:`CANCEL_S` ends the child.
 """
@@ -254,8 +254,8 @@ class RemoteWorker:
             seq = next(self._seq)
             self._seen.setdefault(request.view, self._error_n)
         scene = request.scene
-        refs = (scene.instances, scene.models, scene.lights, scene.materials, scene.images, scene.world_color)
-        key = tuple(map(id, refs)) + (scene.name,)
+        refs = (scene.instances, scene.models, scene.lights, scene.materials, scene.images)
+        key = tuple(map(id, refs)) + (scene.name, tuple(np.asarray(scene.world_color).tolist()))
         if key != self._scene_key:
             self._scene_key, self._scene_refs, self._token = key, refs, next(self._tokens)
             self._proc.post(("scene", self._token, dataclasses.replace(scene, camera=None)))

@@ -25,21 +25,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import Cancelled
-from ..image import to_srgb8
 from . import memory
 from .channel import error_info, read_message, write_message
 
 MB = float(1 << 20)
 
 
-def encode_image(image: np.ndarray, display: str) -> np.ndarray:
-    """A frame (float32 (H, W, 4), row 0 = top) as the display takes it: rows bottom-up (GL's
-    order), half floats (``"float"``), or 8-bit sRGB where the view transform is the plain sRGB
-    curve (``"srgb8"``)."""
-    flipped = image[::-1]
-    if display == "srgb8":
-        return np.ascontiguousarray(to_srgb8(flipped))
-    return np.clip(flipped, -65504.0, 65504.0).astype(np.float16)
+def encode_image(image: np.ndarray) -> np.ndarray:
+    """A frame (float32 (H, W, 4), row 0 = top) as it crosses to the display: rows bottom-up
+    (GL's order), half floats (what the display shows; half the bytes of float32)."""
+    return np.clip(image[::-1], -65504.0, 65504.0).astype(np.float16)
 
 
 @dataclass
@@ -171,7 +166,7 @@ class Server:
         self.cancel = threading.Event()
         self.acked = 0
         self.worker = None
-        self.views: dict = {}  # view -> display encoding
+        self.views: set = set()  # views with render requests
         self.scenes: dict = {}  # token -> scene (without a camera) of render requests
         self.seqs: dict = {}  # the worker's request numbers -> the caller's
         self.final = FinalJobs(self.send, self.cancel)
@@ -249,21 +244,21 @@ class Server:
             base = self.scenes[token]
             request.scene = dataclasses.replace(base, camera=request.scene.camera, resolution=request.scene.resolution)
             self.seqs[w.render(request)] = seq
-            self.views[request.view] = request.display
+            self.views.add(request.view)
             for old in sorted(self.seqs)[:-64]:
                 del self.seqs[old]
         elif kind == "drop":
             w.drop_view(body[1])
-            self.views.pop(body[1], None)
+            self.views.discard(body[1])
 
     def _send_results(self) -> None:
-        for view, display in list(self.views.items()):
+        for view in list(self.views):
             result, errors = self.worker.poll(view)
             if result is None and not errors:
                 continue
             if result is not None:
                 result.seq = self.seqs.get(result.seq, 0)
-                result.image = encode_image(result.image, display)
+                result.image = encode_image(result.image)
                 result.stats["gpu_memory_mb"] = round(memory.in_use(self.worker._pipe.ctx) / MB, 1) \
                     if self.worker._pipe is not None else 0.0
             self.send(("result", view, result, [error_info(e) for e in errors]))

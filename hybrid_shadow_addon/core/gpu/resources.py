@@ -64,9 +64,14 @@ class GpuResources:
                 t.release()
             self._own_materials = None
 
-    def release(self) -> None:
+    def release_scene(self) -> None:
+        """Give back everything of the scene (model buffers, baked and material textures, the
+        linking's); the compiled programs stay."""
         self._release_own()
         self.models.release()
         self.scene_textures.release()
         self.linking.release()
+
+    def release(self) -> None:
+        self.release_scene()
         self.programs.release()

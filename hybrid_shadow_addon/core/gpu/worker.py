@@ -99,7 +99,6 @@ class RenderRequest:
     post: object = None
     seq: int = 0
     fast_auto: bool = False  # the fast pass's quality follows the renderer (fast_settings)
-    display: str = "float"  # a renderer process's frame encoding (render_server.encode_image)
 
 
 @dataclass

@@ -1,0 +1,191 @@
+"""The renderer process (``core/gpu/remote.py``): GL work in a child process, so that waiting
+for the driver never holds the caller's Python lock.
+
+- the viewport's RemoteWorker renders what the in-process worker renders (as half floats), in
+  another process, and a thread of the caller keeps ticking meanwhile, where the in-process
+  worker's GL frames stall it;
+- a child that dies is an error on the next poll, and the next render starts a new one;
+- a final render gives its targets back (and, without persistent data, its bake), keeps the bake
+  with persistent data, and stops within 0.2 s of a cancel, in the bake or between tiles.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from hybrid_shadow_addon.core.errors import Cancelled
+from hybrid_shadow_addon.core.gpu.channel import RendererError
+from hybrid_shadow_addon.core.gpu.remote import FinalRenderer, RemoteWorker
+from hybrid_shadow_addon.core.gpu.render_server import encode_image
+from hybrid_shadow_addon.core.gpu.worker import RenderRequest, RenderWorker
+from hybrid_shadow_addon.core.settings import Settings
+
+pytestmark = [pytest.mark.blender, pytest.mark.gpu]
+
+SIZE = (320, 180)
+
+
+class Ticker(threading.Thread):
+    """Sleeps 1 ms at a time and records the longest gap between its ticks (it needs Python's
+    lock to tick, as Blender's interface does)."""
+
+    def __init__(self):
+        super().__init__(daemon=True)
+        self.gap = 0.0
+        self.running = True
+
+    def run(self):
+        last = time.perf_counter()
+        while self.running:
+            time.sleep(0.001)
+            now = time.perf_counter()
+            self.gap = max(self.gap, now - last)
+            last = now
+
+    def stop(self) -> float:
+        self.running = False
+        self.join(5)
+        return self.gap * 1e3
+
+
+def _request(scene, settings, view="v", size=SIZE):
+    return RenderRequest(view=view, scene=dataclasses.replace(scene, resolution=size), fast=settings, full=settings,
+                         width=size[0], height=size[1])
+
+
+def _render(worker, request, timeout=300):
+    worker.render(request)
+    assert worker.wait_idle(timeout)
+    result, errors = worker.poll(request.view)
+    assert not errors, errors
+    return result
+
+
+def test_the_process_renders_what_the_thread_renders(loaded):
+    scene = loaded("cube_on_plane")
+    settings = Settings(hard=True)
+    local = RenderWorker()
+    remote = RemoteWorker()
+    try:
+        want = _render(local, _request(scene, settings))
+        got = _render(remote, _request(scene, settings))
+        assert remote.pid not in (None, os.getpid())
+        assert got.image.dtype == np.float16 and got.image.shape == (SIZE[1], SIZE[0], 4)
+        assert np.array_equal(got.image, encode_image(want.image))  # bottom-up half floats
+        assert got.stats["gpu_memory_mb"] > 0
+        # a camera-only change crosses without the scene: the same scene token
+        moved = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, matrix=scene.camera.matrix.copy()))
+        moved.camera.matrix[0, 3] += 0.25
+        token = remote._token
+        again = _render(remote, _request(moved, settings))
+        assert remote._token == token and not np.array_equal(again.image, got.image)
+    finally:
+        local.close()
+        remote.close()
+
+
+def test_waiting_for_the_process_does_not_hold_the_lock(loaded):
+    """A heavy soft frame: the in-process worker's GL calls stall a ticking thread for a long
+    stretch; the renderer process's do not."""
+    scene = loaded("forest")
+    settings = Settings(samples=64)
+    gaps = {}
+    for name, make in (("process", RemoteWorker), ("thread", RenderWorker)):
+        worker = make()
+        try:
+            _render(worker, _request(scene, settings, size=(160, 90)))  # warm-up: context, bake, programs
+            ticker = Ticker()
+            ticker.start()
+            t0 = time.perf_counter()
+            _render(worker, _request(scene, settings, view="w", size=(640, 360)))
+            gaps[name] = (ticker.stop(), (time.perf_counter() - t0) * 1e3)
+        finally:
+            worker.close()
+    (gap_p, _frame_p), (gap_t, frame_t) = gaps["process"], gaps["thread"]
+    assert frame_t > 300 and gap_t > 100, gaps  # (the stall the process removes)
+    assert gap_p < 100 and gap_p < gap_t / 3, gaps  # (the machine may be busy: scheduling, not the lock)
+
+
+def test_a_dead_renderer_is_an_error_and_the_next_render_starts_a_new_one(loaded):
+    scene = loaded("cube_on_plane")
+    settings = Settings(hard=True)
+    remote = RemoteWorker()
+    try:
+        first = _render(remote, _request(scene, settings))
+        pid = remote.pid
+        remote._proc.kill()
+        deadline = time.monotonic() + 10
+        errors = []
+        while not errors and time.monotonic() < deadline:
+            errors = remote.poll("v")[1]
+            time.sleep(0.02)
+        assert len(errors) == 1 and isinstance(errors[0], RendererError), errors
+        assert "ended unexpectedly" in str(errors[0])
+        again = _render(remote, _request(scene, settings))
+        assert remote.pid != pid and np.array_equal(again.image, first.image)
+    finally:
+        remote.close()
+
+
+@pytest.fixture(scope="module")
+def final():
+    renderer = FinalRenderer()
+    yield renderer
+    renderer.close()
+
+
+def test_a_final_render_gives_its_memory_back(loaded, final):
+    scene = loaded("soft_lights")
+    settings = Settings(samples=4)
+    data = final.render(scene, settings, *SIZE, want=("depth",))
+    s = data.stats
+    assert s["gpu_peak_mb"] > 1.0 and s["gpu_memory_after_mb"] == 0.0, s
+    assert set(data.masks) == set(data.lights) and data.buffers["depth"].shape == (SIZE[1], SIZE[0])
+    # with persistent data the bake stays (and only it); the next frame updates it
+    kept = final.render(scene, settings, *SIZE, persistent_key=("file", "scene", "layer"))
+    assert kept.stats["bake"] == "full" and 0.0 < kept.stats["gpu_memory_after_mb"] < kept.stats["gpu_peak_mb"]
+    again = final.render(scene, settings, *SIZE, persistent_key=("file", "scene", "layer"))
+    assert again.stats["bake"] == "none" and again.stats["gpu_memory_before_mb"] == kept.stats["gpu_memory_after_mb"]
+    assert np.array_equal(again.image, kept.image)
+
+
+def _cancel_after(final, scene, settings, size, after_s, **options):
+    """Render, asking to stop ``after_s`` s in; returns (seconds from the request to the stop,
+    the labels reached)."""
+    labels = []
+    asked = {}
+
+    def should_stop():
+        if time.perf_counter() - t0 >= after_s:
+            asked.setdefault("t", time.perf_counter())
+            return True
+        return False
+
+    t0 = time.perf_counter()
+    with pytest.raises(Cancelled):
+        final.render(scene, settings, *size, should_stop=should_stop,
+                     on_progress=lambda d, n, label: labels.append(label), **options)
+    return time.perf_counter() - asked["t"], labels
+
+
+def test_a_cancelled_final_render_stops_within_0_2_s(loaded, final):
+    scene = loaded("forest")
+    settings = Settings(samples=64)
+    first = final.render(scene, Settings(hard=True), 64, 36)  # programs compiled, process up
+    pid = final.pid
+    # between tiles of the soft trace
+    took, labels = _cancel_after(final, scene, settings, (960, 540), 1.5, max_draw_ms=100.0)
+    assert took < 0.2, (took, labels[-3:])
+    assert any("tile" in label for label in labels), labels[-5:]
+    # in the bake (a structure of its own: baked afresh)
+    took, labels = _cancel_after(final, scene, dataclasses.replace(settings, structure="grid"), (960, 540), 0.02)
+    assert took < 0.2, (took, labels[-3:])
+    # the next render works, in the same process when the child stopped in time
+    again = final.render(scene, Settings(hard=True), 64, 36)
+    assert np.array_equal(again.image, first.image)
+    assert final.pid == pid
