@@ -17,7 +17,7 @@ import numpy as np
 
 from ..core.gpu.debug_views import debug_image, grid_occupancy  # noqa: F401 - (re-exported)
 from ..core.gpu.worker import writable_matrices
-from ..core.scene import Camera, Model
+from ..core.scene import Camera, Model, affine_inverse
 from . import export
 from .export.linking import collection_states
 
@@ -365,7 +365,8 @@ def viewport_camera(view_matrix, window_matrix, width: int, height: int) -> Came
     as nested sequences or mathutils matrices) on a ``width`` x ``height`` region."""
     V = np.array([tuple(r) for r in view_matrix], np.float64)
     P = np.array([tuple(r) for r in window_matrix], np.float64)
-    cam_to_world = np.linalg.inv(V)
+    # (cofactors, not np.linalg.inv: LAPACK's threads can stall the draw callback on a busy machine)
+    cam_to_world = affine_inverse(V[None])[0]
     w, h = float(width), float(height)
     if abs(P[3, 3]) > 0.5:  # orthographic
         near = (P[2, 3] + 1.0) / P[2, 2]
