@@ -7,10 +7,11 @@
 // MARK (hard lights): per pixel, the answer without a ray (shadow_ray_prelude), else the previous
 // mask at the previous frame's pixel of its world position where hs_history_pixel accepts it and
 // the previous mask's 3x3 neighbourhood there is all 0 or all 1 (no shadow edge) and its samples
-// (u_still, the same camera: the same pixel, edge or not) were no sparser than u_spacing_ratio of this frame's pixel footprint (a zoom in retraces, so a
-// shadow thinner than the old spacing is found); else a mark for a ray (gl_FragDepth 0). o_spacing:
-// the surface spacing of the samples the value stands on, positive where it was reused, negative
-// (minus this frame's footprint) where it is this frame's.
+// (u_still, the same camera: the same pixel, edge or not) were no sparser than u_spacing_ratio
+// of this frame's pixel footprint (a zoom in retraces, so a shadow thinner than the old spacing
+// is found); else a mark for a ray (gl_FragDepth 0). o_spacing: the surface spacing of the
+// samples the value stands on, positive where it was reused, negative (minus this frame's
+// footprint) where it is this frame's.
 // FRESH: the spacing of a mask traced whole (minus the footprint).
 // COUNT: discards all but the reused pixels (an occlusion query counts them).
 // SOFT: the previous frame's accumulated sums (RG: weighted visibility, weight; B: samples) at
@@ -18,9 +19,10 @@
 //
 // hs_history_pixel rejects: background, a point behind or outside the previous view, another
 // instance there, normals apart (u_normal_cos), a point off the previous sample's surface by more
-// than u_pos_tol footprints (6 times that / the view's cosine along it), a grazing view in either frame (u_view_cos), a point beyond the
-// previous frame's max distance, and a shadow segment (or a soft light's cone, widened by
-// u_pad_abs + u_pad_slope x distance) that meets one of the u_boxes edited boxes (bake space).
+// than u_pos_tol footprints (6 times that / the view's cosine along it), a grazing view in
+// either frame (u_view_cos), a point beyond the previous frame's max distance, and a shadow
+// segment (or a soft light's cone, widened by u_pad_abs + u_pad_slope x distance) that meets
+// one of the u_boxes edited boxes (bake space).
 
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
