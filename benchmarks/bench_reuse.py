@@ -2,15 +2,18 @@
 ``high`` frames, same run: per frame of each camera path the rays traced, the shadow ms and the
 share of valid pixels whose reused mask differs from the fresh one.
 
-The paths are the scenes' own camera animations (``forest``, ``city``, ``clusters``: the
-thesis' paths), ``--frames`` consecutive frames from the start of each (a viewport's camera moves
-a little between redraws: ``--step`` animation frames apart), and an orbit of the built-in
-``smooth_shapes``. Lights hard, mode ``raytrace``, quality ``high``; each frame is rendered by a
-reusing pipeline and by a view of it that never reuses (the first frame of each path is fresh
-for both and left out of the ratios).
+The paths are the thesis' (``tools/bench.py``): ``--frames`` frames evenly spaced over the
+scene's animation (:func:`~hybrid_shadow_addon.tools.bench.path_frames` over
+:class:`~hybrid_shadow_addon.blender.frames.BlenderFrames`' range, or over ``--range A-B``: a
+viewport's camera moves a little between redraws), the cameras of those frames. A scene whose
+path does not move the camera (``city``, ``clusters``) and the built-in ``smooth_shapes`` take an
+orbit about the vertical through the scene's centre instead (``--orbit-step`` radians a frame).
+Lights hard, mode ``raytrace``, quality ``high``; each frame is rendered by a reusing pipeline and
+by a view of it that never reuses (the first frame of each path is fresh for both and left out
+of the ratios).
 
     .venv/bin/python benchmarks/bench_reuse.py [forest city clusters smooth_shapes] [--size 640x360]
-        [--frames 8] [--step 1] [--json OUT]
+        [--frames 10] [--range A-B] [--orbit-step 0.02] [--json OUT]
 """
 from __future__ import annotations
 
@@ -47,19 +50,24 @@ def orbit_cameras(scene, n: int, step: float = 0.02):
     return out
 
 
-def path_cameras(name: str, n: int, step: int):
-    """The scene and ``n`` cameras of its animation, ``step`` frames apart from its start."""
+def path_cameras(name: str, n: int, frame_range=None):
+    """The scene, the cameras of ``n`` frames evenly spaced over its animation (or over
+    ``frame_range``) and those frames, as the thesis' benchmark takes them."""
     import bpy
 
-    scene = load_scene(name)
-    f0 = bpy.context.scene.frame_start
-    cams = []
-    for k in range(n):
-        bpy.context.scene.frame_set(f0 + k * step)
-        from hybrid_shadow_addon.blender.export import export_depsgraph
+    from hybrid_shadow_addon.blender.frames import BlenderFrames
+    from hybrid_shadow_addon.tools.bench import path_frames
 
-        cams.append(export_depsgraph(bpy.context.evaluated_depsgraph_get()).camera)
-    return scene, cams
+    scene = load_scene(name)
+    src = BlenderFrames(bpy.context.scene, name)
+    frames = path_frames(*(frame_range or src.frame_range), n)
+    cams = [src.scene_at(f).camera for f in frames]
+    return scene, cams, frames
+
+
+def still(cams) -> bool:
+    """Whether every camera of a path is the first one."""
+    return all(np.array_equal(c.matrix, cams[0].matrix) for c in cams)
 
 
 def mismatch(a, b) -> float:
@@ -105,19 +113,21 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("scenes", nargs="*", default=["forest", "city", "clusters", "smooth_shapes"])
     ap.add_argument("--size", default="640x360")
-    ap.add_argument("--frames", type=int, default=8)
-    ap.add_argument("--step", type=int, default=1)
+    ap.add_argument("--frames", type=int, default=10)
+    ap.add_argument("--range", default=None, help="A-B: the path's frames to sample (default: all)")
+    ap.add_argument("--orbit-step", type=float, default=0.02, help="radians a frame of an orbit")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
+    rng = tuple(int(v) for v in args.range.split("-")) if args.range else None
     out = {}
     for name in args.scenes:
-        if name == "smooth_shapes":
-            scene = load_scene(name)
-            cams = orbit_cameras(scene, args.frames)
-        else:
-            scene, cams = path_cameras(name, args.frames, args.step)
-        out[name] = run_path(name, scene, cams, w, h)
+        scene, cams, frames = path_cameras(name, args.frames, rng)
+        path = f"frames {frames[0]}-{frames[-1]} ({len(frames)})"
+        if still(cams):
+            cams, path = orbit_cameras(scene, args.frames, args.orbit_step), f"orbit {args.orbit_step} rad/frame"
+        print(f"{name}: {path}", flush=True)
+        out[name] = dict(path=path, **run_path(name, scene, cams, w, h))
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0

@@ -7,10 +7,11 @@
 // MARK (hard lights): per pixel, the answer without a ray (shadow_ray_prelude), else the previous
 // mask at the previous frame's pixel of its world position where hs_history_pixel accepts it and
 // the previous mask's 3x3 neighbourhood there is all 0 or all 1 (no shadow edge) and its samples
-// (u_still, the same camera: the same pixel, edge or not) were no sparser than u_spacing_ratio of this frame's pixel footprint (a zoom in retraces, so a
-// shadow thinner than the old spacing is found); else a mark for a ray (gl_FragDepth 0). o_spacing:
-// the surface spacing of the samples the value stands on, positive where it was reused, negative
-// (minus this frame's footprint) where it is this frame's.
+// (u_still, the same camera: the same pixel, edge or not) were no sparser than u_spacing_ratio
+// of this frame's pixel footprint (a zoom in retraces, so a shadow thinner than the old spacing
+// is found); else a mark for a ray (gl_FragDepth 0). o_spacing: the surface spacing of the
+// samples the value stands on, positive where it was reused, negative (minus this frame's
+// footprint) where it is this frame's.
 // FRESH: the spacing of a mask traced whole (minus the footprint).
 // COUNT: discards all but the reused pixels (an occlusion query counts them).
 // SOFT: the previous frame's accumulated sums (RG: weighted visibility, weight; B: samples) at
@@ -18,9 +19,10 @@
 //
 // hs_history_pixel rejects: background, a point behind or outside the previous view, another
 // instance there, normals apart (u_normal_cos), a point off the previous sample's surface by more
-// than u_pos_tol footprints (6 times that / the view's cosine along it), a grazing view in either frame (u_view_cos), a point beyond the
-// previous frame's max distance, and a shadow segment (or a soft light's cone, widened by
-// u_pad_abs + u_pad_slope x distance) that meets one of the u_boxes edited boxes (bake space).
+// than u_pos_tol footprints (6 times that / the view's cosine along it), a grazing view in
+// either frame (u_view_cos), a point beyond the previous frame's max distance, and a shadow
+// segment (or a soft light's cone, widened by u_pad_abs + u_pad_slope x distance) that meets
+// one of the u_boxes edited boxes (bake space).
 
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
@@ -91,6 +93,8 @@ bool hs_segment_meets(vec3 p, int i)
     return enter <= leave;
 }
 
+vec2 hs_win;    // hs_history_pixel's point in the previous frame's window (pixels)
+
 // The previous frame's pixel that holds pixel px's surface point, or (-1, -1).
 ivec2 hs_history_pixel(ivec2 px, out float footprint)
 {
@@ -107,6 +111,7 @@ ivec2 hs_history_pixel(ivec2 px, out float footprint)
     vec4 clip = u_prev_clip * vec4(p_rel, 1.0);
     if (!(clip.w > 0.0)) return ivec2(-1);
     vec2 win = (clip.xy / clip.w * 0.5 + 0.5) * vec2(textureSize(u_prev_geo, 0));
+    hs_win = win;
     ivec2 q = ivec2(floor(win));
     ivec2 lim = textureSize(u_prev_geo, 0) - 1;
     if (any(lessThan(q, ivec2(1))) || any(greaterThanEqual(q, lim))) return ivec2(-1);
@@ -129,13 +134,37 @@ ivec2 hs_history_pixel(ivec2 px, out float footprint)
 
 #ifdef SOFT
 uniform sampler2D u_prev_sums;
+uniform float u_keep;           // the share of the carried sums kept (older samples fade)
 layout(location = 0) out vec4 o_sums;
 
+// The sums at the point itself, bilinear over the previous pixels around it that hold the same
+// surface (instance, normal, plane): taking the nearest pixel's would let the sums lag behind a
+// slow move, frame after frame.
 void main()
 {
+    ivec2 px = ivec2(gl_FragCoord.xy);
     float fp;
-    ivec2 q = hs_history_pixel(ivec2(gl_FragCoord.xy), fp);
-    o_sums = q.x >= 0 ? texelFetch(u_prev_sums, q, 0) : vec4(0.0);
+    ivec2 q = hs_history_pixel(px, fp);
+    if (q.x < 0) { o_sums = vec4(0.0); return; }
+    vec3 pos = texelFetch(u_gb_position, px, 0).xyz;
+    vec3 n = texelFetch(u_gb_normal, px, 0).xyz;
+    float inst = texelFetch(u_gb_material, px, 0).z + 1.0;
+    vec2 f = hs_win - 0.5;
+    ivec2 b = ivec2(floor(f));
+    vec2 t = f - vec2(b);
+    vec4 sum = vec4(0.0);
+    float wsum = 0.0;
+    for (int k = 0; k < 4; ++k) {
+        ivec2 o = ivec2(k & 1, k >> 1);
+        ivec2 r = b + o;
+        float w = (o.x == 1 ? t.x : 1.0 - t.x) * (o.y == 1 ? t.y : 1.0 - t.y);
+        vec4 g = texelFetch(u_prev_geo, r, 0);
+        if (w <= 0.0 || g.w != inst || dot(texelFetch(u_prev_nrm, r, 0).xyz, n) < u_normal_cos
+            || abs(dot(g.xyz - pos, n)) > u_pos_tol * fp) continue;
+        sum += w * texelFetch(u_prev_sums, r, 0);
+        wsum += w;
+    }
+    o_sums = u_keep * (wsum > 0.0 ? sum / wsum : texelFetch(u_prev_sums, q, 0));
 }
 #elif defined(FRESH)
 out float o_spacing;

@@ -167,3 +167,39 @@ def test_the_rejection_catches_a_disocclusion(pipes):
     rules = p.shadow_pass("raytrace").reuse.rules
     rules.update(same_instance=False, pos_tol=1e9, normal_cos=-2.0)
     assert worst(p) > 20
+
+
+SOFT = Settings(mode="raytrace", quality="high", accumulate=True)  # (the viewport's samples per redraw)
+
+
+def converged(p, scene, w, h):
+    """The converged soft masks at ``scene``'s camera: 256 samples from another frame's sample
+    pattern (so its noise is not the moving view's)."""
+    view = p.view()
+    try:
+        s = dataclasses.replace(scene, frame=1000)
+        many = SOFT.replace(samples=256, frame_samples=32)
+        f = view.render(s, many, w, h)
+        while f.stats["accumulated_samples"] < many.samples:
+            f = view.render(s, many, w, h)
+        return {li: f.mask_array(li) for li in f.lights}
+    finally:
+        view.release()
+
+
+@pytest.mark.parametrize("step", [0.04, 0.0])  # an orbit; a slow climb (sub-pixel moves: no lag)
+def test_soft_sums_carry_over_a_moving_camera(pipes, step):
+    """Soft lights orbited 16 frames at the default samples per redraw: the masks reach a mean
+    error <= 0.005 against the converged ones while each frame's pixels that lose their history
+    start over (the fewest samples a pixel has stays one frame's)."""
+    from helpers.scenes import soft_scene
+
+    p, _ = pipes
+    scene = soft_scene()
+    for k in range(17):
+        f = p.render(orbit(scene, k, step=step), SOFT, 240, 135)
+        if k:
+            assert f.stats["accumulated_samples"] == SOFT.frame_samples
+    ref = converged(p, orbit(scene, 16, step=step), 240, 135)
+    err = [float(np.nanmean(np.abs(f.mask_array(li) - ref[li]))) for li in f.lights]
+    assert np.mean(err) <= 0.005, err

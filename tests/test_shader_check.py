@@ -180,3 +180,25 @@ def test_the_command_fails_on_a_broken_shader(tmp_path, capsys):
     fixed = _shaders(tmp_path / "fixed", {"good.glsl": GOOD_PROGRAM,
                                           "common/shade.glsl": SHADE.replace("undeclared_name", "0.25")})
     assert shader_check.main(["--shader-dir", str(fixed), "--no-gl"]) == 0
+
+
+def test_the_reprojection_is_checked_in_each_mode(tmp_path, gl_ctx):
+    """reproject.glsl is one of the run's programs, tried in each of its modes (STORE, SOFT,
+    FRESH, COUNT and the hard mark), and a break in one mode fails the run there."""
+    import shutil
+
+    assert "reproject" in shader_check.program_names(programs.default_shader_dir())
+    sets = shader_check.single_define_sets(ProgramCache(None, programs.default_shader_dir()), "reproject")
+    for mode in ("STORE", "SOFT", "FRESH", "COUNT"):
+        assert any(mode in s for s in sets), mode
+    assert any(not {"STORE", "SOFT", "FRESH", "COUNT"} & set(s) for s in sets)
+    root = tmp_path / "shaders"
+    shutil.copytree(programs.default_shader_dir(), root)
+    src = root / "reproject.glsl"
+    text = src.read_text()
+    cache = ProgramCache(gl_ctx, root)
+    assert not [f for s in sets for f in shader_check.check_gl(cache, "reproject", s)]
+    src.write_text(text.replace("o_sums = q.x >= 0", "o_sums = q.z >= 0"))
+    cache = ProgramCache(gl_ctx, root)
+    failed = [f for s in sets for f in shader_check.check_gl(cache, "reproject", s)]
+    assert failed and all("SOFT" in f.defines for f in failed)

@@ -94,9 +94,10 @@ class RaytracePass(ShadowPass):
 
     def invalidate(self, boxes) -> None:
         """Objects with these old and new bounds ((n, 2, 3), bake space) changed: pixels whose
-        shadow rays can meet them trace again, the rest keep their history."""
+        shadow rays can meet them trace again, the rest keep their history (the soft lights'
+        accumulation starts over)."""
         self.hard.reset_history()
-        self.soft.camera_moved()
+        self.soft.reset_history()
         self.reuse.invalidate(boxes)
 
     def reset_light(self, index: int) -> None:
@@ -116,7 +117,7 @@ class RaytracePass(ShadowPass):
             traced = self.refiner.count("coarse") * (n - len(self.culled)) + self.refiner.count("refined")
         return RaytraceStats(
             mask_resolution=[mw, mh], rays=int(mw * mh * n), rays_traced=int(traced), pixels=int(valid * n),
-            pixels_reused=self.refiner.count("reused") + self.soft.pixels_carried,
+            pixels_reused=self.refiner.count("reused"),
             samples=int(max(self._soft_samples, self.soft.most_samples)),
             accumulated_samples=self.soft.accumulated, lights_culled=len(self.culled),
             noise={k: round(v, 6) for k, v in self.soft.last_noise.items()},

@@ -44,9 +44,11 @@ def light_pad(light, soft) -> tuple:
 class MaskReprojection(Pass):
     """One view's history for reuse: the last frame's packed G-buffer and camera, and each
     light's last mask (hard: mask and sample spacing; soft: the accumulated sums) in ping-pong
-    targets. ``rules``: :attr:`RULES` (see ``shaders/reproject.glsl``)."""
+    targets. ``rules``: :attr:`RULES` (see ``shaders/reproject.glsl``; ``sums_keep``: the share
+    of a soft light's sums a move carries over)."""
 
-    RULES = dict(pos_tol=0.25, normal_cos=0.99, view_cos=0.2, spacing_ratio=1.5, same_instance=True)
+    RULES = dict(pos_tol=0.25, normal_cos=0.99, view_cos=0.2, spacing_ratio=1.5, same_instance=True,
+                 sums_keep=1.0)
 
     def __init__(self, gpu, refiner, **rules):
         super().__init__(gpu)
@@ -164,9 +166,8 @@ class MaskReprojection(Pass):
         prog, vao = self.programs.fullscreen("reproject", {**defines, "SOFT": 1})
         unit = self.bind(prog, gbuffer, ray_uniforms, pad)
         prev.texture.use(unit)
-        set_uniforms(prog, {"u_prev_sums": unit})
+        set_uniforms(prog, {"u_prev_sums": unit, "u_keep": float(self.rules["sums_keep"])})
         draw_fullscreen(self.ctx, vao, out)
-        self.reused_lights += 1
 
     def end_frame(self, gbuffer) -> None:
         """Keep this frame's G-buffer and camera, and the history of the lights it drew."""

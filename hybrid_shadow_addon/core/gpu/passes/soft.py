@@ -26,6 +26,8 @@ import numpy as np
 
 from ..targets import TargetCache, draw_fullscreen, read_texture, set_uniforms
 from .base import LightVisibility
+from .hard import CLASSIFY_DEFINES
+from .reproject import light_key, light_pad
 from .trace import LightRay, RaytraceOptions, TraceProgram
 
 SOFT_PROBES = 1  # HS_PROBES of shaders/common/soft_probe.glsl
@@ -80,13 +82,13 @@ class SoftVisibility(LightVisibility):
         super().__init__(gpu)
         self.refiner = refiner
         self.reuse = reuse  # a MaskReprojection: the accumulation carries its sums across moves
-        self.pixels_carried = 0  # pixels (times lights) whose sums the last frame carried over
         self.trace = program
         self.options = options
         self._targets = TargetCache(self.ctx, fill=1.0, what="mask")  # (light, role) -> target
         self.sample_base = 0  # first sample index of this draw (accumulation advances it)
         self.split = 0  # the samples before this index also sum apart (raytrace.glsl u_split)
-        self._accum: dict = {}  # light -> (frames accumulated, current target index, settings key)
+        self._accum: dict = {}  # light -> (frames accumulated, current target index, key, frames since a move)
+        self._moved = False  # the camera moved or objects changed since the last frame
         self.most_samples = 1  # rays per pixel of the softest light of the last frame
         self.accumulated = None  # fewest samples per pixel of the soft lights' accumulated masks
         self.last_noise: dict = {}  # light name -> the last final render's noise estimate
@@ -97,8 +99,11 @@ class SoftVisibility(LightVisibility):
         self._accum.clear()
 
     def camera_moved(self) -> None:
-        """The camera moved or objects changed."""
-        self.reset_history()
+        """The camera moved: with :attr:`reuse`, the next frame carries the sums that stand over
+        (:meth:`.reproject.MaskReprojection.carry_sums`); else forget."""
+        if self.reuse is None:
+            self.reset_history()
+        self._moved = True
 
     def reset_light(self, index: int) -> None:
         """Forget one light's accumulation."""
@@ -236,14 +241,22 @@ class SoftVisibility(LightVisibility):
         def traced(frames: int) -> int:  # samples per penumbra pixel after that many frames
             return lead + frames * fs if frames else 0
 
-        key = (fs, int(settings.samples))
-        n, cur, k = self._accum.get(li, (0, 0, key))
-        if k != key:
-            n, cur = 0, 0
-        done = traced(n)
-        if done < settings.samples:
+        key = (fs, int(settings.samples), light_key(ray.light, settings))
+        n, cur, k, since = self._accum.get(li, (0, 0, key, None))
+        src, dst, carry = self._sums_targets(ray, key, gbuffer, settings, n if k == key else 0, cur)
+        if k != key or src is None:
+            n, since = 0, None
+        elif carry:
+            since = 0
+        converged = traced(n) >= settings.samples and (since is None or since * fs >= settings.samples)
+        sums = dst
+        if converged and self._reusing():  # (the history keeps this frame's sums)
+            ctx.copy_framebuffer(dst.fbo, src.fbo)
+        elif converged:
+            sums = src
+        else:
             base = self.sample_base
-            self.sample_base = done
+            self.sample_base = traced(n)
             accum = {**defines, "HS_SOFT_ACCUM": 1}
             new = self._target((li, "new"), *full, components=2)
             if n == 0 and lead:  # probes everywhere, fs + lead samples in the penumbrae (at most samples)
@@ -258,19 +271,47 @@ class SoftVisibility(LightVisibility):
                     ctx.disable(moderngl.BLEND)
             self.sample_base = base
             acc_prog, acc_vao = self.programs.fullscreen("soft_accumulate", {"ACCUMULATE": 1})
-            src = self._target((li, "acc", cur), *full, components=2)
-            dst = self._target((li, "acc", 1 - cur), *full, components=2)
             new.texture.use(0)
-            src.texture.use(1)
+            (new if src is None else src).texture.use(1)
             set_uniforms(acc_prog, {"u_new": 0, "u_acc": 1, "u_count": float(n)})
             draw_fullscreen(ctx, acc_vao, dst)
             n, cur = n + 1, 1 - cur
-            self._accum[li] = (n, cur, key)
+            since = None if since is None else since + 1
+        self._accum[li] = (n, cur, key, since)
         mean = self._target((li, "mean"), *full)
-        self._resolve(self._target((li, "acc", cur), *full, components=2).texture, mean)
+        self._resolve(sums.texture, mean)
         got = min(traced(n), int(settings.samples))
-        self.accumulated = got if self.accumulated is None else min(self.accumulated, got)
+        fewest = got if since is None else min(got, since * fs)  # (pixels that started over at the move)
+        self.accumulated = fewest if self.accumulated is None else min(self.accumulated, fewest)
         return self._denoise(li, mean, gbuffer, denoise_radius(got), got)
+
+    def _sums_targets(self, ray, key, gbuffer, settings, n: int, cur: int):
+        """``(sums so far or None, target of this frame's sums, carried)`` of soft light ``li``.
+        With :attr:`reuse` the sums live in its history: after a move the previous frame's sums
+        are carried through the reprojection (pixels that do not stand start at 0). Without
+        it, a ping-pong pair of this pass's targets (the same one twice where converged)."""
+        full, li = gbuffer.size, ray.index
+        rp = self.reuse
+        if not self._reusing():
+            src = self._target((li, "acc", cur), *full, components=2)
+            dst = self._target((li, "acc", 1 - cur), *full, components=2)
+            return (src if n else None), dst, False
+        prev, now = rp.history(li, "soft", key, full)
+        if prev is None or not n:
+            return None, now[0], False
+        if not self._moved:
+            return prev[0], now[0], False
+        carried = self._target((li, "carried"), *full, components=4)
+        defs = {k: v for k, v in ray.defines.items() if k in CLASSIFY_DEFINES}
+        rp.carry_sums(gbuffer, defs, self.trace.uniforms(ray, gbuffer, settings), light_pad(ray.light, ray.soft),
+                      prev[0], carried)
+        return carried, now[0], True
+
+    def end_frame(self, job) -> None:
+        self._moved = False
+
+    def _reusing(self) -> bool:
+        return self.reuse is not None and self.reuse.enabled
 
     def _range(self, key, tex, gbuffer, sums: bool = False, classify=None):
         """(min, max) of mask ``tex`` (``sums``: of the probe pass's sums) over the covered
