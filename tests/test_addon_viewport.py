@@ -122,6 +122,39 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
         step("sphere_flag", lambda: setattr(bpy.data.objects["Ball.001"], "hybrid_sphere",
                                             not bpy.data.objects["Ball.001"].hybrid_sphere))
         check_masks("sphere_flag")
+
+        # image pixels are read again only when the image changed
+        from hybrid_shadow_addon.blender.export.images import PIXELS
+
+        img = bpy.data.images.new("Paint", 32, 32, alpha=True)
+        mat = bpy.data.materials.new("Painted")
+        mat.use_nodes = True
+        tex = mat.node_tree.nodes.new("ShaderNodeTexImage")
+        tex.image = img
+        bsdf = mat.node_tree.nodes["Principled BSDF"]
+        mat.node_tree.links.new(tex.outputs["Alpha"], bsdf.inputs["Alpha"])
+
+        def add_card():
+            me = bpy.data.meshes.new("Card")
+            me.from_pydata([(0, 0, 3), (2, 0, 3), (2, 2, 3), (0, 2, 3)], [], [(0, 1, 2, 3)])
+            me.uv_layers.new()
+            me.materials.append(mat)
+            scene.collection.objects.link(bpy.data.objects.new("Card", me))
+
+        step("card", add_card)
+        reads = PIXELS.reads
+        step("card_colour", lambda: bsdf.inputs["Base Color"].__setattr__("default_value", (0.2, 0.5, 0.1, 1.0)))
+        r["card_colour"]["reads"] = PIXELS.reads - reads
+        reads = PIXELS.reads
+
+        def paint():
+            img.pixels[3] = 0.25
+            img.update()
+            img.update_tag()  # (what painting tags)
+
+        step("paint", paint)
+        r["paint"]["reads"] = PIXELS.reads - reads
+        step("card_removed", lambda: bpy.data.objects.remove(bpy.data.objects["Card"]))
         bpy.app.handlers.depsgraph_update_post.remove(handler)
 
         # viewport camera from a camera's own view/window matrices == that camera
@@ -371,10 +404,18 @@ def test_light_material_and_setting_changes_rebake_nothing(report, name):
     s = report[name]
     assert not s["plan"]["full"] and not s["plan"]["geometry"] and not s["plan"]["moved"]
     assert "bake" not in s["log"] and "full" not in s["log"]
-    if name.startswith("light"):
+    if name == "light":  # (its power: no mask changes)
         assert s["plan"]["lights"] and s["log"] == ["lights"]
+    if name == "light_move":  # (that light's history alone is forgotten)
+        assert s["plan"]["lights"] and s["log"] == ["reset light", "lights"]
     if name == "material":
         assert s["log"] == ["shading"]
+
+
+def test_image_pixels_are_read_again_only_when_the_image_changed(report):
+    assert report["card"]["log"] == ["full"]
+    assert report["card_colour"]["log"] == ["shading"] and report["card_colour"]["reads"] == 0
+    assert report["paint"]["plan"]["shading"] and report["paint"]["reads"] == 1
 
 
 def test_structural_changes_export_again(report):

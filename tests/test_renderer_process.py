@@ -189,3 +189,25 @@ def test_a_cancelled_final_render_stops_within_0_2_s(loaded, final):
     again = final.render(scene, Settings(hard=True), 64, 36)
     assert np.array_equal(again.image, first.image)
     assert final.pid == pid
+
+
+def test_queued_moves_and_model_edits_merge(loaded):
+    """A drag queues one move per depsgraph update: the worker applies one for all those still
+    queued (every instance they moved, the newest scene), and one edit per model."""
+    from hybrid_shadow_addon.core.gpu.remote import _merge_moves
+
+    scene = loaded("cube_on_plane")
+    worker = RenderWorker(synchronous=True)  # (inline: nothing runs until pump)
+    try:
+        for idx in ([0], [1], [0]):
+            worker.move_instances(scene, idx)
+        worker.update_model(scene, 0)
+        worker.reset_history()
+        worker.update_model(scene, 0)
+        kinds = [it[0] for it in worker._queue]
+        assert kinds == ["move", "reset", "model"], kinds
+        assert worker._queue[0][2].tolist() == [0, 1]
+    finally:
+        worker.close()
+    merged = _merge_moves([("move", "old", np.array([3, 1]))], ("move", "new", np.array([1, 2])))
+    assert merged[1] == "new" and merged[2].tolist() == [1, 2, 3]

@@ -15,10 +15,12 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
+from ..core.bake.materials import material_signature
 from ..core.gpu.debug_views import debug_image, grid_occupancy  # noqa: F401 - (re-exported)
 from ..core.gpu.worker import writable_matrices
 from ..core.scene import Camera, Model, affine_inverse
 from . import export
+from .export.images import PIXELS
 from .export.linking import collection_states
 
 #: data-block types whose change only needs the lights re-read (nothing re-baked)
@@ -37,6 +39,7 @@ class UpdatePlan:
     lights: bool = False
     world: bool = False
     shading: bool = False  # materials, light linking, view-layer filters: re-export, bake kept if it can
+    images: list = field(default_factory=list)  # images whose pixels changed (read again)
     reasons: list = field(default_factory=list)
 
     @property
@@ -109,7 +112,11 @@ class ViewportSync:
 
     # -- full export ------------------------------------------------------------------------------
     def full_export(self, depsgraph) -> None:
-        scene = export.export_depsgraph(depsgraph, resolution=(1, 1), render_visibility=False)
+        PIXELS.active = True  # (images read once, again when an update names them)
+        try:
+            scene = export.export_depsgraph(depsgraph, resolution=(1, 1), render_visibility=False)
+        finally:
+            PIXELS.active = False
         if self.only is not None:
             scene.instances = scene.instances.take([self._local(n) for n in scene.instances.names])
             scene.lights = self._local_lights(scene.lights)
@@ -190,6 +197,8 @@ class ViewportSync:
             elif isinstance(idb, _SHADING_TYPES):
                 if not (owners and isinstance(idb, bpy.types.ShaderNodeTree) and idb.is_embedded_data):
                     plan.shading = True
+                if isinstance(idb, bpy.types.Image):
+                    plan.images.append(idb.original)
             elif isinstance(idb, bpy.types.Collection):
                 if u.is_updated_transform or u.is_updated_geometry:
                     plan.need_full(f"collection '{idb.name}' changed")
@@ -241,6 +250,8 @@ class ViewportSync:
     def update(self, depsgraph) -> UpdatePlan:
         """Classify and apply ``depsgraph.updates``; returns the plan that was applied."""
         plan = self.classify(depsgraph)
+        for image in plan.images:
+            PIXELS.forget(image)
         if plan.nothing:
             return plan
         if plan.full:
@@ -258,17 +269,29 @@ class ViewportSync:
         if moved:
             self._move(depsgraph, moved)
         if plan.lights:
-            sets = {light.name: (light.receiver_set, light.blocker_set) for light in self.scene.lights}
+            old = self.scene.lights
+            sets = {light.name: (light.receiver_set, light.blocker_set) for light in old}
             self.scene.lights = self._local_lights(export.export_lights(depsgraph, render_visibility=False))
             for light in self.scene.lights:  # the linking did not change: the same sets
                 light.receiver_set, light.blocker_set = sets.get(light.name, (-1, -1))
-            self._reset_history()
+            self._reset_lights(old, self.scene.lights)
             self.log.append(("lights", len(self.scene.lights)))
-        if plan.world:
+        if plan.world:  # (the world lights, it casts no shadow: every mask stands)
             self.scene.world_color = np.asarray(export.world_color(depsgraph.scene_eval.world), np.float32)
-            self._reset_history()
             self.log.append(("world", None))
         return plan
+
+    def _reset_lights(self, old: list, new: list) -> None:
+        """Forget the history of the lights whose shadow changed (not their colour or power);
+        of every light when lights came, went or changed order."""
+        if [light.name for light in old] != [light.name for light in new]:
+            self._reset_history()
+            return
+        for i, (a, b) in enumerate(zip(old, new)):
+            if shadow_key(a) != shadow_key(b):
+                if self.pipeline is not None:
+                    self.pipeline.reset_light(i)
+                self.log.append(("reset light", a.name))
 
     def _reset_history(self) -> None:
         if self.pipeline is not None:
@@ -347,11 +370,30 @@ class ViewportSync:
                 and all(a.triangle_count == b.triangle_count and np.array_equal(a.vertices, b.vertices)
                         for a, b in zip(old.models, new.models)))
         if same:
-            # keep the old models (their GPU buffers stay cached) and the bake
+            # keep the old models (their GPU buffers stay cached) and the bake; the masks stand
+            # unless what cuts shadows changed (alpha, images, transparent shadows)
             new.models = old.models
             self.baked = baked
-            self._reset_history()
+            if material_signature(old) != material_signature(new) or _mask_inputs(old) != _mask_inputs(new):
+                self._reset_history()
             self.log[-1] = ("shading", len(new.instances))
+
+
+def shadow_key(light) -> tuple:
+    """What a light's shadow depends on (its colour and power do not change a mask)."""
+    return (light.type, np.asarray(light.matrix, np.float64).tobytes(), float(light.radius), float(light.angle),
+            float(light.spot_size), float(light.size), float(light.size_y), str(light.area_shape),
+            float(light.spread), bool(light.use_shadow), int(light.receiver_set), int(light.blocker_set))
+
+
+def _mask_inputs(scene) -> tuple:
+    """What a re-export for materials, linking or view-layer toggles may change in the masks:
+    the instances' casting, material, terminator, visibility and linking columns, and the
+    lights' sets."""
+    inst = scene.instances
+    cols = tuple(np.asarray(getattr(inst, name)).tobytes() for name in (
+        "casts_shadow", "material_ids", "terminator", "visible_camera", "holdout", "light_sets", "shadow_sets"))
+    return cols + tuple((light.name, light.receiver_set, light.blocker_set) for light in scene.lights)
 
 
 # ------------------------------------------------------------------------------------------------

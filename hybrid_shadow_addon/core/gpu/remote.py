@@ -86,17 +86,23 @@ class RendererProcess:
         _live.add(self)
 
     # -- caller side ------------------------------------------------------------------------------
-    def post(self, body, replace=None) -> int:
-        """Queue ``body``; ``replace(body)``: unsent messages it matches are dropped first.
-        Returns ``(message seq, dropped count)``."""
+    def post(self, body, replace=None, merge=None, rewrite=None) -> int:
+        """Queue ``body``. ``replace(body)``: unsent messages it matches are dropped first, and
+        ``merge(dropped bodies, body)`` makes the body queued from them; ``rewrite(body)``:
+        what each unsent message becomes. Returns ``(message seq, dropped count)``."""
         with self._cond:
             if self._closing:
                 return 0, 0
             dropped = 0
             if replace is not None:
                 keep = [m for m in self._outbox if not replace(m[1])]
-                dropped = len(self._outbox) - len(keep)
+                gone = [m[1] for m in self._outbox if replace(m[1])]
+                dropped = len(gone)
                 self._outbox = collections.deque(keep)
+                if gone and merge is not None:
+                    body = merge(gone, body)
+            if rewrite is not None:
+                self._outbox = collections.deque((seq, rewrite(b)) for seq, b in self._outbox)
             seq = next(self._seq)
             self.posted = seq
             self._outbox.append((seq, body))
@@ -231,13 +237,20 @@ class RemoteWorker:
         self._proc.post(("bake", snapshot(scene), structure))
 
     def move_instances(self, scene, indices) -> None:
-        self._proc.post(("move", snapshot(scene), np.array(indices, np.int64)))
+        """Instances moved; moves not sent yet become one (their instances, the newest scene)."""
+        self._proc.post(("move", snapshot(scene), np.array(indices, np.int64)), replace=lambda b: b[0] == "move",
+                        merge=_merge_moves)
 
     def update_model(self, scene, model_id: int) -> None:
-        self._proc.post(("model", snapshot(scene), int(model_id)))
+        """A model edited; an unsent edit of the same model is replaced (the newest scene has both)."""
+        mid = int(model_id)
+        self._proc.post(("model", snapshot(scene), mid), replace=lambda b: b[0] == "model" and b[2] == mid)
 
     def reset_history(self) -> None:
         self._proc.post(("reset",))
+
+    def reset_light(self, index: int) -> None:
+        self._proc.post(("reset_light", int(index)))
 
     def drop_view(self, view) -> None:
         with self._cond:
@@ -258,7 +271,11 @@ class RemoteWorker:
         key = tuple(map(id, refs)) + (scene.name, tuple(np.asarray(scene.world_color).tolist()))
         if key != self._scene_key:
             self._scene_key, self._scene_refs, self._token = key, refs, next(self._tokens)
-            self._proc.post(("scene", self._token, dataclasses.replace(scene, camera=None)))
+            token = self._token
+            # an unsent older scene is replaced: renders waiting for it take the newer one
+            self._proc.post(("scene", token, dataclasses.replace(scene, camera=None)),
+                            replace=lambda b: b[0] == "scene",
+                            rewrite=lambda b: (b[0], b[1], token, b[3]) if b[0] == "render" else b)
         view_of = types.SimpleNamespace(camera=scene.camera, resolution=scene.resolution)
         body = ("render", dataclasses.replace(request, scene=view_of, seq=seq), self._token, seq)
         _, dropped = self._proc.post(body, replace=lambda b: b[0] == "render" and b[1].view == request.view)
@@ -353,6 +370,12 @@ class RemoteWorker:
             self._busy, self._busy_any = {}, False
             self._scene_key = self._scene_refs = None  # (the new child has no scene yet)
             self._cond.notify_all()
+
+
+def _merge_moves(dropped: list, body: tuple) -> tuple:
+    """One move for unsent ones: every moved instance, the newest scene."""
+    idx = np.unique(np.concatenate([b[2] for b in dropped] + [body[2]]))
+    return body[0], body[1], idx
 
 
 class FinalRenderer:

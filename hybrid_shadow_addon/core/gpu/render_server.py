@@ -235,6 +235,8 @@ class Server:
             w.update_model(body[1], body[2])
         elif kind == "reset":
             w.reset_history()
+        elif kind == "reset_light":
+            w.reset_light(body[1])
         elif kind == "scene":
             self.scenes[body[1]] = body[2]
             for old in sorted(self.scenes)[:-4]:

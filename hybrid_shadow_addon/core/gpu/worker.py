@@ -39,7 +39,7 @@ from .context import software_renderer
 SYNCHRONOUS = os.environ.get("HYBRID_SHADOWS_VIEWPORT_SYNC", "").strip() not in ("", "0")
 
 #: commands that change the bake or the scene's lighting: refinement in progress is stale
-_SCENE_COMMANDS = ("bake", "move", "model", "reset")
+_SCENE_COMMANDS = ("bake", "move", "model", "reset", "reset_light")
 
 
 def snapshot(scene):
@@ -184,14 +184,30 @@ class RenderWorker:
         self._command(("bake", snapshot(scene), structure))
 
     def move_instances(self, scene, indices) -> None:
-        self._command(("move", snapshot(scene), np.array(indices, np.int64)))
+        """Instances moved; moves still queued become one (their instances, the newest scene):
+        a drag applies one update per step the worker takes, not one per depsgraph update."""
+        idx = np.array(indices, np.int64)
+        with self._cond:
+            queued = [it for it in self._queue if it[0] == "move"]
+            if queued:
+                self._remove(lambda it: it[0] == "move")
+                idx = np.unique(np.concatenate([it[2] for it in queued] + [idx]))
+        self._command(("move", snapshot(scene), idx))
 
     def update_model(self, scene, model_id: int) -> None:
-        self._command(("model", snapshot(scene), int(model_id)))
+        """A model edited; a queued edit of the same model is replaced (the newest scene has both)."""
+        mid = int(model_id)
+        with self._cond:
+            self._remove(lambda it: it[0] == "model" and it[2] == mid)
+        self._command(("model", snapshot(scene), mid))
 
     def reset_history(self) -> None:
-        """Lights, world or materials changed: every view starts its history again."""
+        """What every mask depends on changed: every view starts its history again."""
         self._command(("reset",))
+
+    def reset_light(self, index: int) -> None:
+        """Light ``index``'s shadow changed: every view forgets that light's history."""
+        self._command(("reset_light", int(index)))
 
     def drop_view(self, view) -> None:
         """Forget ``view``: its pending renders, results and pipeline."""
@@ -377,6 +393,9 @@ class RenderWorker:
         if kind == "reset":  # (bake changes reach the views through Pipeline.view, edits as what they touch)
             for vp in self._views.values():
                 vp.reset_history()
+        elif kind == "reset_light":
+            for vp in self._views.values():
+                vp.reset_light(item[1])
 
     @staticmethod
     def _renderer(pipe) -> str:
