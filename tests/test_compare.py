@@ -132,8 +132,15 @@ def test_operator_background(tmp_path, monkeypatch):
         assert (out / "error_vs_time.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert m["variants"][0]["overall"]["mismatch_pct"] <= 0.1
         assert bpy.context.scene.render.resolution_x == 160
+        from hybrid_shadow_addon.blender.gl import final_renderer
+
+        renderer = final_renderer()  # (the variants rendered there, not on this thread)
+        assert renderer.starts == 1 and renderer.pid not in (None, os.getpid())
     finally:
         compare_operator.unregister()
+        from hybrid_shadow_addon.blender.gl import release_shared
+
+        release_shared()
 
 
 def test_cancel_restores_the_scene(tmp_path):

@@ -211,3 +211,33 @@ def test_queued_moves_and_model_edits_merge(loaded):
         worker.close()
     merged = _merge_moves([("move", "old", np.array([3, 1]))], ("move", "new", np.array([1, 2])))
     assert merged[1] == "new" and merged[2].tolist() == [1, 2, 3]
+
+
+def test_compare_measures_in_the_process_and_a_closed_call_cancels(loaded, final):
+    from hybrid_shadow_addon.tools.variants import resolve_variants
+
+    scene = loaded("cube_on_plane")
+    job = dict(scene=scene, variants=resolve_variants(["raytrace-high,none"]), names=[scene.lights[0].name],
+               light_index={scene.lights[0].name: 0}, size=(80, 60), warmup=1, repeats=2)
+    steps = final.call_steps("tools.compare:measure_variants", job)
+    labels = []
+    while len(labels) < 2:
+        label = next(steps)
+        if label is not None:
+            labels.append(label)
+    t0 = time.perf_counter()
+    steps.close()  # (a cancelled compare)
+    assert time.perf_counter() - t0 < 0.3 and labels[0].startswith("bake")
+    steps = final.call_steps("tools.compare:measure_variants", job)
+    seen = []
+    while True:
+        try:
+            label = next(steps)
+        except StopIteration as stop:
+            result = stop.value
+            break
+        if label is not None:
+            seen.append(label)
+    assert len(seen) == 1 + 2 * (1 + 2 + 1) and len(result["runs"]) == 2
+    shadow, total, masks = result["runs"][0]
+    assert len(shadow) == 2 and masks[scene.lights[0].name].shape == (60, 80)

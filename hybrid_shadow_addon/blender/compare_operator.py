@@ -8,8 +8,9 @@ variant), so the UI shows progress between steps and Esc cancels between steps (
 restored: each reference render restores it itself). In background mode (``bpy`` as a module,
 ``blender -b``) ``execute`` runs every step at once.
 
-The GL work runs inside :func:`.gl.gl_scope`: our standalone context is current only during our
-passes, never left current on Blender's thread.
+The variants render in the final-render process (:func:`.gl.final_renderer`): no GL context is
+made on Blender's main thread, and a step waits at most about 20 ms for it without holding
+Python's lock; a cancel ends what it was rendering.
 
 Wiring (done by the add-on's registration): ``compare_operator.register()`` /
 ``unregister()``; in a panel ``compare_operator.draw_compare_button(layout)``;
@@ -70,7 +71,6 @@ class RENDER_OT_hybrid_shadows_compare(bpy.types.Operator):
     _timer = None
     _steps = None
     _result = None
-    _pipeline = None
 
     @classmethod
     def poll(cls, context):
@@ -85,7 +85,7 @@ class RENDER_OT_hybrid_shadows_compare(bpy.types.Operator):
         from ..tools.variants import resolve_variants
         from .cycles_reference import CyclesReferenceProvider
         from .frames import current_scene
-        from .gl import create_pipeline, gl_scope
+        from .gl import final_renderer
 
         scene = context.scene
         r = scene.render
@@ -94,23 +94,17 @@ class RENDER_OT_hybrid_shadows_compare(bpy.types.Operator):
         self.output = bpy.path.abspath(self.output_dir) if self.output_dir else default_output_dir(scene)
         variants = resolve_variants([self.modes])
         core_scene = current_scene(resolution=resolution)
-        self._pipeline = create_pipeline()
-        pipe = self._pipeline
         self._result = {}
         self._steps = compare_steps(core_scene, self.output,
                                     reference=CyclesReferenceProvider(scene, mesh_spheres=self.mesh_spheres),
-                                    resolution=resolution, variants=variants, repeats=self.repeats, pipeline=pipe,
-                                    gl_scope=lambda: gl_scope(pipe),
+                                    resolution=resolution, variants=variants, repeats=self.repeats,
+                                    remote=final_renderer(),
                                     scene_label=f"{scene.name} (frame {scene.frame_current})", result=self._result)
 
     def _finish(self, context):
-        from .gl import release_pipeline
-
         if self._steps is not None:
-            self._steps.close()  # a cancelled generator runs its finally blocks
+            self._steps.close()  # a cancelled generator runs its finally blocks (and cancels the render)
             self._steps = None
-        release_pipeline(self._pipeline)
-        self._pipeline = None
         wm = context.window_manager
         if self._timer is not None:
             wm.event_timer_remove(self._timer)

@@ -82,11 +82,13 @@ def soft_variants(variants, shadow_samples: int | None = None) -> list:
 def compare_steps(scene, output_dir, *, reference, resolution=None, variants=None, repeats: int = 5,
                   warmup: int = 2, samples: int | None = None, cache_dir=None, use_cache: bool = True,
                   pipeline=None, gl_scope=None, scene_label: str | None = None, result: dict | None = None,
-                  soft: bool | None = None, shadow_samples: int | None = None):
+                  soft: bool | None = None, shadow_samples: int | None = None, remote=None):
     """Generator doing the comparison of the core ``scene`` with ``reference`` (a
     :class:`~.reference.ReferenceProvider`) step by step; yields ``(done, total, label)`` after
     each step. ``resolution`` overrides the scene's; ``gl_scope()``: a context manager around
-    every use of ``pipeline``. The final metrics dict is stored in ``result["metrics"]`` (pass a
+    every use of ``pipeline``; ``remote``: a :class:`~..core.gpu.remote.FinalRenderer` whose
+    process renders the variants instead (the caller's threads then make no GL call, and a step
+    waits at most about 20 ms). The final metrics dict is stored in ``result["metrics"]`` (pass a
     dict).
 
     ``soft`` (None: as the provider's ``hard`` says, hard without one): the soft comparison
@@ -111,7 +113,6 @@ def compare_steps(scene, output_dir, *, reference, resolution=None, variants=Non
     out = Path(output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "images").mkdir(exist_ok=True)
-    gl = gl_scope or contextlib.nullcontext
     variants = soft_variants(variants, shadow_samples) if soft else as_variants(variants)
     error_key = "mae" if soft else "mismatch_pct"  # what the Pareto front weighs
 
@@ -146,53 +147,25 @@ def compare_steps(scene, output_dir, *, reference, resolution=None, variants=Non
         from_cache = False
 
     # -- 2. every variant on one pipeline ----------------------------------------------------------
-    own_pipeline = pipeline is None
-    if own_pipeline:
-        from ..core.gpu.pipeline import Pipeline
-
-        pipeline = Pipeline()
     light_index = {light.name: i for i, light in enumerate(scene.lights)}
-    rows = []
-    # the hard lights' grids from the first frame on (a warm-up frame builds them): the timed
-    # frames are the steady state a viewport or an animation reaches, the build is reported apart
-    with gl():
-        rt = pipeline.shadow_pass("raytrace")
-    grids, kept = rt.light_grids, rt.options
-    rt.options = replace(kept, eager_light_grids=True)
-    built0 = grids.total_build_ms
-    try:
-        with gl():
-            bake_ms = pipeline.set_scene(scene)
-        done += 1
-        yield done, total, f"bake {bake_ms:.0f} ms"
-        for v in variants:
-            s = v.settings
-            shadow, tot = [], []
-            with gl():
-                pipeline.reset_history()
-            n_warm = warmup + (INTERLACE_EXTRA if s.interlace else 0)
-            for k in range(n_warm + repeats):
-                with gl():
-                    frame = pipeline.render(scene, s, width, height)
-                if k >= n_warm:
-                    shadow.append(frame.timings["shadow_ms"])
-                    tot.append(frame.timings["total_ms"])
-                done += 1
-                yield done, total, f"{v.name}: frame {k + 1}/{n_warm + repeats}"
-            with gl():
-                if s.interlace:  # the error of the first frame after a change
-                    pipeline.reset_history()
-                    frame = pipeline.render(scene, s, width, height)
-                ours = {n: _mask(frame, light_index[n]) for n in names}
+    job = dict(scene=scene, variants=variants, names=names, light_index=light_index, size=(width, height),
+               warmup=warmup, repeats=repeats)
+    if remote is not None:  # in a renderer process: no GL on the caller's threads
+        steps = remote.call_steps(f"tools.compare:{measure_variants.__name__}", job)
+    else:
+        steps = measure_variants(**job, pipeline=pipeline, gl_scope=gl_scope)
+    while True:
+        try:
+            label = next(steps)
+        except StopIteration as stop:
+            measured = stop.value
+            break
+        if label is not None:
             done += 1
-            yield done, total, f"{v.name}: error"
-            rows.append(_variant_row(v, shadow, tot, names, visibility, ours, out))
-    finally:
-        rt.options = kept
-        grids_ms = grids.total_build_ms - built0
-        if own_pipeline:
-            with gl():
-                pipeline.release()
+        yield min(done, total - 1), total, label or "rendering"
+    rows = [_variant_row(v, shadow, tot, names, visibility, ours, out)
+            for v, (shadow, tot, ours) in zip(variants, measured["runs"])]
+    bake_ms, grids_ms = measured["bake_ms"], measured["grids_ms"]
 
     # -- 3. outputs ---------------------------------------------------------------------------------
     ref_images = {}
@@ -238,6 +211,58 @@ def compare_steps(scene, output_dir, *, reference, resolution=None, variants=Non
     done += 1
     result["metrics"] = m
     yield done, total, "report written"
+
+
+def measure_variants(scene, variants, names, light_index, size, warmup, repeats, pipeline=None, gl_scope=None):
+    """Generator: bake once, then each variant's warm-up and timed frames on one pipeline
+    (``pipeline``, or its own), yielding a label after each step; returns ``{"runs": [(shadow
+    ms list, total ms list, {light name: mask})] per variant, "bake_ms", "grids_ms"}``."""
+    width, height = size
+    gl = gl_scope or contextlib.nullcontext
+    own_pipeline = pipeline is None
+    if own_pipeline:
+        from ..core.gpu.pipeline import Pipeline
+
+        pipeline = Pipeline()
+    runs = []
+    # the hard lights' grids from the first frame on (a warm-up frame builds them): the timed
+    # frames are the steady state a viewport or an animation reaches, the build is reported apart
+    with gl():
+        rt = pipeline.shadow_pass("raytrace")
+    grids, kept = rt.light_grids, rt.options
+    rt.options = replace(kept, eager_light_grids=True)
+    built0 = grids.total_build_ms
+    try:
+        with gl():
+            bake_ms = pipeline.set_scene(scene)
+        yield f"bake {bake_ms:.0f} ms"
+        for v in variants:
+            s = v.settings
+            shadow, tot = [], []
+            with gl():
+                pipeline.reset_history()
+            n_warm = warmup + (INTERLACE_EXTRA if s.interlace else 0)
+            for k in range(n_warm + repeats):
+                with gl():
+                    frame = pipeline.render(scene, s, width, height)
+                if k >= n_warm:
+                    shadow.append(frame.timings["shadow_ms"])
+                    tot.append(frame.timings["total_ms"])
+                yield f"{v.name}: frame {k + 1}/{n_warm + repeats}"
+            with gl():
+                if s.interlace:  # the error of the first frame after a change
+                    pipeline.reset_history()
+                    frame = pipeline.render(scene, s, width, height)
+                ours = {n: _mask(frame, light_index[n]) for n in names}
+            runs.append((shadow, tot, ours))
+            yield f"{v.name}: error"
+    finally:
+        rt.options = kept
+        grids_ms = grids.total_build_ms - built0
+        if own_pipeline:
+            with gl():
+                pipeline.release()
+    return {"runs": runs, "bake_ms": bake_ms, "grids_ms": grids_ms}
 
 
 def run_compare(scene, output_dir, *, reference, progress=None, **kwargs) -> dict:

@@ -25,6 +25,7 @@ import os
 import subprocess
 import sys
 import threading
+import traceback
 import types
 import weakref
 from pathlib import Path
@@ -188,8 +189,11 @@ class RendererProcess:
         try:
             while True:
                 self._on_message(read_message(proc.stdout))
-        except (EOFError, OSError, ValueError):
+        except (EOFError, OSError):
             pass
+        except BaseException:  # noqa: BLE001 - a reply that cannot be read: end that child
+            traceback.print_exc()
+            proc.kill()
         code = proc.wait()
         if not self._closing:
             self._on_exit(code)
@@ -396,6 +400,50 @@ class FinalRenderer:
     def starts(self) -> int:
         return self._proc.starts
 
+    def call_steps(self, target: str, kwargs: dict):
+        """Generator: run the generator function ``target`` (``"module:function"`` of this
+        package) in the process; yields each label it yields, or None after about 20 ms without
+        one (so a modal operator's step returns); returns its return value. Closing it cancels
+        the call."""
+        job = next(self._jobs)
+        with self._cond:
+            self._events.clear()
+            self._exited = None
+        self._proc.post(("call", job, target, kwargs))
+        finished = False
+        try:
+            while True:
+                events, exited = self._wait()
+                labels = []
+                for ev in events:
+                    if ev[1] != job:
+                        continue
+                    if ev[0] == "progress":
+                        labels.append(ev[4])
+                        continue
+                    finished = True
+                    if ev[3] is not None:
+                        raise rebuild_error(ev[3])
+                    for label in labels:
+                        yield label
+                    return ev[2]
+                if exited is not None:
+                    finished = True
+                    raise RendererError(f"the renderer process ended unexpectedly (exit code {exited})")
+                for label in labels or [None]:
+                    yield label
+        finally:
+            if not finished:
+                self._cancel(job)
+
+    def _wait(self):
+        """The events that came within about 20 ms, and the child's exit code (None: running)."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._events or self._exited is not None, 0.02)
+            events = list(self._events)
+            self._events.clear()
+            return events, self._exited
+
     def render(self, scene, settings, width: int, height: int, *, should_stop=None, on_progress=None,
                **options):
         """A :class:`~.render_server.FrameData` of ``scene``. ``options``: ``film_transparent``,
@@ -408,11 +456,7 @@ class FinalRenderer:
             self._exited = None
         self._proc.post(("final", job, scene, settings, int(width), int(height), options))
         while True:
-            with self._cond:
-                self._cond.wait_for(lambda: self._events or self._exited is not None, 0.02)
-                events = list(self._events)
-                self._events.clear()
-                exited = self._exited
+            events, exited = self._wait()
             for ev in events:
                 if ev[1] != job:
                     continue
@@ -432,8 +476,8 @@ class FinalRenderer:
 
     def _cancel(self, job) -> None:
         """Stop ``job``: the child drops it between two steps, or is ended after :data:`CANCEL_S`."""
-        if self._proc.unsent(lambda b: b[0] == "final" and b[1] == job):
-            self._proc.post(("cancel", job), replace=lambda b: b[0] == "final" and b[1] == job)
+        if self._proc.unsent(lambda b: b[0] in ("final", "call") and b[1] == job):
+            self._proc.post(("cancel", job), replace=lambda b: b[0] in ("final", "call") and b[1] == job)
             return
         self._proc.post(("cancel", job))
         with self._cond:
@@ -441,6 +485,8 @@ class FinalRenderer:
                 e[0] == "final" and e[1] == job for e in self._events), CANCEL_S)
         if not done:
             self._proc.kill()
+            with self._cond:  # (its exit recorded before the next job starts)
+                self._cond.wait_for(lambda: self._exited is not None, 5.0)
 
     def close(self) -> None:
         self._proc.close()

@@ -9,7 +9,8 @@ and runs them in order on the main thread:
   already in the display's layout (:func:`encode_image`);
 - ``final`` renders one final frame (:class:`FinalJobs`): bake or persistent-data update,
   render, every array the render passes need back in one ``final`` reply, then the frame's
-  targets are released (and, without persistent data, the bake);
+  targets are released (and, without persistent data, the bake); ``call`` runs a generator
+  function of the package (Compare's measurements), its labels sent as progress;
 - after each round a ``state`` message tells the caller which messages were applied and which
   views still have work.
 """
@@ -20,6 +21,7 @@ import dataclasses
 import os
 import sys
 import threading
+import traceback
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,6 +31,7 @@ from . import memory
 from .channel import error_info, read_message, write_message
 
 MB = float(1 << 20)
+_ROOT = __name__.rsplit(".core.gpu.", 1)[0]
 
 
 def encode_image(image: np.ndarray) -> np.ndarray:
@@ -184,7 +187,9 @@ class Server:
                 with self.cond:
                     self.inbox.append((seq, body))
                     self.cond.notify_all()
-        except (EOFError, OSError, ValueError):
+        except BaseException as exc:  # noqa: BLE001 - the caller gone, or a message unreadable: end
+            if not isinstance(exc, (EOFError, OSError)):
+                traceback.print_exc()
             with self.cond:
                 self.inbox.append((0, ("close",)))
                 self.cond.notify_all()
@@ -210,6 +215,33 @@ class Server:
             self.send(("state", self.acked, {v: self.worker.busy(v) for v in self.views} if self.worker else {},
                        self._has_work()))
 
+    def call(self, job, target: str, kwargs: dict) -> None:
+        """Run the generator function ``target`` (``"module:function"`` of this package, e.g.
+        ``tools.compare:measure_variants``) to its end: each label it yields goes back as a
+        ``progress`` message, its return value as the ``final`` reply."""
+        import importlib
+
+        module, name = target.split(":")
+        try:
+            fn = getattr(importlib.import_module(f"{_ROOT}.{module}"), name)
+            steps = fn(**kwargs)
+            k = 0
+            while True:
+                if self.cancel.is_set():
+                    steps.close()
+                    raise Cancelled()
+                try:
+                    label = next(steps)
+                except StopIteration as stop:
+                    self.send(("final", job, stop.value, None))
+                    return
+                k += 1
+                self.send(("progress", job, k, 0, label))
+        except BaseException as exc:  # noqa: BLE001 - the caller gets every failure
+            self.send(("final", job, None, error_info(exc)))
+            if not isinstance(exc, Exception):
+                raise
+
     def _viewport(self):
         if self.worker is None:
             from .worker import RenderWorker
@@ -221,9 +253,12 @@ class Server:
         kind = body[0]
         if kind == "cancel":
             return  # (it stopped what was running; nothing queued is cancelled)
-        if kind == "final":
+        if kind in ("final", "call"):
             self.cancel.clear()
-            self.final.run(*body[1:])
+            if kind == "final":
+                self.final.run(*body[1:])
+            else:
+                self.call(*body[1:])
             self.cancel.clear()
             return
         w = self._viewport()

@@ -74,6 +74,10 @@ def denoise_radius(samples: int) -> int:
     return max(1, int(round(8.0 / np.sqrt(max(samples, 1)))))
 
 
+#: the key of the scratch targets a final frame's soft lights share
+FINAL_SCRATCH = "final"
+
+
 class SoftVisibility(LightVisibility):
     """Masks of the soft lights of a ``full`` plan: probes and refinement, or a frame of the
     accumulation; each filtered within its penumbrae."""
@@ -119,10 +123,12 @@ class SoftVisibility(LightVisibility):
         gbuffer, settings = job.gbuffer, job.settings
         if settings.accumulate:
             return self._accumulate(ray, ray.defines, gbuffer, settings)
+        # a final frame keeps each light's mask alone: its scratch targets (probes, sums, ranges)
+        # are the same for every light
         out = self._target((ray.index, "out"), *gbuffer.size)
-        got = self._probe_and_refine(ray, ray.defines, gbuffer, settings, out)
+        got = self._probe_and_refine(ray, ray.defines, gbuffer, settings, out, scratch=FINAL_SCRATCH)
         self.most_samples = max(self.most_samples, got)
-        return self._denoise(ray.index, out, gbuffer, denoise_radius(got), got)
+        return self._denoise(ray.index, out, gbuffer, denoise_radius(got), got, scratch=FINAL_SCRATCH)
 
     def _target(self, key, w, h, components: int | None = None):
         return self._targets.get(key, w, h, components)
@@ -131,11 +137,12 @@ class SoftVisibility(LightVisibility):
         """The full-resolution trace of ``defines`` from this draw's ``sample_base``."""
         return self.trace.bind(defines, ray, gbuffer, settings, 1, self.sample_base, self.split)
 
-    def _probe_and_refine(self, ray, defines, gbuffer, settings, out) -> int:
+    def _probe_and_refine(self, ray, defines, gbuffer, settings, out, scratch=None) -> int:
         """A soft light's ``settings.samples`` rays per pixel into ``out``: a few probe rays per
         pixel, then the rest only near the pixels whose probes disagree (penumbrae); elsewhere
-        the probes are exact. ``defines`` with ``HS_SOFT_ACCUM``: ``out`` gets the sums (RG)."""
-        li = ray.index
+        the probes are exact. ``defines`` with ``HS_SOFT_ACCUM``: ``out`` gets the sums (RG).
+        ``scratch``: the key of the scratch targets (default: the light's own)."""
+        li = ray.index if scratch is None else scratch
         full = gbuffer.size
         accum = "HS_SOFT_ACCUM" in defines
         total = int(settings.samples)
@@ -343,11 +350,12 @@ class SoftVisibility(LightVisibility):
             src = out.texture
         return src
 
-    def _denoise(self, li, mask, gbuffer, radius: int, samples: int):
-        """``mask`` filtered within its penumbrae over ``radius`` pixels (itself when 0)."""
+    def _denoise(self, li, mask, gbuffer, radius: int, samples: int, scratch=None):
+        """``mask`` filtered within its penumbrae over ``radius`` pixels (itself when 0), into
+        light ``li``'s own target (``scratch``: the key of the ranges' targets)."""
         if radius <= 0:
             return mask.texture
-        near = self._range((li, "mask"), mask.texture, gbuffer)
+        near = self._range((li if scratch is None else scratch, "mask"), mask.texture, gbuffer)
         prog, vao = self.programs.fullscreen("soft_accumulate", {"DENOISE": 1})
         gbuffer.bind(prog, 2)
         mask.texture.use(0)
