@@ -45,10 +45,11 @@ class MaskReprojection(Pass):
     """One view's history for reuse: the last frame's packed G-buffer and camera, and each
     light's last mask (hard: mask and sample spacing; soft: the accumulated sums) in ping-pong
     targets. ``rules``: :attr:`RULES` (see ``shaders/reproject.glsl``; ``sums_keep``: the share
-    of a soft light's sums a move carries over)."""
+    of a soft light's sums a move carries over; ``refresh``: one 4x2 block in that many traces
+    again each moving frame, so a wrongly reused value does not last)."""
 
     RULES = dict(pos_tol=0.25, normal_cos=0.99, view_cos=0.2, spacing_ratio=1.5, same_instance=True,
-                 sums_keep=1.0)
+                 sums_keep=1.0, refresh=8)
 
     def __init__(self, gpu, refiner, **rules):
         super().__init__(gpu)
@@ -138,8 +139,10 @@ class MaskReprojection(Pass):
         cam = self._prev[0]
         still = (np.array_equal(cam.clip_from_rel, gbuffer.camera.clip_from_rel)
                  and np.array_equal(cam.cam_pos, gbuffer.camera.cam_pos) and self._prev[1] == tuple(gbuffer.size))
+        refresh = max(1, int(self.rules["refresh"]))
         set_uniforms(prog, {"u_prev_mask": unit, "u_prev_spacing": unit + 1, "u_still": int(still),
-                            "u_spacing_ratio": float(self.rules["spacing_ratio"])})
+                            "u_spacing_ratio": float(self.rules["spacing_ratio"]),
+                            "u_refresh": refresh, "u_phase": self._frame % refresh})
         self.refiner.mark(key, now[0], vao, extra=(now[1],))
         self.reused_lights += 1
 
