@@ -199,9 +199,12 @@ void main()
     vec3 p, n, ns, to_light;
     float depth;
     float value = shadow_ray_prelude(px, p, n, ns, depth, to_light);
+    // (a rotating share of the 4x2 blocks traces again: a value a move let through wrongly,
+    // as a shadow thinner than the old samples' spacing, lasts about u_refresh frames)
+    bool refresh = u_still == 0 && u_refresh > 1 && ((px.x >> 2) + 3 * (px.y >> 1) + u_phase) % u_refresh == 0;
     float fp;
-    ivec2 q = value >= 0.0 ? ivec2(-1) : hs_history_pixel(px, fp);
-    if (value >= 0.0) fp = hs_footprint(texelFetch(u_gb_depth, px, 0).r);
+    ivec2 q = value >= 0.0 || refresh ? ivec2(-1) : hs_history_pixel(px, fp);
+    if (q.x < 0) fp = hs_footprint(texelFetch(u_gb_depth, px, 0).r);
     bool reused = false;
     if (q.x >= 0) {
         float c = texelFetch(u_prev_mask, q, 0).r;
@@ -213,10 +216,7 @@ void main()
             flat_ = texelFetch(u_prev_mask, r, 0).r == c;
             spacing = max(spacing, abs(texelFetch(u_prev_spacing, r, 0).r));
         }
-        // (a rotating share of the 4x2 blocks traces again: a value a move let through wrongly,
-        // as a shadow thinner than the old samples' spacing, lasts about u_refresh frames)
-        bool refresh = u_still == 0 && u_refresh > 1 && ((px.x >> 2) + 3 * (px.y >> 1) + u_phase) % u_refresh == 0;
-        if (flat_ && spacing <= u_spacing_ratio * fp && !refresh) {
+        if (flat_ && spacing <= u_spacing_ratio * fp) {
             reused = true;
             value = c;
             o_spacing = spacing;
