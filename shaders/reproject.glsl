@@ -12,6 +12,8 @@
 // is found); else a mark for a ray (gl_FragDepth 0). o_spacing: the surface spacing of the
 // samples the value stands on, positive where it was reused, negative (minus this frame's
 // footprint) where it is this frame's.
+// HISTORY: hs_history_pixel of each pixel but for the edited boxes (light-independent: once a
+// frame, for every hard light's MARK), -1 where it has none.
 // FRESH: the spacing of a mask traced whole (minus the footprint).
 // COUNT: discards all but the reused pixels (an occlusion query counts them).
 // SOFT: the previous frame's accumulated sums (RG: weighted visibility, weight; B: samples) at
@@ -166,6 +168,14 @@ void main()
     }
     o_sums = u_keep * (wsum > 0.0 ? sum / wsum : texelFetch(u_prev_sums, q, 0));
 }
+#elif defined(HISTORY)
+layout(location = 0) out vec2 o_q;
+
+void main()
+{
+    float fp;
+    o_q = vec2(hs_history_pixel(ivec2(gl_FragCoord.xy), fp));
+}
 #elif defined(FRESH)
 out float o_spacing;
 
@@ -186,8 +196,11 @@ void main()
 #else
 uniform sampler2D u_prev_mask;
 uniform sampler2D u_prev_spacing;
+uniform sampler2D u_history;    // HISTORY's output of this frame (u_boxes left to this light)
 uniform float u_spacing_ratio;
 uniform int u_still;            // 1: the same camera: the same pixel's value stands, edge or not
+uniform int u_refresh;          // one 4x2 block in u_refresh traces again each moving frame
+uniform int u_phase;            // which one (the frame's)
 layout(location = 0) out float o_mask;
 layout(location = 1) out float o_spacing;
 
@@ -197,9 +210,16 @@ void main()
     vec3 p, n, ns, to_light;
     float depth;
     float value = shadow_ray_prelude(px, p, n, ns, depth, to_light);
-    float fp;
-    ivec2 q = value >= 0.0 ? ivec2(-1) : hs_history_pixel(px, fp);
-    if (value >= 0.0) fp = hs_footprint(texelFetch(u_gb_depth, px, 0).r);
+    // (a rotating share of the 4x2 blocks traces again: a value a move let through wrongly,
+    // as a shadow thinner than the old samples' spacing, lasts about u_refresh frames)
+    bool refresh = u_still == 0 && u_refresh > 1 && ((px.x >> 2) + 3 * (px.y >> 1) + u_phase) % u_refresh == 0;
+    float fp = hs_footprint(texelFetch(u_gb_depth, px, 0).r);
+    ivec2 q = ivec2(-1);
+    if (value < 0.0 && !refresh) {
+        q = ivec2(texelFetch(u_history, px, 0).rg);
+        for (int i = 0; i < u_boxes && q.x >= 0; ++i)
+            if (hs_segment_meets(p, i)) q = ivec2(-1);
+    }
     bool reused = false;
     if (q.x >= 0) {
         float c = texelFetch(u_prev_mask, q, 0).r;

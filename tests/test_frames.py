@@ -168,3 +168,29 @@ def test_cli_bad_frames_is_one_clear_error(tmp_path, args, words):
     lines = p.stderr.strip().splitlines()
     assert len(lines) == 1 and words in lines[0] and lines[0].startswith("error:"), p.stderr
     assert not list(tmp_path.iterdir())
+
+
+def test_frames_reuse_hard_masks_unless_told_not_to(tmp_path, source, pipeline):
+    """Later frames keep the hard masks' pixels that no moved object can touch (``pixels_reused``,
+    fewer ``rays_traced``), within the reuse's bound of fresh masks; ``reuse=False`` (``--no-reuse``)
+    traces them whole; the stats say soft lights take their own samples."""
+    kw = dict(pipeline=pipeline, overwrite=True)
+    hard = SETTINGS.replace(hard=True)
+    on = R.render_frames(source, [1, 2, 3], hard, output=str(tmp_path / "on_#.png"),
+                         masks_dir=str(tmp_path / "on"), **kw)["frames"]
+    off = R.render_frames(source, [1, 2, 3], hard, output=str(tmp_path / "off_#.png"),
+                          masks_dir=str(tmp_path / "off"), reuse=False, **kw)["frames"]
+    assert pipeline.reuse
+    assert on[0]["pixels_reused"] == 0 and all(e["pixels_reused"] > 0 for e in on[1:])
+    assert all(e["pixels_reused"] == 0 for e in off)
+    assert [e["reuse"]["hard"] for e in on] == [False, True, True] and not any(e["reuse"]["hard"] for e in off)
+    assert all(e["reuse"]["soft"] == "own samples" for e in on + off)
+    for a, b in zip(on[1:], off[1:]):
+        assert a["rays_traced"] < b["rays_traced"]
+    bad = valid = 0
+    for m in (tmp_path / "off").glob("*/mask_*.npy"):
+        fresh, reused = np.load(m), np.load(tmp_path / "on" / m.parent.name / m.name)
+        ok = np.isfinite(fresh)
+        bad += int((np.abs(fresh - reused)[ok] > 1e-3).sum())
+        valid += int(ok.sum())
+    assert valid and bad <= 0.0002 * valid + 1, (bad, valid)

@@ -4,7 +4,8 @@
 applies the difference to the pipeline's bake: moved (or re-flagged) instances become
 ``move_instances``, edited or added meshes ``update_model``; what the bake cannot update in
 place (instances added or removed, renamed ones, changed textured materials or images) is a full
-bake. Camera, light and flat-colour changes need no bake, only ``reset_history``.
+bake. Camera, light and flat-colour changes need no bake; a pipeline that reuses visibility
+forgets the history of changed lights only (:func:`forget_changed_lights`), another one all.
 
 Instances are matched by name (``Instances.names``), models by name and content. The next scene
 is aligned to the previous one in place, as the bake's indices require: its instance rows in the
@@ -101,6 +102,17 @@ def _align_models(prev: Scene, scene: Scene):
     return sorted(changed)
 
 
+def forget_changed_lights(pipeline, prev: Scene, scene: Scene) -> None:
+    """History after an update: a pipeline that reuses visibility (``Pipeline.reuse``) forgets
+    only the lights that changed (its edits and camera it follows itself); another one, all."""
+    if not getattr(pipeline, "reuse", False) or len(prev.lights) != len(scene.lights):
+        pipeline.reset_history()
+        return
+    for i, (a, b) in enumerate(zip(prev.lights, scene.lights)):
+        if not all(np.array_equal(getattr(a, f), getattr(b, f)) for f in a.__dataclass_fields__):
+            pipeline.reset_light(i)
+
+
 def _bake(pipeline, scene, reason: str, structure) -> SyncReport:
     return SyncReport(FULL, ms=pipeline.set_scene(scene, structure), reason=reason)
 
@@ -143,7 +155,7 @@ def sync_scene(pipeline, prev: Scene | None, scene: Scene, *, bake: bool = True,
     idx = np.nonzero(moved)[0]
     if idx.size:
         pipeline.move_instances(scene, idx)
-    pipeline.reset_history()
+    forget_changed_lights(pipeline, prev, scene)
     if not changed and not idx.size:
         return SyncReport(NONE)
     return SyncReport(INCREMENTAL, moved=idx.tolist(), models=list(changed), ms=(time.perf_counter() - t0) * 1e3)

@@ -233,12 +233,16 @@ def _read_stats(path: Path) -> dict:
 
 
 def render_frames(source, frames, settings, *, output: str, resolution=None, masks_dir: str | None = None,
-                  stats_path: str | None = None, overwrite: bool = False, progress=None, pipeline=None) -> dict:
+                  stats_path: str | None = None, overwrite: bool = False, progress=None, pipeline=None,
+                  reuse: bool = True) -> dict:
     """Render ``frames`` of ``source`` (``source.scene_at(frame) -> Scene``) to ``output`` (a
     ``#`` pattern, see :func:`frame_path`), baking once and updating the bake between frames
     (:func:`~..core.scene_sync.sync_scene`). Each frame's files appear all at once; frames whose
     image exists are skipped unless ``overwrite``. ``stats_path``: a JSON list, one entry per
-    frame (``frame``, ``bake``, the per-pass ms), rewritten after every frame. Returns
+    frame (``frame``, ``bake``, the per-pass ms, ``rays_traced``, ``pixels_reused``, ``reuse``),
+    rewritten after every frame. ``reuse``: hard lights' masks carry over between frames where
+    the surface and the shadow rays stay the same (``core/gpu/passes/reproject.py``); soft
+    lights take their own samples in every frame. Returns
     ``{"frames": [entries], "rendered": n, "skipped": n, "total_ms": ms}``."""
     from ..core.gpu.pipeline import Pipeline
     from ..core.scene_sync import sync_scene
@@ -259,6 +263,7 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
     entries = {f: earlier.get(f, {"frame": f, "bake": "none", "output": str(paths[f])}) | {"skipped": True}
                for f in frames if f not in todo}
     pipe = pipeline or Pipeline()
+    was_reusing, pipe.reuse = pipe.reuse, bool(reuse)
     raytrace = settings.mode == "raytrace"
     prev = None
     warned = False
@@ -266,32 +271,36 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
     t_start = time.perf_counter()
     skipped = len(frames) - len(todo)
     note = f", {skipped} already written" if skipped else ""
-    for k, f in enumerate(todo):
-        if progress is not None:
-            progress(k, len(todo), f"frame {f}{note}")
-        t0 = time.perf_counter()
-        scene = source.scene_at(f)
-        export_ms = (time.perf_counter() - t0) * 1e3
-        print_report(scene.report, reported)
-        scene.validate()
-        check_renderable(scene)
-        check_light_count(pipe.ctx, len(scene.lights))
-        if not scene.lights and not warned:
-            warned = True
-            print(f"warning: scene '{scene.name}' has no lights: rendering the world colour (ambient) only",
-                  file=sys.stderr, flush=True)
-        sync = sync_scene(pipe, prev, scene, bake=raytrace, structure=settings.structure)
-        prev = scene
-        width, height = resolution or scene.resolution
-        frame = pipe.render(scene, settings, width, height)
-        entry = {"frame": f, "bake": sync.kind, "output": str(paths[f]), "export_ms": export_ms}
-        entry.update(frame_stats(scene, frame, sync.ms))
-        entry["bake_updates"] = {"instances": len(sync.moved), "models": len(sync.models), "reason": sync.reason}
-        entries[f] = entry
-        listing = [entries[g] for g in frames if g in entries]
-        files = [(stats_file, json.dumps(listing, indent=2) + "\n")] if stats_file is not None else []
-        write_outputs(paths[f], scene, frame, masks_dir=frame_masks_dir(masks_dir, f) if masks_dir else None,
-                      files=files)
+    try:
+        for k, f in enumerate(todo):
+            if progress is not None:
+                progress(k, len(todo), f"frame {f}{note}")
+            t0 = time.perf_counter()
+            scene = source.scene_at(f)
+            export_ms = (time.perf_counter() - t0) * 1e3
+            print_report(scene.report, reported)
+            scene.validate()
+            check_renderable(scene)
+            check_light_count(pipe.ctx, len(scene.lights))
+            if not scene.lights and not warned:
+                warned = True
+                print(f"warning: scene '{scene.name}' has no lights: rendering the world colour (ambient) only",
+                      file=sys.stderr, flush=True)
+            sync = sync_scene(pipe, prev, scene, bake=raytrace, structure=settings.structure)
+            prev = scene
+            width, height = resolution or scene.resolution
+            frame = pipe.render(scene, settings, width, height)
+            entry = {"frame": f, "bake": sync.kind, "output": str(paths[f]), "export_ms": export_ms}
+            entry.update(frame_stats(scene, frame, sync.ms))
+            entry["bake_updates"] = {"instances": len(sync.moved), "models": len(sync.models), "reason": sync.reason}
+            entry["reuse"] = {"hard": bool(reuse) and k > 0, "soft": "own samples"}
+            entries[f] = entry
+            listing = [entries[g] for g in frames if g in entries]
+            files = [(stats_file, json.dumps(listing, indent=2) + "\n")] if stats_file is not None else []
+            write_outputs(paths[f], scene, frame, masks_dir=frame_masks_dir(masks_dir, f) if masks_dir else None,
+                          files=files)
+    finally:
+        pipe.reuse = was_reusing
     if progress is not None:
         progress(len(todo), max(len(todo), 1), f"{len(todo)} frames rendered{note}")
     if stats_file is not None and not todo:

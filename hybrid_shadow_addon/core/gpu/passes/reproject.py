@@ -45,10 +45,11 @@ class MaskReprojection(Pass):
     """One view's history for reuse: the last frame's packed G-buffer and camera, and each
     light's last mask (hard: mask and sample spacing; soft: the accumulated sums) in ping-pong
     targets. ``rules``: :attr:`RULES` (see ``shaders/reproject.glsl``; ``sums_keep``: the share
-    of a soft light's sums a move carries over)."""
+    of a soft light's sums a move carries over; ``refresh``: one 4x2 block in that many traces
+    again each moving frame, so a wrongly reused value does not last)."""
 
     RULES = dict(pos_tol=0.25, normal_cos=0.99, view_cos=0.2, spacing_ratio=1.5, same_instance=True,
-                 sums_keep=1.0)
+                 sums_keep=1.0, refresh=8)
 
     def __init__(self, gpu, refiner, **rules):
         super().__init__(gpu)
@@ -62,6 +63,7 @@ class MaskReprojection(Pass):
         self._touched: dict = {}  # the same for this frame's lights
         self._boxes: list = []  # (min, max) bake-space boxes edited since the stored frame
         self.reused_lights = 0  # lights of the last frame that drew on their history
+        self._history_drawn = False  # whether this frame's HISTORY map is drawn
 
     def reset_history(self) -> None:
         """Forget everything (``Pipeline.reset_history``)."""
@@ -86,6 +88,7 @@ class MaskReprojection(Pass):
     # -- per frame --------------------------------------------------------------------------------
     def begin_frame(self) -> None:
         self._touched = {}
+        self._history_drawn = False
         self.reused_lights = 0
 
     def history(self, index: int, kind: str, key, size):
@@ -131,17 +134,35 @@ class MaskReprojection(Pass):
     def mark(self, key, gbuffer, defines: dict, ray_uniforms: dict, prev, now) -> None:
         """Hard light: write into ``now`` (mask, spacing) the answers known without a ray and the
         history that stands, and mark the rest for the trace (:meth:`Refiner.refine`)."""
+        history = self._history_map(gbuffer, defines, ray_uniforms)
         prog, vao = self.programs.fullscreen("reproject", defines)
         unit = self.bind(prog, gbuffer, ray_uniforms)
         prev[0].texture.use(unit)
         prev[1].texture.use(unit + 1)
+        history.texture.use(unit + 2)
         cam = self._prev[0]
         still = (np.array_equal(cam.clip_from_rel, gbuffer.camera.clip_from_rel)
                  and np.array_equal(cam.cam_pos, gbuffer.camera.cam_pos) and self._prev[1] == tuple(gbuffer.size))
-        set_uniforms(prog, {"u_prev_mask": unit, "u_prev_spacing": unit + 1, "u_still": int(still),
-                            "u_spacing_ratio": float(self.rules["spacing_ratio"])})
+        refresh = max(1, int(self.rules["refresh"]))
+        set_uniforms(prog, {"u_prev_mask": unit, "u_prev_spacing": unit + 1, "u_history": unit + 2,
+                            "u_still": int(still),
+                            "u_spacing_ratio": float(self.rules["spacing_ratio"]),
+                            "u_refresh": refresh, "u_phase": self._frame % refresh})
         self.refiner.mark(key, now[0], vao, extra=(now[1],))
         self.reused_lights += 1
+
+    def _history_map(self, gbuffer, defines: dict, ray_uniforms: dict):
+        """This frame's previous pixel of each pixel (``reproject.glsl`` HISTORY), drawn for the
+        first hard light that asks: it depends on no light."""
+        target = self._targets.get("history", *gbuffer.size, components=2)
+        if not self._history_drawn:
+            defs = {k: v for k, v in defines.items() if k == "HS_MAX_DISTANCE"}
+            prog, vao = self.programs.fullscreen("reproject", {**defs, "HISTORY": 1})
+            self.bind(prog, gbuffer, ray_uniforms)
+            set_uniforms(prog, {"u_boxes": 0})
+            draw_fullscreen(self.ctx, vao, target)
+            self._history_drawn = True
+        return target
 
     def count_reused(self, spacing) -> None:
         """Count (occlusion query ``reused``) the pixels of the last :meth:`mark` that kept their
