@@ -82,6 +82,7 @@ def mismatch(a, b) -> float:
 
 def run_path(label, scene, cams, w, h) -> dict:
     pipe = Pipeline()
+    pipe.reuse = True
     fresh = pipe.view()
     fresh.reuse = False
     pipe.set_scene(scene)

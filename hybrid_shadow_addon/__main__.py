@@ -174,7 +174,7 @@ def _render_frames(args, settings) -> int:
         with blender_output_to_stderr():
             r = render_frames(source, args.frames, settings, output=args.output, resolution=args.resolution,
                               masks_dir=args.masks_dir, stats_path=args.stats, overwrite=args.overwrite,
-                              progress=progress, reuse=not args.no_reuse)
+                              progress=progress, reuse=args.reuse)
     finally:
         getattr(progress, "close", lambda: None)()
     done = [e for e in r["frames"] if not e.get("skipped")]
@@ -289,10 +289,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "four digits go before the extension). The bake is made once and updated between "
                     "frames; frames already written are skipped; --stats is one JSON list, an entry per frame")
     pr.add_argument("--overwrite", action="store_true", help="with --frames: render frames already written again")
-    pr.add_argument("--no-reuse", action="store_true",
-                    help="with --frames: trace every hard light's mask whole in each frame (by default the "
-                    "pixels whose surface and shadow rays stay the same keep the last frame's visibility; "
-                    "soft lights take their own samples in every frame either way)")
+    pr.add_argument("--reuse", action="store_true",
+                    help="with --frames: the pixels whose surface and shadow rays stay the same keep the last "
+                    "frame's hard-light visibility instead of tracing it again (within 0.02%% of a fresh "
+                    "frame's pixels; soft lights take their own samples in every frame either way)")
     pr.add_argument("--quiet", action="store_true", help="no progress bar")
     pr.add_argument("--max-shadowed-lights", type=int, default=None, metavar="N",
                     help="shadow only the N nearest lights (suns first); default: every shadow-casting light")

@@ -170,17 +170,17 @@ def test_cli_bad_frames_is_one_clear_error(tmp_path, args, words):
     assert not list(tmp_path.iterdir())
 
 
-def test_frames_reuse_hard_masks_unless_told_not_to(tmp_path, source, pipeline):
+def test_frames_reuse_hard_masks_when_told_to(tmp_path, source, pipeline):
     """Later frames keep the hard masks' pixels that no moved object can touch (``pixels_reused``,
-    fewer ``rays_traced``), within the reuse's bound of fresh masks; ``reuse=False`` (``--no-reuse``)
-    traces them whole; the stats say soft lights take their own samples."""
+    fewer ``rays_traced``), within the reuse's bound of fresh masks, with ``reuse=True`` (``--reuse``);
+    by default they are traced whole; the stats say soft lights take their own samples."""
     kw = dict(pipeline=pipeline, overwrite=True)
     hard = SETTINGS.replace(hard=True)
     on = R.render_frames(source, [1, 2, 3], hard, output=str(tmp_path / "on_#.png"),
-                         masks_dir=str(tmp_path / "on"), **kw)["frames"]
+                         masks_dir=str(tmp_path / "on"), reuse=True, **kw)["frames"]
     off = R.render_frames(source, [1, 2, 3], hard, output=str(tmp_path / "off_#.png"),
-                          masks_dir=str(tmp_path / "off"), reuse=False, **kw)["frames"]
-    assert pipeline.reuse
+                          masks_dir=str(tmp_path / "off"), **kw)["frames"]
+    assert not pipeline.reuse  # (the pipeline's own setting again after)
     assert on[0]["pixels_reused"] == 0 and all(e["pixels_reused"] > 0 for e in on[1:])
     assert all(e["pixels_reused"] == 0 for e in off)
     assert [e["reuse"]["hard"] for e in on] == [False, True, True] and not any(e["reuse"]["hard"] for e in off)

@@ -21,6 +21,7 @@ BOUND = 0.0002  # the share of valid pixels a reused mask may differ on (issue 4
 def pipes():
     """(reusing pipeline, a view of it that never reuses)."""
     p = Pipeline()
+    p.reuse = True
     fresh = p.view()
     fresh.reuse = False
     yield p, fresh

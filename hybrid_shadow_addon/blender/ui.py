@@ -99,6 +99,7 @@ class RENDER_PT_hybrid_shadows_viewport(RenderSubPanel, bpy.types.Panel):
         col.prop(props, "viewport_quality", text="Quality")
         col.prop(props, "navigation_quality")
         col.prop(props, "use_interlace")
+        col.prop(props, "use_reuse_visibility")
         sub = col.column(align=True)
         sub.active = props.use_soft_shadows
         sub.prop(props, "viewport_samples", text="Soft Samples")

@@ -207,7 +207,7 @@ def view_render(engine, scene, rv3d, width, height) -> None:
     view_key = (tuple(map(tuple, rv3d.view_matrix)), tuple(map(tuple, rv3d.window_matrix)), width, height)
     light = getattr(props.debug_light, "name", None)
     film = bool(scene.render.film_transparent)
-    key = (view_key, full, props.debug_view, light, film)
+    key = (view_key, full, props.debug_view, light, film, props.use_reuse_visibility)
     if key != engine._vp_state or state.generation != engine._vp_generation:
         engine._vp_state, engine._vp_generation = key, state.generation
         if "raytrace" in (fast.mode, full.mode):
@@ -217,7 +217,8 @@ def view_render(engine, scene, rv3d, width, height) -> None:
         post = None if props.debug_view == "NONE" else DebugView(props.debug_view, light)
         engine._vp_sent = worker.render(RenderRequest(view=engine._vp_user, scene=core, fast=fast, full=full,
                                                       width=width, height=height, film_transparent=film, post=post,
-                                                      fast_auto=props.navigation_quality == "AUTO"))
+                                                      fast_auto=props.navigation_quality == "AUTO",
+                                                      reuse=props.use_reuse_visibility))
         engine._vp_refining = True
     worker.pump()  # (inline mode only: one frame now)
     show_result(engine, worker)

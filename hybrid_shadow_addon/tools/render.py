@@ -234,7 +234,7 @@ def _read_stats(path: Path) -> dict:
 
 def render_frames(source, frames, settings, *, output: str, resolution=None, masks_dir: str | None = None,
                   stats_path: str | None = None, overwrite: bool = False, progress=None, pipeline=None,
-                  reuse: bool = True) -> dict:
+                  reuse: bool = False) -> dict:
     """Render ``frames`` of ``source`` (``source.scene_at(frame) -> Scene``) to ``output`` (a
     ``#`` pattern, see :func:`frame_path`), baking once and updating the bake between frames
     (:func:`~..core.scene_sync.sync_scene`). Each frame's files appear all at once; frames whose

@@ -13,6 +13,7 @@ accumulation) are its own; a bake change made through any of them resets every o
 """
 from __future__ import annotations
 
+import hashlib
 import time
 from dataclasses import dataclass, field
 
@@ -35,6 +36,18 @@ from .targets import read_texture
 
 #: ``Settings.mode`` -> the shadow pass that makes its masks
 SHADOW_PASSES = {"raytrace": RaytracePass, "shadowmap": ShadowMapPass, "none": NoShadowPass}
+
+
+def mask_inputs(scene) -> bytes:
+    """A digest of what the masks read from ``scene`` apart from the bake and the lights: each
+    instance's light and shadow linking sets, casting flag, material and terminator offset."""
+    inst = scene.instances
+    h = hashlib.blake2b(digest_size=16)
+    for name in ("light_sets", "shadow_sets", "casts_shadow", "material_ids", "terminator"):
+        a = getattr(inst, name, None)
+        if a is not None:
+            h.update(np.ascontiguousarray(a).tobytes())
+    return h.digest()
 
 
 @dataclass
@@ -133,7 +146,10 @@ class Pipeline:
         self._owns_gpu = share is None
         self._generation = self._bake.generation
         self._camera = None  # the last frame's camera (its CameraUniforms' values)
-        self.reuse = True  # reuse visibility across camera moves and edits (else forget)
+        self._inputs = None  # mask_inputs() of the last frame's scene
+        # reuse visibility across camera moves and edits (else forget): off by default, as its
+        # marking passes cost more than the rays they save on a software rasteriser
+        self.reuse = False
         self.programs = self.gpu.programs
         self.scene_textures = self.gpu.scene_textures
         self.gbuffer_pass = GBufferPass(self.gpu)
@@ -249,7 +265,14 @@ class Pipeline:
         self._st.reset()
 
     def _catch_up(self, scene, width: int, height: int) -> None:
-        """Bring the passes' history up to the bake's edits and this frame's camera."""
+        """Bring the passes' history up to the bake's edits, to what the masks read besides the
+        bake (linking, casting, materials and terminator per instance: a change forgets every
+        history) and to this frame's camera."""
+        inputs = mask_inputs(scene)
+        if inputs != self._inputs:
+            if self._inputs is not None:
+                self.reset_history()
+            self._inputs = inputs
         if self._generation != self._bake.generation:
             boxes = self._bake.since(self._generation) if self.reuse else None
             if boxes is None:

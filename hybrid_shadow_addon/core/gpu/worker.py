@@ -99,6 +99,7 @@ class RenderRequest:
     post: object = None
     seq: int = 0
     fast_auto: bool = False  # the fast pass's quality follows the renderer (fast_settings)
+    reuse: bool = False  # the view's Pipeline.reuse: visibility kept across camera moves and edits
 
 
 @dataclass
@@ -408,6 +409,7 @@ class RenderWorker:
         vp = self._views.get(req.view)
         if vp is None:
             vp = self._views[req.view] = pipe.view()
+        vp.reuse = bool(req.reuse)
         if job.step == 0:  # (a camera move keeps the history: the view reprojects what stays exact)
             settings = fast_settings(req, self._renderer(pipe))
             job.refine = refine_frames(settings, req.full)
