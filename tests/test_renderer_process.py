@@ -241,3 +241,26 @@ def test_compare_measures_in_the_process_and_a_closed_call_cancels(loaded, final
     assert len(seen) == 1 + 2 * (1 + 2 + 1) and len(result["runs"]) == 2
     shadow, total, masks = result["runs"][0]
     assert len(shadow) == 2 and masks[scene.lights[0].name].shape == (60, 80)
+
+
+def test_a_render_region_renders_that_part_of_the_view(loaded, final):
+    """View ▸ Render Region: the cropped projection renders the region's pixels of the whole
+    view's frame (same image, same masks), at the region's size."""
+    from hybrid_shadow_addon.blender.viewport import crop_window, viewport_camera
+
+    scene = loaded("cube_on_plane")
+    W, H = 160, 120
+    view = np.linalg.inv(scene.camera.world_matrix_normalized())
+    window = scene.camera.projection_matrix(W, H)
+    settings = Settings(hard=True)
+    whole = final.render(dataclasses.replace(scene, camera=viewport_camera(view, window, W, H)), settings, W, H)
+    x0, y0, w, h = rect = (40, 30, 64, 48)  # (bottom-up pixels)
+    part = final.render(dataclasses.replace(scene, camera=viewport_camera(view, crop_window(window, rect, W, H), w, h)),
+                        settings, w, h)
+    rows, cols = slice(H - y0 - h, H - y0), slice(x0, x0 + w)
+    assert part.image.shape == (h, w, 4)
+    assert np.abs(part.image - whole.image[rows, cols]).max() < 1e-4
+    a, b = part.mask_array(part.lights[0]), whole.mask_array(whole.lights[0])[rows, cols]
+    assert np.array_equal(np.isnan(a), np.isnan(b)) and np.nanmax(np.abs(a - b)) == 0.0
+    assert 0.0 < np.nanmean(a) < 1.0  # (the region holds a shadow edge)
+    assert np.array_equal(crop_window(window, (0, 0, W, H), W, H), window)

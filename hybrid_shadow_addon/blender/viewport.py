@@ -402,6 +402,36 @@ def _mask_inputs(scene) -> tuple:
 _SENSOR = 36.0
 
 
+def render_region(context, width: int, height: int):
+    """``(x0, y0, w, h)`` in region pixels (bottom-up) of the 3D view's render region (View ▸
+    Render Region, outside the camera view, as Cycles' viewport renders it), None without one
+    (or an empty one)."""
+    space, rv3d = getattr(context, "space_data", None), getattr(context, "region_data", None)
+    if not getattr(space, "use_render_border", False) or getattr(rv3d, "view_perspective", "") == "CAMERA":
+        return None
+    x0, x1 = int(space.render_border_min_x * width), int(space.render_border_max_x * width)
+    y0, y1 = int(space.render_border_min_y * height), int(space.render_border_max_y * height)
+    x0, y0 = max(0, min(x0, width)), max(0, min(y0, height))
+    x1, y1 = max(x0, min(x1, width)), max(y0, min(y1, height))
+    if x1 - x0 < 1 or y1 - y0 < 1 or (x1 - x0, y1 - y0) == (width, height):
+        return None
+    return x0, y0, x1 - x0, y1 - y0
+
+
+def crop_window(window_matrix, rect, width: int, height: int) -> np.ndarray:
+    """The projection of the ``rect`` (``(x0, y0, w, h)`` bottom-up pixels) of a ``width`` x
+    ``height`` view: its clip space scaled and moved so that the rectangle fills it."""
+    P = np.array([tuple(r) for r in window_matrix], np.float64)
+    x0, y0, w, h = rect
+    if (x0, y0, w, h) == (0, 0, width, height):
+        return P
+    crop = np.eye(4)
+    crop[0, 0], crop[1, 1] = width / w, height / h
+    crop[0, 3] = -(2.0 * x0 + w - width) / w
+    crop[1, 3] = -(2.0 * y0 + h - height) / h
+    return crop @ P
+
+
 def viewport_camera(view_matrix, window_matrix, width: int, height: int) -> Camera:
     """A core camera reproducing a 3D view (``RegionView3D.view_matrix`` / ``window_matrix``,
     as nested sequences or mathutils matrices) on a ``width`` x ``height`` region."""
@@ -488,10 +518,11 @@ class ViewportDisplay:
         self.texture = gpu.types.GPUTexture((image.width, image.height), format="RGBA32F", data=buf)
         self.size = (image.width, image.height)
 
-    def draw(self, scene, width: int, height: int, engine=None) -> None:
-        """Draw the texture over ``width`` x ``height`` pixels, alpha premultiplied, through the
-        scene's view transform (``engine.bind_display_space_shader``; without an engine, as in
-        the headless tests, the plain image shader draws it)."""
+    def draw(self, scene, width: int, height: int, engine=None, origin=(0, 0)) -> None:
+        """Draw the texture over ``width`` x ``height`` pixels from ``origin`` (a render region's
+        corner), alpha premultiplied, through the scene's view transform
+        (``engine.bind_display_space_shader``; without an engine, as in the headless tests, the
+        plain image shader draws it)."""
         import gpu
         from gpu_extras.presets import draw_texture_2d
 
@@ -501,7 +532,7 @@ class ViewportDisplay:
         if engine is not None:
             engine.bind_display_space_shader(scene)
         try:
-            draw_texture_2d(self.texture, (0, 0), width, height)
+            draw_texture_2d(self.texture, tuple(origin), width, height)
         finally:
             if engine is not None:
                 engine.unbind_display_space_shader()

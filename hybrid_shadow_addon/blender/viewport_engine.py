@@ -40,7 +40,7 @@ from ..core.gpu.worker import RenderRequest, RenderWorker, SharedRegistry, Share
 from . import gl
 from .export.curves import TUBES
 from .final_render import settings_label
-from .viewport import ViewportDisplay, ViewportSync, prepare_display, viewport_camera
+from .viewport import ViewportDisplay, ViewportSync, crop_window, prepare_display, render_region, viewport_camera
 
 #: the shared state of the viewports of each (scene, view layer, local view)
 _registry = SharedRegistry()
@@ -167,14 +167,16 @@ def view_draw(engine, context, depsgraph) -> None:
     the newest image over the region unless it failed."""
     region, rv3d = context.region, context.region_data
     scene = depsgraph.scene
+    rect = render_region(context, region.width, region.height) or (0, 0, region.width, region.height)
     try:
         _acquire(engine, depsgraph, local_view_objects(context), export=True)
         px = preview_pixel_size(context)
-        view_render(engine, scene, rv3d, max(1, -(-region.width // px)), max(1, -(-region.height // px)))
+        window = crop_window(rv3d.window_matrix, rect, region.width, region.height)
+        view_render(engine, scene, rv3d, max(1, -(-rect[2] // px)), max(1, -(-rect[3] // px)), window=window)
     except Exception as exc:
         report_error(engine, exc)
     if engine._display is not None and engine._vp_error is None:
-        engine._display.draw(scene, region.width, region.height, engine=engine)
+        engine._display.draw(scene, rect[2], rect[3], engine=engine, origin=rect[:2])
 
 
 def report_error(engine, exc) -> None:
@@ -191,20 +193,22 @@ def report_error(engine, exc) -> None:
     engine.update_stats("", f"Hybrid Shadows error: {msg}")
 
 
-def view_render(engine, scene, rv3d, width, height) -> None:
+def view_render(engine, scene, rv3d, width, height, window=None) -> None:
     """Queue a render of the engine's view when the view, the settings or the scene changed
     (the worker renders the navigation quality first, then full viewport quality: four frames
     with interlacing, more while soft shadows accumulate; the automatic navigation quality is
     the viewport quality on a software rasteriser), then show the newest finished frame.
-    Redraws are tagged until the last one is shown."""
+    Redraws are tagged until the last one is shown. ``window``: the projection (default the
+    view's; a render region's crop of it)."""
     state = shared(engine)
+    window = rv3d.window_matrix if window is None else window
     if state is None or state.sync.scene is None:
         return
     worker = state.worker
     props = scene.hybrid_shadows
     full = props.to_settings(viewport=True)
     fast = props.to_settings(viewport=True, navigating=True)
-    view_key = (tuple(map(tuple, rv3d.view_matrix)), tuple(map(tuple, rv3d.window_matrix)), width, height)
+    view_key = (tuple(map(tuple, rv3d.view_matrix)), tuple(map(tuple, window)), width, height)
     light = getattr(props.debug_light, "name", None)
     film = bool(scene.render.film_transparent)
     key = (view_key, full, props.debug_view, light, film, props.use_reuse_visibility)
@@ -213,7 +217,7 @@ def view_render(engine, scene, rv3d, width, height) -> None:
         if "raytrace" in (fast.mode, full.mode):
             state.sync.ensure_baked()
         core = dataclasses.replace(state.scene_snapshot(), resolution=(width, height),
-                                   camera=viewport_camera(rv3d.view_matrix, rv3d.window_matrix, width, height))
+                                   camera=viewport_camera(rv3d.view_matrix, window, width, height))
         post = None if props.debug_view == "NONE" else DebugView(props.debug_view, light)
         engine._vp_sent = worker.render(RenderRequest(view=engine._vp_user, scene=core, fast=fast, full=full,
                                                       width=width, height=height, film_transparent=film, post=post,
