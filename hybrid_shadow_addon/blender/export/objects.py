@@ -23,6 +23,8 @@ realised geometry-nodes mesh: ``mesh.materials[k]``), the same matrix and shadow
 """
 from __future__ import annotations
 
+import time
+
 import bpy
 import numpy as np
 
@@ -51,6 +53,10 @@ from .world import world_color
 
 #: Object types drawn as tubes or sphere primitives
 STRAND_TYPES = ("CURVES", "POINTCLOUD")
+
+
+#: the longest stretch an export holds Python's lock between two objects (seconds)
+YIELD_S = 0.002
 
 
 class SceneExporter:
@@ -99,9 +105,13 @@ class SceneExporter:
     def _walk(self) -> None:
         vectorised = set()  # evaluated instancers whose instances came from their GeometrySet
         iterated = set()  # evaluated instancers with duplis taken from the iterator
+        last = time.perf_counter()
         for inst in self.dg.object_instances:
             if self.should_stop is not None and self.should_stop():
                 raise Cancelled()
+            if time.perf_counter() - last > YIELD_S:  # (an export off the main thread lets it run)
+                time.sleep(0)
+                last = time.perf_counter()
             if inst.is_instance:
                 parent = inst.parent
                 pptr = parent.as_pointer()

@@ -31,6 +31,9 @@ from . import memory
 from .channel import error_info, read_message, write_message
 
 MB = float(1 << 20)
+#: the renderer's scheduling priority below the caller's (POSIX): on a software rasteriser its
+#: threads take every core, and the interface's threads must still be woken on time
+NICE = 15
 _ROOT = __name__.rsplit(".core.gpu.", 1)[0]
 
 
@@ -318,6 +321,15 @@ def _claim_stdout():
 
 def serve(rfile) -> None:
     """The renderer process's main function: messages from ``rfile`` (its stdin)."""
+    # the modules messages name, imported in the package's own order before any message is
+    # read (unpickling a Settings first would enter the bake's imports halfway)
+    from . import pipeline, worker  # noqa: F401
+
+    if hasattr(os, "nice"):  # where the rasteriser runs on the CPU, the interface comes first
+        try:
+            os.nice(NICE)
+        except OSError:
+            pass
     server = Server(_claim_stdout())
     reader = threading.Thread(target=server.read_loop, args=(rfile,), name="hybrid-shadows-reader", daemon=True)
     reader.start()
