@@ -30,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
 from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+from hybrid_shadow_addon.tools.metrics import frame_mismatch  # noqa: E402
 
 HARD = Settings(mode="raytrace", quality="high", hard=True)
 
@@ -71,12 +72,8 @@ def still(cams) -> bool:
 
 
 def mismatch(a, b) -> float:
-    bad = valid = 0
-    for li in b.lights:
-        ma, mb = a.mask_array(li), b.mask_array(li)
-        ok = ~np.isnan(mb)
-        bad += int((np.abs(ma - mb)[ok] > 1e-3).sum())
-        valid += int(ok.sum())
+    """The share of valid pixels whose masks differ (:func:`frame_mismatch`)."""
+    bad, valid = frame_mismatch(a, b)
     return bad / max(valid, 1)
 
 

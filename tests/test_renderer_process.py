@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import threading
 import time
 
 import numpy as np
 import pytest
 
+from benchmarks.bench_interface import Ticker
 from hybrid_shadow_addon.core.errors import Cancelled
 from hybrid_shadow_addon.core.gpu.channel import RendererError
 from hybrid_shadow_addon.core.gpu.remote import FinalRenderer, RemoteWorker
@@ -28,29 +28,6 @@ from hybrid_shadow_addon.core.settings import Settings
 pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 
 SIZE = (320, 180)
-
-
-class Ticker(threading.Thread):
-    """Sleeps 1 ms at a time and records the longest gap between its ticks (it needs Python's
-    lock to tick, as Blender's interface does)."""
-
-    def __init__(self):
-        super().__init__(daemon=True)
-        self.gap = 0.0
-        self.running = True
-
-    def run(self):
-        last = time.perf_counter()
-        while self.running:
-            time.sleep(0.001)
-            now = time.perf_counter()
-            self.gap = max(self.gap, now - last)
-            last = now
-
-    def stop(self) -> float:
-        self.running = False
-        self.join(5)
-        return self.gap * 1e3
 
 
 def _request(scene, settings, view="v", size=SIZE):

@@ -10,6 +10,7 @@ from helpers.scenes import all_lights, basic_scene, cube_model, look_at, plane_m
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.scene import Instances, Light, Scene
 from hybrid_shadow_addon.core.settings import Settings
+from hybrid_shadow_addon.tools.metrics import frame_mismatch
 
 pytestmark = pytest.mark.gpu
 
@@ -36,15 +37,7 @@ def orbit(scene, k, step=0.04, target=(0.3, 0.6, 0.3), radius=6.8, height=3.5, c
     return dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, matrix=look_at(eye, target)))
 
 
-def mismatch(a, b) -> tuple:
-    """(pixels whose masks differ over all lights, valid pixels over all lights)."""
-    bad = valid = 0
-    for li in b.lights:
-        ma, mb = a.mask_array(li), b.mask_array(li)
-        ok = ~np.isnan(mb)
-        bad += int((np.abs(ma - mb)[ok] > 1e-3).sum())
-        valid += int(ok.sum())
-    return bad, valid
+mismatch = frame_mismatch  # (pixels whose masks differ over all lights, valid pixels over all lights)
 
 
 def crowd(n_side=12, mover_at=(0.0, 0.0)):

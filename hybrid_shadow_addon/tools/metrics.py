@@ -205,3 +205,15 @@ def frame_stats(frame_ms, control_ms=None) -> dict:
         out["extra_ms"] = float(extra.mean())
         out["extra_ms_per_frame"] = [float(v) for v in extra]
     return out
+
+
+def frame_mismatch(a, b) -> tuple:
+    """``(pixels whose masks differ, valid pixels)`` of two frames over ``b``'s shadowed lights:
+    a pixel differs where the masks are more than 1e-3 apart; valid where ``b`` has geometry."""
+    bad = valid = 0
+    for li in b.lights:
+        ma, mb = a.mask_array(li), b.mask_array(li)
+        ok = ~np.isnan(mb)
+        bad += int((np.abs(ma - mb)[ok] > 1e-3).sum())
+        valid += int(ok.sum())
+    return bad, valid

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..errors import Cancelled
 from .channel import RendererError, read_message, rebuild_error, write_message
-from .worker import snapshot
+from .worker import ViewResults, snapshot
 
 #: how long a cancelled final render may take to stop before its process is ended
 CANCEL_S = 0.15
@@ -209,7 +209,7 @@ def close_all() -> None:
         p.close(timeout=1.0)
 
 
-class RemoteWorker:
+class RemoteWorker(ViewResults):
     """:class:`~.worker.RenderWorker`'s interface over a renderer process (module docstring).
     The scene of render requests crosses once per change: each request carries only its camera,
     resolution and settings."""
@@ -218,11 +218,7 @@ class RemoteWorker:
 
     def __init__(self, prepare=None, name: str = "hybrid-shadows-viewport"):
         self._prepare = prepare
-        self._cond = threading.Condition()
-        self._results: dict = {}
-        self._errors: list = []  # (n, view, exception)
-        self._error_n = 0
-        self._seen: dict = {}
+        self._init_results()
         self._acked = 0
         self._busy: dict = {}  # view -> the child's last word on its work
         self._busy_any = False
@@ -286,20 +282,7 @@ class RemoteWorker:
         self.coalesced += dropped
         return seq
 
-    # -- results ----------------------------------------------------------------------------------
-    def poll(self, view):
-        with self._cond:
-            result = self._results.pop(view, None)
-            seen = self._seen.get(view, 0)
-            errors = [e for n, v, e in self._errors if n > seen and (v is None or v == view)]
-            self._seen[view] = self._error_n
-            return result, errors
-
-    def has_news(self, view) -> bool:
-        with self._cond:
-            seen = self._seen.get(view, 0)
-            return view in self._results or any(n > seen and (v is None or v == view) for n, v, _ in self._errors)
-
+    # -- results: ViewResults.poll, has_news -------------------------------------------------------
     def busy(self, view=None) -> bool:
         """Whether messages are unapplied or the child reported work for ``view`` (any: None)."""
         with self._cond:
@@ -335,11 +318,6 @@ class RemoteWorker:
         self._proc.close(min(timeout, CLOSE_S))
 
     # -- receiver thread --------------------------------------------------------------------------
-    def _add_error(self, view, exc) -> None:
-        self._error_n += 1
-        self._errors.append((self._error_n, view, exc))
-        del self._errors[:-64]
-
     def _on_message(self, msg) -> None:
         kind = msg[0]
         if kind == "result":

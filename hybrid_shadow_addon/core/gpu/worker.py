@@ -149,7 +149,42 @@ def _default_release(pipeline) -> None:
 _live: weakref.WeakSet[RenderWorker] = weakref.WeakSet()
 
 
-class RenderWorker:
+class ViewResults:
+    """The finished frames and errors of a worker's views, taken by the caller: the newest frame
+    of each view (``_results``) and the errors of each view or of every view (``_errors``, each
+    given once per view). Guarded by ``_cond``."""
+
+    def _init_results(self) -> None:
+        self._cond = threading.Condition()
+        self._results: dict = {}  # view -> newest ViewResult not taken yet
+        self._errors: list = []  # (n, view or None for every view, exception)
+        self._error_n = 0
+        self._seen: dict = {}  # view -> n of the last error it took
+
+    def _add_error(self, view, exc) -> None:
+        """Record ``exc`` for ``view`` (None: every view); call with ``_cond`` held."""
+        self._error_n += 1
+        self._errors.append((self._error_n, view, exc))
+        del self._errors[:-64]
+
+    def poll(self, view):
+        """``(result, errors)``: the newest finished frame of ``view`` not taken yet (or None) and
+        the errors raised for it (or for every view) since the last poll, each given once."""
+        with self._cond:
+            result = self._results.pop(view, None)
+            seen = self._seen.get(view, 0)
+            errors = [e for n, v, e in self._errors if n > seen and (v is None or v == view)]
+            self._seen[view] = self._error_n
+            return result, errors
+
+    def has_news(self, view) -> bool:
+        """Whether :meth:`poll` would give ``view`` a frame or an error."""
+        with self._cond:
+            seen = self._seen.get(view, 0)
+            return view in self._results or any(n > seen and (v is None or v == view) for n, v, _ in self._errors)
+
+
+class RenderWorker(ViewResults):
     """See the module docstring. ``create()`` makes the pipeline (with its context),
     ``scope(pipeline)`` makes its context current meanwhile, ``release(pipeline)`` frees it."""
 
@@ -159,15 +194,11 @@ class RenderWorker:
         self._scope = scope or _default_scope
         self._release = release or _default_release
         self.synchronous = SYNCHRONOUS if synchronous is None else bool(synchronous)
-        self._cond = threading.Condition()
+        self._init_results()
         self._queue: collections.deque = collections.deque()
         self._active = None  # the item being executed
         self._epoch = 0  # bumped by every scene command: refinement started before is stale
         self._seq = itertools.count(1)
-        self._results: dict = {}  # view -> newest ViewResult not taken yet
-        self._errors: list = []  # (n, view or None for every view, exception)
-        self._error_n = 0
-        self._seen: dict = {}  # view -> n of the last error it took
         self._closing = False
         self._pipe = None
         self._views: dict = {}  # view -> Pipeline.view() (worker side only)
@@ -250,23 +281,7 @@ class RenderWorker:
             self._queue.extend(keep)
         return n
 
-    # -- results (caller's thread) ----------------------------------------------------------------
-    def poll(self, view):
-        """``(result, errors)``: the newest finished frame of ``view`` not taken yet (or None) and
-        the errors raised for it (or for every view) since the last poll, each given once."""
-        with self._cond:
-            result = self._results.pop(view, None)
-            seen = self._seen.get(view, 0)
-            errors = [e for n, v, e in self._errors if n > seen and (v is None or v == view)]
-            self._seen[view] = self._error_n
-            return result, errors
-
-    def has_news(self, view) -> bool:
-        """Whether :meth:`poll` would give ``view`` a frame or an error."""
-        with self._cond:
-            seen = self._seen.get(view, 0)
-            return view in self._results or any(n > seen and (v is None or v == view) for n, v, _ in self._errors)
-
+    # -- results (caller's thread): ViewResults.poll, has_news --------------------------------------
     def busy(self, view=None) -> bool:
         """Whether work that concerns ``view`` (any, when None) is queued or running: its renders
         and refinement, and every scene command."""
@@ -373,9 +388,7 @@ class RenderWorker:
             if kind in _SCENE_COMMANDS and self._pipe is not None:
                 self._pipe.baked = None  # half-updated: the next ray-traced frame bakes afresh
             with self._cond:
-                self._error_n += 1
-                self._errors.append((self._error_n, view, exc))
-                del self._errors[:-64]
+                self._add_error(view, exc)
             if not isinstance(exc, Exception):
                 raise
             return kind in ("render", "continue")
