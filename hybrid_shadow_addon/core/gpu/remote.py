@@ -37,7 +37,7 @@ from .channel import RendererError, read_message, rebuild_error, write_message
 from .worker import ViewResults, snapshot
 
 #: how long a cancelled final render may take to stop before its process is ended
-CANCEL_S = 0.15
+CANCEL_S = 0.12
 #: how long :meth:`RendererProcess.close` waits for the child to exit before ending it
 CLOSE_S = 2.0
 
@@ -368,6 +368,7 @@ class FinalRenderer:
         self._events: collections.deque = collections.deque()
         self._jobs = itertools.count(1)
         self._exited = None
+        self._killed = False
         self._proc = RendererProcess(self._on_message, self._on_exit, name)
 
     @property
@@ -383,10 +384,7 @@ class FinalRenderer:
         package) in the process; yields each label it yields, or None after about 20 ms without
         one (so a modal operator's step returns); returns its return value. Closing it cancels
         the call."""
-        job = next(self._jobs)
-        with self._cond:
-            self._events.clear()
-            self._exited = None
+        job = self._begin()
         self._proc.post(("call", job, target, kwargs))
         finished = False
         try:
@@ -414,6 +412,17 @@ class FinalRenderer:
             if not finished:
                 self._cancel(job)
 
+    def _begin(self) -> int:
+        """A new job's number, the events of earlier ones dropped (and the exit of a renderer
+        ended by a cancel recorded first: the next message starts a new one)."""
+        with self._cond:
+            if self._killed:
+                self._cond.wait_for(lambda: self._exited is not None, 5.0)
+                self._killed = False
+            self._events.clear()
+            self._exited = None
+        return next(self._jobs)
+
     def _wait(self):
         """The events that came within about 20 ms, and the child's exit code (None: running)."""
         with self._cond:
@@ -428,10 +437,7 @@ class FinalRenderer:
         ``persistent_key`` (None: bake afresh and give the bake back after), ``want`` (G-buffer
         targets to read), ``masks``, ``max_draw_ms``. ``should_stop()`` polled every 20 ms: True
         cancels (raises :class:`Cancelled`); ``on_progress(done, total, label)`` follows the child."""
-        job = next(self._jobs)
-        with self._cond:
-            self._events.clear()
-            self._exited = None
+        job = self._begin()
         self._proc.post(("final", job, scene, settings, int(width), int(height), options))
         while True:
             events, exited = self._wait()
@@ -463,8 +469,7 @@ class FinalRenderer:
                 e[0] == "final" and e[1] == job for e in self._events), CANCEL_S)
         if not done:
             self._proc.kill()
-            with self._cond:  # (its exit recorded before the next job starts)
-                self._cond.wait_for(lambda: self._exited is not None, 5.0)
+            self._killed = True  # (the next job waits for its exit to be recorded)
 
     def close(self) -> None:
         self._proc.close()
