@@ -24,12 +24,30 @@ _SLOT_SUFFIX = " [slot "
 
 
 def mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (V, 3) float32 and loop triangles (T, 3) uint32 of a mesh, via ``foreach_get``."""
+    """Vertices (V, 3) float32 and loop triangles (T, 3) uint32 of a mesh, via ``foreach_get``:
+    the triangles' corners mapped through the mesh's corner-to-vertex attribute where it has one
+    (one raw read; the triangles' own ``vertices`` are read item by item, a long call that holds
+    Python's lock)."""
     verts = np.empty(len(mesh.vertices) * 3, np.float32)
     mesh.vertices.foreach_get("co", verts)
-    tris = np.empty(len(mesh.loop_triangles) * 3, np.int32)
-    mesh.loop_triangles.foreach_get("vertices", tris)
+    corner_vert = _corner_verts(mesh)
+    if corner_vert is not None:
+        tris = corner_vert[_triangle_loops(mesh)]
+    else:
+        tris = np.empty(len(mesh.loop_triangles) * 3, np.int32)
+        mesh.loop_triangles.foreach_get("vertices", tris)
     return verts.reshape(-1, 3), tris.view(np.uint32).reshape(-1, 3)
+
+
+def _corner_verts(mesh) -> np.ndarray | None:
+    """(L,) vertex of each face corner from the mesh's ``.corner_vert`` attribute (Blender 4 and
+    later), None without it."""
+    attr = mesh.attributes.get(".corner_vert") if hasattr(mesh, "attributes") else None
+    if attr is None or attr.domain != "CORNER" or attr.data_type != "INT" or len(attr.data) != len(mesh.loops):
+        return None
+    out = np.empty(len(mesh.loops), np.int32)
+    attr.data.foreach_get("value", out)
+    return out
 
 
 def _triangle_loops(mesh) -> np.ndarray:
