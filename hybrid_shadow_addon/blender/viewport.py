@@ -17,6 +17,7 @@ import numpy as np
 
 from ..core.bake.materials import material_signature
 from ..core.gpu.debug_views import debug_image, grid_occupancy  # noqa: F401 - (re-exported)
+from ..core.gpu.passes.reproject import shadow_key
 from ..core.gpu.worker import writable_matrices
 from ..core.scene import Camera, Model, affine_inverse
 from . import export
@@ -371,29 +372,13 @@ class ViewportSync:
                         for a, b in zip(old.models, new.models)))
         if same:
             # keep the old models (their GPU buffers stay cached) and the bake; the masks stand
-            # unless what cuts shadows changed (alpha, images, transparent shadows)
+            # unless what cuts shadows changed (alpha, images, transparent shadows; the pipeline
+            # itself forgets them where the instances' linking, casting or materials change)
             new.models = old.models
             self.baked = baked
-            if material_signature(old) != material_signature(new) or _mask_inputs(old) != _mask_inputs(new):
+            if material_signature(old) != material_signature(new):
                 self._reset_history()
             self.log[-1] = ("shading", len(new.instances))
-
-
-def shadow_key(light) -> tuple:
-    """What a light's shadow depends on (its colour and power do not change a mask)."""
-    return (light.type, np.asarray(light.matrix, np.float64).tobytes(), float(light.radius), float(light.angle),
-            float(light.spot_size), float(light.size), float(light.size_y), str(light.area_shape),
-            float(light.spread), bool(light.use_shadow), int(light.receiver_set), int(light.blocker_set))
-
-
-def _mask_inputs(scene) -> tuple:
-    """What a re-export for materials, linking or view-layer toggles may change in the masks:
-    the instances' casting, material, terminator, visibility and linking columns, and the
-    lights' sets."""
-    inst = scene.instances
-    cols = tuple(np.asarray(getattr(inst, name)).tobytes() for name in (
-        "casts_shadow", "material_ids", "terminator", "visible_camera", "holdout", "light_sets", "shadow_sets"))
-    return cols + tuple((light.name, light.receiver_set, light.blocker_set) for light in scene.lights)
 
 
 # ------------------------------------------------------------------------------------------------

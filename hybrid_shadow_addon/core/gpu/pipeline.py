@@ -152,13 +152,17 @@ class Pipeline:
         self.reuse = False
         self.programs = self.gpu.programs
         self.scene_textures = self.gpu.scene_textures
+        self._make_passes()
+        self.see_through = SeeThroughScene()
+        self.gbuffer_renders = 0  # G-buffer passes rendered (a see-through frame renders several)
+
+    def _make_passes(self) -> None:
+        """New passes (their targets and history made on first use)."""
         self.gbuffer_pass = GBufferPass(self.gpu)
         self.upsample = UpsamplePass(self.gpu)
         self.lighting = LightingPass(self.gpu)
         self._shadow: dict = {}  # mode -> shadow pass, created on first use
-        self.see_through = SeeThroughScene()
         self._st = SeeThroughAccumulation(self.ctx)  # the viewport's running see-through average
-        self.gbuffer_renders = 0  # G-buffer passes rendered (a see-through frame renders several)
 
     def view(self) -> Pipeline:
         """Another pipeline sharing this one's context, programs, model buffers and bake, with
@@ -447,11 +451,7 @@ class Pipeline:
         for p in self._passes():
             p.release()
         self._st.release()
-        self.gbuffer_pass = GBufferPass(self.gpu)
-        self.upsample = UpsamplePass(self.gpu)
-        self.lighting = LightingPass(self.gpu)
-        self._shadow = {}
-        self._st = SeeThroughAccumulation(self.ctx)
+        self._make_passes()
 
     def drop_bake(self) -> None:
         """Give back the scene: the bake's textures, the model buffers, material and linking

@@ -87,7 +87,7 @@ class RendererProcess:
         _live.add(self)
 
     # -- caller side ------------------------------------------------------------------------------
-    def post(self, body, replace=None, merge=None, rewrite=None) -> int:
+    def post(self, body, replace=None, merge=None, rewrite=None) -> tuple:
         """Queue ``body``. ``replace(body)``: unsent messages it matches are dropped first, and
         ``merge(dropped bodies, body)`` makes the body queued from them; ``rewrite(body)``:
         what each unsent message becomes. Returns ``(message seq, dropped count)``."""
