@@ -39,6 +39,8 @@
 // | HS_SOFT_FULL     | a refined pixel never stops early                                | soft.py           |
 // | HS_LINKING       | light and shadow linking: rays skip the instances outside the    | trace.py (from    |
 // |                  | light's blocker set, pixels outside its receiver set are 0       | gpu/linking.py)   |
+// | HS_CODE_OUT      | a second output, the pixel's code for the next frame's reuse     | hard.py, with     |
+// |                  | (reproject.glsl MARK): +-(3 + footprint), 0.5 between 0 and 1    | reproject.py      |
 // | HS_LOOP_CHECK    | tests: a pixel whose loop hit llvmpipe's budget reads            | soft.py           |
 // |                  | HS_LOOP_SPENT (RaytraceOptions.loop_check; see below)            |                   |
 
@@ -85,6 +87,12 @@ uniform int u_split;
 float o_mask;                   // the answers known without a ray: written as (o_mask, 1)
 vec2 hs_sums = vec2(-1.0);
 vec2 hs_first = vec2(0.0);
+#elif defined(HS_CODE_OUT)
+#if defined(HS_INTERLACE) || defined(HS_SOFT)
+#error HS_CODE_OUT is for a hard light's full-resolution mask
+#endif
+layout(location = 0) out float o_mask;
+layout(location = 1) out float o_code;
 #else
 out float o_mask;
 #endif
@@ -307,6 +315,13 @@ void trace_main()
 void main()
 {
     trace_main();
+#ifdef HS_CODE_OUT
+    {
+        ivec2 px = ivec2(gl_FragCoord.xy);
+        float s = 3.0 + hs_footprint(texelFetch(u_gb_depth, px, 0).r);
+        o_code = o_mask == 1.0 ? s : (o_mask == 0.0 ? -s : 0.5);
+    }
+#endif
 #ifdef HS_SOFT_SUMS
     o_sums = hs_sums.y >= 0.0 ? vec4(hs_sums, hs_first) : vec4(o_mask, 1.0, 0.0, 0.0);
 #endif

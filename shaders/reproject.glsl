@@ -4,27 +4,30 @@
 //
 // STORE: the G-buffer kept for the next frame (o_geo: world xyz, instance index + 1, 0 on
 // background; o_nrm: geometric normal, footprint of a pixel on the surface).
-// MARK (hard lights): per pixel, the answer without a ray (shadow_ray_prelude), else the previous
-// mask at the previous frame's pixel of its world position where hs_history_pixel accepts it and
-// the previous mask's 3x3 neighbourhood there is all 0 or all 1 (no shadow edge) and its samples
-// (u_still, the same camera: the same pixel, edge or not) were no sparser than u_spacing_ratio
-// of this frame's pixel footprint (a zoom in retraces, so a shadow thinner than the old spacing
-// is found); else a mark for a ray (gl_FragDepth 0). o_spacing: the surface spacing of the
-// samples the value stands on, positive where it was reused, negative (minus this frame's
-// footprint) where it is this frame's.
-// HISTORY: hs_history_pixel of each pixel but for the edited boxes (light-independent: once a
-// frame, for every hard light's MARK), -1 where it has none.
-// FRESH: the spacing of a mask traced whole (minus the footprint).
-// COUNT: discards all but the reused pixels (an occlusion query counts them).
+// MARK (hard lights, no mode define): per pixel, the answer without a ray (shadow_ray_prelude),
+// else the previous mask at HISTORY's point where the previous frame's 3x3 codes around it all
+// say lit or all say shadowed (no shadow edge) and their samples (u_still, the same camera: the
+// same pixel, edge or not) were no sparser than u_spacing_ratio of this frame's pixel footprint
+// (a zoom in retraces, so a shadow thinner than the old spacing is found), and (HS_BOXES) the
+// point's shadow segment meets no edited box; else a mark for the trace (gl_FragDepth 0), which
+// writes the pixel's mask and code (raytrace.glsl HS_CODE_OUT).
+// A code (o_code) is +-2 for a mask of 1 or 0 known without a ray (background, facing away:
+// true for any sampling), +-(3 + s) for one whose samples were s apart on the surface (this
+// frame's footprint where traced, what a reused value stood on), 0.5 for a mask between.
+// COUNT: discards all but the pixels whose code is +-(3 + s): traced or reused (an occlusion
+// query counts them).
+// HISTORY: per pixel, its surface point's position in the previous frame's window (pixels) where
+// hs_history_pixel accepts it but for the edited boxes (light-independent: once a frame, for
+// every hard light's MARK), -1 where it has none, -2 on background; and its footprint.
 // SOFT: the previous frame's accumulated sums (RG: weighted visibility, weight; B: samples) at
 // the previous pixel where hs_history_pixel accepts it, else 0 (the pixel starts over).
 //
 // hs_history_pixel rejects: background, a point behind or outside the previous view, another
 // instance there, normals apart (u_normal_cos), a point off the previous sample's surface by more
 // than u_pos_tol footprints (6 times that / the view's cosine along it), a grazing view in
-// either frame (u_view_cos), a point beyond the previous frame's max distance, and a shadow
-// segment (or a soft light's cone, widened by u_pad_abs + u_pad_slope x distance) that meets
-// one of the u_boxes edited boxes (bake space).
+// either frame (u_view_cos), a point beyond the previous frame's max distance, and (HS_BOXES) a
+// shadow segment (or a soft light's cone, widened by u_pad_abs + u_pad_slope x distance) that
+// meets one of the u_boxes edited boxes (bake space).
 
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
@@ -38,13 +41,6 @@
 #endif
 
 #define HS_MAX_BOXES 32
-
-// A pixel's footprint on a surface facing the camera at view depth `depth`.
-float hs_footprint(float depth)
-{
-    float w = (u_viewplane.y - u_viewplane.x) / u_resolution.x;
-    return u_ortho == 1 ? w : w * depth / u_clip_start;
-}
 
 #ifdef STORE
 layout(location = 0) out vec4 o_geo;
@@ -68,6 +64,7 @@ uniform float u_pos_tol;
 uniform float u_normal_cos;
 uniform float u_view_cos;
 uniform int u_same_instance;    // 1: another instance there rejects (0 only in the tests)
+#ifdef HS_BOXES
 uniform int u_boxes;
 uniform vec3 u_box_min[HS_MAX_BOXES];
 uniform vec3 u_box_max[HS_MAX_BOXES];
@@ -95,14 +92,23 @@ bool hs_segment_meets(vec3 p, int i)
     return enter <= leave;
 }
 
+// Whether the segment from p can meet any edited box.
+bool hs_segment_meets_any(vec3 p)
+{
+    for (int i = 0; i < u_boxes; ++i)
+        if (hs_segment_meets(p, i)) return true;
+    return false;
+}
+#endif
+
 vec2 hs_win;    // hs_history_pixel's point in the previous frame's window (pixels)
 
-// The previous frame's pixel that holds pixel px's surface point, or (-1, -1).
+// The previous frame's pixel that holds pixel px's surface point, or (-1, -1) (-2: background).
 ivec2 hs_history_pixel(ivec2 px, out float footprint)
 {
     footprint = 0.0;
     vec4 pos = texelFetch(u_gb_position, px, 0);
-    if (pos.w == 0.0) return ivec2(-1);
+    if (pos.w == 0.0) return ivec2(-2);
     float depth = texelFetch(u_gb_depth, px, 0).r;
     footprint = hs_footprint(depth);
     vec3 n = texelFetch(u_gb_normal, px, 0).xyz;
@@ -129,8 +135,9 @@ ivec2 hs_history_pixel(ivec2 px, out float footprint)
 #ifdef HS_MAX_DISTANCE
     if (length(p_rel) > u_max_distance * 0.999) return ivec2(-1);
 #endif
-    for (int i = 0; i < u_boxes; ++i)
-        if (hs_segment_meets(p_bake, i)) return ivec2(-1);
+#ifdef HS_BOXES
+    if (hs_segment_meets_any(p_bake)) return ivec2(-1);
+#endif
     return q;
 }
 
@@ -169,76 +176,75 @@ void main()
     o_sums = u_keep * (wsum > 0.0 ? sum / wsum : texelFetch(u_prev_sums, q, 0));
 }
 #elif defined(HISTORY)
-layout(location = 0) out vec2 o_q;
+layout(location = 0) out vec4 o_win;
 
 void main()
 {
     float fp;
-    o_q = vec2(hs_history_pixel(ivec2(gl_FragCoord.xy), fp));
-}
-#elif defined(FRESH)
-out float o_spacing;
-
-void main()
-{
-    ivec2 px = ivec2(gl_FragCoord.xy);
-    o_spacing = -max(hs_footprint(texelFetch(u_gb_depth, px, 0).r), 1e-30);
+    ivec2 q = hs_history_pixel(ivec2(gl_FragCoord.xy), fp);
+    o_win = vec4(q.x < 0 ? vec2(q) : hs_win, fp, 0.0);
 }
 #elif defined(COUNT)
-uniform sampler2D u_spacing;
+uniform sampler2D u_code;
 out float o_mask;
 
 void main()
 {
-    if (!(texelFetch(u_spacing, ivec2(gl_FragCoord.xy), 0).r > 0.0)) discard;
+    if (!(abs(texelFetch(u_code, ivec2(gl_FragCoord.xy), 0).r) >= 3.0)) discard;
     o_mask = 1.0;
 }
 #else
 uniform sampler2D u_prev_mask;
-uniform sampler2D u_prev_spacing;
-uniform sampler2D u_history;    // HISTORY's output of this frame (u_boxes left to this light)
+uniform sampler2D u_prev_code;
+uniform sampler2D u_history;    // HISTORY's output of this frame (the edited boxes left to this light)
 uniform float u_spacing_ratio;
 uniform int u_still;            // 1: the same camera: the same pixel's value stands, edge or not
 uniform int u_refresh;          // one 4x2 block in u_refresh traces again each moving frame
 uniform int u_phase;            // which one (the frame's)
 layout(location = 0) out float o_mask;
-layout(location = 1) out float o_spacing;
+layout(location = 1) out float o_code;
+
+// The previous mask's value at HISTORY's point `win` of pixel px (footprint fp), or -1; `code`:
+// the value's code.
+float hs_reused_value(ivec2 px, vec2 win, float fp, out float code)
+{
+    ivec2 q = ivec2(floor(win));
+    if (u_still == 1) {
+        code = texelFetch(u_prev_code, q, 0).r;
+        return q == px ? texelFetch(u_prev_mask, q, 0).r : -1.0;
+    }
+    // the 3x3 codes around q: four gathers of 2x2 at the corners of texel q
+    vec2 inv = 1.0 / vec2(textureSize(u_prev_code, 0));
+    vec4 c0 = textureGather(u_prev_code, vec2(q) * inv, 0);
+    vec4 c1 = textureGather(u_prev_code, vec2(q + ivec2(1, 0)) * inv, 0);
+    vec4 c2 = textureGather(u_prev_code, vec2(q + ivec2(0, 1)) * inv, 0);
+    vec4 c3 = textureGather(u_prev_code, vec2(q + ivec2(1, 1)) * inv, 0);
+    vec4 lo4 = min(min(c0, c1), min(c2, c3)), hi4 = max(max(c0, c1), max(c2, c3));
+    float lo = min(min(lo4.x, lo4.y), min(lo4.z, lo4.w)), hi = max(max(hi4.x, hi4.y), max(hi4.z, hi4.w));
+    float spacing = max(max(hi, -lo) - 3.0, 0.0);  // the sparsest of their samples' spacings
+    code = hi <= -2.0 ? -(3.0 + spacing) : 3.0 + spacing;
+    return (lo >= 2.0 || hi <= -2.0) && spacing <= u_spacing_ratio * fp ? float(lo >= 2.0) : -1.0;
+}
 
 void main()
 {
     ivec2 px = ivec2(gl_FragCoord.xy);
     vec3 p, n, ns, to_light;
     float depth;
-    float value = shadow_ray_prelude(px, p, n, ns, depth, to_light);
+    float known = shadow_ray_prelude(px, p, n, ns, depth, to_light);
+    vec4 h = texelFetch(u_history, px, 0);
     // (a rotating share of the 4x2 blocks traces again: a value a move let through wrongly,
     // as a shadow thinner than the old samples' spacing, lasts about u_refresh frames)
     bool refresh = u_still == 0 && u_refresh > 1 && ((px.x >> 2) + 3 * (px.y >> 1) + u_phase) % u_refresh == 0;
-    float fp = hs_footprint(texelFetch(u_gb_depth, px, 0).r);
-    ivec2 q = ivec2(-1);
-    if (value < 0.0 && !refresh) {
-        q = ivec2(texelFetch(u_history, px, 0).rg);
-        for (int i = 0; i < u_boxes && q.x >= 0; ++i)
-            if (hs_segment_meets(p, i)) q = ivec2(-1);
-    }
-    bool reused = false;
-    if (q.x >= 0) {
-        float c = texelFetch(u_prev_mask, q, 0).r;
-        float spacing = 0.0;
-        bool flat_ = (c == 0.0 || c == 1.0) && u_still == 0;
-        if (u_still == 1 && q == px) { flat_ = true; spacing = abs(texelFetch(u_prev_spacing, q, 0).r); }
-        for (int k = 0; k < 9 && flat_ && u_still == 0; ++k) {
-            ivec2 r = q + ivec2(k % 3 - 1, k / 3 - 1);
-            flat_ = texelFetch(u_prev_mask, r, 0).r == c;
-            spacing = max(spacing, abs(texelFetch(u_prev_spacing, r, 0).r));
-        }
-        if (flat_ && spacing <= u_spacing_ratio * fp) {
-            reused = true;
-            value = c;
-            o_spacing = spacing;
-        }
-    }
-    if (!reused) o_spacing = -max(fp, 1e-30);
+    float code = 0.0;
+    float value = hs_reused_value(px, h.xy, max(h.z, 1e-30), code);
+    if (h.x < 0.0 || refresh) value = -1.0;
+#ifdef HS_BOXES
+    if (hs_segment_meets_any(p)) value = -1.0;
+#endif
+    if (known >= 0.0) { value = known; code = known == 1.0 ? 2.0 : -2.0; }
     o_mask = value < 0.0 ? 1.0 : value;
+    o_code = code;
     gl_FragDepth = value < 0.0 ? 0.0 : 1.0;
 }
 #endif

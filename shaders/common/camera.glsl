@@ -32,3 +32,10 @@ vec3 view_vector(vec3 p_world) {
     if (u_ortho == 1) return u_cam_rot[2];
     return normalize(u_cam_pos - p_world);
 }
+
+// A pixel's footprint (metres) on a surface facing the camera at view depth `depth`.
+float hs_footprint(float depth)
+{
+    float w = (u_viewplane.y - u_viewplane.x) / u_resolution.x;
+    return u_ortho == 1 ? w : w * depth / u_clip_start;
+}

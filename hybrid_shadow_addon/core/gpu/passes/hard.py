@@ -135,7 +135,7 @@ class HardVisibility(LightVisibility):
         li, defines = ray.index, ray.defines
         full = gbuffer.size
         ctx = self.ctx
-        if plan == "full" and ray.soft is None and self.reuse is not None:
+        if plan == "full" and ray.soft is None and self.reuse is not None and self.reuse.enabled:
             return self._trace_reusing(job, ray)
         if plan in ("full", "coarse"):
             scale = 1 if plan == "full" else settings.mask_scale
@@ -184,22 +184,22 @@ class HardVisibility(LightVisibility):
         return dst.texture
 
     def _trace_reusing(self, job, ray: LightRay):
-        """A hard light's full-resolution mask: the history that stands (:mod:`.reproject`) and
-        rays for the other pixels, or every pixel traced where it has none."""
+        """A hard light's full-resolution mask and its codes for the next frame: the history
+        that stands (:mod:`.reproject`) and rays for the other pixels, or every pixel traced
+        where it has none."""
         gbuffer, settings, rp = job.gbuffer, job.settings, self.reuse
         li = ray.index
         prev, now = rp.history(li, "hard", light_key(ray.light, settings), gbuffer.size)
-        defs = {k: v for k, v in ray.defines.items() if k in CLASSIFY_DEFINES}
-        uniforms = self.trace.uniforms(ray, gbuffer, settings)
+        defines = {**ray.defines, "HS_CODE_OUT": 1}
         if prev is None:
-            _, vao, _ = self._program(ray.defines, ray, gbuffer, settings, 1)
-            draw_fullscreen(self.ctx, vao, now[0])
-            rp.fresh(gbuffer, defs, uniforms, now)
+            _, vao, _ = self._program(defines, ray, gbuffer, settings, 1)
+            rp.draw_fresh(vao, now, self.gpu.budget)
             return now[0].texture
-        rp.mark((li, "reuse"), gbuffer, defs, uniforms, prev, now)
-        _, vao, _ = self._program(ray.defines, ray, gbuffer, settings, 1)
-        self.refiner.refine((li, "retrace"), now[0], vao, kind="retraced")
-        rp.count_reused(now[1])
+        defs = {k: v for k, v in ray.defines.items() if k in CLASSIFY_DEFINES}
+        rp.mark((li, "reuse"), gbuffer, defs, self.trace.uniforms(ray, gbuffer, settings), prev, now)
+        _, vao, _ = self._program(defines, ray, gbuffer, settings, 1)
+        self.refiner.refine((li, "reuse"), now[0], vao, kind="retraced", extra=(now[1],))
+        rp.count(now[1])
         return now[0].texture
 
     def release(self) -> None:

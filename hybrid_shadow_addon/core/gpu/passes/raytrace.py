@@ -110,14 +110,17 @@ class RaytracePass(ShadowPass):
         mw, mh = job.settings.mask_size(*job.size)
         n = len(job.lights)
         valid = self.refiner.count("valid") if n else 0
+        reused_pixels = 0
         if self.hard.plan == "full":
             reused = self.reuse.reused_lights
-            traced = valid * (n - len(self.culled) - reused) + (self.refiner.count("retraced") if reused else 0)
+            retraced = self.refiner.count("retraced") if reused else 0
+            traced = valid * (n - len(self.culled) - reused) + retraced
+            reused_pixels = self.refiner.count("kept") - retraced if reused else 0
         else:
             traced = self.refiner.count("coarse") * (n - len(self.culled)) + self.refiner.count("refined")
         return RaytraceStats(
             mask_resolution=[mw, mh], rays=int(mw * mh * n), rays_traced=int(traced), pixels=int(valid * n),
-            pixels_reused=self.refiner.count("reused"),
+            pixels_reused=int(reused_pixels),
             samples=int(max(self._soft_samples, self.soft.most_samples)),
             accumulated_samples=self.soft.accumulated, lights_culled=len(self.culled),
             noise={k: round(v, 6) for k, v in self.soft.last_noise.items()},

@@ -182,10 +182,11 @@ class Refiner:
         d = np.frombuffer(self._depth.read(), np.float32).reshape(h, w)[::-1]
         return d < 0.5
 
-    def refine(self, key, target, vao, kind: str = "refined") -> None:
-        """Draw the (already set up) full-resolution trace ``vao`` into ``target``
-        where :meth:`classify` (or :meth:`mark`) marked pixels, counted as ``kind``."""
-        fbo = self._fbo(key, target)
+    def refine(self, key, target, vao, kind: str = "refined", extra=()) -> None:
+        """Draw the (already set up) full-resolution trace ``vao`` into ``target`` (and
+        ``extra``, targets of its further outputs) where :meth:`classify` (or :meth:`mark`)
+        marked pixels, counted as ``kind``."""
+        fbo = self._fbo(key, target, extra)
         with self._masked(fbo, target):
             with self._query(kind, key):
                 self.budget.draw(vao, target.texture.size)

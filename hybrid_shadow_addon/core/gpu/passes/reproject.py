@@ -14,6 +14,7 @@ its centre, the boxes widened by its extent) can meet one gives up its history.
 """
 from __future__ import annotations
 
+import moderngl
 import numpy as np
 
 from ..targets import TargetCache, draw_fullscreen, set_uniforms
@@ -69,6 +70,7 @@ class MaskReprojection(Pass):
         self._boxes: list = []  # (min, max) bake-space boxes edited since the stored frame
         self.reused_lights = 0  # lights of the last frame that drew on their history
         self._history_drawn = False  # whether this frame's HISTORY map is drawn
+        self._fbos: dict = {}  # ids of textures -> (textures, framebuffer)
 
     def reset_history(self) -> None:
         """Forget everything (``Pipeline.reset_history``)."""
@@ -98,14 +100,15 @@ class MaskReprojection(Pass):
 
     def history(self, index: int, kind: str, key, size):
         """``(previous, current)`` targets of light ``index``'s ``kind`` (``hard``: (mask,
-        spacing) pairs; ``soft``: sums), the previous None where it has no usable history."""
+        code) pairs, ``reproject.glsl``; ``soft``: sums), the previous None where it has no
+        usable history."""
         h = self._lights.get((index, kind))
         usable = (self.enabled and h is not None and self._prev is not None and h[1] == key
                   and h[2] == self._prev[2] and self._prev[1] == tuple(size))
         cur = 0 if h is None else 1 - h[0]
         self._touched[(index, kind)] = (cur, key)
         comps = (1, 1) if kind == "hard" else (4,)
-        names = ("mask", "spacing") if kind == "hard" else ("sums",)
+        names = ("mask", "code") if kind == "hard" else ("sums",)
 
         def pair(i):
             return tuple(self._targets.get((index, kind, name, i), *size, components=c)
@@ -120,9 +123,6 @@ class MaskReprojection(Pass):
         geo, nrm = (self._targets.get(("gbuffer", name), *self._prev[1], components=4) for name in ("geo", "nrm"))
         geo.texture.use(unit)
         nrm.texture.use(unit + 1)
-        boxes = np.zeros((MAX_BOXES, 2, 3), np.float32)
-        for i, (lo, hi) in enumerate(self._boxes):
-            boxes[i] = lo, hi
         r = self.rules
         set_uniforms(prog, {**ray_uniforms, "u_prev_geo": unit, "u_prev_nrm": unit + 1,
                             "u_prev_clip": cam.clip_from_rel.T.astype("f4").tobytes(),
@@ -131,16 +131,24 @@ class MaskReprojection(Pass):
                             "u_view_cos": float(r["view_cos"]), "u_same_instance": int(bool(r["same_instance"])),
                             "u_boxes": len(self._boxes),
                             "u_pad_abs": float(pad[0]), "u_pad_slope": float(pad[1])})
+        boxes = np.zeros((MAX_BOXES, 2, 3), np.float32)
+        for i, (lo, hi) in enumerate(self._boxes):
+            boxes[i] = lo, hi
         for name, col in (("u_box_min", 0), ("u_box_max", 1)):
             if name in prog:
                 prog[name].write(np.ascontiguousarray(boxes[:, col]).tobytes())
         return unit + 2
 
+    def defines(self) -> dict:
+        """``HS_BOXES`` where objects were edited since the stored frame (their boxes are tested)."""
+        return {"HS_BOXES": 1} if self._boxes else {}
+
     def mark(self, key, gbuffer, defines: dict, ray_uniforms: dict, prev, now) -> None:
-        """Hard light: write into ``now`` (mask, spacing) the answers known without a ray and the
-        history that stands, and mark the rest for the trace (:meth:`Refiner.refine`)."""
+        """Hard light: write into ``now`` (mask, code) the history that stands and the
+        background, and mark the other pixels for the trace (:meth:`Refiner.refine` with
+        ``HS_CODE_OUT``, into the same targets)."""
         history = self._history_map(gbuffer, defines, ray_uniforms)
-        prog, vao = self.programs.fullscreen("reproject", defines)
+        prog, vao = self.programs.fullscreen("reproject", {**defines, **self.defines()})
         unit = self.bind(prog, gbuffer, ray_uniforms)
         prev[0].texture.use(unit)
         prev[1].texture.use(unit + 1)
@@ -149,7 +157,7 @@ class MaskReprojection(Pass):
         still = (np.array_equal(cam.clip_from_rel, gbuffer.camera.clip_from_rel)
                  and np.array_equal(cam.cam_pos, gbuffer.camera.cam_pos) and self._prev[1] == tuple(gbuffer.size))
         refresh = max(1, int(self.rules["refresh"]))
-        set_uniforms(prog, {"u_prev_mask": unit, "u_prev_spacing": unit + 1, "u_history": unit + 2,
+        set_uniforms(prog, {"u_prev_mask": unit, "u_prev_code": unit + 1, "u_history": unit + 2,
                             "u_still": int(still),
                             "u_spacing_ratio": float(self.rules["spacing_ratio"]),
                             "u_refresh": refresh, "u_phase": self._frame % refresh})
@@ -159,37 +167,35 @@ class MaskReprojection(Pass):
     def _history_map(self, gbuffer, defines: dict, ray_uniforms: dict):
         """This frame's previous pixel of each pixel (``reproject.glsl`` HISTORY), drawn for the
         first hard light that asks: it depends on no light."""
-        target = self._targets.get("history", *gbuffer.size, components=2)
+        target = self._targets.get("history", *gbuffer.size, components=4)
         if not self._history_drawn:
             defs = {k: v for k, v in defines.items() if k == "HS_MAX_DISTANCE"}
             prog, vao = self.programs.fullscreen("reproject", {**defs, "HISTORY": 1})
             self.bind(prog, gbuffer, ray_uniforms)
-            set_uniforms(prog, {"u_boxes": 0})
             draw_fullscreen(self.ctx, vao, target)
             self._history_drawn = True
         return target
 
-    def count_reused(self, spacing) -> None:
-        """Count (occlusion query ``reused``) the pixels of the last :meth:`mark` that kept their
-        history."""
+    def count(self, code) -> None:
+        """Count (occlusion query ``kept``) the pixels of the last :meth:`mark` and its trace
+        whose value stands on samples (traced or reused; the trace counts its own)."""
         prog, vao = self.programs.fullscreen("reproject", {"COUNT": 1})
-        spacing.texture.use(0)
-        set_uniforms(prog, {"u_spacing": 0})
-        self.refiner.counted_draw("reused", self._targets.get("count", *spacing.texture.size), vao)
+        code.texture.use(0)
+        set_uniforms(prog, {"u_code": 0})
+        self.refiner.counted_draw("kept", self._targets.get("count", *code.texture.size), vao)
 
-    def fresh(self, gbuffer, defines: dict, ray_uniforms: dict, now) -> None:
-        """A freshly traced mask's spacing target (no history used)."""
-        self._store_spacing(gbuffer, defines, ray_uniforms, now)
-
-    def _store_spacing(self, gbuffer, defines, ray_uniforms, now) -> None:
-        prog, vao = self.programs.fullscreen("reproject", {**defines, "FRESH": 1})
-        gbuffer.bind(prog)
-        set_uniforms(prog, ray_uniforms)
-        draw_fullscreen(self.ctx, vao, now[1])
+    def draw_fresh(self, vao, now, budget) -> None:
+        """Draw the bound trace ``vao`` (``HS_CODE_OUT``) into ``now`` (mask, code) whole,
+        through ``budget`` (a light without usable history)."""
+        self.ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST)
+        self._mrt(now[0].texture, now[1].texture).use()
+        size = now[0].texture.size
+        self.ctx.viewport = (0, 0, *size)
+        budget.draw(vao, size)
 
     def carry_sums(self, gbuffer, defines: dict, ray_uniforms: dict, pad, prev, out) -> None:
         """Soft light: ``out`` = the previous sums where the surface is the same, else 0."""
-        prog, vao = self.programs.fullscreen("reproject", {**defines, "SOFT": 1})
+        prog, vao = self.programs.fullscreen("reproject", {**defines, **self.defines(), "SOFT": 1})
         unit = self.bind(prog, gbuffer, ray_uniforms, pad)
         prev.texture.use(unit)
         set_uniforms(prog, {"u_prev_sums": unit, "u_keep": float(self.rules["sums_keep"])})
@@ -202,7 +208,7 @@ class MaskReprojection(Pass):
         self._frame += 1
         size = gbuffer.size
         geo, nrm = (self._targets.get(("gbuffer", name), *size, components=4) for name in ("geo", "nrm"))
-        fb = self._store_fbo(geo, nrm)
+        fb = self._mrt(geo.texture, nrm.texture)
         prog, vao = self.programs.fullscreen("reproject", {"STORE": 1})
         gbuffer.bind(prog)
         fb.use()
@@ -215,21 +221,22 @@ class MaskReprojection(Pass):
             del self._lights[k]
         self._boxes = []
 
-    def _store_fbo(self, geo, nrm):
-        cached = getattr(self, "_fb", None)
-        if cached is not None and cached[0] is geo.texture and cached[1] is nrm.texture:
-            return cached[2]
-        if cached is not None:
-            cached[2].release()
-        fb = self.ctx.framebuffer(color_attachments=[geo.texture, nrm.texture])
-        self._fb = (geo.texture, nrm.texture, fb)
+    def _mrt(self, *textures):
+        """A framebuffer of ``textures`` (kept; those of another size are given back)."""
+        key = tuple(id(t) for t in textures)
+        hit = self._fbos.get(key)
+        if hit is not None and all(a is b for a, b in zip(hit[0], textures)):
+            return hit[1]
+        for k in [k for k, (texs, _) in self._fbos.items() if k == key or texs[0].size != textures[0].size]:
+            self._fbos.pop(k)[1].release()
+        fb = self.ctx.framebuffer(color_attachments=list(textures))
+        self._fbos[key] = (textures, fb)
         return fb
 
     def release(self) -> None:
-        cached = getattr(self, "_fb", None)
-        if cached is not None:
-            cached[2].release()
-            self._fb = None
+        for _, fb in self._fbos.values():
+            fb.release()
+        self._fbos.clear()
         self._targets.release()
 
 
