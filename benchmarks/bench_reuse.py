@@ -8,12 +8,14 @@ scene's animation (:func:`~hybrid_shadow_addon.tools.bench.path_frames` over
 viewport's camera moves a little between redraws), the cameras of those frames. A scene whose
 path does not move the camera (``city``, ``clusters``) and the built-in ``smooth_shapes`` take an
 orbit about the vertical through the scene's centre instead (``--orbit-step`` radians a frame).
-Lights hard, mode ``raytrace``, quality ``high``; each frame is rendered by a reusing pipeline and
-by a view of it that never reuses (the first frame of each path is fresh for both and left out
-of the ratios).
+Lights hard, mode ``raytrace``, quality ``high``; each frame is rendered by a pipeline that
+always reuses, by a view of it that reuses where it pays (``reuse_choice="auto"``, the viewport's
+way) and by a view that never reuses (the first frame of each path is fresh for all and left out
+of the ratios). The hard lights' grids are built at first sight (the steady state a viewport
+reaches once they pay back); ``--no-grid`` traces the tree (lights that move, alpha-cut casters).
 
     .venv/bin/python benchmarks/bench_reuse.py [forest city clusters smooth_shapes] [--size 640x360]
-        [--frames 10] [--range A-B] [--orbit-step 0.02] [--json OUT]
+        [--frames 10] [--range A-B] [--orbit-step 0.02] [--no-grid] [--json OUT]
 """
 from __future__ import annotations
 
@@ -77,33 +79,49 @@ def mismatch(a, b) -> float:
     return bad / max(valid, 1)
 
 
-def run_path(label, scene, cams, w, h) -> dict:
+def run_path(label, scene, cams, w, h, settings=HARD) -> dict:
     pipe = Pipeline()
-    pipe.reuse = True
+    pipe.reuse, pipe.reuse_choice = True, "always"
+    auto = pipe.view()
+    auto.reuse = True
     fresh = pipe.view()
     fresh.reuse = False
+    for p in (pipe, auto, fresh):  # (the grids from the first frame on: the steady state)
+        rt = p.shadow_pass("raytrace")
+        rt.options = dataclasses.replace(rt.options, eager_light_grids=True)
     pipe.set_scene(scene)
     rows = []
     try:
         for k, cam in enumerate(cams):
             s = dataclasses.replace(scene, camera=cam)
-            a = pipe.render(s, HARD, w, h)
-            b = fresh.render(s, HARD, w, h)
+            a = pipe.render(s, settings, w, h)
+            c = auto.render(s, settings, w, h)
+            b = fresh.render(s, settings, w, h)
             rows.append(dict(frame=k, rays_traced=a.stats["rays_traced"], fresh_rays=b.stats["rays_traced"],
                              pixels_reused=a.stats["pixels_reused"], shadow_ms=round(a.timings["shadow_ms"], 2),
-                             fresh_shadow_ms=round(b.timings["shadow_ms"], 2), mismatch=mismatch(a, b)))
+                             auto_shadow_ms=round(c.timings["shadow_ms"], 2), auto_ways=c.stats["reuse_ways"],
+                             fresh_shadow_ms=round(b.timings["shadow_ms"], 2), mismatch=mismatch(a, b),
+                             auto_mismatch=mismatch(c, b)))
             r = rows[-1]
-            print(f"{label} {k}: rays {r['rays_traced']} / {r['fresh_rays']}, shadow {r['shadow_ms']:.1f} / "
-                  f"{r['fresh_shadow_ms']:.1f} ms, mismatch {100 * r['mismatch']:.4f} %", flush=True)
+            print(f"{label} {k}: rays {r['rays_traced']} / {r['fresh_rays']}, shadow {r['shadow_ms']:.1f} "
+                  f"(auto {r['auto_shadow_ms']:.1f}, {r['auto_ways']}) / {r['fresh_shadow_ms']:.1f} ms, "
+                  f"mismatch {100 * r['mismatch']:.4f} % (auto {100 * r['auto_mismatch']:.4f} %)", flush=True)
     finally:
         fresh.release()
+        auto.release()
         pipe.release()
     later = rows[1:]
+
+    def ratio(col):
+        return float(np.median([r[col] / max(r["fresh_shadow_ms"], 1e-9) for r in later]))
+
     summary = dict(rays_ratio=sum(r["rays_traced"] for r in later) / max(1, sum(r["fresh_rays"] for r in later)),
-                   ms_ratio=float(np.median([r["shadow_ms"] / max(r["fresh_shadow_ms"], 1e-9) for r in later])),
-                   worst_mismatch=max(r["mismatch"] for r in later))
-    print(f"{label}: rays {summary['rays_ratio']:.3f} of fresh, shadow ms {summary['ms_ratio']:.2f}x (median), "
-          f"worst mismatch {100 * summary['worst_mismatch']:.4f} %", flush=True)
+                   ms_ratio=ratio("shadow_ms"), auto_ms_ratio=ratio("auto_shadow_ms"),
+                   worst_mismatch=max(r["mismatch"] for r in later),
+                   auto_worst_mismatch=max(r["auto_mismatch"] for r in later))
+    print(f"{label}: rays {summary['rays_ratio']:.3f} of fresh, shadow ms {summary['ms_ratio']:.2f}x always reusing, "
+          f"{summary['auto_ms_ratio']:.2f}x where it pays (medians), worst mismatch "
+          f"{100 * summary['worst_mismatch']:.4f} % ({100 * summary['auto_worst_mismatch']:.4f} %)", flush=True)
     return dict(frames=rows, **summary)
 
 
@@ -114,6 +132,7 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--range", default=None, help="A-B: the path's frames to sample (default: all)")
     ap.add_argument("--orbit-step", type=float, default=0.02, help="radians a frame of an orbit")
+    ap.add_argument("--no-grid", action="store_true", help="hard lights trace the tree, no light grids")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
@@ -125,7 +144,8 @@ def main(argv=None) -> int:
         if still(cams):
             cams, path = orbit_cameras(scene, args.frames, args.orbit_step), f"orbit {args.orbit_step} rad/frame"
         print(f"{name}: {path}", flush=True)
-        out[name] = dict(path=path, **run_path(name, scene, cams, w, h))
+        settings = HARD.replace(light_grid=not args.no_grid)
+        out[name] = dict(path=path, grids=not args.no_grid, **run_path(name, scene, cams, w, h, settings))
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0

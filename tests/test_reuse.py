@@ -20,9 +20,10 @@ BOUND = 0.0002  # the share of valid pixels a reused mask may differ on (issue 4
 
 @pytest.fixture
 def pipes():
-    """(reusing pipeline, a view of it that never reuses)."""
+    """(pipeline that always reuses, a view of it that never reuses)."""
     p = Pipeline()
     p.reuse = True
+    p.reuse_choice = "always"
     fresh = p.view()
     fresh.reuse = False
     yield p, fresh

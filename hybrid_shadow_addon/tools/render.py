@@ -264,6 +264,8 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
                for f in frames if f not in todo}
     pipe = pipeline or Pipeline()
     was_reusing, pipe.reuse = pipe.reuse, bool(reuse)
+    # (every light reuses, whatever it costs here: the same frames give the same masks on any machine)
+    was_choice, pipe.reuse_choice = pipe.reuse_choice, "always"
     raytrace = settings.mode == "raytrace"
     prev = None
     warned = False
@@ -301,6 +303,7 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
                           files=files)
     finally:
         pipe.reuse = was_reusing
+        pipe.reuse_choice = was_choice
     if progress is not None:
         progress(len(todo), max(len(todo), 1), f"{len(todo)} frames rendered{note}")
     if stats_file is not None and not todo:

@@ -147,9 +147,10 @@ class Pipeline:
         self._generation = self._bake.generation
         self._camera = None  # the last frame's camera (its CameraUniforms' values)
         self._inputs = None  # mask_inputs() of the last frame's scene
-        # reuse visibility across camera moves and edits (else forget): off by default, as its
-        # marking passes cost more than the rays they save on a software rasteriser
+        # reuse visibility across camera moves and edits (else forget), light by light where it
+        # pays (reuse_choice "auto": passes/reproject.py ReuseChoice) or always ("always")
         self.reuse = False
+        self.reuse_choice = "auto"
         self.programs = self.gpu.programs
         self.scene_textures = self.gpu.scene_textures
         self._make_passes()
@@ -379,7 +380,10 @@ class Pipeline:
         lights = select_shadowed_lights(scene, settings)
         step = _Steps(progress, 4 + len(lights))
         if hasattr(shadow, "reuse"):
+            if self.reuse_choice not in ("auto", "always"):
+                raise ValueError(f"reuse_choice must be 'auto' or 'always', not {self.reuse_choice!r}")
             shadow.reuse.enabled = self.reuse
+            shadow.reuse.choice.auto = self.reuse_choice == "auto"
         if shadow.needs_bake and (self.baked is None or self.baked.structure != settings.structure):
             self.set_scene(scene, settings.structure, step.within if progress is not None else None)
         self._reset_gl_state()  # (a frame aborted by its progress callback may have left any)
@@ -417,6 +421,7 @@ class Pipeline:
             "rays": shadow_stats["rays"],
             "rays_traced": shadow_stats.get("rays_traced", 0),
             "pixels_reused": shadow_stats.get("pixels_reused", 0),
+            "reuse_ways": shadow_stats.get("reuse_ways", {}),
             "pixels": shadow_stats.get("pixels", 0),
             "samples": shadow_stats.get("samples", 1),
             "accumulated_samples": shadow_stats.get("accumulated_samples"),

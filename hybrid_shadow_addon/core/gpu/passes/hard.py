@@ -184,23 +184,41 @@ class HardVisibility(LightVisibility):
         return dst.texture
 
     def _trace_reusing(self, job, ray: LightRay):
-        """A hard light's full-resolution mask and its codes for the next frame: the history
-        that stands (:mod:`.reproject`) and rays for the other pixels, or every pixel traced
-        where it has none."""
+        """A hard light's full-resolution mask the way :class:`.reproject.ReuseChoice` finds
+        cheaper: reusing (the history that stands and rays for the other pixels, or every pixel
+        traced with the codes the next frame reuses where it has none), or plainly traced."""
         gbuffer, settings, rp = job.gbuffer, job.settings, self.reuse
         li = ray.index
-        prev, now = rp.history(li, "hard", light_key(ray.light, settings), gbuffer.size)
-        defines = {**ray.defines, "HS_CODE_OUT": 1}
-        if prev is None:
-            _, vao, _ = self._program(defines, ray, gbuffer, settings, 1)
-            rp.draw_fresh(vao, now, self.gpu.budget)
-            return now[0].texture
-        defs = {k: v for k, v in ray.defines.items() if k in CLASSIFY_DEFINES}
-        rp.mark((li, "reuse"), gbuffer, defs, self.trace.uniforms(ray, gbuffer, settings), prev, now)
-        _, vao, _ = self._program(defines, ray, gbuffer, settings, 1)
-        self.refiner.refine((li, "reuse"), now[0], vao, kind="retraced", extra=(now[1],))
-        rp.count(now[1])
-        return now[0].texture
+        key = light_key(ray.light, settings)
+        way = rp.choice.way(li, key)
+        timed = rp.choice.auto
+        if timed:
+            self.ctx.finish()
+            t0 = time.perf_counter()
+        if way == "plain":
+            out = self._target((li, "out"), *gbuffer.size)
+            _, vao, _ = self._program(ray.defines, ray, gbuffer, settings, 1)
+            self.gpu.budget.fullscreen(vao, out)
+            rp.plain_lights += 1
+            done = out
+        else:
+            prev, now = rp.history(li, "hard", key, gbuffer.size)
+            defines = {**ray.defines, "HS_CODE_OUT": 1}
+            if prev is None:
+                _, vao, _ = self._program(defines, ray, gbuffer, settings, 1)
+                rp.draw_fresh(vao, now, self.gpu.budget)
+                timed = False  # (priming the history: neither way's cost)
+            else:
+                defs = {k: v for k, v in ray.defines.items() if k in CLASSIFY_DEFINES}
+                rp.mark((li, "reuse"), gbuffer, defs, self.trace.uniforms(ray, gbuffer, settings), prev, now)
+                _, vao, _ = self._program(defines, ray, gbuffer, settings, 1)
+                self.refiner.refine((li, "reuse"), now[0], vao, kind="retraced", extra=(now[1],))
+                rp.count(now[1])
+            done = now[0]
+        if timed:
+            self.ctx.finish()
+            rp.choice.note(li, way, (time.perf_counter() - t0) * 1e3)
+        return done.texture
 
     def release(self) -> None:
         self.light_grids.close()

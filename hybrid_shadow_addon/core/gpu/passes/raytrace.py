@@ -123,6 +123,7 @@ class RaytracePass(ShadowPass):
             pixels_reused=int(reused_pixels),
             samples=int(max(self._soft_samples, self.soft.most_samples)),
             accumulated_samples=self.soft.accumulated, lights_culled=len(self.culled),
+            reuse_ways={"reused": self.reuse.reused_lights, "plain": self.reuse.plain_lights},
             noise={k: round(v, 6) for k, v in self.soft.last_noise.items()},
             defines=sorted(f"{k}={v}" for k, v in self.last_defines.items()))
 

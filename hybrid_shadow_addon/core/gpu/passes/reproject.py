@@ -47,6 +47,68 @@ def light_pad(light, soft) -> tuple:
     return float(max(light.radius, light.size, light.size_y, 0.0)), 0.0
 
 
+class ReuseChoice:
+    """Per hard light, whether reusing its history pays here: on a renderer whose full-screen
+    passes cost about as much as cheap rays (a software rasteriser tracing a light grid), marking
+    the history costs more than the rays it saves; where rays are dear (the tree, big scenes),
+    it pays. Both ways are timed (the GPU's work, waited for) and the cheaper kept, the other
+    tried again every :attr:`PROBE` frames, as the view, the scene and the light grids change
+    what each costs. ``auto`` False: always reuse (tests, benchmarks)."""
+
+    PROBE = 16
+    ALPHA = 0.5  # weight of the newest timing in each way's running mean
+
+    def __init__(self):
+        self.auto = True
+        self._lights: dict = {}  # light index -> dict(key, ms={"reuse", "plain"}, frames since the other was timed)
+
+    def reset(self) -> None:
+        self._lights.clear()
+
+    def forget(self, index: int) -> None:
+        self._lights.pop(index, None)
+
+    def way(self, index: int, key) -> str:
+        """``reuse`` (use the history where it stands, else trace with codes so the next frame
+        can) or ``plain`` (a plain full trace, no history kept) for light ``index`` this frame."""
+        if not self.auto:
+            return "reuse"
+        s = self._lights.get(index)
+        if s is None or s["key"] != key:
+            s = self._lights[index] = dict(key=key, ms={"reuse": None, "plain": None}, since=0, probe=None)
+        ms = s["ms"]
+        if s["probe"] is not None:
+            return s["probe"]
+        if ms["reuse"] is None:
+            return "reuse"
+        if ms["plain"] is None:
+            return "plain"
+        best = "reuse" if ms["reuse"] <= ms["plain"] else "plain"
+        if s["since"] >= self.PROBE:
+            s["probe"] = "plain" if best == "reuse" else "reuse"
+            return s["probe"]
+        return best
+
+    def note(self, index: int, way: str, ms: float) -> None:
+        """Light ``index`` took ``ms`` the ``way`` of :meth:`way` (``reuse``: with a usable
+        history; a frame that primed the history is not noted)."""
+        s = self._lights.get(index)
+        if s is None:
+            return
+        old = s["ms"][way]
+        s["ms"][way] = ms if old is None else old + self.ALPHA * (ms - old)
+        if s["probe"] == way:
+            s["probe"] = None
+            s["since"] = 0
+        else:
+            s["since"] += 1
+
+    def ways(self) -> dict:
+        """Light index -> its timings (ms) of each way (stats)."""
+        return {i: {k: (None if v is None else round(v, 2)) for k, v in s["ms"].items()}
+                for i, s in self._lights.items()}
+
+
 class MaskReprojection(Pass):
     """One view's history for reuse: the last frame's packed G-buffer and camera, and each
     light's last mask (hard: mask and sample spacing; soft: the accumulated sums) in ping-pong
@@ -71,17 +133,21 @@ class MaskReprojection(Pass):
         self.reused_lights = 0  # lights of the last frame that drew on their history
         self._history_drawn = False  # whether this frame's HISTORY map is drawn
         self._fbos: dict = {}  # ids of textures -> (textures, framebuffer)
+        self.choice = ReuseChoice()
+        self.plain_lights = 0  # lights of the last frame traced plainly by the choice
 
     def reset_history(self) -> None:
         """Forget everything (``Pipeline.reset_history``)."""
         self._prev = None
         self._lights.clear()
         self._boxes = []
+        self.choice.reset()
 
     def reset_light(self, index: int) -> None:
         """Forget one light's history."""
         for k in [k for k in self._lights if k[0] == index]:
             del self._lights[k]
+        self.choice.forget(index)
 
     def invalidate(self, boxes) -> None:
         """Objects whose old or new bounds are ``boxes`` ((n, 2, 3) bake space) changed: the
@@ -97,6 +163,7 @@ class MaskReprojection(Pass):
         self._touched = {}
         self._history_drawn = False
         self.reused_lights = 0
+        self.plain_lights = 0
 
     def history(self, index: int, kind: str, key, size):
         """``(previous, current)`` targets of light ``index``'s ``kind`` (``hard``: (mask,

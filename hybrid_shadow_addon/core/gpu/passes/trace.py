@@ -44,8 +44,10 @@ class RaytraceStats:
     """The ray-traced pass's stats of the last frame (``Frame.stats`` takes them as a dict).
     ``rays_traced`` counts the pixels the trace shaded (occlusion queries), ``pixels`` the
     pixels with geometry times the shadowed lights, ``pixels_reused`` the pixels (times lights)
-    whose visibility came from an earlier frame (:mod:`.reproject`), ``lights_culled`` the lights traced by no
-    ray (:mod:`.light_cull`)."""
+    whose visibility came from an earlier frame (:mod:`.reproject`), ``reuse_ways`` how many hard
+    lights reused their history and how many were traced plainly where reusing did not pay
+    (:class:`.reproject.ReuseChoice`), ``lights_culled`` the lights traced by no ray
+    (:mod:`.light_cull`)."""
 
     mask_resolution: list
     rays: int = 0
@@ -55,6 +57,7 @@ class RaytraceStats:
     samples: int = 1
     accumulated_samples: int | None = None
     lights_culled: int = 0
+    reuse_ways: dict = field(default_factory=dict)
     noise: dict = field(default_factory=dict)
     defines: list = field(default_factory=list)
 
