@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from helpers.scenes import all_lights, basic_scene, cube_model, look_at, plane_model, trs
 
+from hybrid_shadow_addon.core.gpu.passes.reproject import ReuseChoice
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.scene import Instances, Light, Scene
 from hybrid_shadow_addon.core.settings import Settings
@@ -72,6 +73,84 @@ def test_reused_masks_match_fresh_along_an_orbit(pipes):
             traced += a.stats["rays_traced"]
             fresh_rays += b.stats["rays_traced"]
     assert traced <= 0.3 * fresh_rays, (traced, fresh_rays)
+
+
+def test_every_block_is_traced_again_within_refresh_moving_frames(pipes):
+    """On each moving frame the refresh's 4x2 blocks (one in ``refresh``, a phase a frame) are
+    traced whatever their history; over ``refresh`` frames the phases cover every block."""
+    p, _ = pipes
+    scene = crowd()
+    rp = p.shadow_pass("raytrace").reuse
+    n = rp.rules["refresh"]
+    w, h = 240, 136
+    by, bx = np.mgrid[0:h, 0:w] // np.array([2, 4])[:, None, None]
+    phases = []
+    for k in range(n + 1):
+        s = dataclasses.replace(scene, camera=dataclasses.replace(
+            scene.camera, matrix=look_at((2 + 0.05 * k, -16, 16), (0, 0, 0))))
+        p.render(s, HARD, w, h)
+        if not k:
+            continue
+        marked = p.shadow_pass("raytrace").refiner.marked()[::-1]  # (window rows: row 0 the bottom)
+        traced = np.abs(rp.codes(0)[::-1]) >= 3.0  # (this frame's samples: neither known nor background)
+        found = [q for q in range(n) if marked[((bx + 3 * by + q) % n == 0) & traced].all()]
+        assert len(found) == 1, (k, found)
+        assert not marked[traced].all()  # (the rest kept their history)
+        phases.append(found[0])
+    assert sorted(phases) == list(range(n))
+
+
+def test_retrace_once_traces_whole_and_keeps_the_history(pipes):
+    """A frame after ``retrace_once`` (a viewport come to rest) equals the fresh mask exactly,
+    and the frame after it reuses again."""
+    p, fresh = pipes
+    scene = basic_scene(lights=all_lights()[:2], with_sphere=True)
+    for k in range(3):
+        p.render(orbit(scene, k), HARD, 160, 90)
+    p.retrace_once()
+    a, b = p.render(orbit(scene, 3), HARD, 160, 90), fresh.render(orbit(scene, 3), HARD, 160, 90)
+    assert a.stats["pixels_reused"] == 0 and mismatch(a, b)[0] == 0
+    assert p.render(orbit(scene, 4), HARD, 160, 90).stats["pixels_reused"] > 0
+
+
+def test_the_choice_keeps_the_cheaper_way_and_tries_the_other_again():
+    c = ReuseChoice()
+    assert c.way(0, "k") == "reuse"          # (nothing timed: reuse, which primes, then is timed)
+    c.note(0, "reuse", 10.0)
+    assert c.way(0, "k") == "plain"          # (the plain trace once, to compare)
+    c.note(0, "plain", 5.0)
+    ways = []
+    for _ in range(2 * ReuseChoice.PROBE + 2):
+        w = c.way(0, "k")
+        ways.append(w)
+        c.note(0, w, 10.0 if w == "reuse" else 5.0)
+    assert ways.count("reuse") == 2 and ways[0] == "plain"  # (the dearer way, once every PROBE frames)
+    assert c.way(0, "other key") == "reuse"  # (a changed light is timed anew)
+    c.note(0, "reuse", 1.0)
+    c.note(0, "plain", 5.0)
+    assert c.way(0, "other key") == "reuse"
+    c.auto = False
+    c.note(1, "plain", 1.0)
+    assert c.way(1, "k") == "reuse"  # (auto off: always reuse)
+
+
+def test_auto_reuse_traces_plainly_where_reuse_costs_more(pipes):
+    """``reuse_choice`` 'auto': a light whose reuse is timed dearer than its plain trace is traced
+    plainly (exact, no pixel reused), and the masks stay within the bound either way."""
+    p, fresh = pipes
+    p.reuse_choice = "auto"
+    scene = basic_scene(lights=all_lights()[:2], with_sphere=True)
+    choice = p.shadow_pass("raytrace").reuse.choice
+    for k in range(4):
+        a, b = p.render(orbit(scene, k), HARD, 160, 90), fresh.render(orbit(scene, k), HARD, 160, 90)
+        bad, valid = mismatch(a, b)
+        assert bad <= BOUND * valid + 1
+    for s in choice._lights.values():  # (timings that make reusing the dearer way)
+        s["ms"].update(reuse=100.0, plain=1.0)
+        s["probe"], s["since"] = None, 0
+    a, b = p.render(orbit(scene, 4), HARD, 160, 90), fresh.render(orbit(scene, 4), HARD, 160, 90)
+    assert a.stats["reuse_ways"] == {"reused": 0, "plain": 2}
+    assert a.stats["pixels_reused"] == 0 and mismatch(a, b)[0] == 0
 
 
 def test_reset_history_forgets_all(pipes):

@@ -102,11 +102,12 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
                                                  "while the view or the scene changes (refined when still)",
                                      update=_tag_viewport)
     use_reuse_visibility: BoolProperty(
-        name="Reuse Visibility", default=False,
+        name="Reuse Visibility", default=True,
         description="Viewport: after a camera move or an edit, pixels whose surface and shadow rays stay the "
                     "same keep the last frame's visibility instead of tracing it again (hard masks within "
-                    "0.02% of fresh ones; soft lights keep adding samples while the view moves). Saves rays; "
-                    "on a software rasteriser its marking passes cost more than the rays they save",
+                    "0.02% of fresh ones, exact again once the view rests; soft lights keep adding samples "
+                    "while the view moves). Each hard light reuses only where that is timed cheaper than "
+                    "tracing it again",
         update=_tag_viewport)
     max_distance: FloatProperty(name="Max Distance", default=0.0, min=0.0, soft_max=1000.0, subtype="DISTANCE",
                                 unit="LENGTH", description="Shadows only within this distance of the camera "

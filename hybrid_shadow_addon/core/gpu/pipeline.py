@@ -151,6 +151,7 @@ class Pipeline:
         # pays (reuse_choice "auto": passes/reproject.py ReuseChoice) or always ("always")
         self.reuse = False
         self.reuse_choice = "auto"
+        self._retrace = False  # retrace_once(): the next frame ignores the hard lights' history
         self.programs = self.gpu.programs
         self.scene_textures = self.gpu.scene_textures
         self._make_passes()
@@ -263,6 +264,11 @@ class Pipeline:
         self._st.reset()
         self._generation = self._bake.generation
 
+    def retrace_once(self) -> None:
+        """The next frame traces every hard light's mask whole, exact, keeping it as the history
+        later frames reuse (a viewport whose view came to rest after reused frames)."""
+        self._retrace = True
+
     def reset_light(self, index: int) -> None:
         """Light ``index`` changed: its history alone is forgotten."""
         for p in self._passes():
@@ -293,6 +299,7 @@ class Pipeline:
             if self.reuse:
                 for p in self._passes():
                     p.camera_moved()
+                self._st.reset()  # (the see-through sub-frames average an image of the old view)
             else:
                 self.reset_history()
         self._camera = cam
@@ -384,6 +391,7 @@ class Pipeline:
                 raise ValueError(f"reuse_choice must be 'auto' or 'always', not {self.reuse_choice!r}")
             shadow.reuse.enabled = self.reuse
             shadow.reuse.choice.auto = self.reuse_choice == "auto"
+            shadow.reuse.exact, self._retrace = self._retrace, False
         if shadow.needs_bake and (self.baked is None or self.baked.structure != settings.structure):
             self.set_scene(scene, settings.structure, step.within if progress is not None else None)
         self._reset_gl_state()  # (a frame aborted by its progress callback may have left any)

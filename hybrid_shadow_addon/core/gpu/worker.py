@@ -70,10 +70,12 @@ def writable_matrices(instances) -> None:
 def fast_settings(request, renderer: str):
     """The settings of a request's fast pass on ``renderer`` (its ``GL_RENDERER``). With
     ``request.fast_auto`` (the viewport's automatic navigation quality) the fast pass takes the
-    full pass's quality on a software rasteriser, where a lower quality costs more, not less
-    (its other differences stay: fewer soft samples, no probe pass); elsewhere ``request.fast``."""
+    full pass's quality on a software rasteriser, where a lower quality costs more, not less, and
+    where the view reuses visibility (full-resolution masks are what it reuses; its other
+    differences stay: fewer soft samples, no probe pass); elsewhere ``request.fast``."""
     fast = request.fast
-    if getattr(request, "fast_auto", False) and software_renderer(renderer) and fast.quality != request.full.quality:
+    keep = software_renderer(renderer) or getattr(request, "reuse", False)
+    if getattr(request, "fast_auto", False) and keep and fast.quality != request.full.quality:
         fast = fast.replace(quality=request.full.quality)
     return fast
 
@@ -126,6 +128,7 @@ class _Job:
         self.epoch = epoch
         self.step = 0
         self.refine = 0
+        self.settle = False  # the next frame traces the hard masks whole (the view came to rest)
 
 
 def _default_create():
@@ -429,7 +432,11 @@ class RenderWorker(ViewResults):
         else:
             settings = req.full
             job.refine -= 1
+            if job.settle:
+                vp.retrace_once()
         frame = vp.render(req.scene, settings, req.width, req.height, film_transparent=req.film_transparent)
+        if job.step == 0 and frame.stats.get("pixels_reused"):  # reused: exact again once the view rests
+            job.refine, job.settle = max(job.refine, 1), True
         image = frame.image if req.post is None else req.post(frame, req.scene, vp)
         acc = frame.stats.get("accumulated_samples")
         if acc is not None and settings.accumulate and acc < settings.samples:

@@ -134,6 +134,7 @@ class MaskReprojection(Pass):
         self._history_drawn = False  # whether this frame's HISTORY map is drawn
         self._fbos: dict = {}  # ids of textures -> (textures, framebuffer)
         self.choice = ReuseChoice()
+        self.exact = False  # this frame's hard lights trace whole (Pipeline.retrace_once)
         self.plain_lights = 0  # lights of the last frame traced plainly by the choice
 
     def reset_history(self) -> None:
@@ -148,6 +149,14 @@ class MaskReprojection(Pass):
         for k in [k for k in self._lights if k[0] == index]:
             del self._lights[k]
         self.choice.forget(index)
+
+    def codes(self, index: int) -> np.ndarray:
+        """Hard light ``index``'s codes of the last frame (``reproject.glsl``): (H, W) float32,
+        row 0 the top row (tests)."""
+        cur = self._lights[(index, "hard")][0]
+        t = self._targets.get((index, "hard", "code", cur), *self._prev[1], components=1).texture
+        w, h = t.size
+        return np.frombuffer(t.read(), np.float32).reshape(h, w)[::-1]
 
     def invalidate(self, boxes) -> None:
         """Objects whose old or new bounds are ``boxes`` ((n, 2, 3) bake space) changed: the
@@ -171,6 +180,7 @@ class MaskReprojection(Pass):
         usable history."""
         h = self._lights.get((index, kind))
         usable = (self.enabled and h is not None and self._prev is not None and h[1] == key
+                  and not (self.exact and kind == "hard")
                   and h[2] == self._prev[2] and self._prev[1] == tuple(size))
         cur = 0 if h is None else 1 - h[0]
         self._touched[(index, kind)] = (cur, key)
