@@ -277,3 +277,34 @@ def test_soft_sums_carry_over_a_moving_camera(pipes, step):
     ref = converged(p, orbit(scene, 16, step=step), 240, 135)
     err = [float(np.nanmean(np.abs(f.mask_array(li) - ref[li]))) for li in f.lights]
     assert np.mean(err) <= 0.005, err
+
+
+def test_an_edit_keeps_the_soft_sums_it_cannot_touch(pipes):
+    """A soft sun over the crowd accumulates; one cube moves: the pixels whose cone towards the
+    sun can meet its old or new place start over, the others keep their sums. The mask is then
+    closer to the converged one than after starting over, and as close where the edit changed
+    the shadow."""
+    p, _ = pipes
+    scene = crowd()
+    sun = dataclasses.replace(scene.lights[0], angle=0.12)
+    scene = dataclasses.replace(scene, lights=[sun])
+    settings = SOFT.replace(samples=64)
+    p.set_scene(scene)
+    for _ in range(8):
+        p.render(scene, settings, 240, 135)
+    before = converged(p, scene, 240, 135)[0]
+    k = scene.instances.names.index("c6_6")
+    m = scene.instances.matrices.copy()
+    m[k, :3, 3] += (0.8, 0.3, 0.0)
+    scene.instances.set_matrices([k], m[[k]])
+    p.move_instances(scene, [k])
+    kept = p.render(scene, settings, 240, 135).mask_array(0)
+    ref = converged(p, scene, 240, 135)[0]
+    p.reset_history()
+    restarted = p.render(scene, settings, 240, 135).mask_array(0)
+    err_kept, err_restarted = (np.abs(np.nan_to_num(x - ref)) for x in (kept, restarted))
+    changed = np.abs(np.nan_to_num(ref - before)) > 0.02
+    assert changed.sum() > 20
+    assert err_kept.mean() < 0.5 * err_restarted.mean(), (err_kept.mean(), err_restarted.mean())
+    assert err_kept[changed].mean() <= 1.5 * err_restarted[changed].mean() + 0.01, (
+        err_kept[changed].mean(), err_restarted[changed].mean())

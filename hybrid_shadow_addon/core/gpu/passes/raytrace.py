@@ -94,10 +94,10 @@ class RaytracePass(ShadowPass):
 
     def invalidate(self, boxes) -> None:
         """Objects with these old and new bounds ((n, 2, 3), bake space) changed: pixels whose
-        shadow rays can meet them trace again, the rest keep their history (the soft lights'
-        accumulation starts over)."""
+        shadow rays (a soft light's cone) can meet them trace again, the rest keep their history
+        (a soft light's sums carry over as across a camera move)."""
         self.hard.reset_history()
-        self.soft.reset_history()
+        self.soft.camera_moved()
         self.reuse.invalidate(boxes)
 
     def reset_light(self, index: int) -> None:

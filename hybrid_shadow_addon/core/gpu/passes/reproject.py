@@ -2,11 +2,14 @@
 
 Visibility of a light from a surface point does not depend on the camera. Each frame keeps its
 G-buffer (world positions, normals, instances: STORE) and camera; the next frame looks each
-pixel's world position up in that image and keeps what was known there where the surface is the
-same (same instance, normals and position within tolerances scaled to the pixel footprint, no
-grazing view), and, for a hard light's mask, where the old mask's 3x3 neighbourhood holds no
-shadow edge and its samples are no sparser than this frame's pixels. The other pixels (disoccluded,
-at an edge, grazing, zoomed into) are marked for the trace under the refinement's depth test.
+pixel's world position up in that image (HISTORY, once a frame) and keeps what was known there
+where the surface is the same (same instance, normals and position within tolerances scaled to
+the pixel footprint, no grazing view), and, for a hard light's mask, where the old codes' 3x3
+neighbourhood holds no shadow edge and its samples are no sparser than this frame's pixels
+(MARK: a hard light's trace writes, besides its mask, a code per pixel: lit or shadowed, known
+without a ray, and the spacing of the samples the value stands on). The other pixels
+(disoccluded, at an edge, grazing, zoomed into) are marked for the trace under the refinement's
+depth test. :class:`ReuseChoice` times both ways per light and reuses where that is cheaper.
 
 Edits invalidate only what they can touch: :meth:`MaskReprojection.invalidate` takes the old and
 new bounds of edited objects; a pixel whose shadow segment (a soft light's cone: the segment to
@@ -111,7 +114,7 @@ class ReuseChoice:
 
 class MaskReprojection(Pass):
     """One view's history for reuse: the last frame's packed G-buffer and camera, and each
-    light's last mask (hard: mask and sample spacing; soft: the accumulated sums) in ping-pong
+    light's last mask (hard: mask and codes; soft: the accumulated sums) in ping-pong
     targets. ``rules``: :attr:`RULES` (see ``shaders/reproject.glsl``; ``sums_keep``: the share
     of a soft light's sums a move carries over; ``refresh``: one 4x2 block in that many traces
     again each moving frame, so a wrongly reused value does not last)."""

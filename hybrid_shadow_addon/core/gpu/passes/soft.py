@@ -103,8 +103,8 @@ class SoftVisibility(LightVisibility):
         self._accum.clear()
 
     def camera_moved(self) -> None:
-        """The camera moved: with :attr:`reuse`, the next frame carries the sums that stand over
-        (:meth:`.reproject.MaskReprojection.carry_sums`); else forget."""
+        """The camera moved or objects changed: with :attr:`reuse`, the next frame carries the
+        sums that stand over (:meth:`.reproject.MaskReprojection.carry_sums`); else forget."""
         if self.reuse is None:
             self.reset_history()
         self._moved = True
