@@ -191,7 +191,7 @@ class HardVisibility(LightVisibility):
         li = ray.index
         key = light_key(ray.light, settings)
         way = rp.choice.way(li, key)
-        timed = rp.choice.auto
+        timed = rp.choice.auto and rp.choice.wants_time(li, way)
         if timed:
             self.ctx.finish()
             t0 = time.perf_counter()
@@ -217,7 +217,7 @@ class HardVisibility(LightVisibility):
             done = now[0]
         if timed:
             self.ctx.finish()
-            rp.choice.note(li, way, (time.perf_counter() - t0) * 1e3)
+            rp.timed(li, way, (time.perf_counter() - t0) * 1e3)
         return done.texture
 
     def release(self) -> None:

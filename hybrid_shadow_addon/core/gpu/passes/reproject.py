@@ -17,6 +17,8 @@ its centre, the boxes widened by its extent) can meet one gives up its history.
 """
 from __future__ import annotations
 
+import time
+
 import moderngl
 import numpy as np
 
@@ -54,16 +56,21 @@ class ReuseChoice:
     """Per hard light, whether reusing its history pays here: on a renderer whose full-screen
     passes cost about as much as cheap rays (a software rasteriser tracing a light grid), marking
     the history costs more than the rays it saves; where rays are dear (the tree, big scenes),
-    it pays. Both ways are timed (the GPU's work, waited for) and the cheaper kept, the other
-    tried again every :attr:`PROBE` frames, as the view, the scene and the light grids change
-    what each costs. ``auto`` False: always reuse (tests, benchmarks)."""
+    it pays. Both ways are timed (the GPU's work, waited for; one frame in :attr:`EVERY`) and the
+    cheaper kept (reuse by :attr:`MARGIN`), the other tried again every :attr:`PROBE` frames, as the view, the scene and
+    the light grids change what each costs. A frame's passes that serve all reusing lights (the
+    previous pixels, the stored G-buffer) count for its first one, so a light whose saving does
+    not pay for them traces plainly. ``auto`` False: always reuse (tests, benchmarks, animation
+    renders)."""
 
     PROBE = 16
+    EVERY = 4
+    MARGIN = 0.85  # reuse must be timed this much cheaper: what the timings leave out (the work on the CPU)
     ALPHA = 0.5  # weight of the newest timing in each way's running mean
 
     def __init__(self):
         self.auto = True
-        self._lights: dict = {}  # light index -> dict(key, ms={"reuse", "plain"}, frames since the other was timed)
+        self._lights: dict = {}  # light index -> dict(key, ms={"reuse", "plain"}, since, probe)
 
     def reset(self) -> None:
         self._lights.clear()
@@ -73,12 +80,14 @@ class ReuseChoice:
 
     def way(self, index: int, key) -> str:
         """``reuse`` (use the history where it stands, else trace with codes so the next frame
-        can) or ``plain`` (a plain full trace, no history kept) for light ``index`` this frame."""
+        can) or ``plain`` (a plain full trace, no history kept) for light ``index`` this frame
+        (called once a frame per light)."""
         if not self.auto:
             return "reuse"
         s = self._lights.get(index)
         if s is None or s["key"] != key:
             s = self._lights[index] = dict(key=key, ms={"reuse": None, "plain": None}, since=0, probe=None)
+        s["since"] += 1
         ms = s["ms"]
         if s["probe"] is not None:
             return s["probe"]
@@ -86,11 +95,16 @@ class ReuseChoice:
             return "reuse"
         if ms["plain"] is None:
             return "plain"
-        best = "reuse" if ms["reuse"] <= ms["plain"] else "plain"
+        best = "reuse" if ms["reuse"] <= self.MARGIN * ms["plain"] else "plain"
         if s["since"] >= self.PROBE:
             s["probe"] = "plain" if best == "reuse" else "reuse"
             return s["probe"]
         return best
+
+    def wants_time(self, index: int, way: str) -> bool:
+        """Whether to time light ``index``'s ``way`` this frame."""
+        s = self._lights.get(index)
+        return s is not None and (s["ms"][way] is None or s["probe"] == way or s["since"] % self.EVERY == 0)
 
     def note(self, index: int, way: str, ms: float) -> None:
         """Light ``index`` took ``ms`` the ``way`` of :meth:`way` (``reuse``: with a usable
@@ -103,13 +117,6 @@ class ReuseChoice:
         if s["probe"] == way:
             s["probe"] = None
             s["since"] = 0
-        else:
-            s["since"] += 1
-
-    def ways(self) -> dict:
-        """Light index -> its timings (ms) of each way (stats)."""
-        return {i: {k: (None if v is None else round(v, 2)) for k, v in s["ms"].items()}
-                for i, s in self._lights.items()}
 
 
 class MaskReprojection(Pass):
@@ -137,6 +144,7 @@ class MaskReprojection(Pass):
         self._history_drawn = False  # whether this frame's HISTORY map is drawn
         self._fbos: dict = {}  # ids of textures -> (textures, framebuffer)
         self.choice = ReuseChoice()
+        self._timed: list = []  # this frame's (light index, way, ms), noted at the end of the frame
         self.exact = False  # this frame's hard lights trace whole (Pipeline.retrace_once)
         self.plain_lights = 0  # lights of the last frame traced plainly by the choice
 
@@ -176,6 +184,7 @@ class MaskReprojection(Pass):
         self._history_drawn = False
         self.reused_lights = 0
         self.plain_lights = 0
+        self._timed = []
 
     def history(self, index: int, kind: str, key, size):
         """``(previous, current)`` targets of light ``index``'s ``kind`` (``hard``: (mask,
@@ -281,8 +290,27 @@ class MaskReprojection(Pass):
         set_uniforms(prog, {"u_prev_sums": unit, "u_keep": float(self.rules["sums_keep"])})
         draw_fullscreen(self.ctx, vao, out)
 
+    def timed(self, index: int, way: str, ms: float) -> None:
+        """Light ``index`` took ``ms`` this frame the ``way`` :attr:`choice` gave."""
+        self._timed.append((index, way, ms))
+
     def end_frame(self, gbuffer) -> None:
-        """Keep this frame's G-buffer and camera, and the history of the lights it drew."""
+        """Keep this frame's G-buffer and camera, and the history of the lights it drew; note
+        the frame's timings (the store counted for the first light timed reusing)."""
+        first = next((i for i, (_, way, _) in enumerate(self._timed) if way == "reuse"), None)
+        if first is not None:
+            self.ctx.finish()
+            t0 = time.perf_counter()
+        self._store(gbuffer)
+        if first is not None:
+            self.ctx.finish()
+            li, way, ms = self._timed[first]
+            self._timed[first] = (li, way, ms + (time.perf_counter() - t0) * 1e3)
+        for li, way, ms in self._timed:
+            self.choice.note(li, way, ms)
+        self._timed = []
+
+    def _store(self, gbuffer) -> None:
         if not self._touched:
             return
         self._frame += 1
