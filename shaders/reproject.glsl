@@ -10,7 +10,9 @@
 // same pixel, edge or not) were no sparser than u_spacing_ratio of this frame's pixel footprint
 // (a zoom in retraces, so a shadow thinner than the old spacing is found), and (HS_BOXES) the
 // point's shadow segment meets no edited box; else a mark for the trace (gl_FragDepth 0), which
-// writes the pixel's mask and code (raytrace.glsl HS_CODE_OUT).
+// writes the pixel's mask and code (raytrace.glsl HS_CODE_OUT). HS_GROUP_VOTE (refine.py's
+// rule group: llvmpipe): every pixel of a SIMD group that holds a marked pixel is marked too,
+// unless it is known without a ray (see refine_classify.glsl).
 // A code (o_code) is +-2 for a mask of 1 or 0 known without a ray (background, facing away:
 // true for any sampling), +-(3 + s) for one whose samples were s apart on the surface (this
 // frame's footprint where traced, what a reused value stood on), 0.5 for a mask between.
@@ -34,6 +36,9 @@
 #endif
 
 #ifdef FRAGMENT_SHADER
+#ifdef HS_GROUP_VOTE
+#extension GL_ARB_shader_group_vote : require
+#endif
 #include "common/camera.glsl"
 #include "common/gbuffer.glsl"
 #ifndef STORE
@@ -243,6 +248,11 @@ void main()
     if (hs_segment_meets_any(p)) value = -1.0;
 #endif
     if (known >= 0.0) { value = known; code = known == 1.0 ? 2.0 : -2.0; }
+#ifdef HS_GROUP_VOTE
+    // (the trace pays a group its slowest lane: the group's other pixels get their exact
+    // answer for no extra time; uniform control flow: every lane votes)
+    if (anyInvocationARB(value < 0.0) && known < 0.0) value = -1.0;
+#endif
     o_mask = value < 0.0 ? 1.0 : value;
     o_code = code;
     gl_FragDepth = value < 0.0 ? 0.0 : 1.0;

@@ -237,7 +237,7 @@ class MaskReprojection(Pass):
         background, and mark the other pixels for the trace (:meth:`Refiner.refine` with
         ``HS_CODE_OUT``, into the same targets)."""
         history = self._history_map(gbuffer, defines, ray_uniforms)
-        prog, vao = self.programs.fullscreen("reproject", {**defines, **self.defines()})
+        prog, vao = self.programs.fullscreen("reproject", {**defines, **self.defines(), **self.refiner.defines()})
         unit = self.bind(prog, gbuffer, ray_uniforms)
         prev[0].texture.use(unit)
         prev[1].texture.use(unit + 1)
