@@ -58,7 +58,8 @@ class ReuseChoice:
     the history costs more than the rays it saves; where rays are dear (the tree, big scenes),
     it pays. Both ways are timed (the GPU's work, waited for; one frame in :attr:`EVERY`) and the
     cheaper kept (reuse by :attr:`MARGIN`), the other tried again every :attr:`PROBE` frames, as the view, the scene and
-    the light grids change what each costs. A frame's passes that serve all reusing lights (the
+    the light grids change what each costs (a way's first timing, which holds its shaders'
+    compiles, is left out). A frame's passes that serve all reusing lights (the
     previous pixels, the stored G-buffer) count for its first one, so a light whose saving does
     not pay for them traces plainly. ``auto`` False: always reuse (tests, benchmarks, animation
     renders)."""
@@ -86,7 +87,8 @@ class ReuseChoice:
             return "reuse"
         s = self._lights.get(index)
         if s is None or s["key"] != key:
-            s = self._lights[index] = dict(key=key, ms={"reuse": None, "plain": None}, since=0, probe=None)
+            s = self._lights[index] = dict(key=key, ms={"reuse": None, "plain": None}, since=0, probe=None,
+                                           warm=set())
         s["since"] += 1
         ms = s["ms"]
         if s["probe"] is not None:
@@ -111,6 +113,9 @@ class ReuseChoice:
         history; a frame that primed the history is not noted)."""
         s = self._lights.get(index)
         if s is None:
+            return
+        if way not in s["warm"]:  # (a way's first timing holds its shaders' compiles)
+            s["warm"].add(way)
             return
         old = s["ms"][way]
         s["ms"][way] = ms if old is None else old + self.ALPHA * (ms - old)
