@@ -192,6 +192,11 @@ class HardVisibility(LightVisibility):
         key = light_key(ray.light, settings)
         way = rp.choice.way(li, key)
         timed = rp.choice.auto and rp.choice.wants_time(li, way)
+        prev = now = None
+        if way == "reuse":
+            prev, now = rp.history(li, "hard", key, gbuffer.size)
+        if prev is not None:  # (the previous pixels first: shared by the frame's reusing lights, timed apart)
+            rp.history_map(gbuffer, ray.defines, self.trace.uniforms(ray, gbuffer, settings), timed)
         if timed:
             self.ctx.finish()
             t0 = time.perf_counter()
@@ -202,7 +207,6 @@ class HardVisibility(LightVisibility):
             rp.plain_lights += 1
             done = out
         else:
-            prev, now = rp.history(li, "hard", key, gbuffer.size)
             defines = {**ray.defines, "HS_CODE_OUT": 1}
             if prev is None:
                 _, vao, _ = self._program(defines, ray, gbuffer, settings, 1)

@@ -56,28 +56,36 @@ class ReuseChoice:
     """Per hard light, whether reusing its history pays here: on a renderer whose full-screen
     passes cost about as much as cheap rays (a software rasteriser tracing a light grid), marking
     the history costs more than the rays it saves; where rays are dear (the tree, big scenes),
-    it pays. Both ways are timed (the GPU's work, waited for; one frame in :attr:`EVERY`) and the
-    cheaper kept (reuse by :attr:`MARGIN`), the other tried again every :attr:`PROBE` frames, as the view, the scene and
-    the light grids change what each costs (a way's first timing, which holds its shaders'
-    compiles, is left out). A frame's passes that serve all reusing lights (the
-    previous pixels, the stored G-buffer) count for its first one, so a light whose saving does
-    not pay for them traces plainly. ``auto`` False: always reuse (tests, benchmarks, animation
-    renders)."""
+    it pays. Both ways are timed (the GPU's work, waited for; one frame in :attr:`EVERY`; a
+    way's first timing, which holds its shaders' compiles, is left out), and so are the passes
+    that serve all reusing lights of a frame (the previous pixels, the stored G-buffer). The
+    lights timed cheaper reusing (by :attr:`MARGIN`) reuse when together they save more than
+    those passes cost; the other way is tried again every :attr:`PROBE` frames, as the view,
+    the scene and the light grids change what each costs. ``auto`` False: always reuse (tests,
+    benchmarks, animation renders)."""
 
     PROBE = 16
     EVERY = 4
     MARGIN = 0.85  # reuse must be timed this much cheaper: what the timings leave out (the work on the CPU)
-    ALPHA = 0.5  # weight of the newest timing in each way's running mean
+    ALPHA = 0.5  # weight of the newest timing in each running mean
 
     def __init__(self):
         self.auto = True
-        self._lights: dict = {}  # light index -> dict(key, ms={"reuse", "plain"}, since, probe)
+        self._lights: dict = {}  # light index -> dict(key, ms={"reuse", "plain"}, since, probe, warm)
+        self.shared = None  # ms a frame of the passes all reusing lights share
+        self._shared_warm = False
+        self._reusing = None  # this frame's lights that reuse (None: not decided yet)
 
     def reset(self) -> None:
         self._lights.clear()
+        self._reusing = None
 
     def forget(self, index: int) -> None:
         self._lights.pop(index, None)
+        self._reusing = None
+
+    def begin_frame(self) -> None:
+        self._reusing = None
 
     def way(self, index: int, key) -> str:
         """``reuse`` (use the history where it stands, else trace with codes so the next frame
@@ -89,6 +97,7 @@ class ReuseChoice:
         if s is None or s["key"] != key:
             s = self._lights[index] = dict(key=key, ms={"reuse": None, "plain": None}, since=0, probe=None,
                                            warm=set())
+            self._reusing = None
         s["since"] += 1
         ms = s["ms"]
         if s["probe"] is not None:
@@ -97,11 +106,21 @@ class ReuseChoice:
             return "reuse"
         if ms["plain"] is None:
             return "plain"
-        best = "reuse" if ms["reuse"] <= self.MARGIN * ms["plain"] else "plain"
+        best = "reuse" if index in self.reusing() else "plain"
         if s["since"] >= self.PROBE:
             s["probe"] = "plain" if best == "reuse" else "reuse"
             return s["probe"]
         return best
+
+    def reusing(self) -> set:
+        """The lights timed cheaper reusing, if together they save more than the shared passes
+        cost (else none)."""
+        if self._reusing is None:
+            timed = {i: s["ms"] for i, s in self._lights.items() if None not in s["ms"].values()}
+            cheaper = {i for i, ms in timed.items() if ms["reuse"] <= self.MARGIN * ms["plain"]}
+            saving = sum(timed[i]["plain"] - timed[i]["reuse"] for i in cheaper)
+            self._reusing = cheaper if saving > (self.shared or 0.0) else set()
+        return self._reusing
 
     def wants_time(self, index: int, way: str) -> bool:
         """Whether to time light ``index``'s ``way`` this frame."""
@@ -110,7 +129,7 @@ class ReuseChoice:
 
     def note(self, index: int, way: str, ms: float) -> None:
         """Light ``index`` took ``ms`` the ``way`` of :meth:`way` (``reuse``: with a usable
-        history; a frame that primed the history is not noted)."""
+        history, the shared passes apart; a frame that primed the history is not noted)."""
         s = self._lights.get(index)
         if s is None:
             return
@@ -122,6 +141,13 @@ class ReuseChoice:
         if s["probe"] == way:
             s["probe"] = None
             s["since"] = 0
+
+    def note_shared(self, ms: float) -> None:
+        """A frame's shared passes took ``ms`` (the first timing, with the compiles, left out)."""
+        if not self._shared_warm:
+            self._shared_warm = True
+            return
+        self.shared = ms if self.shared is None else self.shared + self.ALPHA * (ms - self.shared)
 
 
 class MaskReprojection(Pass):
@@ -149,6 +175,7 @@ class MaskReprojection(Pass):
         self._history_drawn = False  # whether this frame's HISTORY map is drawn
         self._fbos: dict = {}  # ids of textures -> (textures, framebuffer)
         self.choice = ReuseChoice()
+        self._shared_ms = None  # this frame's timed HISTORY draw
         self._timed: list = []  # this frame's (light index, way, ms), noted at the end of the frame
         self.exact = False  # this frame's hard lights trace whole (Pipeline.retrace_once)
         self.plain_lights = 0  # lights of the last frame traced plainly by the choice
@@ -185,6 +212,8 @@ class MaskReprojection(Pass):
 
     # -- per frame --------------------------------------------------------------------------------
     def begin_frame(self) -> None:
+        self.choice.begin_frame()
+        self._shared_ms = None
         self._touched = {}
         self._history_drawn = False
         self.reused_lights = 0
@@ -241,7 +270,7 @@ class MaskReprojection(Pass):
         """Hard light: write into ``now`` (mask, code) the history that stands and the
         background, and mark the other pixels for the trace (:meth:`Refiner.refine` with
         ``HS_CODE_OUT``, into the same targets)."""
-        history = self._history_map(gbuffer, defines, ray_uniforms)
+        history = self.history_map(gbuffer, defines, ray_uniforms)
         prog, vao = self.programs.fullscreen("reproject", {**defines, **self.defines(), **self.refiner.defines()})
         unit = self.bind(prog, gbuffer, ray_uniforms)
         prev[0].texture.use(unit)
@@ -258,10 +287,17 @@ class MaskReprojection(Pass):
         self.refiner.mark(key, now[0], vao, extra=(now[1],))
         self.reused_lights += 1
 
-    def _history_map(self, gbuffer, defines: dict, ray_uniforms: dict):
+    def history_map(self, gbuffer, defines: dict, ray_uniforms: dict, timed: bool = False):
         """This frame's previous pixel of each pixel (``reproject.glsl`` HISTORY), drawn for the
-        first hard light that asks: it depends on no light."""
+        first hard light that asks: it depends on no light (``timed``: the draw is timed, one of
+        the frame's shared passes)."""
         target = self._targets.get("history", *gbuffer.size, components=4)
+        if not self._history_drawn and timed:
+            self.ctx.finish()
+            t0 = time.perf_counter()
+            self.history_map(gbuffer, defines, ray_uniforms)
+            self.ctx.finish()
+            self._shared_ms = (time.perf_counter() - t0) * 1e3
         if not self._history_drawn:
             defs = {k: v for k, v in defines.items() if k == "HS_MAX_DISTANCE"}
             prog, vao = self.programs.fullscreen("reproject", {**defs, "HISTORY": 1})
@@ -301,16 +337,15 @@ class MaskReprojection(Pass):
 
     def end_frame(self, gbuffer) -> None:
         """Keep this frame's G-buffer and camera, and the history of the lights it drew; note
-        the frame's timings (the store counted for the first light timed reusing)."""
-        first = next((i for i, (_, way, _) in enumerate(self._timed) if way == "reuse"), None)
-        if first is not None:
+        the frame's timings (the store with the previous pixels, where those were timed)."""
+        timed = self._shared_ms is not None
+        if timed:
             self.ctx.finish()
             t0 = time.perf_counter()
         self._store(gbuffer)
-        if first is not None:
+        if timed:
             self.ctx.finish()
-            li, way, ms = self._timed[first]
-            self._timed[first] = (li, way, ms + (time.perf_counter() - t0) * 1e3)
+            self.choice.note_shared(self._shared_ms + (time.perf_counter() - t0) * 1e3)
         for li, way, ms in self._timed:
             self.choice.note(li, way, ms)
         self._timed = []
