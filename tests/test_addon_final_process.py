@@ -89,6 +89,16 @@ def driver(out_dir: str) -> None:
         bpy.ops.render.render()
         report["after_cancel"] = dict(final_render.LAST_STATS)
         report["same_process"] = final_renderer().pid == pid
+        # an animation with persistent data and Reuse Between Frames: hard masks carry over
+        scene.hybrid_shadows.use_soft_shadows = False
+        scene.render.use_persistent_data = True
+        scene.hybrid_shadows.use_reuse_animation = True
+        for k in range(2):
+            scene.frame_set(scene.frame_current + 1)
+            bpy.ops.render.render()
+            report[f"anim{k}"] = dict(final_render.LAST_STATS)
+        scene.render.use_persistent_data = False
+        bpy.ops.render.render()  # (the history is given back with the bake)
     finally:
         hybrid_shadow_addon.unregister()
     Path(out_dir, "report.json").write_text(json.dumps(report, default=str))
@@ -110,6 +120,15 @@ def test_an_f12_gives_its_gpu_memory_back(report):
         s = report[k]
         assert s["gpu_peak_mb"] > 10.0, s  # (6 soft lights' targets at 640x360)
         assert s["gpu_memory_after_mb"] == s["gpu_memory_before_mb"] == 0.0, s
+
+
+def test_an_animation_reuses_hard_masks_with_persistent_data(report):
+    """Render ▸ Shadows ▸ Limits ▸ Reuse Between Frames, with persistent data: the second frame
+    keeps the hard masks' pixels its move cannot change (traced anew in the first)."""
+    first, second = report["anim0"], report["anim1"]
+    assert first["pixels_reused"] == 0 and second["pixels_reused"] > 0, (first, second)
+    assert second["rays_traced"] < first["rays_traced"]
+    assert second["reuse_ways"] == {"reused": second["shadowed_lights"] - second["lights_culled"], "plain": 0}
 
 
 def test_esc_stops_the_export_and_the_render_within_0_2_s(report):

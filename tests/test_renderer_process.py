@@ -131,6 +131,37 @@ def test_a_final_render_gives_its_memory_back(loaded, final):
     assert np.array_equal(again.image, kept.image)
 
 
+def test_an_animation_with_persistent_data_reuses_hard_masks_when_told_to(loaded, final):
+    """With persistent data and ``reuse``, the next frame keeps the hard masks' history (held
+    between frames) and stays within the reuse's bound of a fresh frame; without ``reuse``
+    nothing is reused and only the bake stays."""
+    scene = loaded("forest")
+    settings = Settings(hard=True)
+    key = ("file", "reuse", "layer")
+    cams = [dataclasses.replace(scene.camera, matrix=scene.camera.matrix @ _turn(a)) for a in (0.0, 0.01)]
+    frames = [final.render(dataclasses.replace(scene, camera=c), settings, *SIZE, persistent_key=key, reuse=True)
+              for c in cams]
+    assert frames[0].stats["pixels_reused"] == 0 and frames[1].stats["pixels_reused"] > 0
+    assert frames[1].stats["rays_traced"] < 0.5 * frames[0].stats["rays_traced"]
+    held = frames[1].stats["gpu_memory_after_mb"]
+    fresh = final.render(dataclasses.replace(scene, camera=cams[1]), settings, *SIZE, persistent_key=key)
+    assert fresh.stats["pixels_reused"] == 0 and fresh.stats["gpu_memory_after_mb"] < held
+    bad = valid = 0
+    for li in fresh.masks:
+        ok = np.isfinite(fresh.masks[li])
+        bad += int((np.abs(fresh.masks[li] - frames[1].masks[li])[ok] > 1e-3).sum())
+        valid += int(ok.sum())
+    assert valid and bad <= 0.0002 * valid + 1, (bad, valid)
+
+
+def _turn(a: float) -> np.ndarray:
+    """A rotation by ``a`` radians about the camera's own vertical axis."""
+    m = np.eye(4)
+    m[0, 0] = m[2, 2] = np.cos(a)
+    m[0, 2], m[2, 0] = np.sin(a), -np.sin(a)
+    return m
+
+
 def _cancel_after(final, scene, settings, size, after_s, **options):
     """Render, asking to stop ``after_s`` s in; returns (seconds from the request to the stop,
     the labels reached)."""

@@ -183,6 +183,7 @@ def render(engine, depsgraph) -> None:
         frame = final_renderer().render(
             core, settings, width, height, should_stop=engine.test_break, on_progress=_Progress(engine, 0.1, 0.8),
             film_transparent=bool(scene.render.film_transparent), persistent_key=persistent_key(scene, view_layer),
+            reuse=bool(scene.hybrid_shadows.use_reuse_animation),
             want=wanted_buffers(scene, view_layer), masks=bool(shadow_pass_lights(scene, view_layer)),
             max_draw_ms=MAX_DRAW_MS)
         BAKES[frame.stats.get("bake", NONE)] += 1

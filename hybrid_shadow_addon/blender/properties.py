@@ -115,6 +115,13 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
     max_shadowed_lights: IntProperty(name="Max Shadowed Lights", default=0, min=0, soft_max=64,
                                      description="Final and batch renders: shadow only the N nearest shadow-"
                                                  "casting lights, suns first (0 = every shadow-casting light)")
+    use_reuse_animation: BoolProperty(
+        name="Reuse Between Frames", default=False,
+        description="Animation renders with Persistent Data: a hard light's pixels whose surface and shadow "
+                    "ray stay the same keep the last frame's visibility (within 0.02% of fresh masks; soft "
+                    "lights take their own samples). The masks stay in GPU memory between frames. Saves "
+                    "time where rays are dear; with light grids it costs more than it saves on a software "
+                    "rasteriser")
     viewport_max_shadowed_lights: IntProperty(name="Viewport Max Shadowed Lights", default=4, min=0, soft_max=64,
                                               description="Viewport: shadow only the N nearest shadow-casting "
                                                           "lights, suns first (0 = all; 4 is the real-time budget)",

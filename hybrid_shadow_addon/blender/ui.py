@@ -85,6 +85,9 @@ class RENDER_PT_hybrid_shadows_limits(RenderSubPanel, bpy.types.Panel):
                               "(0 shadows all)", icon="ERROR")
         layout.prop(props, "max_distance")
         layout.prop(context.scene.render, "use_persistent_data", text="Persistent Data")
+        row = layout.row()
+        row.active = context.scene.render.use_persistent_data
+        row.prop(props, "use_reuse_animation")
 
 
 class RENDER_PT_hybrid_shadows_viewport(RenderSubPanel, bpy.types.Panel):

@@ -457,14 +457,20 @@ class Pipeline:
         timings[f"{name}_ms"] = (time.perf_counter() - t0) * 1e3
         return out
 
-    def release_targets(self) -> None:
+    def release_targets(self, keep_history: bool = False) -> None:
         """Give back what the frames left: every pass's render targets and history (the next
-        frame makes its own again); programs, model buffers and the bake stay."""
+        frame makes its own again); programs, model buffers and the bake stay. ``keep_history``:
+        the ray-traced pass stays whole (its masks and reuse history: the next frame of an
+        animation reuses them)."""
         make_current(self.ctx)
+        kept = self._shadow.get("raytrace") if keep_history else None
         for p in self._passes():
-            p.release()
+            if p is not kept:
+                p.release()
         self._st.release()
         self._make_passes()
+        if kept is not None:
+            self._shadow["raytrace"] = kept
 
     def drop_bake(self) -> None:
         """Give back the scene: the bake's textures, the model buffers, material and linking

@@ -434,8 +434,9 @@ class FinalRenderer:
     def render(self, scene, settings, width: int, height: int, *, should_stop=None, on_progress=None,
                **options):
         """A :class:`~.render_server.FrameData` of ``scene``. ``options``: ``film_transparent``,
-        ``persistent_key`` (None: bake afresh and give the bake back after), ``want`` (G-buffer
-        targets to read), ``masks``, ``max_draw_ms``. ``should_stop()`` polled every 20 ms: True
+        ``persistent_key`` (None: bake afresh and give the bake back after), ``reuse`` (with a
+        ``persistent_key``: hard masks reused from the last frame, its history kept), ``want``
+        (G-buffer targets to read), ``masks``, ``max_draw_ms``. ``should_stop()`` polled every 20 ms: True
         cancels (raises :class:`Cancelled`); ``on_progress(done, total, label)`` follows the child."""
         job = self._begin()
         self._proc.post(("final", job, scene, settings, int(width), int(height), options))

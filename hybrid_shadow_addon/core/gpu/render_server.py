@@ -103,6 +103,10 @@ class FinalJobs:
             if self.pipe is None:
                 self.pipe = Pipeline()
             pipe = self.pipe
+            # (an animation with persistent data may reuse hard masks from frame to frame: every
+            # light, whatever it costs, so the frames are the same on any machine)
+            keep = bool(options.get("reuse")) and options.get("persistent_key") is not None
+            pipe.reuse, pipe.reuse_choice = keep, "always"
             ledger = memory.track(pipe.ctx)
             before = ledger.bytes
             ledger.reset_peak()
@@ -114,7 +118,7 @@ class FinalJobs:
             data = frame_data(frame, options.get("want", ()), options.get("masks", True))
             data.stats.update(bake=kind, gpu_memory_before_mb=round(before / MB, 1),
                               gpu_peak_mb=round(ledger.peak / MB, 1))
-            self._free(pipe, keep_bake=options.get("persistent_key") is not None)
+            self._free(pipe, keep_bake=options.get("persistent_key") is not None, keep_history=keep)
             data.stats["gpu_memory_after_mb"] = round(ledger.bytes / MB, 1)
             self.send(("final", job, data, None))
         except BaseException as exc:  # noqa: BLE001 - the caller gets every failure
@@ -145,9 +149,10 @@ class FinalJobs:
         return kind
 
     @staticmethod
-    def _free(pipe, keep_bake: bool) -> None:
-        """Give back the frame's targets (every pass's), and the bake unless it is kept."""
-        pipe.release_targets()
+    def _free(pipe, keep_bake: bool, keep_history: bool = False) -> None:
+        """Give back the frame's targets (every pass's but, ``keep_history``, the ray-traced
+        pass's), and the bake unless it is kept."""
+        pipe.release_targets(keep_history)
         if not keep_bake:
             pipe.drop_bake()
 
