@@ -24,6 +24,7 @@ from hybrid_shadow_addon.core.gpu.remote import FinalRenderer, RemoteWorker
 from hybrid_shadow_addon.core.gpu.render_server import encode_image
 from hybrid_shadow_addon.core.gpu.worker import RenderRequest, RenderWorker
 from hybrid_shadow_addon.core.settings import Settings
+from hybrid_shadow_addon.tools.metrics import frame_mismatch
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 
@@ -146,11 +147,7 @@ def test_an_animation_with_persistent_data_reuses_hard_masks_when_told_to(loaded
     held = frames[1].stats["gpu_memory_after_mb"]
     fresh = final.render(dataclasses.replace(scene, camera=cams[1]), settings, *SIZE, persistent_key=key)
     assert fresh.stats["pixels_reused"] == 0 and fresh.stats["gpu_memory_after_mb"] < held
-    bad = valid = 0
-    for li in fresh.masks:
-        ok = np.isfinite(fresh.masks[li])
-        bad += int((np.abs(fresh.masks[li] - frames[1].masks[li])[ok] > 1e-3).sum())
-        valid += int(ok.sum())
+    bad, valid = frame_mismatch(frames[1], fresh)
     assert valid and bad <= 0.0002 * valid + 1, (bad, valid)
 
 

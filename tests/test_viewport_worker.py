@@ -135,6 +135,26 @@ def test_automatic_navigation_quality_follows_the_renderer(worker, base, direct)
     assert got.settings == FULL
 
 
+def test_a_reusing_view_traces_one_exact_frame_once_it_rests(worker, base, direct):
+    """A view that reuses: after a camera move its frame keeps what stands, then one more frame
+    traces the hard masks whole, equal to a fresh render of the view."""
+    worker.set_scene(base)
+    worker.render(dataclasses.replace(request("reuse", base), reuse=True))
+    first = finish(worker, "reuse")
+    assert first.stats["pixels_reused"] == 0
+    cam = dataclasses.replace(base.camera, matrix=base.camera.matrix.copy())
+    cam.matrix[:3, 3] += (0.02, 0.0, 0.0)
+    turned = dataclasses.replace(base, camera=cam)
+    n = len(worker.log)
+    seq = worker.render(dataclasses.replace(request("reuse", turned), reuse=True))
+    last = finish(worker, "reuse")
+    steps = [(s, left) for v, sq, s, q, left in worker.log[n:] if v == "reuse" and sq == seq]
+    assert steps == [(0, 1), (1, 0)]
+    assert last.stats["pixels_reused"] == 0
+    direct.set_scene(base)
+    np.testing.assert_array_equal(last.image, direct.render(turned, FULL, W, H).image)
+
+
 def test_soft_shadows_accumulate_until_the_samples(worker, base):
     # (the first full frame gives the penumbrae 16 samples, the next one adds 4)
     soft_full = Settings(mode="raytrace", quality="high", hard=False, accumulate=True, samples=20, frame_samples=4)

@@ -432,8 +432,9 @@ class RenderWorker(ViewResults):
         else:
             settings = req.full
             job.refine -= 1
-            if job.settle:
+            if job.settle:  # (once: the frames after it reuse that exact one)
                 vp.retrace_once()
+                job.settle = False
         frame = vp.render(req.scene, settings, req.width, req.height, film_transparent=req.film_transparent)
         if job.step == 0 and frame.stats.get("pixels_reused"):  # reused: exact again once the view rests
             job.refine, job.settle = max(job.refine, 1), True

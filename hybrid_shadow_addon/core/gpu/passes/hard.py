@@ -196,7 +196,8 @@ class HardVisibility(LightVisibility):
         if way == "reuse":
             prev, now = rp.history(li, "hard", key, gbuffer.size)
         if prev is not None:  # (the previous pixels first: shared by the frame's reusing lights, timed apart)
-            rp.history_map(gbuffer, ray.defines, self.trace.uniforms(ray, gbuffer, settings), timed)
+            uniforms = self.trace.uniforms(ray, gbuffer, settings)
+            rp.history_map(gbuffer, ray.defines, uniforms, timed)
         if timed:
             self.ctx.finish()
             t0 = time.perf_counter()
@@ -214,7 +215,7 @@ class HardVisibility(LightVisibility):
                 timed = False  # (priming the history: neither way's cost)
             else:
                 defs = {k: v for k, v in ray.defines.items() if k in CLASSIFY_DEFINES}
-                rp.mark((li, "reuse"), gbuffer, defs, self.trace.uniforms(ray, gbuffer, settings), prev, now)
+                rp.mark((li, "reuse"), gbuffer, defs, uniforms, prev, now)
                 _, vao, _ = self._program(defines, ray, gbuffer, settings, 1)
                 self.refiner.refine((li, "reuse"), now[0], vao, kind="retraced", extra=(now[1],))
                 rp.count(now[1])

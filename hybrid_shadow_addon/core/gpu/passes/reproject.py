@@ -278,7 +278,7 @@ class MaskReprojection(Pass):
         history.texture.use(unit + 2)
         cam = self._prev[0]
         still = (np.array_equal(cam.clip_from_rel, gbuffer.camera.clip_from_rel)
-                 and np.array_equal(cam.cam_pos, gbuffer.camera.cam_pos) and self._prev[1] == tuple(gbuffer.size))
+                 and np.array_equal(cam.cam_pos, gbuffer.camera.cam_pos))  # (history(): the same size)
         refresh = max(1, int(self.rules["refresh"]))
         set_uniforms(prog, {"u_prev_mask": unit, "u_prev_code": unit + 1, "u_history": unit + 2,
                             "u_still": int(still),
@@ -292,18 +292,19 @@ class MaskReprojection(Pass):
         first hard light that asks: it depends on no light (``timed``: the draw is timed, one of
         the frame's shared passes)."""
         target = self._targets.get("history", *gbuffer.size, components=4)
-        if not self._history_drawn and timed:
+        if self._history_drawn:
+            return target
+        if timed:
             self.ctx.finish()
             t0 = time.perf_counter()
-            self.history_map(gbuffer, defines, ray_uniforms)
+        defs = {k: v for k, v in defines.items() if k == "HS_MAX_DISTANCE"}
+        prog, vao = self.programs.fullscreen("reproject", {**defs, "HISTORY": 1})
+        self.bind(prog, gbuffer, ray_uniforms)
+        draw_fullscreen(self.ctx, vao, target)
+        self._history_drawn = True
+        if timed:
             self.ctx.finish()
             self._shared_ms = (time.perf_counter() - t0) * 1e3
-        if not self._history_drawn:
-            defs = {k: v for k, v in defines.items() if k == "HS_MAX_DISTANCE"}
-            prog, vao = self.programs.fullscreen("reproject", {**defs, "HISTORY": 1})
-            self.bind(prog, gbuffer, ray_uniforms)
-            draw_fullscreen(self.ctx, vao, target)
-            self._history_drawn = True
         return target
 
     def count(self, code) -> None:
