@@ -5,19 +5,19 @@
 // STORE: the G-buffer kept for the next frame (o_geo: world xyz, instance index + 1, 0 on
 // background; o_nrm: geometric normal, footprint of a pixel on the surface).
 // MARK (hard lights, no mode define): per pixel, the answer without a ray (shadow_ray_prelude),
-// else the previous mask at HISTORY's point where the previous frame's 3x3 codes around it all
-// say lit or all say shadowed (no shadow edge) and their samples (u_still, the same camera: the
-// same pixel, edge or not) were no sparser than u_spacing_ratio of this frame's pixel footprint
-// (a zoom in retraces, so a shadow thinner than the old spacing is found), and (HS_BOXES) the
-// point's shadow segment meets no edited box; else a mark for the trace (gl_FragDepth 0), which
-// writes the pixel's mask and code (raytrace.glsl HS_CODE_OUT). HS_GROUP_VOTE (refine.py's
-// rule group: llvmpipe): every pixel of a SIMD group that holds a marked pixel is marked too,
-// unless it is known without a ray (see refine_classify.glsl).
+// else the previous mask at HISTORY's point where the previous frame's codes of the 2x2 samples
+// around it all say lit or all say shadowed (no shadow edge) and those samples were no sparser
+// than u_spacing_ratio of this frame's pixel footprint (a zoom in retraces, so a shadow thinner
+// than the old spacing is found), and (HS_BOXES) the point's shadow segment meets no edited
+// box; HS_STILL (the same camera): the same pixel's value, edge or not. Those pixels are
+// written (mask, code) and counted (an occlusion query); the others are discarded and keep the
+// cleared depth that marks them for the trace, which writes their mask and code (raytrace.glsl
+// HS_CODE_OUT). HS_GROUP_VOTE (refine.py's rule group: llvmpipe): every pixel of a SIMD group
+// that holds a marked pixel is marked too, unless it is known without a ray (see
+// refine_classify.glsl).
 // A code (o_code) is +-2 for a mask of 1 or 0 known without a ray (background, facing away:
 // true for any sampling), +-(3 + s) for one whose samples were s apart on the surface (this
 // frame's footprint where traced, what a reused value stood on), 0.5 for a mask between.
-// COUNT: discards all but the pixels whose code is +-(3 + s): traced or reused (an occlusion
-// query counts them).
 // HISTORY: per pixel, its surface point's position in the previous frame's window (pixels) where
 // hs_history_pixel accepts it but for the edited boxes (light-independent: once a frame, for
 // every hard light's MARK), -1 where it has none, -2 on background; and its footprint.
@@ -189,21 +189,11 @@ void main()
     ivec2 q = hs_history_pixel(ivec2(gl_FragCoord.xy), fp);
     o_win = vec4(q.x < 0 ? vec2(q) : hs_win, fp, 0.0);
 }
-#elif defined(COUNT)
-uniform sampler2D u_code;
-out float o_mask;
-
-void main()
-{
-    if (!(abs(texelFetch(u_code, ivec2(gl_FragCoord.xy), 0).r) >= 3.0)) discard;
-    o_mask = 1.0;
-}
 #else
 uniform sampler2D u_prev_mask;
 uniform sampler2D u_prev_code;
 uniform sampler2D u_history;    // HISTORY's output of this frame (the edited boxes left to this light)
 uniform float u_spacing_ratio;
-uniform int u_still;            // 1: the same camera: the same pixel's value stands, edge or not
 uniform int u_refresh;          // one 4x2 block in u_refresh traces again each moving frame
 uniform int u_phase;            // which one (the frame's)
 layout(location = 0) out float o_mask;
@@ -214,48 +204,48 @@ layout(location = 1) out float o_code;
 float hs_reused_value(ivec2 px, vec2 win, float fp, out float code)
 {
     ivec2 q = ivec2(floor(win));
-    if (u_still == 1) {
-        code = texelFetch(u_prev_code, q, 0).r;
-        return q == px ? texelFetch(u_prev_mask, q, 0).r : -1.0;
-    }
-    // the 3x3 codes around q: four gathers of 2x2 at the corners of texel q
-    vec2 inv = 1.0 / vec2(textureSize(u_prev_code, 0));
-    vec4 c0 = textureGather(u_prev_code, vec2(q) * inv, 0);
-    vec4 c1 = textureGather(u_prev_code, vec2(q + ivec2(1, 0)) * inv, 0);
-    vec4 c2 = textureGather(u_prev_code, vec2(q + ivec2(0, 1)) * inv, 0);
-    vec4 c3 = textureGather(u_prev_code, vec2(q + ivec2(1, 1)) * inv, 0);
-    vec4 lo4 = min(min(c0, c1), min(c2, c3)), hi4 = max(max(c0, c1), max(c2, c3));
-    float lo = min(min(lo4.x, lo4.y), min(lo4.z, lo4.w)), hi = max(max(hi4.x, hi4.y), max(hi4.z, hi4.w));
+#ifdef HS_STILL
+    code = texelFetch(u_prev_code, q, 0).r;
+    return q == px ? texelFetch(u_prev_mask, q, 0).r : -1.0;
+#else
+    // the 2x2 codes whose samples surround the point (one gather): a shadow edge that passes
+    // between the point and its samples separates some of them, as the point lies among them
+    vec4 c = textureGather(u_prev_code, win / vec2(textureSize(u_prev_code, 0)), 0);
+    float lo = min(min(c.x, c.y), min(c.z, c.w)), hi = max(max(c.x, c.y), max(c.z, c.w));
     float spacing = max(max(hi, -lo) - 3.0, 0.0);  // the sparsest of their samples' spacings
     code = hi <= -2.0 ? -(3.0 + spacing) : 3.0 + spacing;
     return (lo >= 2.0 || hi <= -2.0) && spacing <= u_spacing_ratio * fp ? float(lo >= 2.0) : -1.0;
+#endif
 }
 
 void main()
 {
     ivec2 px = ivec2(gl_FragCoord.xy);
-    vec3 p, n, ns, to_light;
-    float depth;
-    float known = shadow_ray_prelude(px, p, n, ns, depth, to_light);
     vec4 h = texelFetch(u_history, px, 0);
-    // (a rotating share of the 4x2 blocks traces again: a value a move let through wrongly,
-    // as a shadow thinner than the old samples' spacing, lasts about u_refresh frames)
-    bool refresh = u_still == 0 && u_refresh > 1 && ((px.x >> 2) + 3 * (px.y >> 1) + u_phase) % u_refresh == 0;
     float code = 0.0;
     float value = hs_reused_value(px, h.xy, max(h.z, 1e-30), code);
-    if (h.x < 0.0 || refresh) value = -1.0;
-#ifdef HS_BOXES
-    if (hs_segment_meets_any(p)) value = -1.0;
+    if (h.x < 0.0) value = -1.0;
+#ifndef HS_STILL
+    // (a rotating share of the 4x2 blocks traces again: a value a move let through wrongly,
+    // as a shadow thinner than the old samples' spacing, lasts about u_refresh frames)
+    if (u_refresh > 1 && ((px.x >> 2) + 3 * (px.y >> 1) + u_phase) % u_refresh == 0) value = -1.0;
 #endif
-    if (known >= 0.0) { value = known; code = known == 1.0 ? 2.0 : -2.0; }
+    vec3 p, n, ns, to_light;
+    float depth;
+    float answer = shadow_ray_prelude(px, p, n, ns, depth, to_light);
+#ifdef HS_BOXES
+    if (answer < 0.0 && hs_segment_meets_any(p)) value = -1.0;
+#endif
+    bool known = answer >= 0.0;
+    if (known) { value = answer; code = answer == 1.0 ? 2.0 : -2.0; }
 #ifdef HS_GROUP_VOTE
     // (the trace pays a group its slowest lane: the group's other pixels get their exact
     // answer for no extra time; uniform control flow: every lane votes)
-    if (anyInvocationARB(value < 0.0) && known < 0.0) value = -1.0;
+    if (anyInvocationARB(value < 0.0) && !known) value = -1.0;
 #endif
-    o_mask = value < 0.0 ? 1.0 : value;
+    if (value < 0.0) discard;     // (left to the trace: its depth stays the cleared mark)
+    o_mask = value;
     o_code = code;
-    gl_FragDepth = value < 0.0 ? 0.0 : 1.0;
 }
 #endif
 #endif

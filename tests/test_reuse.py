@@ -70,9 +70,36 @@ def test_reused_masks_match_fresh_along_an_orbit(pipes):
         assert b.stats["pixels_reused"] == 0
         if k:
             assert a.stats["pixels_reused"] > 0
+            # (every pixel of a reusing light is either traced or settled without a ray)
+            assert a.stats["lights_culled"] == 0
+            assert a.stats["rays_traced"] + a.stats["pixels_reused"] == a.stats["pixels"], a.stats
             traced += a.stats["rays_traced"]
             fresh_rays += b.stats["rays_traced"]
     assert traced <= 0.3 * fresh_rays, (traced, fresh_rays)
+
+
+def turned(scene, a):
+    """``scene`` with its camera turned ``a`` radians about the vertical through its bounds' centre."""
+    lo, hi = scene.world_bounds()
+    c = (np.asarray(lo) + np.asarray(hi)) * 0.5
+    rot = np.eye(4)
+    rot[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    t, ti = np.eye(4), np.eye(4)
+    t[:3, 3], ti[:3, 3] = c, -c
+    return dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, matrix=t @ rot @ ti @ scene.camera.matrix))
+
+
+def test_reused_masks_match_fresh_on_smooth_shading(pipes, loaded):
+    """Smooth-shaded models (the shading normal decides what faces the light, the terminator
+    moves the rays' origins): reused masks as close to fresh ones as on flat ones."""
+    p, fresh = pipes
+    scene = loaded("smooth_shapes")
+    for k in range(4):
+        s = turned(scene, 0.02 * k)
+        a, b = p.render(s, HARD, 320, 180), fresh.render(s, HARD, 320, 180)
+        bad, valid = mismatch(a, b)
+        assert bad <= BOUND * valid + 1, (k, bad, valid)
+        assert not k or a.stats["pixels_reused"] > 0.5 * valid
 
 
 def test_every_block_is_traced_again_within_refresh_moving_frames(pipes):
@@ -111,6 +138,22 @@ def test_retrace_once_traces_whole_and_keeps_the_history(pipes):
     a, b = p.render(orbit(scene, 3), HARD, 160, 90), fresh.render(orbit(scene, 3), HARD, 160, 90)
     assert a.stats["pixels_reused"] == 0 and mismatch(a, b)[0] == 0
     assert p.render(orbit(scene, 4), HARD, 160, 90).stats["pixels_reused"] > 0
+
+
+def test_the_retraced_pixels_trace_is_timed_alone_when_asked(pipes):
+    """``time_retrace`` (benchmarks) times the trace of a reused frame's retraced pixels: none
+    on a frame without history, some on a reused one, none when not asked."""
+    p, _ = pipes
+    rp = p.shadow_pass("raytrace").reuse
+    scene = basic_scene(lights=all_lights()[:2], with_sphere=True)
+    rp.time_retrace = True
+    p.render(orbit(scene, 0), HARD, 160, 90)
+    assert rp.retrace_ms == 0.0
+    p.render(orbit(scene, 1), HARD, 160, 90)
+    assert rp.retrace_ms > 0.0
+    rp.time_retrace = False
+    p.render(orbit(scene, 2), HARD, 160, 90)
+    assert rp.retrace_ms == 0.0
 
 
 def test_the_choice_keeps_the_cheaper_way_and_tries_the_other_again():

@@ -184,14 +184,14 @@ def test_the_command_fails_on_a_broken_shader(tmp_path, capsys):
 
 def test_the_reprojection_is_checked_in_each_mode(tmp_path, gl_ctx):
     """reproject.glsl is one of the run's programs, tried in each of its modes (STORE, SOFT,
-    HISTORY, COUNT and the hard mark), and a break in one mode fails the run there."""
+    HISTORY and the hard mark, moving or still), and a break in one mode fails the run there."""
     import shutil
 
     assert "reproject" in shader_check.program_names(programs.default_shader_dir())
     sets = shader_check.single_define_sets(ProgramCache(None, programs.default_shader_dir()), "reproject")
-    for mode in ("STORE", "SOFT", "HISTORY", "COUNT", "HS_BOXES"):
+    for mode in ("STORE", "SOFT", "HISTORY", "HS_STILL", "HS_BOXES"):
         assert any(mode in s for s in sets), mode
-    assert any(not {"STORE", "SOFT", "HISTORY", "COUNT"} & set(s) for s in sets)
+    assert any(not {"STORE", "SOFT", "HISTORY"} & set(s) for s in sets)
     root = tmp_path / "shaders"
     shutil.copytree(programs.default_shader_dir(), root)
     src = root / "reproject.glsl"

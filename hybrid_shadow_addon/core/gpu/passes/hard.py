@@ -217,8 +217,13 @@ class HardVisibility(LightVisibility):
                 defs = {k: v for k, v in ray.defines.items() if k in CLASSIFY_DEFINES}
                 rp.mark((li, "reuse"), gbuffer, defs, uniforms, prev, now)
                 _, vao, _ = self._program(defines, ray, gbuffer, settings, 1)
+                if rp.time_retrace:
+                    self.ctx.finish()
+                    t1 = time.perf_counter()
                 self.refiner.refine((li, "reuse"), now[0], vao, kind="retraced", extra=(now[1],))
-                rp.count(now[1])
+                if rp.time_retrace:
+                    self.ctx.finish()
+                    rp.retrace_ms += (time.perf_counter() - t1) * 1e3
             done = now[0]
         if timed:
             self.ctx.finish()

@@ -115,7 +115,8 @@ class RaytracePass(ShadowPass):
             reused = self.reuse.reused_lights
             retraced = self.refiner.count("retraced") if reused else 0
             traced = valid * (n - len(self.culled) - reused) + retraced
-            reused_pixels = self.refiner.count("kept") - retraced if reused else 0
+            # (the mark counts the background it writes too: every pixel without geometry)
+            reused_pixels = self.refiner.count("kept") - reused * (mw * mh - valid) if reused else 0
         else:
             traced = self.refiner.count("coarse") * (n - len(self.culled)) + self.refiner.count("refined")
         return RaytraceStats(

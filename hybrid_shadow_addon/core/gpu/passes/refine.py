@@ -204,6 +204,17 @@ class Refiner:
         finally:
             fbo.color_mask = ((True,) * 4,) * n if n > 1 else (True,) * 4
 
+    def mark_kept(self, key, target, vao, kind: str, extra=()) -> None:
+        """Draw ``vao``, a full-screen program that writes the pixels it settles and discards
+        the others, into ``target`` (``extra``: targets of its further outputs): the discarded
+        pixels are marked for the next :meth:`refine`, the settled ones counted as ``kind``."""
+        self.ctx.disable(moderngl.BLEND)
+        fbo = self._fbo(key, target, extra)
+        fbo.use()
+        fbo.clear(depth=0.0)  # (every pixel marked; the draw's own depth, 0.5, settles one)
+        with self._query(kind, key):
+            self._draw_marks(fbo, target, vao)
+
     def _draw_marks(self, fbo, target, vao) -> None:
         """A full-screen draw into ``fbo`` (``target``'s) that writes the depth marks."""
         ctx = self.ctx

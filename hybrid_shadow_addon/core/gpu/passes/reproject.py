@@ -4,12 +4,14 @@ Visibility of a light from a surface point does not depend on the camera. Each f
 G-buffer (world positions, normals, instances: STORE) and camera; the next frame looks each
 pixel's world position up in that image (HISTORY, once a frame) and keeps what was known there
 where the surface is the same (same instance, normals and position within tolerances scaled to
-the pixel footprint, no grazing view), and, for a hard light's mask, where the old codes' 3x3
-neighbourhood holds no shadow edge and its samples are no sparser than this frame's pixels
-(MARK: a hard light's trace writes, besides its mask, a code per pixel: lit or shadowed, known
-without a ray, and the spacing of the samples the value stands on). The other pixels
-(disoccluded, at an edge, grazing, zoomed into) are marked for the trace under the refinement's
-depth test. :class:`ReuseChoice` times both ways per light and reuses where that is cheaper.
+the pixel footprint, no grazing view), and, for a hard light's mask, where the old codes of the
+2x2 samples around the point hold no shadow edge and those samples are no sparser than this
+frame's pixels (MARK: a hard light's trace writes, besides its mask, a code per pixel: lit or
+shadowed, known without a ray, and the spacing of the samples the value stands on). The other
+pixels (disoccluded, at an edge, grazing, zoomed into) are marked for the trace under the
+refinement's depth test; the mark counts the pixels it settles, so a reused light costs two
+full-screen passes, the mark and the trace of the marked pixels. :class:`ReuseChoice` times
+both ways per light and reuses where that is cheaper.
 
 Edits invalidate only what they can touch: :meth:`MaskReprojection.invalidate` takes the old and
 new bounds of edited objects; a pixel whose shadow segment (a soft light's cone: the segment to
@@ -179,6 +181,9 @@ class MaskReprojection(Pass):
         self._timed: list = []  # this frame's (light index, way, ms), noted at the end of the frame
         self.exact = False  # this frame's hard lights trace whole (Pipeline.retrace_once)
         self.plain_lights = 0  # lights of the last frame traced plainly by the choice
+        # the trace of the retraced pixels alone timed (what reusing costs at least: benchmarks)
+        self.time_retrace = False
+        self.retrace_ms = 0.0  # that time, the last frame's lights together
 
     def reset_history(self) -> None:
         """Forget everything (``Pipeline.reset_history``)."""
@@ -218,6 +223,7 @@ class MaskReprojection(Pass):
         self._history_drawn = False
         self.reused_lights = 0
         self.plain_lights = 0
+        self.retrace_ms = 0.0
         self._timed = []
 
     def history(self, index: int, kind: str, key, size):
@@ -268,23 +274,26 @@ class MaskReprojection(Pass):
 
     def mark(self, key, gbuffer, defines: dict, ray_uniforms: dict, prev, now) -> None:
         """Hard light: write into ``now`` (mask, code) the history that stands and the
-        background, and mark the other pixels for the trace (:meth:`Refiner.refine` with
-        ``HS_CODE_OUT``, into the same targets)."""
+        background, counted (``kept``), and mark the other pixels for the trace
+        (:meth:`Refiner.refine` with ``HS_CODE_OUT``, into the same targets)."""
         history = self.history_map(gbuffer, defines, ray_uniforms)
-        prog, vao = self.programs.fullscreen("reproject", {**defines, **self.defines(), **self.refiner.defines()})
+        cam = self._prev[0]
+        still = (np.array_equal(cam.clip_from_rel, gbuffer.camera.clip_from_rel)
+                 and np.array_equal(cam.cam_pos, gbuffer.camera.cam_pos))  # (history(): the same size)
+        defs = {**defines, **self.defines()}
+        defs.update(self.refiner.defines())
+        if still:
+            defs["HS_STILL"] = 1
+        prog, vao = self.programs.fullscreen("reproject", defs)
         unit = self.bind(prog, gbuffer, ray_uniforms)
         prev[0].texture.use(unit)
         prev[1].texture.use(unit + 1)
         history.texture.use(unit + 2)
-        cam = self._prev[0]
-        still = (np.array_equal(cam.clip_from_rel, gbuffer.camera.clip_from_rel)
-                 and np.array_equal(cam.cam_pos, gbuffer.camera.cam_pos))  # (history(): the same size)
         refresh = max(1, int(self.rules["refresh"]))
         set_uniforms(prog, {"u_prev_mask": unit, "u_prev_code": unit + 1, "u_history": unit + 2,
-                            "u_still": int(still),
                             "u_spacing_ratio": float(self.rules["spacing_ratio"]),
                             "u_refresh": refresh, "u_phase": self._frame % refresh})
-        self.refiner.mark(key, now[0], vao, extra=(now[1],))
+        self.refiner.mark_kept(key, now[0], vao, "kept", extra=(now[1],))
         self.reused_lights += 1
 
     def history_map(self, gbuffer, defines: dict, ray_uniforms: dict, timed: bool = False):
@@ -306,14 +315,6 @@ class MaskReprojection(Pass):
             self.ctx.finish()
             self._shared_ms = (time.perf_counter() - t0) * 1e3
         return target
-
-    def count(self, code) -> None:
-        """Count (occlusion query ``kept``) the pixels of the last :meth:`mark` and its trace
-        whose value stands on samples (traced or reused; the trace counts its own)."""
-        prog, vao = self.programs.fullscreen("reproject", {"COUNT": 1})
-        code.texture.use(0)
-        set_uniforms(prog, {"u_code": 0})
-        self.refiner.counted_draw("kept", self._targets.get("count", *code.texture.size), vao)
 
     def draw_fresh(self, vao, now, budget) -> None:
         """Draw the bound trace ``vao`` (``HS_CODE_OUT``) into ``now`` (mask, code) whole,

@@ -43,8 +43,10 @@ class RaytraceOptions:
 class RaytraceStats:
     """The ray-traced pass's stats of the last frame (``Frame.stats`` takes them as a dict).
     ``rays_traced`` counts the pixels the trace shaded (occlusion queries), ``pixels`` the
-    pixels with geometry times the shadowed lights, ``pixels_reused`` the pixels (times lights)
-    whose visibility came from an earlier frame (:mod:`.reproject`), ``reuse_ways`` how many hard
+    pixels with geometry times the shadowed lights, ``pixels_reused`` the pixels with geometry
+    (times lights) that a reusing light settled without a ray: from an earlier frame
+    (:mod:`.reproject`), or known without one (facing away); with ``rays_traced`` they make up
+    those lights' pixels. ``reuse_ways`` how many hard
     lights reused their history and how many were traced plainly where reusing did not pay
     (:class:`.reproject.ReuseChoice`), ``lights_culled`` the lights traced by no ray
     (:mod:`.light_cull`)."""
