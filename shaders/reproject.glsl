@@ -5,8 +5,9 @@
 // STORE: the G-buffer kept for the next frame (o_geo: world xyz, instance index + 1, 0 on
 // background; o_nrm: geometric normal, footprint of a pixel on the surface).
 // MARK (hard lights, no mode define): per pixel, the answer without a ray (shadow_ray_prelude),
-// else the previous mask at HISTORY's point where the previous frame's codes of the 2x2 samples
-// around it all say lit or all say shadowed (no shadow edge) and those samples were no sparser
+// else the previous mask at HISTORY's point where the previous frame's codes of the 4x4 samples
+// around it (HS_GROUP_VOTE, which traces a marked pixel's group too; else 8x8), all on its
+// object, all say lit or all say shadowed (no shadow edge) and those samples were no sparser
 // than u_spacing_ratio of this frame's pixel footprint (a zoom in retraces, so a shadow thinner
 // than the old spacing is found), and (HS_BOXES) the point's shadow segment meets no edited
 // box; HS_STILL (the same camera): the same pixel's value, edge or not. Those pixels are
@@ -46,6 +47,11 @@
 #endif
 
 #define HS_MAX_BOXES 32
+#ifdef HS_GROUP_VOTE
+#define HS_RING 1       // MARK: the samples read around a point, 2 x (HS_RING + 1) a side
+#else
+#define HS_RING 3
+#endif
 
 #ifdef STORE
 layout(location = 0) out vec4 o_geo;
@@ -208,13 +214,26 @@ float hs_reused_value(ivec2 px, vec2 win, float fp, out float code)
     code = texelFetch(u_prev_code, q, 0).r;
     return q == px ? texelFetch(u_prev_mask, q, 0).r : -1.0;
 #else
-    // the 2x2 codes whose samples surround the point (one gather): a shadow edge that passes
-    // between the point and its samples separates some of them, as the point lies among them
-    vec4 c = textureGather(u_prev_code, win / vec2(textureSize(u_prev_code, 0)), 0);
-    float lo = min(min(c.x, c.y), min(c.z, c.w)), hi = max(max(c.x, c.y), max(c.z, c.w));
+    // the codes of the samples around the point: gathers of 2x2 at points 1, 3, ... pixels off
+    // it diagonally, 4x4 samples (HS_GROUP_VOTE, which traces a marked pixel's group as well)
+    // or 8x8. A shadow edge that passes between the point and its samples separates some of
+    // them, as the point lies among them; the ring beyond the nearest ones finds the corners
+    // and thin ends of shadows that reach between samples from an edge nearby. They must lie
+    // on the point's own object (another object's samples say nothing of it).
+    vec2 inv = 1.0 / vec2(textureSize(u_prev_code, 0));
+    vec4 lo4 = vec4(1e30), hi4 = vec4(-1e30);
+    for (int j = -HS_RING; j <= HS_RING; j += 2)
+        for (int i = -HS_RING; i <= HS_RING; i += 2) {
+            vec4 c = textureGather(u_prev_code, (win + vec2(i, j)) * inv, 0);
+            lo4 = min(lo4, c);
+            hi4 = max(hi4, c);
+        }
+    float lo = min(min(lo4.x, lo4.y), min(lo4.z, lo4.w)), hi = max(max(hi4.x, hi4.y), max(hi4.z, hi4.w));
+    bool same = u_same_instance == 0
+             || all(equal(textureGather(u_prev_geo, win * inv, 3), vec4(texelFetch(u_gb_material, px, 0).z + 1.0)));
     float spacing = max(max(hi, -lo) - 3.0, 0.0);  // the sparsest of their samples' spacings
     code = hi <= -2.0 ? -(3.0 + spacing) : 3.0 + spacing;
-    return (lo >= 2.0 || hi <= -2.0) && spacing <= u_spacing_ratio * fp ? float(lo >= 2.0) : -1.0;
+    return same && (lo >= 2.0 || hi <= -2.0) && spacing <= u_spacing_ratio * fp ? float(lo >= 2.0) : -1.0;
 #endif
 }
 

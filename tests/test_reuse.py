@@ -58,8 +58,13 @@ def crowd(n_side=12, mover_at=(0.0, 0.0)):
                  world_color=(0.05, 0.06, 0.08), resolution=(240, 135))
 
 
-def test_reused_masks_match_fresh_along_an_orbit(pipes):
+@pytest.mark.parametrize("group", [True, False])  # (the group rule: llvmpipe's default; a GPU's)
+def test_reused_masks_match_fresh_along_an_orbit(pipes, group):
     p, fresh = pipes
+    refiner = p.shadow_pass("raytrace").refiner
+    if group and not refiner.can_vote:
+        pytest.skip("the renderer offers no GL_ARB_shader_group_vote")
+    refiner.rules["group"] = group
     scene = basic_scene(lights=all_lights(), with_sphere=True)
     traced = fresh_rays = 0
     for k in range(10):
@@ -100,6 +105,23 @@ def test_reused_masks_match_fresh_on_smooth_shading(pipes, loaded):
         bad, valid = mismatch(a, b)
         assert bad <= BOUND * valid + 1, (k, bad, valid)
         assert not k or a.stats["pixels_reused"] > 0.5 * valid
+
+
+@pytest.mark.parametrize("group", [True, False])
+def test_reused_masks_match_fresh_on_many_small_shadows(pipes, loaded, group):
+    """clusters (many small casters: shadow edges everywhere) orbited with and without the
+    group rule: the neighbourhood the mark reads is wide enough either way."""
+    p, fresh = pipes
+    refiner = p.shadow_pass("raytrace").refiner
+    if group and not refiner.can_vote:
+        pytest.skip("the renderer offers no GL_ARB_shader_group_vote")
+    refiner.rules["group"] = group
+    scene = loaded("clusters")
+    for k in range(5):
+        s = turned(scene, 0.02 * k)
+        a, b = p.render(s, HARD, 320, 180), fresh.render(s, HARD, 320, 180)
+        bad, valid = mismatch(a, b)
+        assert bad <= BOUND * valid + 1, (k, bad, valid)
 
 
 def test_every_block_is_traced_again_within_refresh_moving_frames(pipes):
