@@ -91,7 +91,8 @@ def turned(scene, a):
     rot[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
     t, ti = np.eye(4), np.eye(4)
     t[:3, 3], ti[:3, 3] = c, -c
-    return dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, matrix=t @ rot @ ti @ scene.camera.matrix))
+    cam = dataclasses.replace(scene.camera, matrix=t @ rot @ ti @ scene.camera.matrix)
+    return dataclasses.replace(scene, camera=cam)
 
 
 def test_reused_masks_match_fresh_on_smooth_shading(pipes, loaded):
