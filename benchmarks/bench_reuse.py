@@ -15,9 +15,11 @@ reused frame costs: the rays it cannot do without, on a renderer that shades onl
 pass the depth test) and by a view that never reuses (the first frame of each path is fresh for
 all and left out of the ratios). The hard lights' grids are built at first sight (the steady state a viewport
 reaches once they pay back); ``--no-grid`` traces the tree (lights that move, alpha-cut casters).
+``--orbit`` orbits every scene; ``--no-group`` leaves the refinement's group rule (llvmpipe's
+default) off in the reusing pipelines, as on a GPU.
 
     .venv/bin/python benchmarks/bench_reuse.py [forest city clusters smooth_shapes] [--size 640x360]
-        [--frames 10] [--range A-B] [--orbit-step 0.02] [--no-grid] [--json OUT]
+        [--frames 10] [--range A-B] [--orbit] [--orbit-step 0.02] [--no-grid] [--no-group] [--json OUT]
 """
 from __future__ import annotations
 
@@ -81,7 +83,7 @@ def mismatch(a, b) -> float:
     return bad / max(valid, 1)
 
 
-def run_path(label, scene, cams, w, h, settings=HARD) -> dict:
+def run_path(label, scene, cams, w, h, settings=HARD, group=None) -> dict:
     pipe = Pipeline()
     pipe.reuse, pipe.reuse_choice = True, "always"
     auto = pipe.view()
@@ -94,6 +96,8 @@ def run_path(label, scene, cams, w, h, settings=HARD) -> dict:
     for p in (pipe, auto, bound, fresh):  # (the grids from the first frame on: the steady state)
         rt = p.shadow_pass("raytrace")
         rt.options = dataclasses.replace(rt.options, eager_light_grids=True)
+        if group is not None and p is not fresh:
+            rt.refiner.rules["group"] = bool(group)
     pipe.set_scene(scene)
     rows = []
     try:
@@ -144,6 +148,9 @@ def main(argv=None) -> int:
     ap.add_argument("--range", default=None, help="A-B: the path's frames to sample (default: all)")
     ap.add_argument("--orbit-step", type=float, default=0.02, help="radians a frame of an orbit")
     ap.add_argument("--no-grid", action="store_true", help="hard lights trace the tree, no light grids")
+    ap.add_argument("--orbit", action="store_true", help="orbit every scene, whatever its path")
+    ap.add_argument("--no-group", action="store_true",
+                    help="the reusing pipelines without the refinement's group rule (a GPU's default)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
@@ -152,11 +159,13 @@ def main(argv=None) -> int:
     for name in args.scenes:
         scene, cams, frames = path_cameras(name, args.frames, rng)
         path = f"frames {frames[0]}-{frames[-1]} ({len(frames)})"
-        if still(cams):
+        if still(cams) or args.orbit:
             cams, path = orbit_cameras(scene, args.frames, args.orbit_step), f"orbit {args.orbit_step} rad/frame"
         print(f"{name}: {path}", flush=True)
         settings = HARD.replace(light_grid=not args.no_grid)
-        out[name] = dict(path=path, grids=not args.no_grid, **run_path(name, scene, cams, w, h, settings))
+        group = False if args.no_group else None  # (None: the renderer's default)
+        out[name] = dict(path=path, grids=not args.no_grid, no_group=args.no_group,
+                         **run_path(name, scene, cams, w, h, settings, group=group))
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0
