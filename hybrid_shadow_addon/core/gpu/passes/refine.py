@@ -75,14 +75,6 @@ class Refiner:
         """Samples passed by the last frame's draws of ``kind`` (waits for the GPU)."""
         return int(sum(q.samples for k, _, q in self.counted if k == kind))
 
-    def counted_draw(self, kind: str, target, vao) -> None:
-        """Draw the full-screen ``vao`` into ``target``, the pixels it does not discard counted
-        as ``kind``."""
-        self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
-        target.use(self.ctx)
-        with self._query(kind, None):
-            vao.render(moderngl.TRIANGLES, vertices=3)
-
     def count_valid(self, gbuffer, size, scale: int, kind: str, offset=None) -> None:
         """Count the texels of a ``size`` grid whose source pixel (texel q: ``q * scale + offset``,
         ``offset`` ``scale // 2`` by default, as ``mask_source_pixel``) has geometry."""

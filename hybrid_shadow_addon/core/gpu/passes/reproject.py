@@ -5,13 +5,14 @@ G-buffer (world positions, normals, instances: STORE) and camera; the next frame
 pixel's world position up in that image (HISTORY, once a frame) and keeps what was known there
 where the surface is the same (same instance, normals and position within tolerances scaled to
 the pixel footprint, no grazing view), and, for a hard light's mask, where the old codes of the
-2x2 samples around the point hold no shadow edge and those samples are no sparser than this
-frame's pixels (MARK: a hard light's trace writes, besides its mask, a code per pixel: lit or
-shadowed, known without a ray, and the spacing of the samples the value stands on). The other
-pixels (disoccluded, at an edge, grazing, zoomed into) are marked for the trace under the
-refinement's depth test; the mark counts the pixels it settles, so a reused light costs two
-full-screen passes, the mark and the trace of the marked pixels. :class:`ReuseChoice` times
-both ways per light and reuses where that is cheaper.
+4x4 samples around the point (8x8 without the refinement's group rule), all on its object, hold
+no shadow edge and those samples are no sparser than this frame's pixels (MARK: a hard light's
+trace writes, besides its mask, a code per pixel: lit or shadowed, known without a ray, and the
+spacing of the samples the value stands on). The other pixels (disoccluded, at an edge,
+grazing, zoomed into) are marked for the trace under the refinement's depth test; the mark
+counts the pixels it settles, so a reused light costs two full-screen passes, the mark and the
+trace of the marked pixels. :class:`ReuseChoice` times both ways per light and reuses where that
+is cheaper.
 
 Edits invalidate only what they can touch: :meth:`MaskReprojection.invalidate` takes the old and
 new bounds of edited objects; a pixel whose shadow segment (a soft light's cone: the segment to

@@ -46,10 +46,9 @@ class RaytraceStats:
     pixels with geometry times the shadowed lights, ``pixels_reused`` the pixels with geometry
     (times lights) that a reusing light settled without a ray: from an earlier frame
     (:mod:`.reproject`), or known without one (facing away); with ``rays_traced`` they make up
-    those lights' pixels. ``reuse_ways`` how many hard
-    lights reused their history and how many were traced plainly where reusing did not pay
-    (:class:`.reproject.ReuseChoice`), ``lights_culled`` the lights traced by no ray
-    (:mod:`.light_cull`)."""
+    those lights' pixels. ``reuse_ways`` how many hard lights reused their history and how many
+    were traced plainly where reusing did not pay (:class:`.reproject.ReuseChoice`),
+    ``lights_culled`` the lights traced by no ray (:mod:`.light_cull`)."""
 
     mask_resolution: list
     rays: int = 0
