@@ -19,7 +19,8 @@ reaches once they pay back); ``--no-grid`` traces the tree (lights that move, al
 default) off in the reusing pipelines, as on a GPU.
 
     .venv/bin/python benchmarks/bench_reuse.py [forest city clusters smooth_shapes] [--size 640x360]
-        [--frames 10] [--range A-B] [--orbit] [--orbit-step 0.02] [--no-grid] [--no-group] [--json OUT]
+        [--frames 10] [--range A-B] [--orbit] [--orbit-step 0.02] [--no-grid] [--no-group]
+        [--trace-path auto|compute|fragment] [--json OUT]
 """
 from __future__ import annotations
 
@@ -151,6 +152,8 @@ def main(argv=None) -> int:
     ap.add_argument("--orbit", action="store_true", help="orbit every scene, whatever its path")
     ap.add_argument("--no-group", action="store_true",
                     help="the reusing pipelines without the refinement's group rule (a GPU's default)")
+    ap.add_argument("--trace-path", default="auto", choices=("auto", "compute", "fragment"),
+                    help="Settings.trace_path of every pipeline")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
@@ -162,7 +165,7 @@ def main(argv=None) -> int:
         if still(cams) or args.orbit:
             cams, path = orbit_cameras(scene, args.frames, args.orbit_step), f"orbit {args.orbit_step} rad/frame"
         print(f"{name}: {path}", flush=True)
-        settings = HARD.replace(light_grid=not args.no_grid)
+        settings = HARD.replace(light_grid=not args.no_grid, trace_path=args.trace_path)
         group = False if args.no_group else None  # (None: the renderer's default)
         out[name] = dict(path=path, grids=not args.no_grid, no_group=args.no_group,
                          **run_path(name, scene, cams, w, h, settings, group=group))

@@ -129,7 +129,7 @@ def cmd_render(args) -> int:
         settings = Settings(mode=args.mode, quality=args.quality, max_shadowed_lights=args.max_shadowed_lights,
                         max_distance=args.max_distance, interlace=False,
                         conservative=args.conservative_maps, structure=args.structure or Settings.structure,
-                        light_grid=not args.no_light_grids,
+                        light_grid=not args.no_light_grids, trace_path=args.trace_path,
                         samples=args.samples if args.samples is not None else Settings.samples, hard=args.hard,
                         noise_target=args.noise_target if args.noise_target is not None else Settings.noise_target,
                         transparency_samples=(args.transparency_samples if args.transparency_samples is not None
@@ -252,7 +252,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .core.settings import STRUCTURES
+    from .core.settings import STRUCTURES, TRACE_PATHS
     p = _Parser(
         prog="python -m hybrid_shadow_addon",
         description="Hybrid ray-traced shadows: inspect, render, compare with Cycles, benchmark.",
@@ -305,6 +305,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "animation's hard lights build grids where they pay back)")
     pr.add_argument("--structure", choices=STRUCTURES, default=None,
                     help="raytrace: acceleration structure, hierarchical grid or two-level BVH (default: Settings')")
+    pr.add_argument("--trace-path", choices=TRACE_PATHS, default="auto",
+                    help="raytrace: trace the hard masks with compute shaders over queues of the rays (GL 4.3) "
+                    "or with full-screen fragment shaders (GL 4.1); auto: compute where the GPU offers it")
     pr.add_argument("--samples", type=int, default=None, metavar="N",
                     help="raytrace: shadow rays per pixel towards a light with a size (soft shadows; "
                     "default: Settings'); pixels away from any penumbra take 1")

@@ -43,12 +43,19 @@
 // |                  | (reproject.glsl MARK): +-(3 + footprint), 0.5 between 0 and 1    | reproject.py      |
 // | HS_LOOP_CHECK    | tests: a pixel whose loop hit llvmpipe's budget reads            | soft.py           |
 // |                  | HS_LOOP_SPENT (RaytraceOptions.loop_check; see below)            |                   |
+// | HS_QUEUE_GEN     | compute: one invocation per mask texel writes the answers known  | queue.py          |
+// |                  | without a ray and appends the other texels to the ray queue      |                   |
+// | HS_QUEUE_TRACE   | compute: one invocation per queued texel traces its ray          | queue.py          |
+//
+// Two stages trace: the fragment stage (GL 4.1: a full-screen draw, one texel per fragment, the
+// refinement's marks through the depth test) and the compute stage (GL 4.3: the same code over
+// the compact ray queue of common/ray_queue.glsl, results stored into image units 0 and 1).
 
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
 #endif
 
-#ifdef FRAGMENT_SHADER
+#if defined(FRAGMENT_SHADER) || defined(COMPUTE_SHADER)
 #include "common/camera.glsl"
 #include "common/gbuffer.glsl"
 #include "common/scene_data.glsl"
@@ -75,11 +82,13 @@ uniform ivec2 u_full_size;      // G-buffer size
 uniform ivec2 u_offset;         // texel q traces pixel 2q + u_offset (this frame's phase)
 #endif
 
-in vec2 v_uv;
 #define HS_LOOP_SPENT -7.0
 #if defined(HS_SOFT_PROBE) || defined(HS_SOFT_ACCUM)
 #define HS_SOFT_SUMS
 #define HS_ACCUM_TOP_WEIGHT 1.0e-30
+#ifdef COMPUTE_SHADER
+#error the soft sums (probes, accumulation) are traced by the fragment stage
+#endif
 out vec4 o_sums;                // (weighted visibility, weight) of this pass's rays, and the same
                                 // of those among them before sample u_split (the first half of
                                 // a final render's samples, for its noise check: soft.py)
@@ -87,6 +96,15 @@ uniform int u_split;
 float o_mask;                   // the answers known without a ray: written as (o_mask, 1)
 vec2 hs_sums = vec2(-1.0);
 vec2 hs_first = vec2(0.0);
+#elif defined(COMPUTE_SHADER)
+#if defined(HS_CODE_OUT) && (defined(HS_INTERLACE) || defined(HS_SOFT))
+#error HS_CODE_OUT is for a hard light's full-resolution mask
+#endif
+#include "common/ray_queue.glsl"
+float o_mask;                   // stored into image unit 0 (and the code into unit 1)
+#ifdef HS_CODE_OUT
+float o_code;
+#endif
 #elif defined(HS_CODE_OUT)
 #if defined(HS_INTERLACE) || defined(HS_SOFT)
 #error HS_CODE_OUT is for a hard light's full-resolution mask
@@ -97,9 +115,10 @@ layout(location = 1) out float o_code;
 out float o_mask;
 #endif
 
-void trace_main()
+// The answer of mask texel mt into o_mask (HS_QUEUE_GEN: the answer known without a ray, or
+// the texel appended to the ray queue and nothing written).
+void trace_main(ivec2 mt)
 {
-    ivec2 mt = ivec2(gl_FragCoord.xy);
 #ifdef HS_INTERLACE
     ivec2 px = min(mt * 2 + u_offset, u_full_size - 1);
 #else
@@ -119,6 +138,10 @@ void trace_main()
     return;
 #endif
     if (known >= 0.0) { o_mask = known; return; }
+#ifdef HS_QUEUE_GEN
+    hs_enqueue();
+    return;
+#endif
 
     vec3 o = shadow_ray_origin(px, p, n, ns, depth, to_light);
 #ifdef HS_SOFT
@@ -312,18 +335,52 @@ void trace_main()
 #endif
 }
 
+// the code of mask texel mt for the next frame's reuse (HS_CODE_OUT)
+float trace_code(ivec2 mt)
+{
+    float s = 3.0 + hs_footprint(texelFetch(u_gb_depth, mt, 0).r);
+    return o_mask == 1.0 ? s : (o_mask == 0.0 ? -s : 0.5);
+}
+
+#ifdef FRAGMENT_SHADER
 void main()
 {
-    trace_main();
+    trace_main(ivec2(gl_FragCoord.xy));
 #ifdef HS_CODE_OUT
-    {
-        ivec2 px = ivec2(gl_FragCoord.xy);
-        float s = 3.0 + hs_footprint(texelFetch(u_gb_depth, px, 0).r);
-        o_code = o_mask == 1.0 ? s : (o_mask == 0.0 ? -s : 0.5);
-    }
+    o_code = trace_code(ivec2(gl_FragCoord.xy));
 #endif
 #ifdef HS_SOFT_SUMS
     o_sums = hs_sums.y >= 0.0 ? vec4(hs_sums, hs_first) : vec4(o_mask, 1.0, 0.0, 0.0);
 #endif
 }
+#else
+layout(r32f, binding = 0) uniform writeonly image2D u_mask_out;
+#ifdef HS_CODE_OUT
+layout(r32f, binding = 1) uniform writeonly image2D u_code_out;
+#endif
+
+void store(ivec2 mt)
+{
+    imageStore(u_mask_out, mt, vec4(o_mask));
+#ifdef HS_CODE_OUT
+    imageStore(u_code_out, mt, vec4(trace_code(mt)));
+#endif
+}
+
+void main()
+{
+#ifdef HS_QUEUE_GEN
+    ivec2 mt = ivec2(gl_GlobalInvocationID.xy);
+    bool inside = all(lessThan(mt, imageSize(u_mask_out)));
+    if (inside) trace_main(mt);
+    hs_queue_append(mt);
+    if (inside && !hs_queued) store(mt);
+#else
+    ivec2 mt;
+    if (!hs_dequeue(mt)) return;
+    trace_main(mt);
+    store(mt);
+#endif
+}
+#endif
 #endif

@@ -78,6 +78,51 @@ def test_the_real_programs_are_found():
     assert not any(n.startswith("common/") for n in names)
 
 
+# a compute program, broken only under HS_BROKEN, that reads a kernel define as raytrace.glsl does
+COMPUTE_PROGRAM = """// test compute program
+#ifdef COMPUTE_SHADER
+layout(local_size_x = 8) in;
+layout(std430, binding = 0) buffer out_buf { uint v[]; };
+void main() {
+#ifdef HS_QUEUE_GEN
+    v[gl_GlobalInvocationID.x] = 1u;
+#else
+    v[gl_GlobalInvocationID.x] = 2u;
+#endif
+#ifdef HS_BROKEN
+    v[0] = undeclared_name;
+#endif
+}
+#endif
+"""
+
+
+def test_compute_programs_are_checked(tmp_path, gl_ctx):
+    """A file with a COMPUTE_SHADER section is a compute program: found, each set with one of
+    the queue's kernels, compiled at #version 430 with the GL and glslang; its failure names
+    the compute stage."""
+    root = _shaders(tmp_path, {"kernel.glsl": COMPUTE_PROGRAM})
+    assert shader_check.programs(root) == [("kernel", "compute")]
+    sets = shader_check.single_define_sets(ProgramCache(None, root), "kernel", "compute")
+    assert all(("HS_QUEUE_TRACE" in d) != ("HS_QUEUE_GEN" in d) for d in sets)
+    assert {"HS_QUEUE_GEN": 1} in sets and {"HS_BROKEN": 1, "HS_QUEUE_TRACE": 1} in sets
+    failures, text = _failures(root, glslang=shader_check.find_validator() is not None)
+    assert failures and all(f.stage == programs.COMPUTE and "HS_BROKEN" in f.defines for f in failures)
+    assert "kernel.glsl:12" in text
+
+
+def test_raytrace_is_checked_as_both_stages():
+    cache = ProgramCache(None, programs.default_shader_dir())
+    assert {("raytrace", "graphics"), ("raytrace", "compute"), ("queue_marked", "compute")} <= set(
+        shader_check.programs(programs.default_shader_dir()))
+    graphics = shader_check.single_define_sets(cache, "raytrace", "graphics")
+    compute = shader_check.single_define_sets(cache, "raytrace", "compute")
+    kernels = set(shader_check.COMPUTE_KERNELS)
+    assert not any(kernels & set(d) for d in graphics)
+    assert all(len(kernels & set(d)) == 1 for d in compute)
+    assert not any(set(shader_check.FRAGMENT_ONLY) & set(d) for d in compute)
+
+
 def test_companions_follow_requirements():
     sets = shader_check.with_companions({}, "HS_PACKET_PLANES", 1)
     assert {"HS_SOFT_PACKET", "HS_SOFT", "HS_STRUCTURE_BVH"} <= set(sets)
@@ -142,7 +187,7 @@ def test_recorded_sets_are_checked(tmp_path, gl_ctx):
     rec = tmp_path / "rec.jsonl"
     rows = [{"program": "good", "defines": {"HS_LEVEL": "7"}, "varyings": []}] * 2
     rec.write_text("".join(json.dumps(r) + "\n" for r in rows))
-    assert shader_check.recorded_sets(rec) == {"good": [{"HS_LEVEL": "7"}]}
+    assert shader_check.recorded_sets(rec) == {("good", "graphics"): [{"HS_LEVEL": "7"}]}
     failures, text = _failures(root, recorded=rec, glslang=False)
     assert "1 recorded define sets" in text
     assert len(failures) == 1  # HS_BROKEN alone; the recorded set compiles

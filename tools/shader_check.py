@@ -6,8 +6,10 @@ The define sets are (a) those the test suite built, recorded with ``HS_RECORD_DE
 ``--recorded``), and (b) each optional define of a program on its own: every name a program's
 sources test with ``#ifdef`` / ``#ifndef`` / ``#if`` that the sources do not ``#define``
 themselves, and each value a ``#if`` compares a numeric define with. Programs are the files of
-``shaders/`` that have a ``VERTEX_SHADER`` section and that no other file includes; sources are
-assembled by :class:`ProgramCache` exactly as the add-on does. A failure names the program, the
+``shaders/`` that have a ``VERTEX_SHADER`` section (graphics) or a ``COMPUTE_SHADER`` section
+(compute, ``#version 430 core``, with the GL when it offers 4.3) and that no other file
+includes; a file with both is checked as each. Sources are assembled by :class:`ProgramCache`
+exactly as the add-on does. A failure names the program, the
 stage, the define set and ``file:line``; the exit status is 1 when any compile fails.
 
     .venv/bin/python tools/shader_check.py [--recorded out/test/shader_defines.jsonl]
@@ -75,10 +77,17 @@ MODES = ("RESOLVE", "PARTIAL", "NOISE", "ACCUMULATE", "DENOISE")
 #: for it only where the running GL offers the extension, so the GL compile is the one that counts.
 GL_ONLY = {"HS_GROUP_VOTE": "glslang declares GL_ARB_shader_group_vote from #version 430 only"}
 
+#: The compute stage's kernels (``shaders/common/ray_queue.glsl``): a compute set of a program
+#: that tests them names one (the first where it names none); a graphics set names none.
+COMPUTE_KERNELS = ("HS_QUEUE_TRACE", "HS_QUEUE_GEN")
+#: Defines the compute stage refuses (``#error``: raytrace.glsl's soft sums are traced by the
+#: fragment stage): a compute set with one is not compiled.
+FRAGMENT_ONLY = ("HS_SOFT_PROBE", "HS_SOFT_ACCUM")
 #: Lines of a compiler's log kept per failure.
 LOG_LINES = 12
 
-_STAGE_SUFFIX = {"VERTEX_SHADER": "vert", "GEOMETRY_SHADER": "geom", "FRAGMENT_SHADER": "frag"}
+_STAGE_SUFFIX = {"VERTEX_SHADER": "vert", "GEOMETRY_SHADER": "geom", "FRAGMENT_SHADER": "frag",
+                 _programs.COMPUTE: "comp"}
 _GL_STAGE = {"vertex_shader": "VERTEX_SHADER", "geometry_shader": "GEOMETRY_SHADER",
              "fragment_shader": "FRAGMENT_SHADER"}
 _DIRECTIVE = re.compile(r"^\s*#\s*(ifdef|ifndef|if|elif|define)\b(.*)$")
@@ -106,7 +115,14 @@ class Failure:
 
 # -- discovery ----------------------------------------------------------------------------------
 def program_names(shader_dir: Path) -> list[str]:
-    """The programs: files with a ``VERTEX_SHADER`` section that no file ``#include``s."""
+    """The programs: files with a ``VERTEX_SHADER`` or ``COMPUTE_SHADER`` section that no file
+    ``#include``s."""
+    return list(dict.fromkeys(name for name, _ in programs(shader_dir)))
+
+
+def programs(shader_dir: Path) -> list[tuple[str, str]]:
+    """``(name, kind)`` of each program, ``kind`` ``graphics`` or ``compute`` (a file with both
+    sections is both)."""
     files = sorted(shader_dir.rglob("*.glsl"))
     included = set()
     for path in files:
@@ -114,8 +130,16 @@ def program_names(shader_dir: Path) -> list[str]:
             m = _programs._INCLUDE.match(line)
             if m:
                 included.add((shader_dir / m.group(1)).resolve())
-    return [p.relative_to(shader_dir).with_suffix("").as_posix() for p in files
-            if p.resolve() not in included and "VERTEX_SHADER" in p.read_text(encoding="utf-8")]
+    out = []
+    for p in files:
+        if p.resolve() in included:
+            continue
+        text = p.read_text(encoding="utf-8")
+        name = p.relative_to(shader_dir).with_suffix("").as_posix()
+        for kind, marker in (("graphics", "VERTEX_SHADER"), ("compute", _programs.COMPUTE)):
+            if marker in text:
+                out.append((name, kind))
+    return out
 
 
 def program_files(cache: _programs.ProgramCache, name: str) -> list[Path]:
@@ -147,7 +171,7 @@ def optional_defines(cache: _programs.ProgramCache, name: str) -> tuple[dict, di
                 num = int(num)
                 compared.setdefault(var, set()).update(
                     {"==": {num}, "!=": {num}, ">=": {num}, "<=": {num}, ">": {num + 1}, "<": {num - 1}}[op])
-    tested -= set(_programs.STAGES) | defined
+    tested -= set(_programs.STAGES) | {_programs.COMPUTE} | defined
     flags = {n: 1 for n in sorted(tested - set(compared))}
     values = {n: sorted(v) for n, v in sorted(compared.items()) if n in tested}
     return flags, values
@@ -179,10 +203,18 @@ def with_companions(base: dict, key: str, value) -> dict:
     return out
 
 
-def single_define_sets(cache: _programs.ProgramCache, name: str) -> list[dict]:
-    """(b): the base set, then each optional define on its own, then each decisive value."""
+def single_define_sets(cache: _programs.ProgramCache, name: str, kind: str = "graphics") -> list[dict]:
+    """(b): the base set, then each optional define on its own, then each decisive value (a
+    ``compute`` program's sets each with one of :data:`COMPUTE_KERNELS`, none with
+    :data:`FRAGMENT_ONLY`; a graphics program's without the kernels)."""
     base = mentioned_values(cache, name)
     flags, values = optional_defines(cache, name)
+    kernels = [k for k in COMPUTE_KERNELS if k in flags]
+    for k in COMPUTE_KERNELS:
+        flags.pop(k, None)
+    if kind == "compute":
+        for k in FRAGMENT_ONLY:
+            flags.pop(k, None)
     for group in ONE_OF:
         if set(group) & set(flags):
             base[group[0]] = 1
@@ -192,16 +224,20 @@ def single_define_sets(cache: _programs.ProgramCache, name: str) -> list[dict]:
     for var, nums in values.items():
         for num in nums:
             sets.append(with_companions(base, var, num))
+    if kind == "compute" and kernels:
+        first, *rest = COMPUTE_KERNELS
+        sets = [{**d, first: 1} for d in sets] + [{**base, k: 1} for k in rest]
     return _unique(sets)
 
 
 def recorded_sets(path: Path) -> dict:
-    """(a): ``{program: [defines, ...]}`` from a recording, duplicates dropped."""
+    """(a): ``{(program, kind): [defines, ...]}`` from a recording, duplicates dropped."""
     out: dict = {}
     for line in path.read_text(encoding="utf-8").splitlines():
         if line.strip():
             rec = json.loads(line)
-            out.setdefault(rec["program"], []).append(rec["defines"])
+            kind = "compute" if rec.get("stage") == _programs.COMPUTE else "graphics"
+            out.setdefault((rec["program"], kind), []).append(rec["defines"])
     return {k: _unique(v) for k, v in out.items()}
 
 
@@ -220,24 +256,30 @@ def _frozen(defines: dict) -> tuple:
     return tuple(sorted((str(k), _programs._define_value(v)) for k, v in defines.items()))
 
 
-def check_gl(cache: _programs.ProgramCache, name: str, defines: dict) -> list[Failure]:
+def check_gl(cache: _programs.ProgramCache, name: str, defines: dict, kind: str = "graphics") -> list[Failure]:
     """Build the program with the running GL (moderngl) exactly as the add-on does."""
     try:
-        prog = cache._build(name, _frozen(defines), None)
+        if kind == "compute":
+            prog = cache._build_compute(name, _frozen(defines))
+        else:
+            prog = cache._build(name, _frozen(defines), None)
     except _programs.ShaderError as exc:
         text = str(exc).split("\n", 1)[-1]
-        stage = next((s for k, s in _GL_STAGE.items() if k in text), "link")
+        stage = _programs.COMPUTE if kind == "compute" else next(
+            (s for k, s in _GL_STAGE.items() if k in text), "link")
         return [Failure("gl", name, stage, defines, text)]
     prog.release()
     return []
 
 
 def check_glslang(cache: _programs.ProgramCache, name: str, defines: dict, validator: str,
-                  workdir: Path) -> list[Failure]:
-    """Compile each stage with glslangValidator (``#version 410 core``, no extensions assumed)."""
+                  workdir: Path, kind: str = "graphics") -> list[Failure]:
+    """Compile each stage with glslangValidator (``#version 410 core``, compute ``#version 430
+    core``, no extensions assumed)."""
     text = cache._path(name).read_text(encoding="utf-8")
     failures = []
-    for stage in _programs.program_stages(text, _frozen(defines)):
+    stages = [_programs.COMPUTE] if kind == "compute" else _programs.program_stages(text, _frozen(defines))
+    for stage in stages:
         source, files = cache.source(name, stage, _frozen(defines))
         path = workdir / f"{name.replace('/', '_')}.{_STAGE_SUFFIX[stage]}"
         path.write_text(source, encoding="utf-8")
@@ -265,13 +307,16 @@ def run_check(shader_dir: Path | None = None, recorded: Path | None = None, gl: 
     validator = find_validator() if glslang else None
     if glslang and validator is None:
         raise SystemExit("shader check: glslangValidator not found (sudo apt-get install glslang-tools)")
-    names = program_names(cache.shader_dir)
-    sets = {n: single_define_sets(cache, n) for n in names}
+    progs = programs(cache.shader_dir)
+    gl_compute = ctx is not None and ctx.version_code >= _programs.COMPUTE_GL
+    if gl and not gl_compute and any(kind == "compute" for _, kind in progs):
+        out("shader check: this GL offers no compute shaders: compute programs with glslang only")
+    sets = {p: single_define_sets(cache, *p) for p in progs}
     n_recorded = 0
     if recorded is not None and recorded.is_file():
-        for n, rec in recorded_sets(recorded).items():
-            if n in sets:
-                sets[n] = _unique(rec + sets[n])
+        for p, rec in recorded_sets(recorded).items():
+            if p in sets:
+                sets[p] = _unique(rec + sets[p])
                 n_recorded += len(rec)
         out(f"shader check: {n_recorded} recorded define sets from {recorded}")
     else:
@@ -280,16 +325,16 @@ def run_check(shader_dir: Path | None = None, recorded: Path | None = None, gl: 
     failures: list[Failure] = []
     compilers = [c for c, on in (("gl", gl), ("glslang", glslang)) if on]
     with tempfile.TemporaryDirectory(prefix="hs-shader-check-") as tmp:
-        for n in names:
-            for defines in sets[n]:
-                if gl:
-                    failures += check_gl(cache, n, defines)
+        for (n, kind), each in sets.items():
+            for defines in each:
+                if gl and (kind == "graphics" or gl_compute):
+                    failures += check_gl(cache, n, defines, kind)
                 if glslang and not set(defines) & set(GL_ONLY):
-                    failures += check_glslang(cache, n, defines, validator, Path(tmp))
+                    failures += check_glslang(cache, n, defines, validator, Path(tmp), kind)
     total = sum(len(v) for v in sets.values())
     for f in failures:
         out(str(f))
-    out(f"shader check: {len(names)} programs, {total} define sets, {'+'.join(compilers)}: "
+    out(f"shader check: {len(sets)} programs, {total} define sets, {'+'.join(compilers)}: "
         f"{len(failures)} failed")
     if ctx is not None:
         cache.release()

@@ -46,6 +46,12 @@ UPSAMPLE_ITEMS = (
     ("BILATERAL", "Bilateral", "Depth and normal aware upsampling of reduced-resolution masks", 0),
     ("NEAREST", "Nearest", "Blocky nearest-texel upsampling (the thesis' look)", 1),
 )
+TRACE_PATH_ITEMS = (
+    ("AUTO", "Automatic", "Compute shaders where the GPU offers OpenGL 4.3, fragment shaders elsewhere", 0),
+    ("COMPUTE", "Compute", "Compute shaders over compact queues of the shadow rays: the time follows the rays "
+                           "traced (OpenGL 4.3)", 1),
+    ("FRAGMENT", "Fragment", "Full-screen fragment shaders, one ray per pixel (what OpenGL 4.1, macOS, offers)", 2),
+)
 CONSERVATIVE_ITEMS = (
     ("OFF", "Off", "Trace every shadow ray in full", 0),
     ("SUN", "Suns", "Conservative occupancy maps for suns: receivers no caster can reach take no ray, "
@@ -157,6 +163,9 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
                             description="Ray traced: acceleration structure the shadow rays walk (the masks "
                                         "are the same; changing it re-bakes the scene)",
                             update=_tag_viewport)
+    trace_path: EnumProperty(name="Trace Path", items=TRACE_PATH_ITEMS, default="AUTO",
+                             description="Ray traced: how the hard shadow masks are traced (the masks are the "
+                                         "same)", update=_tag_viewport)
     use_light_grid: BoolProperty(name="Light Grids", default=True,
                                  description="Ray traced, BVH: a hard light's shadow rays look up a grid of the "
                                              "casters laid out around that light instead of walking the tree "
@@ -230,7 +239,7 @@ class HybridShadowsSceneSettings(bpy.types.PropertyGroup):
             conservative=self.conservative_maps.lower(), structure=self.structure.lower(),
             light_grid=bool(self.use_light_grid), samples=samples, hard=not self.use_soft_shadows,
             pcss_samples=int(self.pcss_samples), accumulate=viewport, frame_samples=frame_samples,
-            transparency_samples=int(self.transparency_samples),
+            transparency_samples=int(self.transparency_samples), trace_path=self.trace_path.lower(),
         )
 
 

@@ -149,6 +149,7 @@ class RENDER_PT_hybrid_shadows_advanced(RenderSubPanel, bpy.types.Panel):
         col.prop(props, "upsample")
         col.prop(props, "structure")
         col.prop(props, "conservative_maps")
+        col.prop(props, "trace_path")
 
 
 class RENDER_PT_hybrid_shadows_debug(RenderSubPanel, bpy.types.Panel):

@@ -14,6 +14,7 @@ QUALITY_SCALE = {"high": 1, "medium": 2, "low": 4}  # mask resolution = full / s
 UPSAMPLE_FILTERS = ("bilateral", "nearest")
 CONSERVATIVE_MAPS = ("off", "sun", "all")
 STRUCTURES = tuple(STRUCTURE_CLASSES)  # acceleration structures the bake can build
+TRACE_PATHS = ("auto", "compute", "fragment")
 
 
 @dataclass(frozen=True)
@@ -104,6 +105,7 @@ class Settings:
     accumulate: bool = False
     frame_samples: int = 4
     transparency_samples: int = 16
+    trace_path: str = "auto"
 
     def __post_init__(self):
         self.validate()
@@ -142,6 +144,8 @@ class Settings:
             raise ValueError(f"conservative must be one of {', '.join(CONSERVATIVE_MAPS)}, not {self.conservative!r}")
         if self.structure not in STRUCTURES:
             raise ValueError(f"structure must be one of {', '.join(STRUCTURES)}, not {self.structure!r}")
+        if self.trace_path not in TRACE_PATHS:
+            raise ValueError(f"trace_path must be one of {', '.join(TRACE_PATHS)}, not {self.trace_path!r}")
         if self.upsample not in UPSAMPLE_FILTERS:
             raise ValueError(f"upsample must be one of {', '.join(UPSAMPLE_FILTERS)}, not {self.upsample!r}")
         _number(self.max_distance, "max_distance", low=0.0)

@@ -33,7 +33,8 @@ vec3 offset_origin(vec3 p, vec3 n, float slack)
     const float ulps = 4.76837158203125e-07;   // 2^-21: 4 to 8 ULPs of the largest coordinate
     const float min_step = 1.0 / 65536.0;
     float m = max(max(abs(p.x), abs(p.y)), abs(p.z));
-    return p + n * (max(m * ulps, min_step) + slack);
+    precise vec3 o = p + n * (max(m * ulps, min_step) + slack);
+    return o;
 }
 
 // The surface point of pixel px in bake space: the camera ray scaled to the G-buffer's view
@@ -43,10 +44,14 @@ vec3 surface_point(ivec2 px, float depth)
 {
     vec3 o_rel, dir;
     camera_ray(vec2(px) + 0.5, o_rel, dir);
-    vec3 p_rel = (u_ortho == 1) ? o_rel + dir * (depth - u_clip_start) : dir * (depth / u_clip_start);
-    return u_cam_bake + p_rel;
+    precise vec3 p_rel = (u_ortho == 1) ? o_rel + dir * (depth - u_clip_start) : dir * (depth / u_clip_start);
+    precise vec3 p = u_cam_bake + p_rel;
+    return p;
 }
 
+// (The knife-edge values, the point, the facing and reach tests, the origin, are precise: the
+// fragment and compute stages then decide them alike, as the numpy mirror does.)
+//
 // What pixel px gets without a ray: 1 (background, beyond the max distance), 0 (its shading
 // normal faces away from the light, out of its reach), or -1: it needs a ray; p, n (geometric,
 // towards the camera), ns (shading), depth and to_light are then set. Light arrives where the
@@ -74,7 +79,7 @@ float shadow_ray_prelude(ivec2 px, out vec3 p, out vec3 n, out vec3 ns, out floa
     to_light = u_light_vec;
 #endif
 #ifndef HS_SOFT
-    float facing = dot(ns, to_light);
+    precise float facing = dot(ns, to_light);
     if (facing <= 0.0) return 0.0;    // faces away: unlit, no ray
 #endif                                // (an extended light can be partly above the horizon)
 #ifdef HS_LIGHT_LOCAL
@@ -87,7 +92,8 @@ float shadow_ray_prelude(ivec2 px, out vec3 p, out vec3 n, out vec3 ns, out floa
         reach = reach * sqrt(1.0 - sb * sb) - sqrt(max(1.0 - reach * reach, 0.0)) * sb;
     }
 #endif
-    if (dot(-normalize(to_light), u_light_axis) <= reach) return 0.0;  // out of reach
+    precise float toward = dot(-normalize(to_light), u_light_axis);
+    if (toward <= reach) return 0.0;  // out of reach
 #endif
     return -1.0;
 }
@@ -114,7 +120,8 @@ vec3 shadow_ray_origin(ivec2 px, vec3 p, vec3 n, vec3 ns, float depth, vec3 to_l
         float amount = nl < cutoff ? clamp(2.0 - (ngl + nl) / cutoff, 0.0, 1.0)
                                    : clamp(1.0 - ngl / cutoff, 0.0, 1.0);
         if (amount > 0.0) {
-            p += lift.xyz * amount;
+            precise vec3 lifted = p + lift.xyz * amount;
+            p = lifted;
             if (!(ngl > 0.0)) return p;       // meant to be able to hit its own surface
         }
     }

@@ -17,6 +17,7 @@ import sys
 import moderngl
 
 from ..errors import GPUError
+from .host_counts import track as track_host_counts
 from .memory import track as track_memory
 
 MIN_GL_VERSION = 410
@@ -96,6 +97,7 @@ def create_context(share: moderngl.Context | None = None) -> moderngl.Context:
         raise GPUError(f"OpenGL {ctx.version_code // 100}.{ctx.version_code % 100 // 10} found, "
                        f"4.1 core or newer is needed ({ctx.info.get('GL_RENDERER', '?')})")
     track_memory(ctx)
+    track_host_counts(ctx)
     return ctx
 
 

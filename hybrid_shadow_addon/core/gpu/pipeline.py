@@ -27,6 +27,7 @@ from ..settings import Settings
 from . import memory
 from .context import check_render_size, create_context, make_current
 from .frame import CameraUniforms, FrameJob, read_mask
+from .host_counts import counts_of
 from .lights import select_shadowed_lights
 from .passes import GBufferPass, LightingPass, NoShadowPass, RaytracePass, ShadowMapPass, UpsamplePass
 from .passes.reproject import instance_boxes, merged_boxes
@@ -404,6 +405,8 @@ class Pipeline:
     def _passes_of_frame(self, scene, settings, shadow, step, job, read_image) -> Frame:
         """The passes of :meth:`_render_frame` over ``job``, counted by ``step``."""
         width, height = job.size
+        host = counts_of(self.ctx)
+        start = host.mark()
         self.gpu.linking.update(scene)  # (linking lives apart from the bake: an upload at most)
         self.gbuffer_renders += 1
         if shadow.light_label is not None:
@@ -438,6 +441,8 @@ class Pipeline:
             "lights_culled": shadow_stats.get("lights_culled", 0),
             "defines": shadow_stats["defines"],
             "gpu_memory_mb": round(memory.in_use(self.ctx) / 2**20, 1),
+            "trace_path": shadow_stats.get("trace_path"),
+            **host.since(start),
         }
         return Frame(image=image, masks=job.masks, lights=job.lights, timings=timings, stats=stats,
                      gbuffer=job.gbuffer)

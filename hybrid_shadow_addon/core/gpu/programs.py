@@ -2,14 +2,17 @@
 
 Each stage is compiled from the same file with ``#define VERTEX_SHADER``, ``FRAGMENT_SHADER``
 (or ``GEOMETRY_SHADER``) prepended, moderngl-window style; a stage is built only when its name
-appears in the file. The source gets ``#version 410 core`` and the sorted defines first, and
+appears in the file. A file with a ``COMPUTE_SHADER`` section is also a compute program
+(:meth:`ProgramCache.compute`, ``#version 430 core``: contexts of GL 4.3 and newer). The source
+gets ``#version 410 core`` and the sorted defines first, and
 ``#include "common/x.glsl"`` lines (relative to ``shaders/``) are resolved recursively, each file
 once. A ``#line`` directive per file numbers file k's lines from ``k * 100000 + 1``, so the
 driver's log maps back to ``file:line`` in the error.
 
 Programs are cached by (name, defines, varyings). With ``HS_RECORD_DEFINES=/path/file.jsonl`` in
 the environment, each distinct program of ``shaders/`` built is appended to that file once, as
-``{"program", "defines", "varyings"}``: ``tools/shader_check.py`` compiles those sets again.
+``{"program", "defines", "varyings"}`` (compute programs with ``"stage": "COMPUTE_SHADER"``):
+``tools/shader_check.py`` compiles those sets again.
 """
 from __future__ import annotations
 
@@ -23,7 +26,10 @@ import moderngl
 from ..errors import GPUError
 
 GLSL_VERSION = "#version 410 core"
+COMPUTE_VERSION = "#version 430 core"
+COMPUTE_GL = 430  # the context version that compute programs need
 STAGES = ("VERTEX_SHADER", "GEOMETRY_SHADER", "FRAGMENT_SHADER")
+COMPUTE = "COMPUTE_SHADER"
 _LINE_STRIDE = 100000
 _INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"\s*(?://.*)?$')
 _BRANCH = re.compile(r"^\s*#\s*(else|elif|endif)\b")
@@ -57,14 +63,17 @@ def program_stages(text: str, defines=()) -> list[str]:
 _recorded: set = set()
 
 
-def _record(name: str, defines: tuple, varyings) -> None:
+def _record(name: str, defines: tuple, varyings, stage: str | None = None) -> None:
     """Append one built program to ``$HS_RECORD_DEFINES`` (once per process and key)."""
     target = os.environ.get("HS_RECORD_DEFINES")
-    key = (name, defines, tuple(varyings or ()))
+    key = (name, defines, tuple(varyings or ()), stage)
     if not target or key in _recorded:
         return
     _recorded.add(key)
-    line = json.dumps({"program": name, "defines": dict(defines), "varyings": list(key[2])})
+    rec = {"program": name, "defines": dict(defines), "varyings": list(key[2])}
+    if stage is not None:
+        rec["stage"] = stage
+    line = json.dumps(rec)
     with open(target, "a", encoding="utf-8") as out:
         out.write(line + "\n")
 
@@ -86,6 +95,15 @@ class ProgramCache:
         if prog is None:
             prog = self._build(name, frozen, varyings)
             self._programs[key] = prog
+        return prog
+
+    def compute(self, name: str, defines: dict | None = None) -> moderngl.ComputeShader:
+        """The compute program of ``shaders/<name>.glsl``'s ``COMPUTE_SHADER`` section."""
+        frozen = tuple(sorted((str(k), _define_value(v)) for k, v in (defines or {}).items()))
+        key = (name, frozen, COMPUTE)
+        prog = self._programs.get(key)
+        if prog is None:
+            prog = self._programs[key] = self._build_compute(name, frozen)
         return prog
 
     def fullscreen(self, name: str, defines: dict | None = None):
@@ -116,7 +134,7 @@ class ProgramCache:
         """The full source of one stage and the file table (index = GLSL source-string number)."""
         files: list[str] = []
         body = self._expand(self._path(name), files, set())
-        head = [GLSL_VERSION, f"#define {stage}"]
+        head = [COMPUTE_VERSION if stage == COMPUTE else GLSL_VERSION, f"#define {stage}"]
         head += [f"#define {k} {v}".rstrip() for k, v in defines]
         return "\n".join(head) + "\n" + body, files
 
@@ -176,6 +194,26 @@ class ProgramCache:
             log = _map_log(str(exc), files)
             dtxt = ", ".join(f"{k}={v}" if v else k for k, v in defines) or "none"
             raise ShaderError(f"shader '{name}' failed to build (defines: {dtxt}):\n{log}") from None
+
+    def _build_compute(self, name: str, defines: tuple) -> moderngl.ComputeShader:
+        path = self._path(name)
+        if not path.is_file():
+            raise ShaderError(f"shader '{name}' not found: {path} does not exist")
+        if COMPUTE not in path.read_text(encoding="utf-8"):
+            raise ShaderError(f"shader '{name}' has no COMPUTE_SHADER section")
+        if self.ctx.version_code < COMPUTE_GL:
+            raise ShaderError(f"shader '{name}' is a compute program: it needs OpenGL 4.3, this context "
+                              f"offers {self.ctx.version_code // 100}.{self.ctx.version_code % 100 // 10}")
+        source, files = self.source(name, COMPUTE, defines)
+        if self.shader_dir.resolve() == default_shader_dir().resolve():
+            _record(name, defines, None, COMPUTE)
+        try:
+            return self.ctx.compute_shader(source)
+        except Exception as exc:
+            log = _map_log(str(exc), files)
+            dtxt = ", ".join(f"{k}={v}" if v else k for k, v in defines) or "none"
+            raise ShaderError(f"shader '{name}' failed to build as a compute program "
+                              f"(defines: {dtxt}):\n{log}") from None
 
 
 def _define_value(v) -> str:

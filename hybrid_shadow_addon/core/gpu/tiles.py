@@ -85,6 +85,25 @@ class DrawBudget:
         finally:
             ctx.scissor = None
 
+    def slices(self, total: int, align: int):
+        """``(first, count)`` of each slice of a compute queue of ``total`` items, sized as the
+        tiles are (``count`` a multiple of ``align`` but for the last): the caller dispatches
+        each slice when it is yielded, and the slice is finished and timed before the next."""
+        ctx = self.ctx
+        ctx.finish()
+        self._last = None
+        self._rate = 0.0
+        items = FIRST_PIXELS
+        first = 0
+        while first < total:
+            n = min(total - first, max(align, int(items) // align * align))
+            t0 = time.perf_counter()
+            yield first, n
+            ctx.finish()
+            self._done_tile((0, 0, n, 1), (time.perf_counter() - t0) * 1e3)
+            items = self._next_pixels(n)
+            first += n
+
     def _tiles(self, w: int, h: int):
         """(x, y, width, height) of each tile, bottom-up row strips of whole width or, where
         even :data:`ALIGN` rows take too long, strips of tiles; sized from :attr:`_last`."""

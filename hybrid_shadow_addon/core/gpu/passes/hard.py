@@ -17,6 +17,10 @@ refinement (hard lights, and soft lights whose plan traces all their samples at 
 
 A hard light on the two-level BVH traces its light grid where :class:`.light_grid.LightGridCache`
 has one (``HS_LIGHT_GRID``); its BVH time is measured otherwise, the measure a grid must pay back.
+
+Every plan traces on one of two paths (``Settings.trace_path``), with the same masks: full-screen
+draws of the fragment stage (the refinement's marks through the depth test), or on the compute
+path (:attr:`HardVisibility.compute`) the queues of :mod:`.queue`, whose time follows the rays.
 """
 from __future__ import annotations
 
@@ -48,9 +52,11 @@ class HardVisibility(LightVisibility):
     """Masks of the lights traced by the frame's plan (:func:`plan_of`), with the interlacing
     history and the hard lights' grids (:attr:`light_grids`)."""
 
-    def __init__(self, gpu, refiner, program: TraceProgram, options: RaytraceOptions, reuse=None):
+    def __init__(self, gpu, refiner, program: TraceProgram, options: RaytraceOptions, reuse=None, queue=None):
         super().__init__(gpu)
         self.refiner = refiner
+        self.queue = queue  # the compute path's RayQueue
+        self.compute = False  # this frame traces on the compute path
         self.reuse = reuse  # a MaskReprojection: the full plan's hard lights reuse their history
         self.trace = program
         self.options = options
@@ -130,6 +136,37 @@ class HardVisibility(LightVisibility):
     def _program(self, defines, ray, gbuffer, settings, scale):
         return self.trace.bind(defines, ray, gbuffer, settings, scale)
 
+    def _trace_all(self, defines, ray, gbuffer, settings, scale: int, targets, uniforms=None) -> None:
+        """Every texel of ``targets[0]`` traced (``targets[1]``: the codes, with ``HS_CODE_OUT``)
+        by the program of ``defines`` (``uniforms``: beyond the light's): a full-screen draw,
+        or on the compute path a queue of the texels that need a ray."""
+        if self.compute:
+            def bound(kernel):
+                prog, _ = self.trace.bind_compute(defines, ray, gbuffer, settings, scale, kernel)
+                set_uniforms(prog, uniforms or {})
+                return prog
+
+            self.queue.trace(lambda: bound("gen"), lambda: bound("trace"), [t.texture for t in targets],
+                             targets[0].size)
+            return
+        prog, vao, _ = self._program(defines, ray, gbuffer, settings, scale)
+        set_uniforms(prog, uniforms or {})
+        if len(targets) == 1:
+            self.gpu.budget.fullscreen(vao, targets[0])
+        else:
+            self.reuse.draw_fresh(vao, targets, self.gpu.budget)
+
+    def _trace_marked(self, key, dst, defines, ray, gbuffer, settings, kind: str = "refined", extra=()) -> None:
+        """The pixels the refinement (or the reuse's mark) marked, traced into ``dst`` (and
+        ``extra``) at full resolution: under the depth test, or queued on the compute path."""
+        if self.compute:
+            self.refiner.trace_marked(
+                key, dst, lambda: self.trace.bind_compute(defines, ray, gbuffer, settings, 1, "trace")[0],
+                kind=kind, extra=extra)
+            return
+        _, vao, _ = self._program(defines, ray, gbuffer, settings, 1)
+        self.refiner.refine(key, dst, vao, kind=kind, extra=extra)
+
     def _trace(self, job, ray: LightRay):
         gbuffer, settings, plan = job.gbuffer, job.settings, self.plan
         li, defines = ray.index, ray.defines
@@ -141,8 +178,7 @@ class HardVisibility(LightVisibility):
             scale = 1 if plan == "full" else settings.mask_scale
             size = full if plan == "full" else settings.mask_size(*full)
             out = self._target((li, "out" if plan == "full" else "coarse"), *size)
-            _, vao, _ = self._program(defines, ray, gbuffer, settings, scale)
-            self.gpu.budget.fullscreen(vao, out)
+            self._trace_all(defines, ray, gbuffer, settings, scale, [out])
             return out.texture
         plain = {k: v for k, v in defines.items() if k != "HS_INTERLACE"}
         uniforms = self.trace.uniforms(ray, gbuffer, settings)
@@ -150,19 +186,16 @@ class HardVisibility(LightVisibility):
         class_defs.update(self.refiner.defines())
         if plan == "refine":
             scale = settings.mask_scale
-            _, vao, _ = self._program(plain, ray, gbuffer, settings, scale)
             coarse = self._target((li, "coarse"), *settings.mask_size(*full))
-            self.gpu.budget.fullscreen(vao, coarse)
+            self._trace_all(plain, ray, gbuffer, settings, scale, [coarse])
             dst = self._target((li, "out"), *full)
             self.refiner.classify((li, "out"), dst, gbuffer, coarse.texture, class_defs, uniforms)
         else:  # interlace: this frame's phase pixel of each 2x2 block traced densely, with the history
             off = (self._phase & 1, self._phase >> 1)
-            prog, vao, _ = self._program(defines, ray, gbuffer, settings, 2)
-            set_uniforms(prog, {"u_offset": off})
             # (one size for every phase: an odd side's last texel then traces the edge pixel
             # again; a scratch target, not _target's: it carries nothing from frame to frame)
             traced = self._targets.get((li, "traced"), (full[0] + 1) // 2, (full[1] + 1) // 2)
-            self.gpu.budget.fullscreen(vao, traced)
+            self._trace_all(defines, ray, gbuffer, settings, 2, [traced], {"u_offset": off})
             out = self._target((li, "out"), *full)
             hist = self._target((li, "hist"), *full)
             mprog, mvao = self.programs.fullscreen("interlace_merge")
@@ -179,8 +212,7 @@ class HardVisibility(LightVisibility):
                 return hist.texture
             self.refiner.classify((li, "hist"), dst, gbuffer, out.texture, class_defs, uniforms)
         key = (li, "hist" if plan == "interlace" else "out")
-        _, vao, _ = self._program(plain, ray, gbuffer, settings, 1)
-        self.refiner.refine(key, dst, vao)
+        self._trace_marked(key, dst, plain, ray, gbuffer, settings)
         return dst.texture
 
     def _trace_reusing(self, job, ray: LightRay):
@@ -203,24 +235,22 @@ class HardVisibility(LightVisibility):
             t0 = time.perf_counter()
         if way == "plain":
             out = self._target((li, "out"), *gbuffer.size)
-            _, vao, _ = self._program(ray.defines, ray, gbuffer, settings, 1)
-            self.gpu.budget.fullscreen(vao, out)
+            self._trace_all(ray.defines, ray, gbuffer, settings, 1, [out])
             rp.plain_lights += 1
             done = out
         else:
             defines = {**ray.defines, "HS_CODE_OUT": 1}
             if prev is None:
-                _, vao, _ = self._program(defines, ray, gbuffer, settings, 1)
-                rp.draw_fresh(vao, now, self.gpu.budget)
+                self._trace_all(defines, ray, gbuffer, settings, 1, list(now))
                 timed = False  # (priming the history: neither way's cost)
             else:
                 defs = {k: v for k, v in ray.defines.items() if k in CLASSIFY_DEFINES}
                 rp.mark((li, "reuse"), gbuffer, defs, uniforms, prev, now)
-                _, vao, _ = self._program(defines, ray, gbuffer, settings, 1)
                 if rp.time_retrace:
                     self.ctx.finish()
                     t1 = time.perf_counter()
-                self.refiner.refine((li, "reuse"), now[0], vao, kind="retraced", extra=(now[1],))
+                self._trace_marked((li, "reuse"), now[0], defines, ray, gbuffer, settings, kind="retraced",
+                                   extra=(now[1],))
                 if rp.time_retrace:
                     self.ctx.finish()
                     rp.retrace_ms += (time.perf_counter() - t1) * 1e3

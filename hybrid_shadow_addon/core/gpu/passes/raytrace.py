@@ -33,11 +33,14 @@ from dataclasses import asdict
 
 import moderngl
 
+from ...errors import GPUError
 from ..lights import light_ray_uniforms, soft_shape
+from ..programs import COMPUTE_GL
 from ..targets import TargetCache, draw_fullscreen
 from .base import ShadowPass
 from .hard import HardVisibility
 from .light_cull import LightCull, cull_candidate
+from .queue import RayQueue
 from .refine import Refiner
 from .reproject import MaskReprojection
 from .soft import SOFT_PROBES, SoftVisibility
@@ -56,9 +59,11 @@ class RaytracePass(ShadowPass):
         self.scene_textures = gpu.scene_textures
         self.trace = TraceProgram(gpu)
         self.refiner = Refiner(gpu)
+        self.queue = RayQueue(gpu) if self.ctx.version_code >= COMPUTE_GL else None
+        self.refiner.queue = self.queue
         self._options = options or RaytraceOptions()
         self.reuse = MaskReprojection(gpu, self.refiner)
-        self.hard = HardVisibility(gpu, self.refiner, self.trace, self._options, self.reuse)
+        self.hard = HardVisibility(gpu, self.refiner, self.trace, self._options, self.reuse, self.queue)
         self.soft = SoftVisibility(gpu, self.refiner, self.trace, self._options, self.reuse)
         self.cull = LightCull(gpu)
         self.maps = None  # ConservativeMaps, made by the first frame with Settings.conservative on
@@ -67,6 +72,7 @@ class RaytracePass(ShadowPass):
         self.culled: list = []  # the lights of the last frame that reached no pixel (no pass of rays)
         self.last_defines: dict = {}
         self._soft_samples = 1  # samples per pixel asked of the soft lights of the last frame
+        self.path = "fragment"  # the last frame's trace path (Settings.trace_path resolved)
 
     @property
     def options(self) -> RaytraceOptions:
@@ -125,17 +131,37 @@ class RaytracePass(ShadowPass):
             samples=int(max(self._soft_samples, self.soft.most_samples)),
             accumulated_samples=self.soft.accumulated, lights_culled=len(self.culled),
             reuse_ways={"reused": self.reuse.reused_lights, "plain": self.reuse.plain_lights},
+            trace_path=self.path,
             noise={k: round(v, 6) for k, v in self.soft.last_noise.items()},
             defines=sorted(f"{k}={v}" for k, v in self.last_defines.items()))
 
     def stats(self, job) -> dict:
         return asdict(self.shadow_stats(job))
 
+    def trace_path(self, settings) -> str:
+        """``compute`` or ``fragment``: ``settings.trace_path`` on this context (``auto``:
+        compute where the context offers GL 4.3); a GPUError where compute is asked of a
+        context without it."""
+        if settings.trace_path == "fragment":
+            return "fragment"
+        if self.queue is not None:
+            return "compute"
+        if settings.trace_path == "compute":
+            v = self.ctx.version_code
+            raise GPUError(f"trace path 'compute' needs OpenGL 4.3 compute shaders; this GPU offers "
+                           f"{v // 100}.{v % 100 // 10} ({self.ctx.info.get('GL_RENDERER', '?')}): "
+                           "choose 'auto' or 'fragment'")
+        return "fragment"
+
     def render(self, job) -> dict:
         scene, gbuffer, settings, lights = job.scene, job.gbuffer, job.settings, job.lights
         self.ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
         self.last_defines = {}
         self.last_map_ms = 0.0
+        self.path = self.trace_path(settings)
+        self.hard.compute = self.path == "compute"
+        if self.queue is not None:
+            self.queue.begin_frame()
         self.refiner.begin_frame()
         self.reuse.begin_frame()
         self.hard.begin_frame(job)
@@ -221,6 +247,8 @@ class RaytracePass(ShadowPass):
         self.reuse.release()
         self.cull.release()
         self.refiner.release()
+        if self.queue is not None:
+            self.queue.release()
         if self.maps is not None:
             self.maps.release()
         self._scratch.release()

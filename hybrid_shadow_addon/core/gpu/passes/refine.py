@@ -12,6 +12,10 @@ group its slowest lane anyway). The marks go to a depth buffer (0: ray, 1: done)
 full-resolution trace then runs under the depth test (window depth 0.5, depth function ``>``,
 no depth writes), so unmarked pixels are rejected before shading (early depth test). Occlusion
 queries count the pixels with geometry and the rays traced, without reading masks.
+
+On the compute path the marked pixels are queued instead and traced with full lanes
+(:meth:`Refiner.trace_marked`, :mod:`.queue`). The rules, ``group`` too, decide which pixels
+get a ray on either path, so both give the same masks on one renderer.
 """
 from __future__ import annotations
 
@@ -47,6 +51,7 @@ class Refiner:
         self.budget = gpu.budget
         self.rules = {**self.RULES, **rules}
         self.can_vote = "GL_ARB_shader_group_vote" in self.ctx.extensions
+        self.queue = None  # the compute path's RayQueue (its queues count too)
         if self.rules["group"] is None:
             self.rules["group"] = self.group_default(self.ctx)
         self.defines()  # (checks the rules: group needs the vote)
@@ -72,8 +77,10 @@ class Refiner:
         return q
 
     def count(self, kind: str) -> int:
-        """Samples passed by the last frame's draws of ``kind`` (waits for the GPU)."""
-        return int(sum(q.samples for k, _, q in self.counted if k == kind))
+        """Samples passed by the last frame's draws of ``kind``, and texels queued as ``kind`` by
+        its compute traces (waits for the GPU)."""
+        queued = self.queue.count(kind) if self.queue is not None else 0
+        return int(sum(q.samples for k, _, q in self.counted if k == kind)) + queued
 
     def count_valid(self, gbuffer, size, scale: int, kind: str, offset=None) -> None:
         """Count the texels of a ``size`` grid whose source pixel (texel q: ``q * scale + offset``,
@@ -129,7 +136,9 @@ class Refiner:
         the depth test costs each block its slowest marked lane: the block's other rays are
         traced at no extra cost (``BENCHMARKS.md``, "A marked pixel's SIMD group traces
         whole"). On a GPU the early depth test packs the surviving pixels into the trace's
-        groups, so the extra rays would cost; off there."""
+        groups, so the extra rays would cost; off there. The compute path keeps the rule where it
+        is on (its extra rays then cost there too), so both paths give one renderer the same
+        masks."""
         return ("GL_ARB_shader_group_vote" in ctx.extensions
                 and "llvmpipe" in str(ctx.info.get("GL_RENDERER", "")).lower())
 
@@ -182,6 +191,13 @@ class Refiner:
         with self._masked(fbo, target):
             with self._query(kind, key):
                 self.budget.draw(vao, target.texture.size)
+
+    def trace_marked(self, key, target, trace, kind: str = "refined", extra=()) -> None:
+        """:meth:`refine` on the compute path: the marked pixels queued and traced by the
+        program ``trace()`` binds and returns (``raytrace.glsl``'s tracing kernel) into
+        ``target`` (and ``extra``), counted as ``kind``."""
+        self._fbo(key, target, extra)  # (the depth buffer of target's size)
+        self.queue.trace_marked(self._depth, trace, [target.texture, *(t.texture for t in extra)], kind, key)
 
     def mark(self, key, target, vao, color: bool = True, extra=()) -> None:
         """Draw ``vao``, a full-screen program that writes its answers and marks (``gl_FragDepth``
@@ -256,6 +272,7 @@ class Refiner:
             if self._depth is not None:
                 self._depth.release()
             self._depth = self.ctx.depth_texture(size)
+            self._depth.compare_func = ""  # (the compute path reads the marks themselves)
         colors = [target.texture, *(t.texture for t in extra)]
         hit = self._fbos.get(key)
         if hit is None or len(hit[0]) != len(colors) or any(a is not b for a, b in zip(hit[0], colors)):

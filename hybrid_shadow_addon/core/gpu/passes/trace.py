@@ -48,7 +48,8 @@ class RaytraceStats:
     (:mod:`.reproject`), or known without one (facing away); with ``rays_traced`` they make up
     those lights' pixels. ``reuse_ways`` how many hard lights reused their history and how many
     were traced plainly where reusing did not pay (:class:`.reproject.ReuseChoice`),
-    ``lights_culled`` the lights traced by no ray (:mod:`.light_cull`)."""
+    ``lights_culled`` the lights traced by no ray (:mod:`.light_cull`), ``trace_path`` the
+    path the hard masks were traced on (``compute`` or ``fragment``)."""
 
     mask_resolution: list
     rays: int = 0
@@ -59,6 +60,7 @@ class RaytraceStats:
     accumulated_samples: int | None = None
     lights_culled: int = 0
     reuse_ways: dict = field(default_factory=dict)
+    trace_path: str = "fragment"
     noise: dict = field(default_factory=dict)
     defines: list = field(default_factory=list)
 
@@ -133,16 +135,31 @@ class TraceProgram:
         """The program of ``defines`` bound to this frame's inputs and ``ray``'s light:
         ``(prog, vao, next free texture unit)``."""
         prog, vao = self.programs.fullscreen("raytrace", defines)
+        unit = self._bind_inputs(prog, defines, ray, gbuffer, settings, scale, sample_base, split)
+        return prog, vao, unit
+
+    def bind_compute(self, defines, ray: LightRay, gbuffer, settings, scale: int, kernel: str):
+        """The compute program of ``defines`` (``kernel`` ``"gen"``: the generating kernel over
+        the mask's texels, ``"trace"``: the tracing kernel over the queue; :mod:`.queue`),
+        bound as :meth:`bind` binds: ``(prog, next free texture unit)``."""
+        mode = {"gen": "HS_QUEUE_GEN", "trace": "HS_QUEUE_TRACE"}[kernel]
+        prog = self.programs.compute("raytrace", {**defines, mode: 1})
+        return prog, self._bind_inputs(prog, defines, ray, gbuffer, settings, scale, walk=kernel == "trace")
+
+    def _bind_inputs(self, prog, defines, ray, gbuffer, settings, scale, sample_base=0, split=0,
+                     walk: bool = True) -> int:
+        """Bind the G-buffer, the scene, the linking and (``walk``: a program that walks the
+        scene) the light's grid and map to ``prog``, set its uniforms; the next free unit."""
         unit = gbuffer.bind(prog)
         unit = self.scene_textures.bind(prog, unit)
         unit = self.linking.bind(prog, unit)
-        if "HS_LIGHT_GRID" in defines:
+        if walk and "HS_LIGHT_GRID" in defines:
             unit = ray.grid.bind(prog, unit)
-        if ray.cmap is not None:
+        if walk and ray.cmap is not None:
             unit = bind_map(prog, unit, *ray.cmap, self.scene_textures.baked.origin)
         set_uniforms(prog, {"u_scale": int(scale), "u_full_size": (gbuffer.width, gbuffer.height)})
         set_uniforms(prog, self.uniforms(ray, gbuffer, settings, sample_base, split))
-        return prog, vao, unit
+        return unit
 
     def uniforms(self, ray: LightRay, gbuffer, settings, sample_base: int = 0, split: int = 0) -> dict:
         """The light's uniforms (``sample_base``: the first sample of each pixel's sequence this

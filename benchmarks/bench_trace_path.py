@@ -1,0 +1,144 @@
+"""The trace paths (``Settings.trace_path``) against each other and against a peer tree, same
+run: the shadow pass's ms per configuration and scene, and digests of the masks.
+
+Three subjects alternate, each a subprocess with its own ``Pipeline`` that loads the scene once
+and renders every configuration: the peer tree as it is (a checked-out commit, e.g. the tree
+before the compute path), this tree on the compute path and this tree on the fragment path.
+Each configuration renders ``--frames`` frames; the first two (compiles, first uploads, a light
+grid's build) are dropped and the median of the rest is taken; the table gives the median over
+``--alternations`` and the ratios. The last frame's masks are digested (SHA-1 of the float32
+masks): equal digests are equal masks, bit for bit.
+
+Configurations (hard lights, as the hard Cycles references; mode ``raytrace``):
+
+- ``high cold``: quality high, no light grids (the tree: the first frames after a change, lights
+  that move, alpha-cut casters);
+- ``high grids``: quality high, each hard light's grid built at first sight (a viewport's steady
+  state);
+- ``medium``, ``low``: the refinement's qualities, no light grids; their ratio to ``high cold``
+  of the same subject is printed too.
+
+``--soft`` adds ``soft``: lights with their sizes at high, 64 samples.
+
+    rm -rf /tmp/peer && mkdir /tmp/peer && git archive <commit> | tar -x -C /tmp/peer
+    .venv/bin/python benchmarks/bench_trace_path.py --peer /tmp/peer [--scenes forest clusters city]
+        [--size 640x360] [--frames 5] [--alternations 2] [--soft] [--json OUT]
+
+A scene may be a core ``Scene`` pickled with gzip (``NAME.pkl.gz``, an absolute path; see
+``tools/pickle_scenes.py``), for a machine without Blender.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+CONFIGS = {
+    "high cold": ({"quality": "high", "light_grid": False}, False),
+    "high grids": ({"quality": "high", "light_grid": True}, True),
+    "medium": ({"quality": "medium", "light_grid": False}, False),
+    "low": ({"quality": "low", "light_grid": False}, False),
+}
+SOFT = {"soft": ({"quality": "high", "hard": False, "samples": 64, "light_grid": False}, False)}
+
+CHILD = r"""
+import dataclasses, hashlib, json, os, statistics, sys
+root = sys.argv[1]; sys.path.insert(0, root); os.chdir(root)
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.settings import Settings
+scene_arg, size, frames, path = sys.argv[2], sys.argv[3], int(sys.argv[4]), sys.argv[5]
+configs = json.loads(sys.argv[6])
+W, H = (int(v) for v in size.split("x"))
+if scene_arg.endswith(".pkl.gz"):
+    import gzip, pickle
+    with gzip.open(scene_arg, "rb") as fh:
+        scene = pickle.load(fh)
+else:
+    from hybrid_shadow_addon.blender.load import load_scene
+    scene = load_scene(scene_arg)
+known = {f.name for f in dataclasses.fields(Settings)}
+out = {}
+for name, (kw, eager) in configs.items():
+    pipe = Pipeline()
+    pipe.set_scene(scene)
+    rt = pipe.shadow_pass("raytrace")
+    rt.options = dataclasses.replace(rt.options, eager_light_grids=eager)
+    kw = dict(kw, mode="raytrace", hard=kw.get("hard", True))
+    if path != "peer":
+        kw["trace_path"] = path
+    settings = Settings(**{k: v for k, v in kw.items() if k in known})
+    ms, frame = [], None
+    for _ in range(frames):
+        frame = pipe.render(scene, settings, W, H)
+        ms.append(frame.timings["shadow_ms"])
+    h = hashlib.sha1()
+    for li in frame.lights:
+        h.update(frame.mask_array(li).astype("float32").tobytes())
+    out[name] = {"shadow_ms": statistics.median(ms[2:]), "digest": h.hexdigest()[:12],
+                 "rays_traced": frame.stats.get("rays_traced", 0)}
+    pipe.release()
+print("HS_PATHS " + json.dumps(out), flush=True)
+"""
+
+
+def measure(tree: Path, scene: str, size: str, frames: int, path: str, configs: dict) -> dict:
+    out = subprocess.run([sys.executable, "-c", CHILD, str(tree), scene, size, str(frames), path,
+                          json.dumps(configs)], capture_output=True, text=True, cwd=str(tree))
+    if out.returncode != 0:
+        raise SystemExit(f"{tree} ({path}): {scene} failed:\n{out.stderr[-3000:]}")
+    line = [x for x in out.stdout.splitlines() if x.startswith("HS_PATHS ")][-1]
+    return json.loads(line[len("HS_PATHS "):])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--peer", required=True, type=Path, help="the peer tree (a checked-out commit)")
+    ap.add_argument("--scenes", nargs="+", default=["forest", "clusters", "city"])
+    ap.add_argument("--size", default="640x360")
+    ap.add_argument("--frames", type=int, default=5)
+    ap.add_argument("--alternations", type=int, default=2)
+    ap.add_argument("--soft", action="store_true", help="add soft lights at high (64 samples)")
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args(argv)
+    if not (a.peer / "hybrid_shadow_addon").is_dir():
+        raise SystemExit(f"--peer {a.peer}: not a tree of this project (no hybrid_shadow_addon/)")
+    configs = {**CONFIGS, **(SOFT if a.soft else {})}
+    subjects = {"peer": a.peer.resolve(), "compute": REPO, "fragment": REPO}
+    print(f"{a.size}, {a.frames} frames (first 2 dropped), {a.alternations} alternations; "
+          f"peer: {subjects['peer']}")
+    print("| scene | configuration | peer ms | compute ms | fragment ms | peer / compute | fragment / compute "
+          "| masks |\n|---|---|---:|---:|---:|---:|---:|---|")
+    record = {}
+    for scene in a.scenes:
+        got = {k: [] for k in subjects}
+        for _ in range(a.alternations):
+            for name, tree in subjects.items():
+                got[name].append(measure(tree, scene, a.size, a.frames, name, configs))
+        rows = record[scene] = {}
+        for c in configs:
+            ms = {k: statistics.median(r[c]["shadow_ms"] for r in got[k]) for k in subjects}
+            digests = {k: got[k][-1][c]["digest"] for k in subjects}
+            same = ("all equal" if len(set(digests.values())) == 1 else
+                    "compute = fragment" if digests["compute"] == digests["fragment"] else
+                    "compute = peer" if digests["compute"] == digests["peer"] else "all differ")
+            rows[c] = dict(ms=ms, digests=digests, rays={k: got[k][-1][c]["rays_traced"] for k in subjects})
+            print(f"| {scene} | {c} | {ms['peer']:.1f} | {ms['compute']:.1f} | {ms['fragment']:.1f} | "
+                  f"{ms['peer'] / ms['compute']:.2f}x | {ms['fragment'] / ms['compute']:.2f}x | {same} |", flush=True)
+    print("\nof high cold's shadow ms, same subject (medium, low):")
+    print("| scene | subject | medium | low |\n|---|---|---:|---:|")
+    for scene, rows in record.items():
+        for k in subjects:
+            hi = rows["high cold"]["ms"][k]
+            print(f"| {scene} | {k} | {rows['medium']['ms'][k] / hi:.2f} | {rows['low']['ms'][k] / hi:.2f} |")
+    if a.json:
+        Path(a.json).write_text(json.dumps(record, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
