@@ -307,7 +307,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="raytrace: acceleration structure, hierarchical grid or two-level BVH (default: Settings')")
     pr.add_argument("--trace-path", choices=TRACE_PATHS, default="auto",
                     help="raytrace: trace the hard masks with compute shaders over queues of the rays (GL 4.3) "
-                    "or with full-screen fragment shaders (GL 4.1); auto: compute where the GPU offers it")
+                    "or with full-screen fragment shaders (GL 4.1); auto: compute where a GPU offers it, "
+                    "fragment on a software rasteriser")
     pr.add_argument("--samples", type=int, default=None, metavar="N",
                     help="raytrace: shadow rays per pixel towards a light with a size (soft shadows; "
                     "default: Settings'); pixels away from any penumbra take 1")

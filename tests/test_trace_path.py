@@ -140,11 +140,19 @@ def test_budget_slices_give_the_whole_mask(paths, loaded):
 
 
 def test_trace_path_choice(paths):
-    """``auto`` takes compute where the context offers GL 4.3 and fragment where it does not
-    (as on macOS' GL 4.1); ``compute`` there is one clear error."""
+    """``auto`` takes compute where a GPU offers GL 4.3, fragment on a software rasteriser and
+    where the context has no GL 4.3 (as on macOS' GL 4.1); ``compute`` there is one clear
+    error."""
     rt = paths["compute"].shadow_pass("raytrace")
-    assert rt.trace_path(HARD) == "compute"
+    assert rt._software  # (llvmpipe)
+    assert rt.trace_path(HARD) == "fragment"
+    assert rt.trace_path(HARD.replace(trace_path="compute")) == "compute"
     assert rt.trace_path(HARD.replace(trace_path="fragment")) == "fragment"
+    rt._software = False  # (a GPU's)
+    try:
+        assert rt.trace_path(HARD) == "compute"
+    finally:
+        rt._software = True
     queue = rt.queue
     rt.queue = None  # (what a GL 4.1 context leaves: no queue)
     try:

@@ -34,6 +34,7 @@ from dataclasses import asdict
 import moderngl
 
 from ...errors import GPUError
+from ..context import software_renderer
 from ..lights import light_ray_uniforms, soft_shape
 from ..programs import COMPUTE_GL
 from ..targets import TargetCache, draw_fullscreen
@@ -60,6 +61,7 @@ class RaytracePass(ShadowPass):
         self.trace = TraceProgram(gpu)
         self.refiner = Refiner(gpu)
         self.queue = RayQueue(gpu) if self.ctx.version_code >= COMPUTE_GL else None
+        self._software = software_renderer(self.ctx.info.get("GL_RENDERER", ""))
         self.refiner.queue = self.queue
         self._options = options or RaytraceOptions()
         self.reuse = MaskReprojection(gpu, self.refiner)
@@ -140,11 +142,14 @@ class RaytracePass(ShadowPass):
 
     def trace_path(self, settings) -> str:
         """``compute`` or ``fragment``: ``settings.trace_path`` on this context (``auto``:
-        compute where the context offers GL 4.3); a GPUError where compute is asked of a
-        context without it."""
+        compute where a GPU offers GL 4.3, fragment on a software rasteriser, where the compute
+        path measured slower: BENCHMARKS.md, "Compute trace path"); a GPUError where compute is
+        asked of a context without it."""
         if settings.trace_path == "fragment":
             return "fragment"
         if self.queue is not None:
+            if settings.trace_path == "auto" and self._software:
+                return "fragment"
             return "compute"
         if settings.trace_path == "compute":
             v = self.ctx.version_code
