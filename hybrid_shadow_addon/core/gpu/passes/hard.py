@@ -147,7 +147,7 @@ class HardVisibility(LightVisibility):
                 return prog
 
             self.queue.trace(lambda: bound("gen"), lambda: bound("trace"), [t.texture for t in targets],
-                             targets[0].size)
+                             targets[0].size, kind="queued")
             return
         prog, vao, _ = self._program(defines, ray, gbuffer, settings, scale)
         set_uniforms(prog, uniforms or {})

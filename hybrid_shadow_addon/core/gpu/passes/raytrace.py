@@ -75,6 +75,7 @@ class RaytracePass(ShadowPass):
         self.last_defines: dict = {}
         self._soft_samples = 1  # samples per pixel asked of the soft lights of the last frame
         self.path = "fragment"  # the last frame's trace path (Settings.trace_path resolved)
+        self._soft_lights = 0
 
     @property
     def options(self) -> RaytraceOptions:
@@ -119,7 +120,13 @@ class RaytracePass(ShadowPass):
         n = len(job.lights)
         valid = self.refiner.count("valid") if n else 0
         reused_pixels = 0
-        if self.hard.plan == "full":
+        if self.path == "compute":  # (the texels queued: rays; the soft side's lights as below)
+            reused = self.reuse.reused_lights if self.hard.plan == "full" else 0
+            traced = (self.queue.count("queued") + self.refiner.count("retraced") + self.refiner.count("refined")
+                      + valid * self._soft_lights)
+            if reused:
+                reused_pixels = self.refiner.count("kept") - reused * (mw * mh - valid)
+        elif self.hard.plan == "full":
             reused = self.reuse.reused_lights
             retraced = self.refiner.count("retraced") if reused else 0
             traced = valid * (n - len(self.culled) - reused) + retraced
@@ -177,14 +184,19 @@ class RaytracePass(ShadowPass):
             maps.start(scene, gbuffer, settings, lights)
         origin = self.scene_textures.baked.origin
         self.gpu.linking.update(scene)
-        # lights that reach no pixel get the answers without rays (one shared mask), no trace
+        # lights that reach no pixel get the answers without rays (one shared mask), no trace;
+        # on the compute path only those the soft side would trace (a hard light's queue is
+        # empty there anyway, and the test's read-back would stall the frame)
         self.culled = []
+        compute = self.path == "compute"
         cull = self._options.cull_lights and self.hard.plan != "coarse" and any(
-            cull_candidate(scene.lights[li], settings.hard) for li in lights)
+            cull_candidate(scene.lights[li], settings.hard) and not (compute and not self._soft_side(
+                scene.lights[li], settings)) for li in lights)
         if cull:
             self.cull.prepare(gbuffer, settings, gbuffer.camera.cam_pos - origin)
         no_rays = None
         self._soft_samples = 1
+        self._soft_lights = 0  # lights the soft side traced this frame
         self.trace.scene_frame = int(getattr(scene, "frame", 1))
         self.trace.smooth = any(m.normals is not None for m in scene.models)
         masks = {}
@@ -192,7 +204,8 @@ class RaytracePass(ShadowPass):
             job.light_started(li)
             light = scene.lights[li]
             local, vec = light_ray_uniforms(light, origin)
-            if cull and not self.cull.reaches(light, vec if local else None, settings.hard):
+            if cull and not (compute and not self._soft_side(light, settings)) and not self.cull.reaches(
+                    light, vec if local else None, settings.hard):
                 if no_rays is None:
                     no_rays = self._no_rays(LightRay(li, light, local, vec, None, {}), gbuffer, settings)
                 masks[li] = no_rays
@@ -210,7 +223,9 @@ class RaytracePass(ShadowPass):
                     ray.defines["HS_CONSERVATIVE"] = 1
             self.hard.attach_grid(job, ray)
             self.last_defines.update(ray.defines)
-            masks[li] = self._visibility(ray, settings).light(job, ray)
+            side = self._visibility(ray, settings)
+            self._soft_lights += side is self.soft
+            masks[li] = side.light(job, ray)
         self.last_defines.update(self.soft.defines_used)
         self.hard.end_frame(job)
         self.soft.end_frame(job)
@@ -221,13 +236,15 @@ class RaytracePass(ShadowPass):
             job.dark = set(self.culled)
         return masks
 
+    def _soft_side(self, light, settings) -> bool:
+        """Whether ``light`` is traced by the soft side: a soft light of a ``full`` plan that
+        takes more than the probes' samples (or accumulates)."""
+        return soft_shape(light, settings.hard) is not None and self.hard.plan == "full" and (
+            settings.accumulate or settings.samples > SOFT_PROBES)
+
     def _visibility(self, ray: LightRay, settings):
-        """The soft side for a soft light of a ``full`` plan that takes more than the probes'
-        samples (or accumulates), the hard side's plan otherwise."""
-        if ray.soft is not None and self.hard.plan == "full" and (
-                settings.accumulate or settings.samples > SOFT_PROBES):
-            return self.soft
-        return self.hard
+        """The soft side (:meth:`_soft_side`), or the hard side's plan."""
+        return self.soft if self._soft_side(ray.light, settings) else self.hard
 
     def _conservative_maps(self):
         if self.maps is None:

@@ -42,7 +42,8 @@ class RaytraceOptions:
 @dataclass
 class RaytraceStats:
     """The ray-traced pass's stats of the last frame (``Frame.stats`` takes them as a dict).
-    ``rays_traced`` counts the pixels the trace shaded (occlusion queries), ``pixels`` the
+    ``rays_traced`` counts the pixels the trace shaded (occlusion queries; on the compute path
+    the texels queued for a ray: the answers known without one are not counted), ``pixels`` the
     pixels with geometry times the shadowed lights, ``pixels_reused`` the pixels with geometry
     (times lights) that a reusing light settled without a ray: from an earlier frame
     (:mod:`.reproject`), or known without one (facing away); with ``rays_traced`` they make up
