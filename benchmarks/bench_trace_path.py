@@ -7,7 +7,8 @@ before the compute path), this tree on the compute path and this tree on the fra
 Each configuration renders ``--frames`` frames; the first two (compiles, first uploads, a light
 grid's build) are dropped and the median of the rest is taken; the table gives the median over
 ``--alternations`` and the ratios. The last frame's masks are digested (SHA-1 of the float32
-masks): equal digests are equal masks, bit for bit.
+masks, -0 taken as 0: a light the fragment path leaves out as reaching no pixel gets +0 where
+its trace writes -0, as the compute path's does): equal digests are equal masks.
 
 Configurations (hard lights, as the hard Cycles references; mode ``raytrace``):
 
@@ -78,7 +79,7 @@ for name, (kw, eager) in configs.items():
         ms.append(frame.timings["shadow_ms"])
     h = hashlib.sha1()
     for li in frame.lights:
-        h.update(frame.mask_array(li).astype("float32").tobytes())
+        h.update((frame.mask_array(li).astype("float32") + 0.0).tobytes())  # (-0 and 0 as one)
     out[name] = {"shadow_ms": statistics.median(ms[2:]), "digest": h.hexdigest()[:12],
                  "rays_traced": frame.stats.get("rays_traced", 0)}
     pipe.release()
