@@ -12,19 +12,28 @@ uniform int u_ortho;            // 1: orthographic
 // The camera ray through window position `frag` (gl_FragCoord.xy: pixel centres at +0.5), in
 // camera-relative world space, exactly as Camera.pixel_rays builds it (direction not normalised
 // for perspective cameras).
-// (precise: every stage that rebuilds a point, fragment or compute, rounds it alike)
 void camera_ray(vec2 frag, out vec3 origin_rel, out vec3 dir) {
+    vec2 f = frag / u_resolution;
+    vec3 local = vec3(mix(u_viewplane.x, u_viewplane.y, f.x), mix(u_viewplane.z, u_viewplane.w, f.y), -u_clip_start);
+    if (u_ortho == 1) {
+        origin_rel = u_cam_rot * local;
+        dir = -u_cam_rot[2];
+    } else {
+        origin_rel = vec3(0.0);
+        dir = u_cam_rot * local;
+    }
+}
+
+// camera_ray rounded alike in every stage (precise: no fused multiply-adds), for the points the
+// shadow rays start from (shadow_ray.glsl): the fragment and compute stages then decide a
+// knife-edge test at such a point the same way.
+void camera_ray_exact(vec2 frag, out vec3 origin_rel, out vec3 dir) {
     precise vec2 f = frag / u_resolution;
     precise vec3 local = vec3(mix(u_viewplane.x, u_viewplane.y, f.x), mix(u_viewplane.z, u_viewplane.w, f.y),
                               -u_clip_start);
     precise vec3 r = u_cam_rot * local;
-    if (u_ortho == 1) {
-        origin_rel = r;
-        dir = -u_cam_rot[2];
-    } else {
-        origin_rel = vec3(0.0);
-        dir = r;
-    }
+    origin_rel = u_ortho == 1 ? r : vec3(0.0);
+    dir = u_ortho == 1 ? -u_cam_rot[2] : r;
 }
 
 // View-space depth (distance along the camera's forward axis) of a camera-relative point.

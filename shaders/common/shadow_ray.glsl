@@ -43,7 +43,7 @@ vec3 offset_origin(vec3 p, vec3 n, float slack)
 vec3 surface_point(ivec2 px, float depth)
 {
     vec3 o_rel, dir;
-    camera_ray(vec2(px) + 0.5, o_rel, dir);
+    camera_ray_exact(vec2(px) + 0.5, o_rel, dir);
     precise vec3 p_rel = (u_ortho == 1) ? o_rel + dir * (depth - u_clip_start) : dir * (depth / u_clip_start);
     precise vec3 p = u_cam_bake + p_rel;
     return p;
