@@ -31,6 +31,8 @@ SCENES = ["cube_on_plane", "forest", "clusters", "city", "scaling", "alpha_cards
           "soft_lights"] + [
     f"stiff/{n}" for n in ("axis_aligned", "cards", "clip_range", "crowd", "degenerate", "far_away", "grazing",
                            "instance_scales", "ortho", "point_in_box", "spot_touching", "stadium", "thin")]
+#: the stiff scenes (a few objects each, hard to trace exactly) in the modes that trace differently
+STIFF_MODES = ("high", "medium", "interlace", "light_grids")
 
 
 def differing(a, b) -> int:
@@ -62,7 +64,7 @@ def render_mode(pipe, scene, mode, path):
 def test_compute_masks_equal_fragment_masks(name, paths, loaded):
     scene = loaded(name)
     paths["compute"].set_scene(scene)
-    for mode in MODES:
+    for mode in STIFF_MODES if name.startswith("stiff/") else MODES:
         got = {path: render_mode(pipe, scene, mode, path) for path, pipe in paths.items()}
         assert got["compute"].stats["trace_path"] == "compute"
         assert got["fragment"].stats["trace_path"] == "fragment"

@@ -189,12 +189,11 @@ class RaytracePass(ShadowPass):
         # empty there anyway, and the test's read-back would stall the frame)
         self.culled = []
 
-        def cullable(light) -> bool:
-            return cull_candidate(light, settings.hard) and (
-                self.path != "compute" or self._soft_side(light, settings))
+        def tested(light) -> bool:  # (a light the pass would trace on its own)
+            return self.path != "compute" or self._soft_side(light, settings)
 
         cull = self._options.cull_lights and self.hard.plan != "coarse" and any(
-            cullable(scene.lights[li]) for li in lights)
+            cull_candidate(scene.lights[li], settings.hard) and tested(scene.lights[li]) for li in lights)
         if cull:
             self.cull.prepare(gbuffer, settings, gbuffer.camera.cam_pos - origin)
         no_rays = None
@@ -207,7 +206,7 @@ class RaytracePass(ShadowPass):
             job.light_started(li)
             light = scene.lights[li]
             local, vec = light_ray_uniforms(light, origin)
-            if cull and cullable(light) and not self.cull.reaches(light, vec if local else None, settings.hard):
+            if cull and tested(light) and not self.cull.reaches(light, vec if local else None, settings.hard):
                 if no_rays is None:
                     no_rays = self._no_rays(LightRay(li, light, local, vec, None, {}), gbuffer, settings)
                 masks[li] = no_rays
