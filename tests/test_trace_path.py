@@ -1,6 +1,7 @@
 """The two trace paths (``Settings.trace_path``): the compute path's queues give the fragment
-path's masks bit for bit, in every mode of the hard side, on the built-in and stiff scenes; the
-choice of path, its stats and its final-render slices."""
+path's masks bit for bit, in every mode of the hard side on the built-in scenes and in the modes
+that trace differently on the stiff ones; the choice of path, its stats and its final-render
+slices."""
 import dataclasses
 
 import numpy as np
