@@ -55,9 +55,9 @@ class RayQueue:
     # -- one mask ---------------------------------------------------------------------------------
     def trace(self, generate, trace, outputs, size, kind: str | None = None, key=None) -> None:
         """Queue and trace the texels of a ``size`` (w, h) grid: ``generate()`` binds and returns
-        the generating program (one invocation per texel), ``trace()`` the tracing one; both
-        store into ``outputs`` (textures on image units 0, 1, ...). The queue's length is
-        tallied as ``kind`` (None: not counted)."""
+        the generating program (one invocation per texel), ``trace()`` the tracing one (binding
+        textures and uniforms only); both store into ``outputs`` (textures on image units 0, 1,
+        ...). The queue's length is tallied as ``kind`` (None: not counted)."""
         w, h = (int(v) for v in size)
         self._reset(w * h)
         gen = generate()
@@ -66,28 +66,19 @@ class RayQueue:
         self.ctx.memory_barrier(_AFTER_GEN)
         if kind is not None:
             self._tally_length(kind, key)
-        prog = trace()
-        self._bind(outputs)
-        self._dispatch(prog)
+        self._dispatch(trace())
         self.ctx.memory_barrier(_AFTER_TRACE)
 
     def trace_marked(self, marks, trace, outputs, kind: str, key=None) -> None:
-        """Queue the pixels ``marks`` (the refinement's depth texture: below 0.5, a ray) marks
-        and trace them with ``trace()`` (binds and returns the tracing program) into
-        ``outputs``."""
-        w, h = marks.size
-        self._reset(w * h)
-        gen = self.programs.compute("queue_marked")
-        marks.use(0)
-        gen["u_marks"].value = 0
-        self._bind(())
-        gen.run(-(-w // GEN_TILE), -(-h // GEN_TILE))
-        self.ctx.memory_barrier(_AFTER_GEN)
-        self._tally_length(kind, key)
-        prog = trace()
-        self._bind(outputs)
-        self._dispatch(prog)
-        self.ctx.memory_barrier(_AFTER_TRACE)
+        """:meth:`trace` of the pixels ``marks`` (the refinement's depth texture: below 0.5, a
+        ray) marks, queued by ``queue_marked.glsl``."""
+        def generate():
+            gen = self.programs.compute("queue_marked")
+            marks.use(0)
+            gen["u_marks"].value = 0
+            return gen
+
+        self.trace(generate, trace, outputs, marks.size, kind, key)
 
     # -- counts -----------------------------------------------------------------------------------
     def count(self, kind: str) -> int:
