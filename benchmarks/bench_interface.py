@@ -13,6 +13,8 @@ Per case it prints:
   Python's lock to tick (``max_thread_gap_ms`` is the same thread's figure for the viewport);
 - ``main_ms_per_redraw``: mean ms spent inside ``view_draw`` (null for a final render);
 - ``fps``: finished frames shown per second over the run (a final render: one frame);
+- ``waits``, ``read_back_kb``: the most waits for the GPU, and KB read back, of one viewport frame
+  shown (its ``--stats`` counts), next to ``image_kb``, the frame's image, and ``trace_path``;
 - ``peak_gpu_mb``: the GPU memory taken at the peak of the case, where the GL reports it
   (``GL_NVX_gpu_memory_info`` / ``GL_ATI_meminfo``), else what the renderer counted of its own
   textures and buffers (the viewport's most in use, a final frame's peak), else null.
@@ -160,6 +162,26 @@ class Engine:
 
         self._display.upload = counted
         self.errors = []
+        self.frame_stats = []  # the stats of each frame shown
+        show = vpe.show_result
+
+        def show_result(engine, worker):
+            poll = worker.poll
+
+            def polled(view):
+                result, errors = poll(view)
+                if result is not None and engine is self:  # (the image as read back: RGBA32F)
+                    h, w = getattr(result.image, "array", result.image).shape[:2]
+                    self.frame_stats.append((result.stats, w * h * 16))
+                return result, errors
+
+            worker.poll = polled
+            try:
+                return show(engine, worker)
+            finally:
+                del worker.poll
+
+        vpe.show_result = show_result
 
     def view_update(self, context, depsgraph):
         self._view_update(self, context, depsgraph)
@@ -249,6 +271,7 @@ def viewport_case(scene, w, h, frames, probe, timeout_s) -> dict:
         ticker = Ticker()
         ticker.start()
         start_shown, draw_times = eng.shown, []
+        eng.frame_stats.clear()
         max_gap, step = 0.0, 0
         t_start = last = next_redraw = time.perf_counter()
         while eng.shown - start_shown < frames and last - t_start < timeout_s:
@@ -277,10 +300,21 @@ def viewport_case(scene, w, h, frames, probe, timeout_s) -> dict:
                 "fps": round(shown / elapsed, 3), "peak_gpu_mb": _peak(probe.peak_mb(), getattr(eng, "gpu_mb", None)),
                 "max_thread_gap_ms": round(thread_gap, 1), "redraws": len(draw_times), "frames": shown,
                 "max_redraw_ms": round(1e3 * max(draw_times, default=0.0), 1),
+                **_frame_counts(eng.frame_stats),
                 "warmup_s": round(warmup, 2), "seconds": round(elapsed, 2)}
     finally:
         vpe.free(eng)
         off.free()
+
+
+def _frame_counts(seen) -> dict:
+    """The most waits and bytes read back of one of the frames ``seen`` ((stats, image bytes))."""
+    if not seen:
+        return {"waits": None, "read_back_kb": None, "image_kb": None, "trace_path": None}
+    return {"waits": max(s.get("waits", 0) for s, _ in seen),
+            "read_back_kb": round(max(s.get("bytes_read_back", 0) for s, _ in seen) / 1024, 1),
+            "image_kb": round(max(n for _, n in seen) / 1024, 1),
+            "trace_path": sorted({str(s.get("trace_path")) for s, _ in seen})}
 
 
 def final_case(scene, w, h, probe) -> dict:
@@ -365,13 +399,15 @@ def print_case(c: dict) -> None:
 
 def print_table(cases, w, h) -> None:
     def fmt(v, spec):
-        return format("null", f">{spec.split('.')[0]}") if v is None else format(v, spec)
+        return format("null", f">{re.match(r'[0-9]*', spec).group()}") if v is None else format(v, spec)
 
     print(f"\n{w}x{h}")
-    print(f"{'case':<22} {'max gap ms':>10} {'main ms/redraw':>15} {'fps':>8} {'peak GPU MB':>12}")
+    print(f"{'case':<22} {'max gap ms':>10} {'main ms/redraw':>15} {'fps':>8} {'peak GPU MB':>12} {'waits':>6} "
+          f"{'read KB':>9} {'image KB':>9}")
     for c in cases:
         print(f"{c['name']:<22} {fmt(c['max_gap_ms'], '10.1f')} {fmt(c['main_ms_per_redraw'], '15.2f')} "
-              f"{fmt(c['fps'], '8.3f')} {fmt(c['peak_gpu_mb'], '12.1f')}")
+              f"{fmt(c['fps'], '8.3f')} {fmt(c['peak_gpu_mb'], '12.1f')} {fmt(c.get('waits'), '6d')} "
+              f"{fmt(c.get('read_back_kb'), '9.1f')} {fmt(c.get('image_kb'), '9.1f')}")
 
 
 if __name__ == "__main__":

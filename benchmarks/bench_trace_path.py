@@ -19,6 +19,11 @@ Configurations (hard lights, as the hard Cycles references; mode ``raytrace``):
 - ``medium``, ``low``: the refinement's qualities, no light grids; their ratio to ``high cold``
   of the same subject is printed too.
 
+- ``viewport``: the viewport's frames (``Pipeline.timing`` ``"frame"``: no wait between passes, the
+  rays uncounted) at high with light grids and reuse, the camera moving a little every frame;
+  its ms are the frames' total, and ``waits`` / ``read_back`` the most waits and bytes read back
+  beyond the RGBA32F image of one of its timed frames (the tree before: not counted).
+
 ``--soft`` adds ``soft``: lights with their sizes at high, 64 samples.
 
     rm -rf /tmp/peer && mkdir /tmp/peer && git archive <commit> | tar -x -C /tmp/peer
@@ -44,6 +49,7 @@ CONFIGS = {
     "high grids": ({"quality": "high", "light_grid": True}, True),
     "medium": ({"quality": "medium", "light_grid": False}, False),
     "low": ({"quality": "low", "light_grid": False}, False),
+    "viewport": ({"quality": "high", "light_grid": True, "viewport": True}, False),
 }
 SOFT = {"soft": ({"quality": "high", "hard": False, "samples": 64, "light_grid": False}, False)}
 
@@ -70,18 +76,30 @@ for name, (kw, eager) in configs.items():
     rt = pipe.shadow_pass("raytrace")
     rt.options = dataclasses.replace(rt.options, eager_light_grids=eager)
     kw = dict(kw, mode="raytrace", hard=kw.get("hard", True))
+    viewport = kw.pop("viewport", False)
+    if viewport:
+        pipe.timing, pipe.reuse = "frame", True
     if path != "peer":
         kw["trace_path"] = path
     settings = Settings(**{k: v for k, v in kw.items() if k in known})
-    ms, frame = [], None
-    for _ in range(frames):
-        frame = pipe.render(scene, settings, W, H)
-        ms.append(frame.timings["shadow_ms"])
+    ms, counts, frame = [], [], None
+    for i in range(frames):
+        seen = scene
+        if viewport:  # (a camera move: 1 cm a frame)
+            cam = dataclasses.replace(scene.camera, matrix=scene.camera.matrix.copy())
+            cam.matrix[0, 3] += 0.01 * i
+            seen = dataclasses.replace(scene, camera=cam)
+        frame = pipe.render(seen, settings, W, H)
+        ms.append(frame.timings["total_ms" if viewport else "shadow_ms"])
+        counts.append((frame.stats.get("waits"), frame.stats.get("bytes_read_back")))
     h = hashlib.sha1()
     for li in frame.lights:
         h.update((frame.mask_array(li).astype("float32") + 0.0).tobytes())  # (-0 and 0 as one)
+    timed = [c for c in counts[2:] if c[0] is not None]
     out[name] = {"shadow_ms": statistics.median(ms[2:]), "digest": h.hexdigest()[:12],
-                 "rays_traced": frame.stats.get("rays_traced", 0)}
+                 "rays_traced": frame.stats.get("rays_traced", 0),
+                 "waits": max((c[0] for c in timed), default=None),
+                 "read_back": max((c[1] - W * H * 16 for c in timed), default=None)}
     pipe.release()
 print("HS_PATHS " + json.dumps(out), flush=True)
 """
@@ -127,9 +145,15 @@ def main(argv=None) -> int:
             same = ("all equal" if len(set(digests.values())) == 1 else
                     "compute = fragment" if digests["compute"] == digests["fragment"] else
                     "compute = peer" if digests["compute"] == digests["peer"] else "all differ")
-            rows[c] = dict(ms=ms, digests=digests, rays={k: got[k][-1][c]["rays_traced"] for k in subjects})
+            rows[c] = dict(ms=ms, digests=digests, rays={k: got[k][-1][c]["rays_traced"] for k in subjects},
+                           counts={k: (got[k][-1][c].get("waits"), got[k][-1][c].get("read_back")) for k in subjects})
             print(f"| {scene} | {c} | {ms['peer']:.1f} | {ms['compute']:.1f} | {ms['fragment']:.1f} | "
                   f"{ms['peer'] / ms['compute']:.2f}x | {ms['fragment'] / ms['compute']:.2f}x | {same} |", flush=True)
+    print("\nviewport frames, the most of one (waits; bytes read back beyond the image):")
+    print("| scene | compute | fragment |\n|---|---|---|")
+    for scene, rows in record.items():
+        c = rows["viewport"]["counts"]
+        print(f"| {scene} | {c['compute'][0]}; {c['compute'][1]} | {c['fragment'][0]}; {c['fragment'][1]} |")
     print("\nof high cold's shadow ms, same subject (medium, low):")
     print("| scene | subject | medium | low |\n|---|---|---:|---:|")
     for scene, rows in record.items():

@@ -40,3 +40,5 @@ def test_viewport_case_measures_its_redraws(cases):
     assert vp["main_ms_per_redraw"] > 0 and vp["redraws"] >= 1 and vp["frames"] >= 1
     assert vp["max_gap_ms"] >= vp["main_ms_per_redraw"]  # a redraw is a gap of the main thread
     assert final["main_ms_per_redraw"] is None
+    # a viewport frame's host counts: at least its image read back, with its wait
+    assert vp["waits"] >= 1 and vp["read_back_kb"] >= vp["image_kb"] > 0 and vp["trace_path"]

@@ -66,7 +66,7 @@ def render_both(pipeline, scene, settings):
             f = pipeline.render(scene, settings, W, H)
             out[on] = (f, {li: f.mask_array(li) for li in f.lights}, list(rp.culled), pipeline.lighting.lights_drawn)
     finally:
-        rp.options = replace(rp.options, cull_lights=True)
+        rp.options = replace(rp.options, cull_lights=None)
     return out
 
 
@@ -144,7 +144,7 @@ def test_interlaced_and_accumulated_frames_are_the_same(pipeline, settings):
                 f = pipeline.render(scene, settings, W, H)
                 seqs[on].append(({li: f.mask_array(li) for li in f.lights}, list(rp.culled)))
     finally:
-        rp.options = replace(rp.options, cull_lights=True)
+        rp.options = replace(rp.options, cull_lights=None)
     for (got, culled), (ref, _) in zip(seqs[True], seqs[False]):
         assert {scene.lights[li].name for li in culled} >= {"spot up", "spot aside", "area up"}
         for li in ref:

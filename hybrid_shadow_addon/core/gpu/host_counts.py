@@ -5,8 +5,9 @@ dispatches, waits and bytes read back (``Frame.stats``: ``draws``, ``dispatches`
 As :mod:`.memory` counts allocations, :func:`track` wraps the context's makers so that each
 object it makes counts its own calls: a vertex array's ``render``, a compute program's ``run``
 and ``run_indirect``, a texture's, buffer's or framebuffer's ``read`` (a wait and its bytes),
-an occlusion query's ``samples`` (a wait and 4 bytes, once per query and use) and the context's
-``finish`` (a wait). A frame's counts are :meth:`HostCounts.since` a :meth:`HostCounts.mark`.
+an occlusion query's ``samples`` (a wait and 4 bytes, once per query and use), a timer query's
+``elapsed`` (8 bytes and no wait: :mod:`.clock` reads it once the frame that issued it was waited
+for) and the context's ``finish`` (a wait). A frame's counts are :meth:`HostCounts.since` a :meth:`HostCounts.mark`.
 """
 from __future__ import annotations
 
@@ -38,7 +39,8 @@ class HostCounts:
 
 
 class _CountedQuery:
-    """An occlusion query whose ``samples`` read counts as a wait and 4 bytes read back."""
+    """An occlusion query whose ``samples`` read counts as a wait and 4 bytes read back (a timer
+    query's ``elapsed``: 8 bytes)."""
 
     def __init__(self, query, counts: HostCounts):
         self._query = query
@@ -55,6 +57,11 @@ class _CountedQuery:
     def samples(self) -> int:
         self._counts.read(4)
         return self._query.samples
+
+    @property
+    def elapsed(self) -> int:
+        self._counts.bytes_read_back += 8
+        return self._query.elapsed
 
     def release(self) -> None:
         self._query.release()

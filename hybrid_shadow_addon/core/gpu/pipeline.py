@@ -5,7 +5,10 @@ The one GPU entry point of the CLI, the tools, the benchmarks and the engine. On
 baked scene textures stay on the GPU. ``set_scene`` bakes (or re-bakes), ``move_instances`` and
 ``update_model`` apply incremental updates, ``render`` runs the passes for one
 :class:`~..settings.Settings` and returns a :class:`Frame` with the image, the masks and the
-timings (each pass is timed up to ``ctx.finish()``).
+timings: with :attr:`Pipeline.timing` ``"passes"`` (the default) each pass is timed up to a
+``ctx.finish()`` and the GPU's counts are read; with ``"frame"`` (the viewport's) the passes run
+without a wait between them, the frame's one wait is its image read, ``total_ms`` is the time up
+to it, and what only the GPU counted is not read back.
 
 :meth:`Pipeline.view` makes another pipeline over the same context, programs, model buffers and
 bake (one per viewport): its passes, render targets and history (interlacing, soft-shadow
@@ -35,6 +38,8 @@ from .resources import GpuResources
 from .see_through import SeeThroughAccumulation, SeeThroughScene, split_progress, sub_frame_settings, target_samples
 from .targets import read_texture
 
+#: how a frame is timed (``Pipeline.timing``): every pass apart, or the frame as a whole
+TIMINGS = ("passes", "frame")
 #: ``Settings.mode`` -> the shadow pass that makes its masks
 SHADOW_PASSES = {"raytrace": RaytracePass, "shadowmap": ShadowMapPass, "none": NoShadowPass}
 
@@ -153,6 +158,7 @@ class Pipeline:
         self.reuse = False
         self.reuse_choice = "auto"
         self._retrace = False  # retrace_once(): the next frame ignores the hard lights' history
+        self.timing = "passes"  # one of TIMINGS
         self.programs = self.gpu.programs
         self.scene_textures = self.gpu.scene_textures
         self._make_passes()
@@ -405,8 +411,15 @@ class Pipeline:
     def _passes_of_frame(self, scene, settings, shadow, step, job, read_image) -> Frame:
         """The passes of :meth:`_render_frame` over ``job``, counted by ``step``."""
         width, height = job.size
+        if self.timing not in TIMINGS:
+            raise ValueError(f"timing must be one of {TIMINGS}, not {self.timing!r}")
+        per_pass = self.timing == "passes"
         host = counts_of(self.ctx)
         start = host.mark()
+        t0 = time.perf_counter()
+        clock = self.gpu.clock
+        clock.collect()  # (the spans the last frame timed, waited for by its image read)
+        clock.deferred = not per_pass
         self.gpu.linking.update(scene)  # (linking lives apart from the bake: an upload at most)
         self.gbuffer_renders += 1
         if shadow.light_label is not None:
@@ -415,15 +428,15 @@ class Pipeline:
         for p in (self.gbuffer_pass, shadow, self.upsample, self.lighting):
             if p.label is not None:
                 step(p.label)
-            setattr(job, p.produces, self._timed(timings, p.name, p.render, job))
+            setattr(job, p.produces, self._timed(timings, p.name, p.render, job) if per_pass else p.render(job))
             if p is shadow and shadow.light_label is None:
                 step.done += len(job.lights)
         image = None
         if read_image:
             step("Reading the image")
-            image = self._timed(timings, "readback", read_texture, job.image)
-        timings["total_ms"] = sum(timings.values())
-        shadow_stats = shadow.stats(job)
+            image = self._timed(timings, "readback", read_texture, job.image) if per_pass else read_texture(job.image)
+        timings["total_ms"] = sum(timings.values()) if per_pass else (time.perf_counter() - t0) * 1e3
+        shadow_stats = shadow.stats(job, counts=per_pass)
         stats = {
             "mode": settings.mode,
             "quality": settings.quality,

@@ -6,6 +6,7 @@ import moderngl
 import numpy as np
 
 from ..bake.materials import bake_materials, material_signature
+from .clock import GpuClock
 from .geometry import ModelBufferCache
 from .linking import LinkTextures
 from .programs import ProgramCache
@@ -24,6 +25,7 @@ class GpuResources:
         self.scene_textures = SceneTextures(ctx)
         self.linking = LinkTextures(ctx)  # light and shadow linking, apart from the bake
         self.budget = DrawBudget(ctx)  # the frame's per-draw time budget (tiled heavy draws)
+        self.clock = GpuClock(ctx)  # timed spans of the choices made from GPU time
         self._own_materials = None  # (material_signature, None, {sampler: texture}) made without a bake
 
     def material_textures(self, scene) -> dict:
@@ -74,4 +76,5 @@ class GpuResources:
 
     def release(self) -> None:
         self.release_scene()
+        self.clock.release()
         self.programs.release()

@@ -425,6 +425,7 @@ class RenderWorker(ViewResults):
         vp = self._views.get(req.view)
         if vp is None:
             vp = self._views[req.view] = pipe.view()
+            vp.timing = "frame"  # (no wait but the image's: per-pass times and ray counts unread)
         vp.reuse = bool(req.reuse)
         if job.step == 0:  # (a camera move keeps the history: the view reprojects what stays exact)
             settings = fast_settings(req, self._renderer(pipe))
@@ -436,7 +437,7 @@ class RenderWorker(ViewResults):
                 vp.retrace_once()
                 job.settle = False
         frame = vp.render(req.scene, settings, req.width, req.height, film_transparent=req.film_transparent)
-        if job.step == 0 and frame.stats.get("pixels_reused"):  # reused: exact again once the view rests
+        if job.step == 0 and frame.stats.get("reuse_ways", {}).get("reused"):  # exact again once the view rests
             job.refine, job.settle = max(job.refine, 1), True
         image = frame.image if req.post is None else req.post(frame, req.scene, vp)
         acc = frame.stats.get("accumulated_samples")

@@ -54,10 +54,11 @@ class ShadowPass(Pass):
     #: whether the pass traces the baked scene (the pipeline bakes before the first frame)
     needs_bake: bool = False
 
-    def stats(self, job) -> dict:
+    def stats(self, job, counts: bool = True) -> dict:
         """``mask_resolution``, ``rays`` (the rays a full trace of the mask would take),
         ``rays_traced`` (the rays actually traced), ``pixels`` (pixels with geometry x shadowed
-        lights; 0 where a mode does not count them) and shader ``defines`` of the last render."""
+        lights; 0 where a mode does not count them) and shader ``defines`` of the last render.
+        ``counts`` False: what only the GPU counted is not read back (None)."""
         return {"mask_resolution": list(job.size), "rays": 0, "rays_traced": 0, "pixels": 0, "defines": []}
 
 

@@ -6,11 +6,11 @@ buffer (:meth:`~..geometry.ModelBufferCache.indexed`: a software rasteriser shad
 per index of a de-indexed buffer, three times per triangle), the face normal a flat attribute
 rather than a texture read by ``gl_PrimitiveID``, and a per-model instance buffer
 (camera-relative world matrix rows, normal matrix, colour, specular/roughness/index)
-re-uploaded each render. Instances whose bounding sphere misses the view are not drawn, nor
-are the chunks of a big model (:func:`~..geometry.chunk_order`: its triangles in runs of
-spatially close ones, each with a bounding sphere) that miss it: a terrain seen from within
-draws only the part in view (a software rasteriser shades vertices and sets up triangles on one
-thread, in view or not).
+re-uploaded each render. Instances whose bounding sphere misses the view are not drawn. On a
+software rasteriser, which shades vertices and sets up triangles on one thread, in view or not,
+neither are the chunks of a big model (:func:`~..geometry.chunk_order`: its triangles in runs
+of spatially close ones, each with a bounding sphere) that miss it: a terrain seen from within
+draws only the part in view. A GPU draws such a model whole, in one call.
 Instances the camera does not see (``Instances.visible_camera``) are not drawn; holdouts
 (``Instances.holdout``) are drawn as background that hides what lies behind them, with the
 material's w -1 so that the lighting leaves a hole (alpha 0, no colour) there.
@@ -31,7 +31,7 @@ import numpy as np
 
 from ...errors import SceneError
 from ...scene import max_scale
-from ..context import check_render_size
+from ..context import check_render_size, software_renderer
 from ..frame import GBUFFER_TARGETS, CameraUniforms, GBuffer
 from ..geometry import (
     INDEXED_ATTRS,
@@ -157,7 +157,10 @@ class GBufferPass(Pass):
         self._cube = ProxyMesh(self.ctx, unit_cube)
         self.draw_calls = 0
         self.culled = 0  # instances of the last render outside the view frustum (not drawn)
-        self.chunked = True  # draw big models by chunks, leaving out those outside the view (tests compare)
+        # big models drawn by chunks, those outside the view left out, on a software rasteriser
+        # (it shades vertices and sets up triangles on one thread, culled or not); a GPU draws
+        # them whole in one call (tests compare the two)
+        self.chunked = software_renderer((getattr(self.ctx, "info", None) or {}).get("GL_RENDERER", ""))
         self.triangles = 0  # triangles drawn by the last render (instances x triangles of each draw)
         self._frame_programs: dict = {}  # smooth -> (program, textured program): this render's
         self._alpha_sample = None  # this render's see-through sample index (None: the 0.5 cut)

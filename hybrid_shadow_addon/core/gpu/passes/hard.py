@@ -25,6 +25,7 @@ path (:attr:`HardVisibility.compute`) the queues of :mod:`.queue`, whose time fo
 from __future__ import annotations
 
 import time
+from contextlib import nullcontext
 
 from ..targets import TargetCache, draw_fullscreen, set_uniforms
 from .base import LightVisibility
@@ -116,16 +117,12 @@ class HardVisibility(LightVisibility):
                 ray.defines.update(ray.grid.defines)
 
     def light(self, job, ray: LightRay):
-        ctx = self.ctx
         timed = self._grids_on and ray.soft is None and ray.grid is None and not self.light_grids.eager
-        if timed:  # (the light's BVH time: what a grid would have to pay back)
-            ctx.finish()
-            t0 = time.perf_counter()
-        out = self._trace(job, ray)
-        if timed:
-            ctx.finish()
-            self.light_grids.note_bvh(ray.local, ray.vec, (time.perf_counter() - t0) * 1e3)
-        return out
+        if not timed:
+            return self._trace(job, ray)
+        local, vec = ray.local, ray.vec
+        with self.gpu.clock.span(lambda ms: self.light_grids.note_bvh(local, vec, ms)):
+            return self._trace(job, ray)  # (the light's BVH time: what a grid would have to pay back)
 
     def end_frame(self, job) -> None:
         self.light_grids.end_frame()
@@ -224,15 +221,25 @@ class HardVisibility(LightVisibility):
         key = light_key(ray.light, settings)
         way = rp.choice.way(li, key)
         timed = rp.choice.auto and rp.choice.wants_time(li, way)
-        prev = now = None
+        prev = now = uniforms = None
         if way == "reuse":
             prev, now = rp.history(li, "hard", key, gbuffer.size)
         if prev is not None:  # (the previous pixels first: shared by the frame's reusing lights, timed apart)
             uniforms = self.trace.uniforms(ray, gbuffer, settings)
             rp.history_map(gbuffer, ray.defines, uniforms, timed)
-        if timed:
-            self.ctx.finish()
-            t0 = time.perf_counter()
+        noted = [timed]  # (priming the history is neither way's cost: not noted)
+
+        def note(ms):
+            if noted[0]:
+                rp.timed(li, way, ms)
+
+        with self.gpu.clock.span(note) if timed else nullcontext():
+            done = self._trace_way(way, li, ray, gbuffer, settings, prev, now, uniforms, noted)
+        return done.texture
+
+    def _trace_way(self, way, li, ray, gbuffer, settings, prev, now, uniforms, noted):
+        """:meth:`_trace_reusing`'s trace of light ``li`` the ``way`` chosen; its target."""
+        rp = self.reuse
         if way == "plain":
             out = self._target((li, "out"), *gbuffer.size)
             self._trace_all(ray.defines, ray, gbuffer, settings, 1, [out])
@@ -242,7 +249,7 @@ class HardVisibility(LightVisibility):
             defines = {**ray.defines, "HS_CODE_OUT": 1}
             if prev is None:
                 self._trace_all(defines, ray, gbuffer, settings, 1, list(now))
-                timed = False  # (priming the history: neither way's cost)
+                noted[0] = False
             else:
                 defs = {k: v for k, v in ray.defines.items() if k in CLASSIFY_DEFINES}
                 rp.mark((li, "reuse"), gbuffer, defs, uniforms, prev, now)
@@ -255,10 +262,7 @@ class HardVisibility(LightVisibility):
                     self.ctx.finish()
                     rp.retrace_ms += (time.perf_counter() - t1) * 1e3
             done = now[0]
-        if timed:
-            self.ctx.finish()
-            rp.timed(li, way, (time.perf_counter() - t0) * 1e3)
-        return done.texture
+        return done
 
     def release(self) -> None:
         self.light_grids.close()

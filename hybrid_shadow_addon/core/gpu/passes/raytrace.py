@@ -18,8 +18,8 @@ a conservative occupancy map (:mod:`.conservative`, ``HS_CONSERVATIVE``): receiv
 light than every caster in their map column are lit without a ray, the others trace only up to
 the first possible caster depth (exact: the masks do not change).
 
-A light that reaches no visible surface (a spot whose cone holds none, :mod:`.light_cull`)
-takes no pass of rays, at every quality, interlaced and accumulating too (not ``upsample=
+On a software rasteriser (``RaytraceOptions.cull_lights``), a light that reaches no visible
+surface (a spot whose cone holds none, :mod:`.light_cull`) takes no pass of rays, at every quality, interlaced and accumulating too (not ``upsample=
 'nearest'``'s coarse masks); its mask, bit-identical, is the answers without rays
 (``HS_NO_RAYS``), one for all such lights of the frame. It keeps no history: whether a light is
 left out depends on the G-buffer alone, and every change of it resets the history.
@@ -115,9 +115,11 @@ class RaytracePass(ShadowPass):
         self.soft.reset_light(index)
         self.reuse.reset_light(index)
 
-    def shadow_stats(self, job) -> RaytraceStats:
+    def shadow_stats(self, job, counts: bool = True) -> RaytraceStats:
         mw, mh = job.settings.mask_size(*job.size)
         n = len(job.lights)
+        if not counts:
+            return self._stats(job, mw, mh, None, None, None)
         valid = self.refiner.count("valid") if n else 0
         reused_pixels = 0
         if self.path == "compute":  # (the texels queued: rays; the soft side's lights as below)
@@ -134,9 +136,12 @@ class RaytracePass(ShadowPass):
             reused_pixels = self.refiner.count("kept") - reused * (mw * mh - valid) if reused else 0
         else:
             traced = self.refiner.count("coarse") * (n - len(self.culled)) + self.refiner.count("refined")
+        return self._stats(job, mw, mh, int(traced), int(valid * n), int(reused_pixels))
+
+    def _stats(self, job, mw, mh, traced, pixels, reused_pixels) -> RaytraceStats:
         return RaytraceStats(
-            mask_resolution=[mw, mh], rays=int(mw * mh * n), rays_traced=int(traced), pixels=int(valid * n),
-            pixels_reused=int(reused_pixels),
+            mask_resolution=[mw, mh], rays=int(mw * mh * len(job.lights)), rays_traced=traced, pixels=pixels,
+            pixels_reused=reused_pixels,
             samples=int(max(self._soft_samples, self.soft.most_samples)),
             accumulated_samples=self.soft.accumulated, lights_culled=len(self.culled),
             reuse_ways={"reused": self.reuse.reused_lights, "plain": self.reuse.plain_lights},
@@ -144,8 +149,8 @@ class RaytracePass(ShadowPass):
             noise={k: round(v, 6) for k, v in self.soft.last_noise.items()},
             defines=sorted(f"{k}={v}" for k, v in self.last_defines.items()))
 
-    def stats(self, job) -> dict:
-        return asdict(self.shadow_stats(job))
+    def stats(self, job, counts: bool = True) -> dict:
+        return asdict(self.shadow_stats(job, counts))
 
     def trace_path(self, settings) -> str:
         """``compute`` or ``fragment``: ``settings.trace_path`` on this context (``auto``:
@@ -188,11 +193,12 @@ class RaytracePass(ShadowPass):
         # on the compute path only those the soft side would trace (a hard light's queue is
         # empty there anyway, and the test's read-back would stall the frame)
         self.culled = []
+        culling = self._software if self._options.cull_lights is None else self._options.cull_lights
 
         def tested(light) -> bool:  # (a light the pass would trace on its own)
             return self.path != "compute" or self._soft_side(light, settings)
 
-        cull = self._options.cull_lights and self.hard.plan != "coarse" and any(
+        cull = culling and self.hard.plan != "coarse" and any(
             cull_candidate(scene.lights[li], settings.hard) and tested(scene.lights[li]) for li in lights)
         if cull:
             self.cull.prepare(gbuffer, settings, gbuffer.camera.cam_pos - origin)

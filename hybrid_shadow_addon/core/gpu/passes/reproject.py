@@ -20,7 +20,7 @@ its centre, the boxes widened by its extent) can meet one gives up its history.
 """
 from __future__ import annotations
 
-import time
+from contextlib import nullcontext
 
 import moderngl
 import numpy as np
@@ -178,8 +178,11 @@ class MaskReprojection(Pass):
         self._history_drawn = False  # whether this frame's HISTORY map is drawn
         self._fbos: dict = {}  # ids of textures -> (textures, framebuffer)
         self.choice = ReuseChoice()
-        self._shared_ms = None  # this frame's timed HISTORY draw
-        self._timed: list = []  # this frame's (light index, way, ms), noted at the end of the frame
+        self._shared_ms = None  # the timed HISTORY draw's ms (GpuClock: maybe a frame later)
+        self._history_timed = False  # this frame's HISTORY draw is timed (then so is the store)
+        # (light index, way, ms) timed (GpuClock: this frame's, or the last one's in a frame
+        # that defers), noted at the end of the frame
+        self._timed: list = []
         self.exact = False  # this frame's hard lights trace whole (Pipeline.retrace_once)
         self.plain_lights = 0  # lights of the last frame traced plainly by the choice
         # the trace of the retraced pixels alone timed (what reusing costs at least: benchmarks)
@@ -219,13 +222,12 @@ class MaskReprojection(Pass):
     # -- per frame --------------------------------------------------------------------------------
     def begin_frame(self) -> None:
         self.choice.begin_frame()
-        self._shared_ms = None
+        self._history_timed = False
         self._touched = {}
         self._history_drawn = False
         self.reused_lights = 0
         self.plain_lights = 0
         self.retrace_ms = 0.0
-        self._timed = []
 
     def history(self, index: int, kind: str, key, size):
         """``(previous, current)`` targets of light ``index``'s ``kind`` (``hard``: (mask,
@@ -304,18 +306,17 @@ class MaskReprojection(Pass):
         target = self._targets.get("history", *gbuffer.size, components=4)
         if self._history_drawn:
             return target
-        if timed:
-            self.ctx.finish()
-            t0 = time.perf_counter()
         defs = {k: v for k, v in defines.items() if k == "HS_MAX_DISTANCE"}
         prog, vao = self.programs.fullscreen("reproject", {**defs, "HISTORY": 1})
         self.bind(prog, gbuffer, ray_uniforms)
-        draw_fullscreen(self.ctx, vao, target)
+        with self.gpu.clock.span(self._history_time) if timed else nullcontext():
+            draw_fullscreen(self.ctx, vao, target)
         self._history_drawn = True
-        if timed:
-            self.ctx.finish()
-            self._shared_ms = (time.perf_counter() - t0) * 1e3
+        self._history_timed = timed
         return target
+
+    def _history_time(self, ms: float) -> None:
+        self._shared_ms = ms
 
     def draw_fresh(self, vao, now, budget) -> None:
         """Draw the bound trace ``vao`` (``HS_CODE_OUT``) into ``now`` (mask, code) whole,
@@ -341,17 +342,14 @@ class MaskReprojection(Pass):
     def end_frame(self, gbuffer) -> None:
         """Keep this frame's G-buffer and camera, and the history of the lights it drew; note
         the frame's timings (the store with the previous pixels, where those were timed)."""
-        timed = self._shared_ms is not None
-        if timed:
-            self.ctx.finish()
-            t0 = time.perf_counter()
-        self._store(gbuffer)
-        if timed:
-            self.ctx.finish()
-            self.choice.note_shared(self._shared_ms + (time.perf_counter() - t0) * 1e3)
+        with self.gpu.clock.span(self._store_time) if self._history_timed else nullcontext():
+            self._store(gbuffer)
         for li, way, ms in self._timed:
             self.choice.note(li, way, ms)
         self._timed = []
+
+    def _store_time(self, ms: float) -> None:
+        self.choice.note_shared(self._shared_ms + ms)
 
     def _store(self, gbuffer) -> None:
         if not self._touched:

@@ -250,8 +250,8 @@ class ShadowMapPass(ShadowPass):
             draws += [(alpha_prog, *d) for d in self.casters.build_alpha(scene, rows[cut], origin, alpha_prog, tag)]
         return draws
 
-    def stats(self, job) -> dict:
-        return {**super().stats(job), "defines": sorted(self.last_defines)}
+    def stats(self, job, counts: bool = True) -> dict:
+        return {**super().stats(job, counts), "defines": sorted(self.last_defines)}
 
     def release(self) -> None:
         self.casters.release()

@@ -21,8 +21,11 @@ class RaytraceOptions:
     """Switches of the ray-traced pass that no artist setting holds (tests, benchmarks, tools).
     Set at construction or as a whole: ``rp.options = replace(rp.options, packets=False)``."""
 
-    #: leave out the lights that reach no pixel (tests compare without)
-    cull_lights: bool = True
+    #: leave out the lights that reach no pixel (tests compare without); None: on a software
+    #: rasteriser only, where a light's pass costs the walk's code per 8-pixel group whether its
+    #: lanes need a ray or not. On a GPU such a light's pixels end at the shader's reach test,
+    #: and the test's read-back would stall the frame.
+    cull_lights: bool | None = None
     #: soft lights: a pixel's rays walk the scene together (else ray by ray)
     packets: bool = True
     #: ray by ray: a penumbra's fringe pixel may stop after half its samples
@@ -50,13 +53,15 @@ class RaytraceStats:
     those lights' pixels. ``reuse_ways`` how many hard lights reused their history and how many
     were traced plainly where reusing did not pay (:class:`.reproject.ReuseChoice`),
     ``lights_culled`` the lights traced by no ray (:mod:`.light_cull`), ``trace_path`` the
-    path the hard masks were traced on (``compute`` or ``fragment``)."""
+    path the hard masks were traced on (``compute`` or ``fragment``). The three counts the GPU
+    keeps (``rays_traced``, ``pixels``, ``pixels_reused``) are None in a frame that does not
+    read them (``Pipeline.timing`` ``"frame"``)."""
 
     mask_resolution: list
     rays: int = 0
-    rays_traced: int = 0
-    pixels: int = 0
-    pixels_reused: int = 0
+    rays_traced: int | None = 0
+    pixels: int | None = 0
+    pixels_reused: int | None = 0
     samples: int = 1
     accumulated_samples: int | None = None
     lights_culled: int = 0
