@@ -19,9 +19,10 @@ light than every caster in their map column are lit without a ray, the others tr
 the first possible caster depth (exact: the masks do not change).
 
 On a software rasteriser (``RaytraceOptions.cull_lights``), a light that reaches no visible
-surface (a spot whose cone holds none, :mod:`.light_cull`) takes no pass of rays, at every quality, interlaced and accumulating too (not ``upsample=
-'nearest'``'s coarse masks); its mask, bit-identical, is the answers without rays
-(``HS_NO_RAYS``), one for all such lights of the frame. It keeps no history: whether a light is
+surface (a spot whose cone holds none, :mod:`.light_cull`) takes no pass of rays, at every
+quality, interlaced and accumulating too (not ``upsample='nearest'``'s coarse masks); its mask,
+bit-identical, is the answers without rays (``HS_NO_RAYS``), one for all such lights of the
+frame. It keeps no history: whether a light is
 left out depends on the G-buffer alone, and every change of it resets the history.
 
 :meth:`RaytracePass.shadow_stats` gives a :class:`.trace.RaytraceStats`. The numpy mirror of
