@@ -123,10 +123,13 @@ def main(argv=None) -> int:
     ap.add_argument("--alternations", type=int, default=2)
     ap.add_argument("--soft", action="store_true", help="add soft lights at high (64 samples)")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--configs", nargs="+", default=None, help=f"a subset of {list(CONFIGS)} (and soft)")
     a = ap.parse_args(argv)
     if not (a.peer / "hybrid_shadow_addon").is_dir():
         raise SystemExit(f"--peer {a.peer}: not a tree of this project (no hybrid_shadow_addon/)")
     configs = {**CONFIGS, **(SOFT if a.soft else {})}
+    if a.configs:
+        configs = {k: v for k, v in configs.items() if k in a.configs}
     subjects = {"peer": a.peer.resolve(), "compute": REPO, "fragment": REPO}
     print(f"{a.size}, {a.frames} frames (first 2 dropped), {a.alternations} alternations; "
           f"peer: {subjects['peer']}")
@@ -149,14 +152,19 @@ def main(argv=None) -> int:
                            counts={k: (got[k][-1][c].get("waits"), got[k][-1][c].get("read_back")) for k in subjects})
             print(f"| {scene} | {c} | {ms['peer']:.1f} | {ms['compute']:.1f} | {ms['fragment']:.1f} | "
                   f"{ms['peer'] / ms['compute']:.2f}x | {ms['fragment'] / ms['compute']:.2f}x | {same} |", flush=True)
-    print("\nviewport frames, the most of one (waits; bytes read back beyond the image):")
-    print("| scene | compute | fragment |\n|---|---|---|")
+    if "viewport" in configs:
+        print("\nviewport frames, the most of one (waits; bytes read back beyond the image):")
+        print("| scene | compute | fragment |\n|---|---|---|")
     for scene, rows in record.items():
+        if "viewport" not in rows:
+            continue
         c = rows["viewport"]["counts"]
         print(f"| {scene} | {c['compute'][0]}; {c['compute'][1]} | {c['fragment'][0]}; {c['fragment'][1]} |")
     print("\nof high cold's shadow ms, same subject (medium, low):")
     print("| scene | subject | medium | low |\n|---|---|---:|---:|")
     for scene, rows in record.items():
+        if not {"high cold", "medium", "low"} <= set(rows):
+            continue
         for k in subjects:
             hi = rows["high cold"]["ms"][k]
             print(f"| {scene} | {k} | {rows['medium']['ms'][k] / hi:.2f} | {rows['low']['ms'][k] / hi:.2f} |")

@@ -3,16 +3,22 @@
 For each scene (hard lights, ``high``, ``--structure bvh``) the rays the GPU traces are rebuilt
 from the frame's G-buffer (``core/oracle/rays.py``) and walked by the numpy mirror of the shader
 (``core/oracle/tracer/twolevel.py``, which visits the same nodes in the same order), counting per light:
-node steps per ray (top level and model trees; occluded and unoccluded rays apart), triangle
-tests, the model trees that take most of the steps, and the lock-step cost of llvmpipe's SIMD
-groups (each fragment-shader invocation runs 8 pixels, a 4x2 block, until its slowest ray is done:
-8 x the block's largest step count over the sum). With ``--orders`` it also re-lays every tree out
-with another child order (the stackless walk visits the first child first) and counts again:
+dependent fetches per ray (a node a step, then an instance record or a leaf's triangles where a
+step enters one: the chain a GPU thread waits on), node steps per ray (top level and model
+trees; occluded and unoccluded rays apart), triangle tests, the model trees that take most of
+the steps, the lock-step cost of llvmpipe's SIMD groups (each fragment-shader invocation runs 8
+pixels, a 4x2 block, until its slowest ray is done: 8 x the block's largest step count over the
+sum) and a GPU warp model: the mean share of active lanes in 32-lane groups of 8x4 pixels, each
+running as long as its slowest ray (fetches). Each scene also gets the surface-area (SAH) cost of
+its model trees (traversal and cluster test 1 each, per unit of the root's area) with this
+builder and with the Morton-run builder it replaced (``spatial_min=0``). With ``--orders`` it
+also re-lays every tree out with another child order (the stackless walk visits the first child first) and counts again:
 the current order, front-to-back along the sun's direction (suns only), low boxes first, high
 boxes first, larger boxes first. Deterministic (no timing): step counts are what the GPU walk
 executes, whatever the machine.
 
-    .venv/bin/python benchmarks/profile_traversal.py [forest clusters] [--size 320x180] [--orders]
+    .venv/bin/python benchmarks/profile_traversal.py [forest clusters city scaling:triangles=1000000]
+        [--size 320x180] [--orders]
 """
 from __future__ import annotations
 
@@ -40,6 +46,34 @@ def lane_waste(steps_img: np.ndarray, bw: int = 4, bh: int = 2) -> float:
     b = steps_img[: h // bh * bh, : w // bw * bw].reshape(h // bh, bh, w // bw, bw)
     tot = b.sum()
     return float(b.max(axis=(1, 3)).sum() * bw * bh / tot) if tot else 1.0
+
+
+def active_lanes(fetch_img: np.ndarray, bw: int = 8, bh: int = 4) -> float:
+    """The mean share of active lanes of ``bw`` x ``bh`` pixel groups that run until their
+    slowest ray is done (pixels without a ray are idle lanes): the sum of the work over the
+    groups' lanes times their longest."""
+    h, w = fetch_img.shape
+    b = fetch_img[: h // bh * bh, : w // bw * bw].reshape(h // bh, bh, w // bw, bw)
+    span = b.max(axis=(1, 3)).sum() * bw * bh
+    return float(b.sum() / span) if span else 1.0
+
+
+def sah_costs(scene, baked) -> str:
+    """The model trees' SAH cost (mean weighted by triangles; the largest model's) with this
+    builder and the one before."""
+    from hybrid_shadow_addon.core.bake.sah import sah_cost
+    from hybrid_shadow_addon.core.bake.structures.blas import BLAS_SPATIAL_MIN, build_blas, leaf_size
+
+    models = [m for m in scene.models if m.triangle_count]
+    if not models:
+        return "no meshes"
+    tc = np.array([m.triangle_count for m in models], np.float64)
+    big = int(np.argmax(tc))
+    out = []
+    for name, sm in (("binned SAH", BLAS_SPATIAL_MIN or 8), ("Morton runs (before)", 0)):
+        cost = sah_cost(build_blas(models, leaf_size(baked.config), spatial_min=sm).build)
+        out.append(f"{name}: {(cost * tc).sum() / tc.sum():.1f} (largest, {models[big].name}: {cost[big]:.1f})")
+    return "; ".join(out)
 
 
 def boxes(nodes: np.ndarray):
@@ -89,10 +123,20 @@ def tree_ranges(baked) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("scenes", nargs="*", default=["forest", "clusters"])
+    ap.add_argument("scenes", nargs="*", default=["forest", "clusters", "city", "scaling:triangles=1000000"])
     ap.add_argument("--size", default="320x180")
     ap.add_argument("--orders", action="store_true", help="also count the steps under other child orders")
+    ap.add_argument("--blas-spatial-min", type=int, default=None,
+                    help="bake the model trees with this spatial_min (0: the Morton-run builder before)")
+    ap.add_argument("--tlas-spatial-min", type=int, default=None,
+                    help="bake the top level with this spatial_min (4096: the builder before)")
     args = ap.parse_args(argv)
+    from hybrid_shadow_addon.core.bake.structures import blas, tlas
+
+    if args.blas_spatial_min is not None:
+        blas.BLAS_SPATIAL_MIN = args.blas_spatial_min
+    if args.tlas_spatial_min is not None:
+        tlas.TLAS_SPATIAL_MIN = args.tlas_spatial_min
     w, h = (int(v) for v in args.size.lower().split("x"))
     pipe = Pipeline()
     for spec in args.scenes:
@@ -105,10 +149,12 @@ def main(argv=None) -> int:
         n_tris = sum(mm.triangle_count for mm in scene.models)
         print(f"\n## {spec} {w}x{h}: {len(scene.instances)} instances, {len(scene.models)} models, "
               f"{n_tris} triangles\n")
-        print("| light | rays | occluded | steps/ray | occluded / unoccluded rays | top level / model trees "
-              "| triangle tests/ray | model trees by steps (share) | 4x2 lane waste |")
-        print("|---|---:|---:|---:|---:|---:|---:|---|---:|")
+        print(f"SAH cost of the model trees: {sah_costs(scene, baked)}\n")
+        print("| light | rays | occluded | fetches/ray | steps/ray | occluded / unoccluded rays | top level / model "
+              "trees | triangle tests/ray | model trees by steps (share) | 4x2 lane waste | 8x4 active lanes |")
+        print("|---|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|")
         rays = []
+        totals = np.zeros(2)
         for k, li in enumerate(frame.lights):
             light = scene.lights[li]
             m = frame.mask_array(k)
@@ -123,16 +169,23 @@ def main(argv=None) -> int:
             steps = stats["ray_iterations"]
             img = np.zeros(m.shape, np.int64)
             img[rows[facing], cols[facing]] = steps
+            fetches = stats["ray_fetches"]
+            fimg = np.zeros(m.shape, np.int64)
+            fimg[rows[facing], cols[facing]] = fetches
+            totals += (fetches.sum(), n)
             by = sorted(stats["tree_nodes"].items(), key=lambda kv: -kv[1])
             tot_b = max(stats["bvh_nodes"], 1)
             top = ", ".join(f"{scene.models[end_to_model[e]].name} {100 * c / tot_b:.0f}%" for e, c in by[:3]
                             if e in end_to_model)
             occ_s = f"{steps[occ].mean():.0f}" if occ.any() else "-"
             un_s = f"{steps[~occ].mean():.0f}" if (~occ).any() else "-"
-            print(f"| {light.name} | {n} | {100 * occ.mean():.0f}% | {steps.mean():.0f} | {occ_s} / {un_s} | "
-                  f"{stats['tlas_nodes'] / n:.0f} / {stats['bvh_nodes'] / n:.0f} | {stats['triangles'] / n:.1f} | "
-                  f"{top} | {lane_waste(img):.2f} |", flush=True)
+            print(f"| {light.name} | {n} | {100 * occ.mean():.0f}% | {fetches.mean():.0f} | {steps.mean():.0f} | "
+                  f"{occ_s} / {un_s} | {stats['tlas_nodes'] / n:.0f} / {stats['bvh_nodes'] / n:.0f} | "
+                  f"{stats['triangles'] / n:.1f} | {top} | {lane_waste(img):.2f} | {active_lanes(fimg):.2f} |",
+                  flush=True)
             rays.append((light, o[facing], d[facing], tmax[facing], occ, float(steps.mean())))
+        if totals[1]:
+            print(f"\nall lights: {totals[0] / totals[1]:.1f} dependent fetches per ray")
         if args.orders and rays:
             node = baked.textures["node"].linear()
             saved = node.copy()

@@ -50,12 +50,26 @@ uniform float hs_tlas_babs;
 uniform int hs_tlas_root;
 uniform int hs_tlas_end;
 
+// A node's six 16-bit corners as floats without an int-to-float conversion (a slow path on
+// many GPUs): the bits of 2^23 + q, less 2^23, are q exactly (precise: the subtraction is
+// not to be merged with the slab test's).
+vec3 hs_qlo(uvec4 n)
+{
+    precise vec3 q = uintBitsToFloat(uvec3(n.x & 0xFFFFu, n.x >> 16u, n.y & 0xFFFFu) | 0x4B000000u) - 8388608.0;
+    return q;
+}
+vec3 hs_qhi(uvec4 n)
+{
+    precise vec3 q = uintBitsToFloat(uvec3(n.y >> 16u, n.z & 0xFFFFu, n.z >> 16u) | 0x4B000000u) - 8388608.0;
+    return q;
+}
+
 // Slab test against a quantised node: box = integer corners, ray = (lo, hi) origin planes
 // (o_q + e, o_q - e: the box widened by e) and 1/d_q; far t scaled like hs_slab_hit.
 bool hs_qbox_hit(vec3 rlo, vec3 rhi, vec3 inv, uvec4 n, float tmax)
 {
-    vec3 blo = vec3(float(n.x & 0xFFFFu), float(n.x >> 16u), float(n.y & 0xFFFFu));
-    vec3 bhi = vec3(float(n.y >> 16u), float(n.z & 0xFFFFu), float(n.z >> 16u));
+    vec3 blo = hs_qlo(n);
+    vec3 bhi = hs_qhi(n);
     vec3 t1 = (blo - rlo) * inv;
     vec3 t2 = (bhi - rhi) * inv;
     vec3 tn3 = min(t1, t2), tf3 = max(t1, t2);

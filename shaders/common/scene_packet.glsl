@@ -104,8 +104,8 @@ float hs_cone_sin(float s) { return s * 1.0001 + 1.0e-6; }
 // Does any ray of cone c reach the quantised node n (box widened by c.e, as the single ray's)?
 bool hs_cone_box_hit(HsCone c, uvec4 n)
 {
-    vec3 blo = vec3(float(n.x & 0xFFFFu), float(n.x >> 16u), float(n.y & 0xFFFFu));
-    vec3 bhi = vec3(float(n.y >> 16u), float(n.z & 0xFFFFu), float(n.z >> 16u));
+    vec3 blo = hs_qlo(n);
+    vec3 bhi = hs_qhi(n);
     vec3 far = max(abs(blo - c.apex), abs(bhi - c.apex));
     float D = min(length(far) * 1.0001 + c.e, c.len);
     float rho = c.e + D * c.sin_a;

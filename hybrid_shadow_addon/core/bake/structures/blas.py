@@ -3,8 +3,9 @@ clusters of triangles, boxes quantised to 16 bits on a per-model grid, packed fo
 [leaf] of ``shaders/common/scene_bvh.glsl`` (see :mod:`.twolevel` for the whole structure).
 
 Triangles are Morton-sorted per model and cut into clusters of ``leaf_size`` consecutive
-triangles; the clusters are the leaves of a tree whose nodes of more than ``RUN_SAH_MIN``
-clusters split by SAH between equal runs of the Morton order (``sah.build_sah``). Node boxes are
+triangles; the clusters are the leaves of a tree whose nodes of more than ``BLAS_SPATIAL_MIN``
+clusters split by spatially binned SAH (``sah.build_sah``: 8 bins along the longest axis of the
+clusters' centroids), smaller ones at the middle of their Morton order. Node boxes are
 quantised on a per-model grid (origin ``base``, power-of-two step ``1 / inv_s``), floor / ceil of
 the exact float64 union, so the decoded box always holds its triangles.
 """
@@ -22,7 +23,7 @@ from ..textures import f32_down, f32_up
 QMAX = 65535
 QSPAN = 65000.0  # quanta a box spans at most (room for floor / ceil and the base rounding)
 LEAF_FLAG = np.uint32(1 << 31)
-SPATIAL_MIN = 4096  # top-level nodes larger than this split by spatially binned SAH
+BLAS_SPATIAL_MIN = 8  # model-tree nodes larger than this (clusters) split by spatially binned SAH
 RUN_SAH_MIN = 32  # nodes larger than this split by SAH over runs of their Morton order
 FRAME_MARGIN = 1.0 / 16.0  # top-level quantisation frame: scene box + this fraction per side
 TLAS_PAD = 2.0 ** -18  # relative padding of the top-level boxes (float32 inverse matrices)
@@ -98,11 +99,13 @@ class BlasBuild:
     uv4: np.ndarray = None  # (texels, 4) float32 UVs at the triangles' texels (6 per triangle), or None
 
 
-def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None) -> BlasBuild:
+def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None, spatial_min: int | None = None) -> BlasBuild:
     """Model trees of ``models``; ``uv_models`` (bool per model): pack those models' UVs into
     ``uv4`` at the same texels as their triangles (the any-hit alpha test reads them).
     ``alloc(texels, want_uv)``: where to write ``tri4`` / ``uv4`` (zeroed (texels, 4) float32
-    views, e.g. into the textures; the second None unless ``want_uv``); default new arrays."""
+    views, e.g. into the textures; the second None unless ``want_uv``); default new arrays.
+    ``spatial_min``: nodes of more clusters split by spatially binned SAH (None:
+    :data:`BLAS_SPATIAL_MIN`; 0: SAH between runs of the Morton order only, the builder before)."""
     M = len(models)
     L = int(min(max(leaf_size, 1), 4))
     tc = np.array([m.triangle_count for m in models], np.int64)
@@ -159,7 +162,8 @@ def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None) -> BlasBu
     else:
         cmn = cmx = np.zeros((0, 3))
     checkpoint()
-    tree = build_sah(cmn, cmx, c0, ncl, leaf_size=1, bins=8, sah_min=RUN_SAH_MIN)
+    sm = BLAS_SPATIAL_MIN if spatial_min is None else int(spatial_min)
+    tree = build_sah(cmn, cmx, c0, ncl, leaf_size=1, bins=8, sah_min=RUN_SAH_MIN, spatial_min=sm)
     checkpoint()
     # model frames
     lo = np.zeros((M, 3))

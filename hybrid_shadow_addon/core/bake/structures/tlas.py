@@ -6,7 +6,11 @@ import numpy as np
 
 from ..bvh import _morton3
 from ..sah import build_sah
-from .blas import FRAME_MARGIN, LEAF_FLAG, QMAX, RUN_SAH_MIN, SPATIAL_MIN, pack_nodes, quant_frame, quantise
+from .blas import FRAME_MARGIN, LEAF_FLAG, QMAX, RUN_SAH_MIN, pack_nodes, quant_frame, quantise
+
+#: top-level nodes of more instances than this split by spatially binned SAH, smaller ones between
+#: runs of their Morton order (above RUN_SAH_MIN) or at its middle
+TLAS_SPATIAL_MIN = 2
 
 
 def tree_depths(left, right) -> np.ndarray:
@@ -64,7 +68,7 @@ class TopLevel:
             q = np.clip((c - cmin) * (1023.0 / np.maximum((cmax - cmin).max(), 1e-30)), 0, 1023).astype(np.uint32)
             mem = mem[np.argsort(_morton3(q), kind="stable")]
             sb = build_sah(box_lo[mem], box_hi[mem], [0], [n], leaf_size=1, bins=16, sah_min=RUN_SAH_MIN,
-                           spatial_min=SPATIAL_MIN)
+                           spatial_min=TLAS_SPATIAL_MIN)
             cnt = int(sb.node_count[0])
             lo, hi = sb.node_min[0], sb.node_max[0]  # the root: the exact union of the member boxes
             margin = FRAME_MARGIN * (hi - lo).max()  # room for moves before the frame must change

@@ -48,8 +48,10 @@ def trace_twolevel(baked, origins, dirs, tmax=np.inf, stats: dict | None = None)
     """The two-level walk of ``shaders/common/scene_bvh.glsl``, all rays at once. ``stats``
     (when given) gets totals of node steps (``iterations``: top level ``tlas_nodes`` + model
     trees ``bvh_nodes``), instances entered and triangle tests; with ``stats["per_ray"]`` True
-    also each ray's node steps (``ray_iterations``) and the model-tree node steps and triangle
-    tests per model tree (``tree_nodes``, ``tree_triangles``: keyed by the tree's end node)."""
+    also each ray's node steps (``ray_iterations``), its dependent fetches (``ray_fetches``: a
+    node a step, then an instance record or a leaf's triangles where the step enters one) and
+    the model-tree node steps and triangle tests per model tree (``tree_nodes``,
+    ``tree_triangles``: keyed by the tree's end node)."""
     o, d, tm, valid = prepare_rays(bake_space(baked, origins), dirs, tmax)
     N = len(o)
     occ = np.zeros(N, bool)
@@ -58,6 +60,7 @@ def trace_twolevel(baked, origins, dirs, tmax=np.inf, stats: dict | None = None)
         stats.update({"iterations": 0, "tlas_nodes": 0, "bvh_nodes": 0, "objects": 0, "triangles": 0})
     if per_ray:  # (N,) node steps of each ray; model-tree node steps and triangle tests per tree
         ray_steps = stats["ray_iterations"] = np.zeros(N, np.int64)
+        ray_fetches = stats["ray_fetches"] = np.zeros(N, np.int64)
         tree_nodes = stats["tree_nodes"] = {}
         tree_tris = stats["tree_triangles"] = {}
     t = baked.textures
@@ -100,6 +103,7 @@ def trace_twolevel(baked, origins, dirs, tmax=np.inf, stats: dict | None = None)
             stats["bvh_nodes"] += int((~in_tlas).sum())
         if per_ray:
             ray_steps[act] += 1
+            ray_fetches[act] += 1 + (hit & leaf)  # (the node; an instance record or a leaf's triangles)
             _count_by(tree_nodes, bend[act][~in_tlas])
         nxt = np.where(hit | leaf, i[act] + 1, w.astype(np.int64))
         pay = (w & np.uint32(0x7FFFFFFF)).astype(np.int64)
