@@ -71,7 +71,7 @@ def _area3(lo, hi):
 
 
 def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, bins: int = 16,
-              sah_min: int = 16, spatial_min: int = 0) -> SAHBuild:
+              sah_min: int = 16, spatial_min: int = 0, run_bins: int | None = None) -> SAHBuild:
     """Trees, one per group ``g`` over items ``[group_start[g], + group_count[g])``, the items of
     each group in Morton order. Nodes with more than ``spatial_min`` items (0: none) split by
     spatially binned SAH (``bins`` bins along the longest centroid axis, stable partition);
@@ -95,6 +95,10 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
     cmn, cmx = mnT[:, :N], mxT[:, :N]  # views
     perm = np.arange(N, dtype=np.int64)
     B = int(bins)
+    RB = B if run_bins is None else int(run_bins)
+    # where no node splits between runs of the current order, the item boxes stay in item order
+    # (read through perm) until the leaves want them in leaf order: no scatter per depth
+    boxes_in_item_order = 0 < spatial_min <= max(sah_min, RB)
     L = max(1, int(leaf_size))
     levels = []
     has = gc > 0
@@ -121,8 +125,10 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
             def per_item(v, ci=ci):  # a value per node, repeated for its items (v[o], faster)
                 return np.repeat(v, ci)
 
-            imn = np.take(cmn, pos, axis=1)  # (take: a gather several times faster than cmn[:, pos])
-            imx = np.take(cmx, pos, axis=1)
+            ids = np.take(perm, pos)
+            src = ids if boxes_in_item_order else pos
+            imn = np.take(cmn, src, axis=1)  # (take: a gather several times faster than cmn[:, pos])
+            imx = np.take(cmx, src, axis=1)
             ce = imn + imx  # twice the centroids (the bins are the same)
             cmin = np.minimum.reduceat(ce, st_i, axis=1).T
             cmax = np.maximum.reduceat(ce, st_i, axis=1).T
@@ -166,14 +172,15 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
             csum -= left
             rl = csum - per_item(csum[st_i])
             newpos = per_item(ss) + np.where(left, rl, per_item(nlb) + (rank - rl))
-            perm[newpos] = np.take(perm, pos)
-            for k in range(3):  # (row by row: a scatter several times faster than cmn[:, newpos])
-                cmn[k, newpos] = imn[k]
-                cmx[k, newpos] = imx[k]
+            perm[newpos] = ids
+            if not boxes_in_item_order:
+                for k in range(3):  # (row by row: a scatter several times faster than cmn[:, newpos])
+                    cmn[k, newpos] = imn[k]
+                    cmx[k, newpos] = imx[k]
             nleft[big] = nlb
-        run = (ci_all > max(sah_min, B)) & ~big
+        run = (ci_all > max(sah_min, RB)) & ~big
         if run.any():
-            nleft[run] = _run_split(mnT, mxT, s[inner][run], ci_all[run], B)
+            nleft[run] = _run_split(mnT, mxT, s[inner][run], ci_all[run], RB)
         # the next depth in pre-order too: the children of inner node k at 2 k (left), 2 k + 1
         si = s[inner]
         s = np.empty(2 * inner.size, np.int64)
@@ -183,6 +190,9 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
         grp = np.repeat(grp[inner], 2)
         lv["kids"] = inner
     checkpoint()
+    if boxes_in_item_order and N:
+        mnT[:, :N] = np.take(mnT[:, :N], perm, axis=1)
+        mxT[:, :N] = np.take(mxT[:, :N], perm, axis=1)
     # subtree sizes, bottom up
     sizes = [None] * len(levels)
     for d in range(len(levels) - 1, -1, -1):
