@@ -1,18 +1,18 @@
-"""Core scenes of a loaded bpy scene, frame by frame: the current frame
-(:func:`current_scene`) and its animation (:class:`BlenderFrames`, the frame source of the
+"""Core scenes of a loaded bpy scene as a final render evaluates them, frame by frame: the
+current frame (:func:`current_scene`) and its animation (:class:`BlenderFrames`, the frame source of the
 ``bench`` tool and of ``render --frames``)."""
 from __future__ import annotations
 
 import bpy
 
 from ..core.scene import Scene
-from .export import export_depsgraph
+from .render_eval import render_scene
 
 
 def current_scene(*, resolution=None) -> Scene:
-    """The validated core scene of the context's scene at its current frame (``resolution``
-    overrides the render settings')."""
-    return export_depsgraph(bpy.context.evaluated_depsgraph_get(), resolution=resolution).validate()
+    """The validated core scene of the context's scene at its current frame, as a final render
+    evaluates it (``resolution`` overrides the render settings')."""
+    return render_scene(bpy.context.scene, resolution=resolution)
 
 
 class BlenderFrames:

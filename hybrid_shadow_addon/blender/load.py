@@ -24,7 +24,7 @@ import bpy
 
 from ..core.errors import SceneError, SceneLoadError
 from ..core.scene import Scene
-from .export import export_depsgraph
+from .render_eval import render_scene
 
 #: The built-in scene scripts (the repository's ``test_scenes/``, sibling of the package).
 SCENES_DIR = Path(__file__).resolve().parents[2] / "test_scenes"
@@ -111,7 +111,6 @@ def open_scene(arg: str, frame: int | None = None):
 
 
 def load_scene(arg: str, *, frame: int | None = None) -> Scene:
-    """Load a scene argument and export it (evaluated at ``frame`` when given) to a validated
-    core :class:`Scene`."""
-    open_scene(arg, frame)
-    return export_depsgraph(bpy.context.evaluated_depsgraph_get()).validate()
+    """Load a scene argument and export it (evaluated at ``frame`` when given, as a final render
+    evaluates it: :func:`.render_eval.render_scene`) to a validated core :class:`Scene`."""
+    return render_scene(open_scene(arg, frame))
