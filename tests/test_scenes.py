@@ -28,6 +28,7 @@ SMALL = {
     "linking": "linking",
     "see_through": "see_through",
     "hair": "hair:hair=60,strands=40,points=50",
+    "render_settings": "render_settings",
 }
 # the shading-normal scenes and third-party models (against Cycles in test_real_meshes.py)
 SMALL.update({n: n for n in ("normals/smooth_primitives", "normals/weighted_normals", "normals/custom_split",
