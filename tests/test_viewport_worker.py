@@ -15,12 +15,10 @@ import pytest
 from hybrid_shadow_addon.blender import gl  # bpy-free: the context hygiene of Blender's threads
 from hybrid_shadow_addon.core.gpu.context import software_renderer
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.gpu.viewport_share import SharedRegistry, SharedViewport, UpdateRounds
 from hybrid_shadow_addon.core.gpu.worker import (
     RenderRequest,
     RenderWorker,
-    SharedRegistry,
-    SharedViewport,
-    UpdateRounds,
     fast_settings,
     refine_frames,
     snapshot,

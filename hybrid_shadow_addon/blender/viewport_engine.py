@@ -5,7 +5,7 @@ Rendering happens off the draw callback and out of Blender's process, in a rende
 holds Python's lock, and its frames arrive as half floats, flipped and wrapped in a
 ``gpu.types.Buffer`` on the receiving thread, so the draw callback only uploads them). The
 viewports of one scene, view layer and local view share one (:data:`_registry`: a
-:class:`~..core.gpu.worker.SharedViewport` with the worker and one
+:class:`~..core.gpu.viewport_share.SharedViewport` with the worker and one
 :class:`~.viewport.ViewportSync`, released with its last engine); each engine is a view of its own
 there (camera, size, render targets, interlacing and soft-shadow history). The main thread does
 everything that touches bpy (export, ``depsgraph.updates``: applied once for all the engines that
@@ -36,7 +36,8 @@ from ..core.errors import HybridShadowError
 from ..core.gpu import worker as worker_mod
 from ..core.gpu.debug_views import DebugView
 from ..core.gpu.remote import RemoteWorker
-from ..core.gpu.worker import RenderRequest, RenderWorker, SharedRegistry, SharedViewport
+from ..core.gpu.viewport_share import SharedRegistry, SharedViewport
+from ..core.gpu.worker import RenderRequest, RenderWorker
 from . import gl
 from .export.curves import TUBES
 from .final_render import settings_label
