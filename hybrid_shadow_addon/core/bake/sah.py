@@ -71,7 +71,7 @@ def _area3(lo, hi):
 
 
 def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, bins: int = 16,
-              sah_min: int = 16, spatial_min: int = 0, run_bins: int | None = None) -> SAHBuild:
+              sah_min: int = 16, spatial_min: int = 0) -> SAHBuild:
     """Trees, one per group ``g`` over items ``[group_start[g], + group_count[g])``, the items of
     each group in Morton order. Nodes with more than ``spatial_min`` items (0: none) split by
     spatially binned SAH (``bins`` bins along the longest centroid axis, stable partition);
@@ -95,10 +95,9 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
     cmn, cmx = mnT[:, :N], mxT[:, :N]  # views
     perm = np.arange(N, dtype=np.int64)
     B = int(bins)
-    RB = B if run_bins is None else int(run_bins)
     # where no node splits between runs of the current order, the item boxes stay in item order
     # (read through perm) until the leaves want them in leaf order: no scatter per depth
-    boxes_in_item_order = 0 < spatial_min <= max(sah_min, RB)
+    boxes_in_item_order = 0 < spatial_min <= max(sah_min, B)
     L = max(1, int(leaf_size))
     levels = []
     has = gc > 0
@@ -178,9 +177,9 @@ def build_sah(item_min, item_max, group_start, group_count, leaf_size: int = 4, 
                     cmn[k, newpos] = imn[k]
                     cmx[k, newpos] = imx[k]
             nleft[big] = nlb
-        run = (ci_all > max(sah_min, RB)) & ~big
+        run = (ci_all > max(sah_min, B)) & ~big
         if run.any():
-            nleft[run] = _run_split(mnT, mxT, s[inner][run], ci_all[run], RB)
+            nleft[run] = _run_split(mnT, mxT, s[inner][run], ci_all[run], B)
         # the next depth in pre-order too: the children of inner node k at 2 k (left), 2 k + 1
         si = s[inner]
         s = np.empty(2 * inner.size, np.int64)

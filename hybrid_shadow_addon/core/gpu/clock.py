@@ -18,7 +18,7 @@ import time
 from collections.abc import Callable
 from contextlib import contextmanager
 
-from .context import software_renderer
+from .context import software_context
 
 
 class _Span:
@@ -34,9 +34,8 @@ class _Span:
 class GpuClock:
     def __init__(self, ctx):
         self.ctx = ctx
-        info = getattr(ctx, "info", None) or {}
         #: whether this context's timer queries measure its work
-        self.queries = not software_renderer(info.get("GL_RENDERER", ""))
+        self.queries = not software_context(ctx)
         #: this frame's spans are read at the next frame's start (set per frame by the pipeline)
         self.deferred = False
         self._open: list = []  # the deferred spans open, innermost last

@@ -144,6 +144,12 @@ def software_renderer(renderer: str) -> bool:
     return any(k in name for k in SOFTWARE_RENDERERS)
 
 
+def software_context(ctx) -> bool:
+    """Whether ``ctx`` (a moderngl context, or anything with its ``info``) rasterises on the CPU
+    (:func:`software_renderer` of its ``GL_RENDERER``)."""
+    return software_renderer((getattr(ctx, "info", None) or {}).get("GL_RENDERER", ""))
+
+
 def check_render_size(ctx: moderngl.Context, width: int, height: int, what: str = "render") -> None:
     """GPUError when a ``width`` x ``height`` target exceeds the GPU's limits."""
     lim = gpu_limits(ctx)

@@ -12,7 +12,6 @@ if TYPE_CHECKING:
     from .worker import RenderWorker
 
 
-# ------------------------------------------------------------------------------------------------
 class UpdateRounds:
     """Which users (engine instances) consumed the current update: every viewport's engine
     receives the same ``depsgraph.updates``; only the first applies them. ``key`` identifies

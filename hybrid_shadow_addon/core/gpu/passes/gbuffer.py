@@ -31,7 +31,7 @@ import numpy as np
 
 from ...errors import SceneError
 from ...scene import max_scale
-from ..context import check_render_size, software_renderer
+from ..context import check_render_size, software_context
 from ..frame import GBUFFER_TARGETS, CameraUniforms, GBuffer
 from ..geometry import (
     INDEXED_ATTRS,
@@ -160,7 +160,7 @@ class GBufferPass(Pass):
         # big models drawn by chunks, those outside the view left out, on a software rasteriser
         # (it shades vertices and sets up triangles on one thread, culled or not); a GPU draws
         # them whole in one call (tests compare the two)
-        self.chunked = software_renderer((getattr(self.ctx, "info", None) or {}).get("GL_RENDERER", ""))
+        self.chunked = software_context(self.ctx)
         self.triangles = 0  # triangles drawn by the last render (instances x triangles of each draw)
         self._frame_programs: dict = {}  # smooth -> (program, textured program): this render's
         self._alpha_sample = None  # this render's see-through sample index (None: the 0.5 cut)

@@ -35,7 +35,7 @@ from dataclasses import asdict
 import moderngl
 
 from ...errors import GPUError
-from ..context import software_renderer
+from ..context import software_context
 from ..lights import light_ray_uniforms, soft_shape
 from ..programs import COMPUTE_GL
 from ..targets import TargetCache, draw_fullscreen
@@ -62,7 +62,7 @@ class RaytracePass(ShadowPass):
         self.trace = TraceProgram(gpu)
         self.refiner = Refiner(gpu)
         self.queue = RayQueue(gpu) if self.ctx.version_code >= COMPUTE_GL else None
-        self._software = software_renderer(self.ctx.info.get("GL_RENDERER", ""))
+        self._software = software_context(self.ctx)
         self.refiner.queue = self.queue
         self._options = options or RaytraceOptions()
         self.reuse = MaskReprojection(gpu, self.refiner)
