@@ -132,6 +132,20 @@ def test_a_final_render_gives_its_memory_back(loaded, final):
     assert np.array_equal(again.image, kept.image)
 
 
+def test_ten_final_renders_end_where_the_first_did(loaded, final):
+    """Ten F12 renders in one session: after each, the renderer process's resident memory (and
+    the driver's figure of video memory, where it reports one) is within 5 % of its level after
+    the first, and no GL object was dropped without release."""
+    scene = loaded("soft_lights")
+    stats = [final.render(scene, Settings(samples=4), *SIZE, want=("depth",)).stats for _ in range(10)]
+    assert all(s["gpu_dropped"] == 0 and s["gpu_memory_after_mb"] == 0.0 for s in stats), stats
+    for key in ("process_rss_mb", "gpu_driver_used_mb"):
+        first = stats[0][key]
+        if first is None:
+            continue
+        assert max(s[key] for s in stats[1:]) <= 1.05 * first, [s[key] for s in stats]
+
+
 def test_an_animation_with_persistent_data_reuses_hard_masks_when_told_to(loaded, final):
     """With persistent data and ``reuse``, the next frame keeps the hard masks' history (held
     between frames) and stays within the reuse's bound of a fresh frame; without ``reuse``

@@ -457,6 +457,7 @@ class Pipeline:
             "trace_path": shadow_stats.get("trace_path"),
             **host.since(start),
         }
+        memory.collect(self.ctx)  # (what was dropped unreleased, and moderngl's husks of released objects)
         return Frame(image=image, masks=job.masks, lights=job.lights, timings=timings, stats=stats,
                      gbuffer=job.gbuffer)
 
@@ -506,3 +507,4 @@ class Pipeline:
         self._st.release()
         if self._owns_gpu:
             self.gpu.release()
+        memory.collect(self.ctx)

@@ -119,8 +119,15 @@ class FinalJobs:
             data.stats.update(bake=kind, gpu_memory_before_mb=round(before / MB, 1),
                               gpu_peak_mb=round(ledger.peak / MB, 1))
             self._free(pipe, keep_bake=options.get("persistent_key") is not None, keep_history=keep)
-            data.stats["gpu_memory_after_mb"] = round(ledger.bytes / MB, 1)
+            memory.collect(pipe.ctx)
+            memory.trim_heap()
+            driver = memory.driver_memory(pipe.ctx)
+            data.stats.update(gpu_memory_after_mb=round(ledger.bytes / MB, 1), gpu_dropped=len(ledger.dropped),
+                              process_rss_mb=memory.process_rss_mb(),
+                              gpu_driver_used_mb=None if driver is None else driver.get("used_mb"))
             self.send(("final", job, data, None))
+            del data, frame
+            memory.trim_heap()
         except BaseException as exc:  # noqa: BLE001 - the caller gets every failure
             if self.pipe is not None:
                 try:
