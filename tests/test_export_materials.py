@@ -227,6 +227,51 @@ def test_colour_and_alpha_images(scene):
     np.testing.assert_array_equal(s.models[0].uvs, _bpy_uvs("q"))
 
 
+def _write_png16(path, rgba16):
+    """A 16-bit RGBA PNG of ``rgba16`` (H, W, 4) uint16, row 0 at the top."""
+    import struct
+    import zlib
+
+    h, w = rgba16.shape[:2]
+    rows = b"".join(b"\x00" + rgba16[y].astype(">u2").tobytes() for y in range(h))
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 6, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
+
+
+def test_a_float_image_keeps_its_values(scene, tmp_path):
+    """A float image, and a 16-bit PNG (Blender holds both as floats), are exported as float32,
+    unquantised: an alpha compared with a clip threshold keeps its side of it."""
+    img = bpy.data.images.new("floaty", 8, 4, alpha=True, float_buffer=True)
+    img.colorspace_settings.name = "Non-Color"
+    px = np.random.default_rng(0).random((4, 8, 4)).astype(np.float32)
+    img.pixels.foreach_set(px.ravel())
+    path = tmp_path / "sixteen.png"
+    alpha16 = np.random.default_rng(1).integers(0, 65536, (4, 8), np.uint16)
+    _write_png16(path, np.dstack([alpha16] * 4))
+    sixteen = bpy.data.images.load(str(path))
+    sixteen.colorspace_settings.name = "Non-Color"
+    assert sixteen.is_float
+    for k, image in enumerate((img, sixteen)):
+        mat, _ = _textured(f"M{k}", image)
+        me = _quad(f"q{k}")
+        me.materials.append(mat)
+        add_object(f"Q{k}", me, location=(2 * k, 0, 0))
+    s = export_scene()
+    s.validate()
+    by_name = {i.name: i for i in s.images}
+    got = by_name["floaty"]
+    assert got.is_float and got.pixels.dtype == np.float32 and not got.srgb
+    np.testing.assert_array_equal(got.pixels, np.clip(px, 0, 1))
+    got16 = by_name[sixteen.name]
+    assert got16.is_float
+    np.testing.assert_allclose(got16.pixels[..., 3], alpha16[::-1] / 65535.0, atol=1e-6)
+    assert not np.allclose(got16.pixels[..., 3] * 255, np.round(got16.pixels[..., 3] * 255), atol=1e-3)
+
+
 def test_alpha_from_the_colour_output_is_luma(scene):
     img, _ = _image()
     mat, _ = _textured("Luma", img, color=False, alpha="Color")

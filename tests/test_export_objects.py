@@ -228,6 +228,32 @@ def test_camera_visibility_holdout_and_indirect_only(scene, render_visibility):
         "HoleGhost": (True, True, True)}
 
 
+def test_an_unreadable_indirect_only_is_reported():
+    """Where the view layer's Indirect Only (or holdout) cannot be read, the export says so once
+    per object and draws the object as the camera sees it (its own holdout kept)."""
+    import warnings
+    from types import SimpleNamespace
+
+    from hybrid_shadow_addon.blender.export import ExportWarning
+    from hybrid_shadow_addon.blender.export.ray_visibility import RayVisibility
+
+    def fails(**_kw):
+        raise RuntimeError("no such layer")
+
+    orig = SimpleNamespace(name="Ghost", is_holdout=True, holdout_get=fails, indirect_only_get=fails,
+                           as_pointer=lambda: 7)
+    ob = SimpleNamespace(original=orig, visible_camera=True, visible_shadow=True, as_pointer=lambda: 8)
+    vis = RayVisibility(SimpleNamespace(view_layer=object()))
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        flags = vis.flags(ob)
+        assert vis.flags(ob) is flags
+    said = [str(w.message) for w in rec if issubclass(w.category, ExportWarning)]
+    assert (flags.camera, flags.shadow, flags.holdout) == (True, True, True)
+    assert len(said) == 2 and all("'Ghost'" in m for m in said), said
+    assert "Indirect Only could not be read" in said[1] and "holdout could not be read" in said[0]
+
+
 def test_collection_instances_combine_their_instancers_flags(scene):
     """Cycles ANDs an instance's camera and shadow visibility with its instancer's and takes
     holdout from the instancer alone."""

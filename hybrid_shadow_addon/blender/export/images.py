@@ -51,7 +51,8 @@ PIXELS = PixelCache()
 
 
 def image_pixels(image) -> tuple | None:
-    """``(pixels (H, W, C) uint8, srgb)`` of an image as stored (row 0 at the bottom), via
+    """``(pixels (H, W, C), srgb)`` of an image as stored (row 0 at the bottom): uint8 bytes, or
+    float32 in [0, 1] for a float or 16-bit image (``Image.is_float``); via
     ``pixels.foreach_get``; None when it has no pixels (a missing file). Through :data:`PIXELS`
     while it is active."""
     if PIXELS.active:
@@ -79,8 +80,13 @@ def _read_pixels(image) -> tuple | None:
     except (RuntimeError, ReferenceError, ValueError, TypeError):
         return None
     buf = np.fmin(np.fmax(buf, 0.0), 1.0)  # NaN -> 0
-    px = (buf * 255.0 + 0.5).astype(np.uint8).reshape(h, w, ch)
+    if image.is_float:  # (float and 16-bit files): kept as float, so an alpha keeps its threshold
+        px = buf.reshape(h, w, ch)
+        one = 1.0
+    else:
+        px = (buf * 255.0 + 0.5).astype(np.uint8).reshape(h, w, ch)
+        one = 255
     if ch == 4 and getattr(image, "alpha_mode", "STRAIGHT") == "NONE":
-        px[..., 3] = 255
+        px[..., 3] = one
     return px, _is_srgb(image)
 

@@ -6,7 +6,8 @@ the camera sees, which cast shadows, which are holdouts, and whether an emitter 
 - Holdout (``Object.is_holdout`` or a holdout collection of the view layer:
   ``Object.holdout_get``) and indirect-only (``indirect_only_get``) come from the instancer alone,
   as Cycles takes them from ``b_parent``; indirect-only clears camera visibility only (a shadow ray
-  still meets the object) and does not apply to a holdout.
+  still meets the object) and does not apply to a holdout. Where the view layer's setting cannot
+  be read, the export says so (and uses the object's own holdout, and no indirect-only).
 - An instancer (particles, instancing, geometry-nodes instances) whose Show Instancer is off
   shows no geometry of its own (``DepsgraphObjectInstance.show_self``; an export of what F12
   renders from a viewport depsgraph reads ``show_instancer_for_render`` instead).
@@ -14,6 +15,8 @@ the camera sees, which cast shadows, which are holdouts, and whether an emitter 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+from .common import warn_export
 
 
 @dataclass(frozen=True)
@@ -50,15 +53,19 @@ class RayVisibility:
         key = orig.as_pointer()
         got = self.layer_of.get(key)
         if got is None:
-            holdout = indirect = False
+            holdout = bool(getattr(orig, "is_holdout", False))
+            indirect = False
             if self.view_layer is not None:
                 try:
                     holdout = bool(orig.holdout_get(view_layer=self.view_layer))
+                except (AttributeError, RuntimeError, TypeError) as exc:
+                    warn_export(f"object '{orig.name}': its view layer's holdout could not be read ({exc}); "
+                                f"the object's own Holdout ({'on' if holdout else 'off'}) is used")
+                try:
                     indirect = bool(orig.indirect_only_get(view_layer=self.view_layer))
-                except (AttributeError, RuntimeError, TypeError):
-                    holdout = bool(getattr(orig, "is_holdout", False))
-            else:
-                holdout = bool(getattr(orig, "is_holdout", False))
+                except (AttributeError, RuntimeError, TypeError) as exc:
+                    warn_export(f"object '{orig.name}': its view layer's Indirect Only could not be read ({exc}); "
+                                f"the object is drawn as the camera sees it")
             got = self.layer_of[key] = (holdout, indirect and not holdout)
         return got
 

@@ -50,9 +50,11 @@ def srgb_encode(c: np.ndarray) -> np.ndarray:
 
 def mip_chain(pixels: np.ndarray, srgb: bool, levels: int | None = None) -> list:
     """Level 0 (the image) and its 2x2 box-filtered reductions down to 1x1 (or ``levels``),
-    uint8 (H, W, 4) each. sRGB colour is averaged in linear light; alpha linearly."""
+    (H, W, 4) each in the image's dtype (uint8, or float32 kept unquantised). sRGB colour is
+    averaged in linear light; alpha linearly."""
     out = [pixels]
-    cur = pixels.astype(np.float64) / 255.0
+    byte = pixels.dtype == np.uint8
+    cur = pixels.astype(np.float64) / (255.0 if byte else 1.0)
     if srgb:
         cur[..., :3] = srgb_decode(cur[..., :3])
     limit = MAX_LEVELS if levels is None else levels
@@ -65,7 +67,8 @@ def mip_chain(pixels: np.ndarray, srgb: bool, levels: int | None = None) -> list
         lvl = cur.copy()
         if srgb:
             lvl[..., :3] = srgb_encode(lvl[..., :3])
-        out.append(np.round(np.clip(lvl, 0, 1) * 255.0).astype(np.uint8))
+        lvl = np.clip(lvl, 0, 1)
+        out.append(np.round(lvl * 255.0).astype(np.uint8) if byte else lvl.astype(np.float32))
     return out
 
 
@@ -107,7 +110,7 @@ def material_signature(scene) -> tuple:
 
 @dataclass
 class MaterialBake:
-    atlas: TextureData  # RGBA8 "f1", (layers, S, S, 4)
+    atlas: TextureData  # RGBA8 "f1" (RGBA32F "f4" when an image is float), (layers, S, S, 4)
     mat: TextureData  # RGBA32UI records
     image_record: np.ndarray  # (I,) first [mat] texel of each image's record (-1: unused)
     alpha_slot: np.ndarray  # (K,) per material: 1 + its index when it cuts shadows, else 0
@@ -157,9 +160,12 @@ def bake_materials(scene, width: int, layer_size: int = DEFAULT_LAYER_SIZE) -> M
     side = max(side, min(layer_size, 1 << max(0, int(np.ceil(np.sqrt(max(area, 1)))) - 1).bit_length()))
     pos = shelf_pack(sizes, side) if rects else np.zeros((0, 3), np.int64)
     n_layers = int(pos[:, 2].max()) + 1 if len(pos) else 1
-    atlas = np.zeros((n_layers, side, side, 4), np.uint8)
+    # RGBA8 unless an image is float: then every image as RGBA32F (bytes / 255, as GL reads them)
+    floats = any(levels[i][0].dtype != np.uint8 for i in levels)
+    atlas = np.zeros((n_layers, side, side, 4), np.float32 if floats else np.uint8)
     for (i, level), (x, y, lay), (w, h) in zip(rects, pos.tolist(), sizes):
-        atlas[lay, y:y + h, x:x + w] = levels[i][level]
+        px = levels[i][level]
+        atlas[lay, y:y + h, x:x + w] = px / np.float32(255.0) if floats and px.dtype == np.uint8 else px
     # records: materials, then images
     image_record = np.full(len(images), -1, np.int64)
     nxt = MAT_TEXELS * len(mats)
@@ -192,8 +198,9 @@ def bake_materials(scene, width: int, layer_size: int = DEFAULT_LAYER_SIZE) -> M
             x, y, lay = at[(i, level)]
             lin[r + 1 + level] = (x, y, lay, px.shape[1] | (px.shape[0] << 16))
     rec.used = nxt
-    return MaterialBake(TextureData("atlas", atlas, "f1", n_layers * side * side), rec, image_record, alpha_slot,
-                        (time.perf_counter() - t0) * 1e3, material_signature(scene))
+    atlas_data = TextureData("atlas", atlas, "f4" if floats else "f1", n_layers * side * side)
+    return MaterialBake(atlas_data, rec, image_record, alpha_slot, (time.perf_counter() - t0) * 1e3,
+                        material_signature(scene))
 
 
 def model_uvs(model) -> np.ndarray:

@@ -38,14 +38,14 @@ class SeeThroughScene:
         got = self._fractional.get(key)
         if got is not None and got[0] is image.pixels:
             return got[1]
-        px = np.asarray(image.pixels)
+        px = image.values()
         if channel == "LUMA":
-            rgb = px[..., :3].astype(np.float32) / 255.0
+            rgb = px[..., :3]
             v = (srgb_decode(rgb) if image.srgb else rgb) @ np.asarray(LUMA, np.float64)
             frac = bool(((v > 1e-6) & (v < 1.0 - 1e-6)).any())
         else:
             a = px[..., 3]
-            frac = bool(((a > 0) & (a < 255)).any())
+            frac = bool(((a > 0) & (a < 1)).any())
         if len(self._fractional) > 256:
             self._fractional.clear()
         self._fractional[key] = (image.pixels, frac)

@@ -10,7 +10,7 @@ Everything follows the rules documented on :class:`core.scene.Image` and
   weighs the 4x4 nearest with Cycles' cubic B-spline (``kernel/device/cpu/image.h``).
   ``REPEAT`` wraps the index, ``EXTEND`` clamps it, ``MIRROR`` reflects it (period 2W),
   ``CLIP`` gives (0, 0, 0, 0) for a UV outside [0, 1) and, for ``"Linear"`` and ``"Cubic"``,
-  reads texels beyond the image as transparent black. Values are the stored bytes / 255 (no colour-space
+  reads texels beyond the image as transparent black. Values are the stored ones in [0, 1] (no colour-space
   decoding; a non-finite UV samples (0, 0, 0, 0)).
 - :func:`material_alpha`: the material's alpha at mesh UVs (its ``uv_transform`` applied).
 - :func:`transmittance`: what a shadow ray keeps crossing the surface: 0 when opaque (no
@@ -64,12 +64,12 @@ def _bspline(t: np.ndarray) -> np.ndarray:
 
 def sample_image(image, uv, interpolation=None) -> np.ndarray:
     """(N, 4) float64 RGBA of ``image`` (a :class:`core.scene.Image`) at ``uv`` (N, 2), the
-    stored values / 255 (sRGB colour channels are *not* decoded here), with the image's
+    stored values in [0, 1] (``Image.values``; sRGB colour channels are *not* decoded here), with the image's
     interpolation or ``interpolation``."""
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
-    px = np.asarray(image.pixels)
+    px = image.values()
     H, W = int(px.shape[0]), int(px.shape[1])
-    tex = px.reshape(H * W, -1).astype(np.float64) / 255.0
+    tex = px.reshape(H * W, -1)
     ext = str(image.extension).upper()
     interp = str(interpolation or image.interpolation).capitalize()
     n = len(uv)

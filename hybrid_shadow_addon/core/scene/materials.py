@@ -18,9 +18,10 @@ LUMA = (0.2126, 0.7152, 0.0722)
 
 @dataclass
 class Image:
-    """An image texture as Blender stores it: ``pixels`` (H, W, 4) uint8 RGBA, row 0 at the
-    bottom (v = 0), the stored values (``srgb``: the colour channels are sRGB-encoded and are
-    decoded for the albedo; alpha is always linear).
+    """An image texture as Blender stores it: ``pixels`` (H, W, 4) RGBA, row 0 at the bottom
+    (v = 0), uint8 bytes or, for a float or 16-bit image, float32 in [0, 1]; the stored values
+    (``srgb``: the colour channels are sRGB-encoded and are decoded for the albedo; alpha is
+    always linear).
 
     Sampling rule (the GPU and the numpy oracle both follow it): texel (i, j) has its centre at
     ``((i + 0.5) / W, (j + 0.5) / H)``; ``"Linear"`` blends the 4 nearest texels bilinearly,
@@ -39,20 +40,32 @@ class Image:
 
     def __post_init__(self):
         px = np.asarray(self.pixels)
-        if px.dtype != np.uint8:
+        if px.dtype != np.uint8:  # float values in [0, 1] (NaN: 0), kept unquantised
             with np.errstate(invalid="ignore"):
-                px = np.round(np.clip(np.nan_to_num(px.astype(np.float64)), 0.0, 1.0) * 255.0).astype(np.uint8)
+                px = np.clip(np.nan_to_num(px.astype(np.float32)), 0.0, 1.0).astype(np.float32)
         if px.ndim == 2:
             px = px[:, :, None]
         if px.ndim != 3 or px.shape[2] not in (1, 3, 4):
             raise SceneError(f"image '{self.name}' has pixels of shape {px.shape}; expected (H, W, 4)")
+        one = 255 if px.dtype == np.uint8 else 1.0
         if px.shape[2] == 1:
-            px = np.concatenate([np.repeat(px, 3, axis=2), np.full(px.shape[:2] + (1,), 255, np.uint8)], axis=2)
+            px = np.concatenate([np.repeat(px, 3, axis=2), np.full(px.shape[:2] + (1,), one, px.dtype)], axis=2)
         elif px.shape[2] == 3:
-            px = np.concatenate([px, np.full(px.shape[:2] + (1,), 255, np.uint8)], axis=2)
+            px = np.concatenate([px, np.full(px.shape[:2] + (1,), one, px.dtype)], axis=2)
         self.pixels = np.ascontiguousarray(px)
         self.extension = str(self.extension).upper()
         self.interpolation = str(self.interpolation).capitalize()
+
+    @property
+    def is_float(self) -> bool:
+        """Whether the pixels are float32 (a float or 16-bit image: kept so, so that an alpha
+        compared with a threshold is not shifted by a quantisation), else uint8 bytes."""
+        return self.pixels.dtype != np.uint8
+
+    def values(self) -> np.ndarray:
+        """(H, W, 4) float64 stored values in [0, 1] (bytes / 255, or the floats)."""
+        px = self.pixels.astype(np.float64)
+        return px if self.is_float else px / 255.0
 
     @property
     def size(self) -> tuple:
