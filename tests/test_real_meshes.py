@@ -9,9 +9,10 @@ and importers (``test_scenes/normals/``), and third-party glTF models with their
    winding, both sides of a surface in view, a mirrored instance, the model file's own normals),
    so that a scene whose normals get lost on the way fails here rather than passing below.
 2. Against Cycles at ``raytrace-high`` (``benchmarks/real_meshes_table.py`` computes the figures
-   and the BENCHMARKS.md table): every light's mask within 0.1% of its valid pixels, the whole set
-   (pixels summed over every mask) within 0.03%; each reference has enough valid pixels and
-   shadows on the ground and on the shapes.
+   and the BENCHMARKS.md table): every light's mask within 0.02 % of its valid pixels, the whole
+   set (pixels summed over every mask) within 0.003 %, about 3x what is measured (the worst mask
+   0.007 %, 3 pixels; the set 0.001 %, 8 of 730,124 pixels); each reference has enough valid
+   pixels and shadows on the ground and on the shapes.
 """
 import json
 import sys
@@ -30,8 +31,8 @@ from hybrid_shadow_addon.tools.metrics import MaskError  # noqa: E402
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 
-MASK_LIMIT_PCT = 0.1
-SET_LIMIT_PCT = 0.03
+MASK_LIMIT_PCT = 0.02
+SET_LIMIT_PCT = 0.003
 SCENES = real_meshes_table.SCENES
 MODELS_DIR = REPO / "test_scenes" / "models"
 MODEL_FILES = {"models/avocado": "avocado/Avocado.gltf", "models/lantern": "lantern/Lantern.gltf",
