@@ -5,6 +5,7 @@ only once the whole frame succeeded, so a failure never leaves half-written outp
 """
 from __future__ import annotations
 
+import glob
 import json
 import os
 import re
@@ -92,11 +93,14 @@ def check_renderable(scene) -> None:
 
 def write_outputs(out: Path, scene, frame, *, masks_dir=None, files=()) -> None:
     """Write ``frame``'s image to ``out``, its masks under ``masks_dir`` and ``files`` (``(path,
-    text)`` pairs): staged next to each destination, renamed into place once all are written."""
-    staged = []  # (tmp, dest)
+    text)`` pairs): staged next to each destination, renamed into place once all are written, the
+    image last. The image is the frame's commit: a run killed before it leaves the frame to be
+    rendered again, whatever of its other files were already in place."""
+    staged = []  # (tmp, dest), the image last
+    image = None
     try:
         t = _staged(out)
-        staged.append((t, out))
+        image = (t, out)
         write_image(t, frame.image)
         if masks_dir:
             Path(masks_dir).mkdir(parents=True, exist_ok=True)  # only once the frame exists
@@ -110,13 +114,27 @@ def write_outputs(out: Path, scene, frame, *, masks_dir=None, files=()) -> None:
             t = _staged(Path(dest))
             staged.append((t, Path(dest)))
             Path(t).write_text(text)
+        staged.append(image)
+        image = None
         for t, dest in staged:
             os.replace(t, dest)
         staged.clear()
     finally:
-        for t, _ in staged:
+        left = staged + ([image] if image is not None else [])
+        for t, _ in left:
             try:
                 os.unlink(t)
+            except OSError:
+                pass
+
+
+def remove_stale_staged(dest: Path) -> None:
+    """Remove files that a killed run left staged for ``dest`` (:func:`_staged`'s names)."""
+    dest = Path(dest)
+    if dest.parent.is_dir():
+        for t in dest.parent.glob(f".{glob.escape(dest.name)}.*{glob.escape(dest.suffix)}"):
+            try:
+                t.unlink()
             except OSError:
                 pass
 
@@ -237,8 +255,9 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
                   reuse: bool = False) -> dict:
     """Render ``frames`` of ``source`` (``source.scene_at(frame) -> Scene``) to ``output`` (a
     ``#`` pattern, see :func:`frame_path`), baking once and updating the bake between frames
-    (:func:`~..core.scene_sync.sync_scene`). Each frame's files appear all at once; frames whose
-    image exists are skipped unless ``overwrite``. ``stats_path``: a JSON list, one entry per
+    (:func:`~..core.scene_sync.sync_scene`). Each frame's files appear all at once, its image last;
+    frames whose image exists are skipped unless ``overwrite`` (a killed run leaves none half-made:
+    what it staged is removed, a frame without its image is rendered again). ``stats_path``: a JSON list, one entry per
     frame (``frame``, ``bake``, the per-pass ms, ``rays_traced``, ``pixels_reused``, ``reuse``),
     rewritten after every frame. ``reuse``: hard lights' masks carry over between frames where
     the surface and the shadow rays stay the same (``core/gpu/passes/reproject.py``); soft
@@ -258,7 +277,15 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
     paths = {f: Path(frame_path(output, f)) for f in frames}
     for p in {p.parent for p in paths.values()}:
         p.mkdir(parents=True, exist_ok=True)  # as Blender does for its render output
+    # a frame is done when its image is there: write_outputs puts it in place last
     todo = [f for f in frames if overwrite or not paths[f].exists()]
+    for f in todo:
+        remove_stale_staged(paths[f])
+        if masks_dir and Path(frame_masks_dir(masks_dir, f)).is_dir():
+            for t in Path(frame_masks_dir(masks_dir, f)).glob(".*.npy"):
+                t.unlink(missing_ok=True)
+    if stats_file is not None:
+        remove_stale_staged(stats_file)
     earlier = _read_stats(stats_file) if stats_file is not None and stats_file.exists() else {}
     entries = {f: earlier.get(f, {"frame": f, "bake": "none", "output": str(paths[f])}) | {"skipped": True}
                for f in frames if f not in todo}
