@@ -110,6 +110,19 @@ def test_render_evaluation_matches_cycles_where_the_viewport_does_not(exported, 
     assert np.isfinite(list(errors.values())).all()
 
 
+def test_frames_export_the_render_evaluation(exported):
+    """``render --frames`` (``BlenderFrames.scene_at``) exports each frame as F12 evaluates it:
+    every object as in the render evaluation."""
+    from hybrid_shadow_addon.blender.frames import BlenderFrames
+
+    bscene, render, _ = exported
+    frame = BlenderFrames(bscene, resolution=(W, H)).scene_at(bscene.frame_current)
+    for name in ("Render Only", "Viewport Array", "Smooth", "Blob", "Ring", "Switch Shape"):
+        assert _triangles(frame, name) == _triangles(render, name), name
+    for name in ("Crates", "Stored"):
+        assert _instances(frame, name) == _instances(render, name), name
+
+
 def test_the_command_line_loads_the_render_evaluation():
     """(Last: loading a scene replaces the module's.)"""
     from hybrid_shadow_addon.blender.load import load_scene
