@@ -3,6 +3,13 @@
 - ``render --frames`` killed (SIGKILL, SIGTERM) at chosen points inside a frame's writes and at
   random times, then run again until it finishes: the same images and masks as an uninterrupted
   run (SHA-256 of every file), a stats list with every frame, and nothing staged left behind.
+- A final render's (F12's) renderer process killed in the bake or in a pass: the frame is
+  rendered again in a new process, the same image; killed twice: one line naming the stage.
+- A renderer that hangs (SIGSTOP): ended after its deadline (``HYBRID_SHADOWS_DEADLINE_S``),
+  the frame rendered again; in the viewport one status line, and the next frame renders.
+- A message that cannot be pickled: one line, at once; a channel closed mid-message: the child
+  ends, the next render starts a new one; renders queued for a dead child's scene are dropped
+  (no crash in the next child); no child outlives ``close()``.
 """
 from __future__ import annotations
 
@@ -16,7 +23,11 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from hybrid_shadow_addon.core.gpu.channel import RendererError
+from hybrid_shadow_addon.core.settings import Settings
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 
@@ -116,3 +127,161 @@ def test_frames_killed_at_random_times_resume_to_the_same_files(tmp_path, uninte
         proc.wait(60)
     _finish(out)
     _check_same(out, want)
+
+
+# -- the renderer process ----------------------------------------------------------------------
+SIZE = (160, 90)
+
+
+def _alive(pid) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:  # (a zombie is gone for our purposes)
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.fixture
+def final_renderer(monkeypatch):
+    from hybrid_shadow_addon.core.gpu.remote import FinalRenderer
+
+    monkeypatch.setenv("HYBRID_SHADOWS_DEADLINE_S", "4")
+    made = []
+
+    def make():
+        made.append(FinalRenderer())
+        return made[-1]
+
+    yield make
+    for r in made:
+        r.close()
+
+
+def _fault_on(renderer, when, sig=signal.SIGKILL, times=1):
+    """An ``on_progress`` that sends ``sig`` to the renderer at the first progress whose label
+    ``when(label)`` accepts, ``times`` times (once per process)."""
+    hit = []
+
+    def on_progress(done, total, label):
+        pid = renderer.pid
+        if len(hit) < times and when(label) and pid not in hit:
+            hit.append(pid)
+            os.kill(pid, sig)
+
+    return on_progress, hit
+
+
+@pytest.mark.parametrize("stage", ["Baking", "a pass"])
+def test_a_final_renderer_killed_renders_the_frame_again(loaded, final_renderer, stage, capfd):
+    scene = loaded("cube_on_plane")
+    settings = Settings(samples=4)
+    want = final_renderer().render(scene, settings, *SIZE).image
+    r = final_renderer()
+    on_progress, hit = _fault_on(r, (lambda lb: lb == "Baking") if stage == "Baking" else (lambda lb: lb != "Baking"))
+    got = r.render(scene, settings, *SIZE, on_progress=on_progress)
+    assert len(hit) == 1 and r.starts == 2
+    assert np.array_equal(got.image, want)
+    err = capfd.readouterr().err
+    assert "ended unexpectedly" in err and "rendering the frame again" in err
+
+
+def test_a_final_renderer_killed_twice_is_one_line_naming_the_stage(loaded, final_renderer):
+    r = final_renderer()
+    on_progress, hit = _fault_on(r, lambda lb: lb == "Baking", times=2)
+    with pytest.raises(RendererError) as info:
+        r.render(loaded("cube_on_plane"), Settings(hard=True), *SIZE, on_progress=on_progress)
+    msg = str(info.value)
+    assert len(hit) == 2 and "\n" not in msg
+    assert "ended unexpectedly" in msg and "in 'Baking', twice" in msg, msg
+
+
+@pytest.mark.slow
+def test_a_hung_final_renderer_is_ended_after_its_deadline(loaded, final_renderer):
+    scene = loaded("cube_on_plane")
+    r = final_renderer()
+    on_progress, hit = _fault_on(r, lambda lb: lb == "Baking", sig=signal.SIGSTOP)
+    t0 = time.monotonic()
+    got = r.render(scene, Settings(hard=True), *SIZE, on_progress=on_progress)
+    assert len(hit) == 1 and r.starts == 2 and not _alive(hit[0])
+    assert 4.0 < time.monotonic() - t0 < 60 and got.image.shape[:2] == (SIZE[1], SIZE[0])
+    # stopped again in the retry: one line, "stopped answering", within two deadlines and the frames
+    r2 = final_renderer()
+    on_progress, hit = _fault_on(r2, lambda lb: lb == "Baking", sig=signal.SIGSTOP, times=2)
+    with pytest.raises(RendererError, match=r"stopped answering for \d+ s and was ended in 'Baking', twice"):
+        r2.render(scene, Settings(hard=True), *SIZE, on_progress=on_progress)
+    assert not any(_alive(p) for p in hit)
+
+
+def test_a_frame_that_cannot_be_sent_is_one_line_at_once(loaded, final_renderer):
+    r = final_renderer()
+    t0 = time.monotonic()
+    with pytest.raises(RendererError, match="could not be sent to the renderer process") as info:
+        r.render(loaded("cube_on_plane"), Settings(hard=True), *SIZE, want=(lambda: 0,))
+    assert time.monotonic() - t0 < 5 and "\n" not in str(info.value)
+    assert r.render(loaded("cube_on_plane"), Settings(hard=True), *SIZE).image is not None
+
+
+def test_a_channel_closed_mid_message_ends_the_child_and_the_next_render_starts_one(loaded, final_renderer):
+    r = final_renderer()
+    scene = loaded("cube_on_plane")
+    r.render(scene, Settings(hard=True), *SIZE)
+    pid, proc = r.pid, r._proc._proc
+    proc.stdin.write(b"\x40\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00half a mess")
+    proc.stdin.close()
+    proc.wait(10)
+    assert not _alive(pid)
+    assert r.render(scene, Settings(hard=True), *SIZE).image is not None and r.pid != pid
+
+
+def test_no_child_outlives_close(loaded, final_renderer):
+    from hybrid_shadow_addon.core.gpu.remote import RemoteWorker
+
+    r = final_renderer()
+    r.render(loaded("cube_on_plane"), Settings(hard=True), *SIZE)
+    pid = r.pid
+    os.kill(pid, signal.SIGSTOP)  # (a child that would not exit when asked)
+    r.close()
+    assert not _alive(pid)
+    w = RemoteWorker()
+    w.set_scene(loaded("cube_on_plane"))  # (its sender starts a child while we close)
+    w.close()
+    time.sleep(0.5)
+    assert w.pid is None or not _alive(w.pid)
+
+
+def test_a_hung_viewport_renderer_is_one_status_line_and_the_next_frame_renders(loaded, monkeypatch):
+    import dataclasses
+
+    from hybrid_shadow_addon.core.gpu.remote import RemoteWorker
+    from hybrid_shadow_addon.core.gpu.worker import RenderRequest
+
+    monkeypatch.setenv("HYBRID_SHADOWS_DEADLINE_S", "3")
+    scene = dataclasses.replace(loaded("cube_on_plane"), resolution=SIZE)
+    settings = Settings(hard=True)
+
+    def request(view="v"):
+        return RenderRequest(view=view, scene=scene, fast=settings, full=settings, width=SIZE[0], height=SIZE[1])
+
+    w = RemoteWorker()
+    try:
+        w.render(request())
+        assert w.wait_idle(120)
+        assert w.poll("v")[1] == []
+        pid = w.pid
+        os.kill(pid, signal.SIGSTOP)
+        w.reset_history()  # (queued for the stopped child's scene)
+        deadline, errors = time.monotonic() + 30, []
+        while not errors and time.monotonic() < deadline:
+            errors = w.poll("v")[1]
+            time.sleep(0.05)
+        assert len(errors) == 1 and "stopped answering" in str(errors[0]), errors
+        assert not _alive(pid)
+        w.render(request())
+        assert w.wait_idle(120)
+        result, errors = w.poll("v")
+        assert result is not None and errors == [] and w.pid != pid
+    finally:
+        w.close()

@@ -17,15 +17,26 @@ _HEAD = struct.Struct("<QI")
 _SIZE = struct.Struct("<Q")
 
 
-def write_message(f, obj) -> None:
-    """Write ``obj`` to the binary file ``f`` and flush."""
+def encode_message(obj) -> list:
+    """``obj`` as the pieces :func:`write_encoded` writes. Whatever pickling raises (a message
+    that cannot cross) comes from here, before anything is written."""
     bufs: list = []
     meta = pickle.dumps(obj, protocol=5, buffer_callback=bufs.append)
     raws = [b.raw() for b in bufs]
-    f.write(_HEAD.pack(len(meta), len(raws)) + b"".join(_SIZE.pack(r.nbytes) for r in raws) + meta)
-    for r in raws:
-        f.write(r)
+    return [_HEAD.pack(len(meta), len(raws)) + b"".join(_SIZE.pack(r.nbytes) for r in raws) + meta, *raws]
+
+
+def write_encoded(f, pieces: list) -> None:
+    """Write :func:`encode_message`'s pieces to the binary file ``f`` and flush (``OSError`` or
+    ``ValueError``: the other side is gone)."""
+    for piece in pieces:
+        f.write(piece)
     f.flush()
+
+
+def write_message(f, obj) -> None:
+    """Write ``obj`` to the binary file ``f`` and flush."""
+    write_encoded(f, encode_message(obj))
 
 
 def _read_exact(f, n: int) -> bytearray:
@@ -69,6 +80,8 @@ def rebuild_error(info: tuple) -> BaseException:
         exc = cls(message)
     elif name == "ValueError":
         exc = ValueError(message)
+    elif name == "RendererError":
+        exc = RendererError(message)
     else:
         exc = RendererError(f"{name}: {message}")
     exc.remote_traceback = tb

@@ -25,6 +25,7 @@ import os
 import subprocess
 import sys
 import threading
+import time
 import traceback
 import types
 import weakref
@@ -33,13 +34,26 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import Cancelled
-from .channel import RendererError, read_message, rebuild_error, write_message
+from .channel import RendererError, encode_message, error_info, read_message, rebuild_error, write_encoded
 from .worker import ViewResults, snapshot
 
 #: how long a cancelled final render may take to stop before its process is ended
 CANCEL_S = 0.12
 #: how long :meth:`RendererProcess.close` waits for the child to exit before ending it
 CLOSE_S = 2.0
+
+
+def deadline_s() -> float:
+    """How long a renderer may stay silent before it is taken for hung and ended. The child
+    sends a heartbeat every :data:`~.render_server.HEARTBEAT_S` from a thread that runs whenever
+    it is not inside one driver call (moderngl keeps Python's lock through each), so this bounds
+    the longest single GL call (a shader compile on a software rasteriser takes seconds), not a
+    stage: a long bake keeps beating. ``HYBRID_SHADOWS_DEADLINE_S`` overrides the 120 s."""
+    try:
+        value = float(os.environ.get("HYBRID_SHADOWS_DEADLINE_S", "120"))
+    except ValueError:
+        value = 120.0
+    return value if value > 0 else 120.0
 
 # The child imports the package under the caller's own module name (in Blender an extension's
 # is ``bl_ext.<repository>.<id>.hybrid_shadow_addon``), so that pickled classes name the same
@@ -68,8 +82,10 @@ def _package_dir() -> Path:
 
 class RendererProcess:
     """One renderer child and its channel. :meth:`post` queues a message body (any thread; the
-    child starts on the first); ``on_message(msg)`` and ``on_exit(code)`` run on the receiver
-    thread. After an exit the next :meth:`post` starts a new child."""
+    child starts on the first); ``on_message(msg)`` and ``on_exit(code, silent_s)`` run on the
+    receiver thread (``silent_s``: how long the child had been silent when it was ended for it,
+    else None). After an exit the next :meth:`post` starts a new child. A message that cannot be
+    pickled comes back as ``("send_error", seq, error_info, body)``."""
 
     def __init__(self, on_message, on_exit, name: str = "hybrid-shadows-renderer"):
         self._on_message = on_message
@@ -82,8 +98,12 @@ class RendererProcess:
         self._proc = None
         self._closing = False
         self.starts = 0
+        self.deadline = deadline_s()
+        self._heard = {}  # child pid -> time.monotonic() of its last message
+        self.hung = None  # (pid, seconds silent) of the last child ended for silence
         self._sender = threading.Thread(target=self._send_loop, name=f"{name}-send", daemon=True)
         self._sender.start()
+        threading.Thread(target=self._watch_loop, name=f"{name}-watch", daemon=True).start()
         _live.add(self)
 
     # -- caller side ------------------------------------------------------------------------------
@@ -134,6 +154,14 @@ class RendererProcess:
         if p is not None and p.poll() is None:
             p.kill()
 
+    def discard(self, pred) -> int:
+        """Drop the unsent messages whose body ``pred`` matches; how many."""
+        with self._cond:
+            keep = [m for m in self._outbox if not pred(m[1])]
+            n = len(self._outbox) - len(keep)
+            self._outbox = collections.deque(keep)
+            return n
+
     def close(self, timeout: float = CLOSE_S) -> None:
         """Ask the child to exit, end it after ``timeout`` s, stop the sender. Safe twice."""
         with self._cond:
@@ -153,6 +181,11 @@ class RendererProcess:
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait(5)
+        with self._cond:  # (the sender starts no child once closing is set)
+            p = self._proc
+        if p is not None and p.poll() is None:
+            p.kill()
+            p.wait(5)
         _live.discard(self)
 
     # -- threads ----------------------------------------------------------------------------------
@@ -165,6 +198,7 @@ class RendererProcess:
         proc.stdin.write((json.dumps(cfg) + "\n").encode())
         proc.stdin.flush()
         self.starts += 1
+        self._heard[proc.pid] = time.monotonic()
         threading.Thread(target=self._receive_loop, args=(proc,), name=f"{self.name}-receive", daemon=True).start()
         return proc
 
@@ -177,26 +211,50 @@ class RendererProcess:
                     return
                 msg = self._outbox.popleft()
             try:
-                if self._proc is None or self._proc.poll() is not None:
-                    self._proc = self._spawn()
-                write_message(self._proc.stdin, msg)
-            except (OSError, ValueError):  # the child is gone: the receiver reports it
+                pieces = encode_message(msg)
+            except Exception as exc:  # noqa: BLE001 - a message that cannot cross (a bug): said, not lost
+                self._on_message(("send_error", msg[0], error_info(exc), msg[1]))
+                continue
+            try:
+                with self._cond:  # (close() sees every child started)
+                    if self._closing:
+                        return
+                    if self._proc is None or self._proc.poll() is not None:
+                        self._proc = self._spawn()
+                    proc = self._proc
+                write_encoded(proc.stdin, pieces)
+            except (OSError, ValueError):  # the child is gone (or never started): the receiver reports it
                 pass
-            except Exception as exc:  # noqa: BLE001 - a message that cannot be sent (a bug)
-                self._on_message(("send_error", msg[0], exc))
 
     def _receive_loop(self, proc) -> None:
         try:
             while True:
-                self._on_message(read_message(proc.stdout))
+                msg = read_message(proc.stdout)
+                self._heard[proc.pid] = time.monotonic()
+                if msg[0] != "alive":
+                    self._on_message(msg)
         except (EOFError, OSError):
             pass
         except BaseException:  # noqa: BLE001 - a reply that cannot be read: end that child
             traceback.print_exc()
             proc.kill()
         code = proc.wait()
+        self._heard.pop(proc.pid, None)
+        hung = self.hung if self.hung is not None and self.hung[0] == proc.pid else None
         if not self._closing:
-            self._on_exit(code)
+            self._on_exit(code, None if hung is None else hung[1])
+
+    def _watch_loop(self) -> None:
+        """End a child silent for longer than :attr:`deadline` (stopped, or stuck in the driver)."""
+        while not self._closing:
+            time.sleep(min(0.25, self.deadline / 4))
+            p = self._proc
+            if p is None or p.poll() is not None:
+                continue
+            silent = time.monotonic() - self._heard.get(p.pid, time.monotonic())
+            if silent > self.deadline:
+                self.hung = (p.pid, silent)
+                p.kill()
 
 
 _live: weakref.WeakSet = weakref.WeakSet()
@@ -341,17 +399,31 @@ class RemoteWorker(ViewResults):
         elif kind == "send_error":
             with self._cond:
                 self._acked = max(self._acked, msg[1])
-                self._add_error(None, RendererError(f"could not send to the renderer process: {msg[2]}"))
+                self._add_error(None, RendererError(f"could not send '{msg[3][0]}' to the renderer process: "
+                                                    f"{msg[2][0]}: {msg[2][1]}"))
                 self._cond.notify_all()
 
-    def _on_exit(self, code) -> None:
+    def _on_exit(self, code, silent_s=None) -> None:
+        # what was queued for that child's scene cannot be applied to a new one: the next frame
+        # sends its scene again
+        self._proc.discard(lambda b: b[0] in _SCENE_COMMANDS)
         with self._cond:
-            self._add_error(None, RendererError(
-                f"the renderer process ended unexpectedly (exit code {code}); the next frame starts a new one"))
+            self._add_error(None, RendererError(f"{ended(code, silent_s)}; the next frame starts a new one"))
             self._acked = self._proc.posted
             self._busy, self._busy_any = {}, False
             self._scene_key = self._scene_refs = None  # (the new child has no scene yet)
             self._cond.notify_all()
+
+
+#: messages that act on the scene a child holds (dropped, unsent, when it ends)
+_SCENE_COMMANDS = ("render", "move", "model", "reset", "reset_light")
+
+
+def ended(code, silent_s=None) -> str:
+    """How a renderer process ended, in words."""
+    if silent_s is not None:
+        return f"the renderer process stopped answering for {silent_s:.0f} s and was ended"
+    return f"the renderer process ended unexpectedly (exit code {code})"
 
 
 def _merge_moves(dropped: list, body: tuple) -> tuple:
@@ -405,7 +477,7 @@ class FinalRenderer:
                     return ev[2]
                 if exited is not None:
                     finished = True
-                    raise RendererError(f"the renderer process ended unexpectedly (exit code {exited})")
+                    raise RendererError(ended(*exited))
                 for label in labels or [None]:
                     yield label
         finally:
@@ -424,7 +496,8 @@ class FinalRenderer:
         return next(self._jobs)
 
     def _wait(self):
-        """The events that came within about 20 ms, and the child's exit code (None: running)."""
+        """The events that came within about 20 ms, and how the child ended (``(exit code,
+        seconds silent or None)``; None: running)."""
         with self._cond:
             self._cond.wait_for(lambda: self._events or self._exited is not None, 0.02)
             events = list(self._events)
@@ -437,27 +510,36 @@ class FinalRenderer:
         ``persistent_key`` (None: bake afresh and give the bake back after), ``reuse`` (with a
         ``persistent_key``: hard masks reused from the last frame, its history kept), ``want``
         (G-buffer targets to read), ``masks``, ``max_draw_ms``. ``should_stop()`` polled every 20 ms: True
-        cancels (raises :class:`Cancelled`); ``on_progress(done, total, label)`` follows the child."""
-        job = self._begin()
-        self._proc.post(("final", job, scene, settings, int(width), int(height), options))
-        while True:
-            events, exited = self._wait()
-            for ev in events:
-                if ev[1] != job:
-                    continue
-                if ev[0] == "progress":
-                    if on_progress is not None:
-                        on_progress(*ev[2:])
-                    continue
-                data, info = ev[2], ev[3]
-                if info is not None:
-                    raise rebuild_error(info)
-                return data
-            if exited is not None:
-                raise RendererError(f"the renderer process ended unexpectedly (exit code {exited})")
-            if should_stop is not None and should_stop():
-                self._cancel(job)
-                raise Cancelled()
+        cancels (raises :class:`Cancelled`); ``on_progress(done, total, label)`` follows the child.
+        A renderer that ends (or stays silent past :func:`deadline_s`) is started again and the
+        frame rendered once more; a second failure raises :class:`RendererError` naming the stage
+        (the last progress label) where it happened."""
+        stage = "the start"
+        for attempt in (1, 2):
+            job = self._begin()
+            self._proc.post(("final", job, scene, settings, int(width), int(height), options))
+            exited = None
+            while exited is None:
+                events, exited = self._wait()
+                for ev in events:
+                    if ev[1] != job:
+                        continue
+                    if ev[0] == "progress":
+                        stage = ev[4] or stage
+                        if on_progress is not None:
+                            on_progress(*ev[2:])
+                        continue
+                    data, info = ev[2], ev[3]
+                    if info is not None:
+                        raise rebuild_error(info)
+                    return data
+                if exited is None and should_stop is not None and should_stop():
+                    self._cancel(job)
+                    raise Cancelled()
+            how = ended(*exited)
+            if attempt == 2:
+                raise RendererError(f"{how} in '{stage}', twice: the frame was not rendered")
+            print(f"Hybrid Shadows: {how} in '{stage}'; rendering the frame again", file=sys.stderr, flush=True)
 
     def _cancel(self, job) -> None:
         """Stop ``job``: the child drops it between two steps, or is ended after :data:`CANCEL_S`."""
@@ -476,12 +558,19 @@ class FinalRenderer:
         self._proc.close()
 
     def _on_message(self, msg) -> None:
+        if msg[0] == "send_error":  # (a job that cannot cross fails with what pickling said)
+            body = msg[3]
+            if body[0] not in ("final", "call"):
+                return
+            info = msg[2]
+            msg = ("final", body[1], None, ("RendererError", f"the frame could not be sent to the renderer process "
+                                            f"({info[0]}: {info[1]})", info[2]))
         if msg[0] in ("progress", "final"):
             with self._cond:
                 self._events.append(msg)
                 self._cond.notify_all()
 
-    def _on_exit(self, code) -> None:
+    def _on_exit(self, code, silent_s=None) -> None:
         with self._cond:
-            self._exited = code
+            self._exited = (code, silent_s)
             self._cond.notify_all()

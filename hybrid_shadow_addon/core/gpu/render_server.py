@@ -21,6 +21,7 @@ import dataclasses
 import os
 import sys
 import threading
+import time
 import traceback
 from dataclasses import dataclass, field
 
@@ -28,12 +29,14 @@ import numpy as np
 
 from ..errors import Cancelled
 from . import memory
-from .channel import error_info, read_message, write_message
+from .channel import RendererError, error_info, read_message, write_message
 
 MB = float(1 << 20)
 #: the renderer's scheduling priority below the caller's (POSIX): on a software rasteriser its
 #: threads take every core, and the interface's threads must still be woken on time
 NICE = 15
+#: seconds between the heartbeats the process sends its caller
+HEARTBEAT_S = 0.5
 _ROOT = __name__.rsplit(".core.gpu.", 1)[0]
 
 
@@ -176,9 +179,9 @@ class FinalJobs:
 class Server:
     """The message loop of the renderer process (see the module docstring)."""
 
-    def __init__(self, out):
+    def __init__(self, out, send_lock=None):
         self.out = out
-        self.send_lock = threading.Lock()
+        self.send_lock = send_lock or threading.Lock()
         self.cond = threading.Condition()
         self.inbox: collections.deque = collections.deque()
         self.cancel = threading.Event()
@@ -293,7 +296,11 @@ class Server:
                 del self.scenes[old]
         elif kind == "render":
             request, token, seq = body[1], body[2], body[3]
-            base = self.scenes[token]
+            base = self.scenes.get(token)
+            if base is None:  # (its scene went to a renderer that ended: the caller sends it again)
+                self.send(("result", request.view, None, [error_info(RendererError(
+                    "a frame came without its scene (the renderer process was restarted); the next frame sends it"))]))
+                return
             request.scene = dataclasses.replace(base, camera=request.scene.camera, resolution=request.scene.resolution)
             self.seqs[w.render(request)] = seq
             self.views.add(request.view)
@@ -331,8 +338,22 @@ def _claim_stdout():
     return os.fdopen(fd, "wb")
 
 
+def _heartbeat(out, lock) -> None:
+    """Tell the caller every :data:`HEARTBEAT_S` that this process lives (it ends a renderer
+    that stays silent past its deadline: ``remote.deadline_s``); ends with the channel."""
+    while True:
+        time.sleep(HEARTBEAT_S)
+        try:
+            with lock:
+                write_message(out, ("alive",))
+        except (OSError, ValueError):
+            return
+
+
 def serve(rfile) -> None:
     """The renderer process's main function: messages from ``rfile`` (its stdin)."""
+    out, lock = _claim_stdout(), threading.Lock()
+    threading.Thread(target=_heartbeat, args=(out, lock), name="hybrid-shadows-heartbeat", daemon=True).start()
     # the modules messages name, imported in the package's own order before any message is
     # read (unpickling a Settings first would enter the bake's imports halfway)
     from . import pipeline, worker  # noqa: F401
@@ -342,7 +363,7 @@ def serve(rfile) -> None:
             os.nice(NICE)
         except OSError:
             pass
-    server = Server(_claim_stdout())
+    server = Server(out, lock)
     reader = threading.Thread(target=server.read_loop, args=(rfile,), name="hybrid-shadows-reader", daemon=True)
     reader.start()
     try:
