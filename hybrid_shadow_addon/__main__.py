@@ -16,6 +16,8 @@ import sys
 from .core.errors import HybridShadowError, SceneError
 
 EXIT_USER_ERROR = 2
+#: the output could not be written (a full or read-only disk): sysexits.h EX_IOERR
+EXIT_IO_ERROR = 74
 
 
 #: ``--blender-log FILE``: where Blender's and Cycles' own output goes (None: stderr)
@@ -389,6 +391,10 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except OSError as e:  # the disk (full, read-only, gone): what the system said, and where
+        where = f" ({e.filename})" if e.filename else ""
+        print(f"error: cannot write or read a file{where}: {e.strerror or e}", file=sys.stderr)
+        return EXIT_IO_ERROR
     except Exception as e:  # a bug: still one line, unless debugging
         if os.environ.get("HYBRID_SHADOWS_DEBUG"):
             raise

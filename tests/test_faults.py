@@ -7,6 +7,9 @@
   rendered again in a new process, the same image; killed twice: one line naming the stage.
 - A renderer that hangs (SIGSTOP): ended after its deadline (``HYBRID_SHADOWS_DEADLINE_S``),
   the frame rendered again; in the viewport one status line, and the next frame renders.
+- An output disk that fills during ``--frames``: one line (exit code 74), the frames before it
+  complete, nothing of the failing one; a rerun finishes with the same files. A truncated or
+  foreign ``.blend``: one line (exit code 2), nothing written.
 - A message that cannot be pickled: one line, at once; a channel closed mid-message: the child
   ends, the next render starts a new one; renders queued for a dead child's scene are dropped
   (no crash in the next child); no child outlives ``close()``.
@@ -82,6 +85,25 @@ def _check_same(out: Path, want: dict) -> None:
     assert not [p for p in out.rglob(".*")], "staged files left behind"
 
 
+# the CLI, with the disk full from the ``at``-th image on
+_DISK_FULL = """
+import errno, runpy, sys
+sys.path.insert(0, {repo!r})
+from hybrid_shadow_addon.tools import render
+real, n = render.write_image, [0]
+def write_image(path, rgba):
+    n[0] += 1
+    if n[0] >= {at}:
+        with open(path, "wb") as f:
+            f.write(b"half an image")
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+    real(path, rgba)
+render.write_image = write_image
+sys.argv = ["hybrid_shadow_addon"] + {args!r}
+sys.exit(__import__("hybrid_shadow_addon.__main__", fromlist=["main"]).main(sys.argv[1:]))
+"""
+
+
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory):
     out = tmp_path_factory.mktemp("whole")
@@ -110,6 +132,40 @@ def test_frames_killed_between_a_frames_renames_resume_to_the_same_files(tmp_pat
         assert sorted(x.name for x in out.glob("f_*.png")) == [f"f_{f:04d}.png" for f in range(1, done + 1)]
         _finish(out)
         _check_same(out, want)
+
+
+def test_a_disk_that_fills_during_frames_is_one_line_and_a_rerun_finishes(tmp_path, uninterrupted):
+    want = uninterrupted[0]
+    out = tmp_path / "full"
+    out.mkdir()
+    code = _DISK_FULL.format(repo=str(REPO), at=3, args=_args(out))
+    p = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 74, p.stderr[-2000:]
+    last = p.stderr.strip().splitlines()[-1]
+    assert last.startswith("error: cannot write") and "No space left on device" in last, last
+    assert sorted(x.name for x in out.glob("f_*.png")) == ["f_0001.png", "f_0002.png"]
+    assert not (out / "masks" / "0003").exists() and not [q for q in out.rglob(".*")]
+    assert [e["frame"] for e in json.loads((out / "stats.json").read_text())] == [1, 2]
+    _finish(out)
+    _check_same(out, want)
+
+
+@pytest.mark.parametrize("keep", [1000, 200_000, None])
+def test_a_truncated_or_foreign_blend_is_one_line(tmp_path, keep):
+    import bpy
+
+    whole = tmp_path / "whole.blend"
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(whole))
+    bad = tmp_path / "bad.blend"
+    data = whole.read_bytes()
+    bad.write_bytes(data[:keep] if keep else b"not a blend file")
+    p = subprocess.run([sys.executable, "-m", "hybrid_shadow_addon", "render", str(bad), "--output",
+                        str(tmp_path / "x.png")], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2, p.stderr[-2000:]
+    last = p.stderr.strip().splitlines()[-1]
+    assert last.startswith(f"error: cannot open {bad}"), last
+    assert not (tmp_path / "x.png").exists()
 
 
 @pytest.mark.slow
