@@ -142,8 +142,10 @@ def cmd_render(args) -> int:
         return _render_frames(args, settings)
     scene = load(args.scene, args.frame)
     print_report(scene.report)
-    stats = render_to_files(scene, settings, resolution=args.resolution, output=args.output,
-                            masks_dir=args.masks_dir, stats_path=args.stats, progress=_progress(args, "render"))
+    with _renderer() as remote:
+        stats = render_to_files(scene, settings, resolution=args.resolution, output=args.output,
+                                masks_dir=args.masks_dir, stats_path=args.stats, progress=_progress(args, "render"),
+                                remote=remote)
     t = stats
     print(f"rendered {t['resolution'][0]}x{t['resolution'][1]} {t['mode']}/{t['quality']} in {t['total_ms']:.0f} ms "
           f"(bake {t['bake_ms']:.0f}, g-buffer {t['gbuffer_ms']:.0f}, shadows {t['shadow_ms']:.0f}, "
@@ -173,10 +175,10 @@ def _render_frames(args, settings) -> int:
         source = BlenderFrames(open_scene(args.scene), name=args.scene, resolution=args.resolution)
     progress = _progress(args, "render")
     try:
-        with blender_output_to_stderr():
+        with blender_output_to_stderr(), _renderer() as remote:
             r = render_frames(source, args.frames, settings, output=args.output, resolution=args.resolution,
                               masks_dir=args.masks_dir, stats_path=args.stats, overwrite=args.overwrite,
-                              progress=progress, reuse=args.reuse)
+                              progress=progress, reuse=args.reuse, remote=remote)
     finally:
         getattr(progress, "close", lambda: None)()
     done = [e for e in r["frames"] if not e.get("skipped")]
@@ -186,6 +188,23 @@ def _render_frames(args, settings) -> int:
     print(f"rendered {r['rendered']} frames{skipped} in {r['total_ms'] / 1e3:.1f} s ({per:.0f} ms per frame; "
           f"bakes: {kinds['full']} full, {kinds['incremental']} incremental, {kinds['none']} none) -> {args.output}")
     return 0
+
+
+@contextlib.contextmanager
+def _renderer():
+    """The renderer process the command line renders in (as F12 does: a renderer that dies or
+    stops answering is restarted and the frame rendered once more, then the run fails with one
+    line); ``HYBRID_SHADOWS_RENDERER=thread`` renders in this process instead (None)."""
+    if os.environ.get("HYBRID_SHADOWS_RENDERER") == "thread":
+        yield None
+        return
+    from .core.gpu.remote import FinalRenderer
+
+    remote = FinalRenderer(name="hybrid-shadows-cli")
+    try:
+        yield remote
+    finally:
+        remote.close()
 
 
 def _progress(args, title):

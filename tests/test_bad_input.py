@@ -120,6 +120,7 @@ def test_missing_egl_is_one_line_and_writes_nothing(script, tmp_path, capfd, mon
     if not sys.platform.startswith("linux"):
         pytest.skip("EGL check is Linux only")
     monkeypatch.setattr(context, "_load_library", lambda name: name not in ("EGL", "GL"))
+    monkeypatch.setenv("HYBRID_SHADOWS_RENDERER", "thread")  # (the libraries pretended missing here)
     code, out, err = run(capfd, "render", script("ok"), "--output", str(tmp_path / "out.png"),
                          "--masks-dir", str(tmp_path / "masks"))
     assert_one_line_error(code, err, "libEGL.so.1", "libGL.so.1", "apt-get install")
@@ -136,6 +137,7 @@ def test_more_lights_than_the_limit(script, tmp_path, capfd, monkeypatch, gl_ctx
     context.check_light_count(gl_ctx, limit)
     # through the CLI: pretend the light table allows only 3 lights
     monkeypatch.setattr(context, "LIGHT_TABLE_TEXELS", context.gpu_limits(gl_ctx)["max_texture_size"] // 3)
+    monkeypatch.setenv("HYBRID_SHADOWS_RENDERER", "thread")  # (the limit pretended here)
     code, out, err = run(capfd, "render", script("lights"), "--output", str(tmp_path / "out.png"))
     assert_one_line_error(code, err, "5 lights", "at most 3")
     assert outputs(tmp_path) == []
@@ -163,6 +165,18 @@ def test_mesh_larger_than_one_texture_splits_into_layers(gl_ctx):
     gl = gl_trace(gl_ctx, baked, o, d, np.inf)
     assert 0.05 < ref.mean() < 0.95
     assert (ref == gl).mean() >= 0.999
+
+
+def test_a_limit_met_in_the_renderer_process_is_one_line(script, tmp_path, capfd, gl_ctx):
+    """The command line renders in a renderer process: a GPU limit met there (a frame wider than
+    the GPU's textures) comes back as the same one line, and nothing is written."""
+    from hybrid_shadow_addon.core.gpu import context
+
+    wide = context.gpu_limits(gl_ctx)["max_texture_size"] + 1
+    code, out, err = run(capfd, "render", script("ok"), "--output", str(tmp_path / "out.png"),
+                         "--resolution", f"{wide}x8")
+    assert_one_line_error(code, err, f"{wide}x8", "outside this GPU's limits")
+    assert outputs(tmp_path) == []
 
 
 def test_textures_past_the_gpu_limits_fail_clearly(monkeypatch, gl_ctx):

@@ -3,8 +3,9 @@
 - ``render --frames`` killed (SIGKILL, SIGTERM) at chosen points inside a frame's writes and at
   random times, then run again until it finishes: the same images and masks as an uninterrupted
   run (SHA-256 of every file), a stats list with every frame, and nothing staged left behind.
-- A final render's (F12's) renderer process killed in the bake or in a pass: the frame is
-  rendered again in a new process, the same image; killed twice: one line naming the stage.
+- A final render's (F12's, and the command line's) renderer process killed in the bake or in a
+  pass: the frame is rendered again in a new process, the same image and files; killed twice:
+  one line naming the stage.
 - A renderer that hangs (SIGSTOP): ended after its deadline (``HYBRID_SHADOWS_DEADLINE_S``),
   the frame rendered again; in the viewport one status line, and the next frame renders.
 - An output disk that fills during ``--frames``: one line (exit code 74), the frames before it
@@ -104,6 +105,27 @@ sys.exit(__import__("hybrid_shadow_addon.__main__", fromlist=["main"]).main(sys.
 """
 
 
+# the CLI, with its renderer process sent ``sig`` at the first "Baking" of frame ``frame``
+_CLI_RENDERER_FAULT = """
+import os, runpy, signal, sys
+sys.path.insert(0, {repo!r})
+from hybrid_shadow_addon.core.gpu import remote
+real, calls, hit = remote.FinalRenderer.render, [0], []
+def render(self, *a, on_progress=None, **k):
+    calls[0] += 1
+    def progress(done, total, label):
+        if calls[0] == {frame} and not hit and label == "Baking":
+            hit.append(self.pid)
+            os.kill(self.pid, {sig})
+        if on_progress is not None:
+            on_progress(done, total, label)
+    return real(self, *a, on_progress=progress, **k)
+remote.FinalRenderer.render = render
+sys.argv = ["hybrid_shadow_addon"] + {args!r}
+sys.exit(__import__("hybrid_shadow_addon.__main__", fromlist=["main"]).main(sys.argv[1:]))
+"""
+
+
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory):
     out = tmp_path_factory.mktemp("whole")
@@ -132,6 +154,22 @@ def test_frames_killed_between_a_frames_renames_resume_to_the_same_files(tmp_pat
         assert sorted(x.name for x in out.glob("f_*.png")) == [f"f_{f:04d}.png" for f in range(1, done + 1)]
         _finish(out)
         _check_same(out, want)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGSTOP])
+def test_frames_whose_renderer_dies_or_hangs_render_that_frame_again(tmp_path, uninterrupted, sig):
+    """``render --frames`` renders in a renderer process: killed (or stopped: ended after its
+    deadline) in frame 2's bake, frame 2 is rendered again in a new one; the same files."""
+    want = uninterrupted[0]
+    out = tmp_path / "cli"
+    out.mkdir()
+    code = _CLI_RENDERER_FAULT.format(repo=str(REPO), frame=2, sig=int(sig), args=_args(out))
+    env = dict(os.environ, HYBRID_SHADOWS_DEADLINE_S="4")
+    p = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300, env=env)
+    assert p.returncode == 0, p.stderr[-2000:]
+    said = "ended unexpectedly" if sig == signal.SIGKILL else "stopped answering"
+    assert f"{said}" in p.stderr and "in 'Baking'; rendering the frame again" in p.stderr, p.stderr[-2000:]
+    _check_same(out, want)
 
 
 def test_a_disk_that_fills_during_frames_is_one_line_and_a_rerun_finishes(tmp_path, uninterrupted):

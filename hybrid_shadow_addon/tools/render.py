@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import HybridShadowError, SceneError
-from ..core.gpu.context import check_light_count
 from ..core.image import to_srgb8, write_png
 from .exr import write_exr
 
@@ -140,9 +139,12 @@ def remove_stale_staged(dest: Path) -> None:
 
 
 def render_to_files(scene, settings, *, resolution=None, output: str, masks_dir: str | None = None,
-                    stats_path: str | None = None, pipeline=None, progress=None) -> dict:
+                    stats_path: str | None = None, pipeline=None, progress=None, remote=None) -> dict:
     """Render ``scene`` once and write the outputs; returns the stats dict. ``progress(done,
-    total, label)`` is called before each pass and shadowed light."""
+    total, label)`` is called before each pass and shadowed light. ``remote``: a
+    :class:`~..core.gpu.remote.FinalRenderer` renders it in its process (the command line's
+    way: a renderer that dies or hangs is restarted and the frame rendered once more), else
+    ``pipeline`` (or a new one) here."""
     from ..core.gpu.pipeline import Pipeline
 
     out = Path(output)
@@ -157,13 +159,16 @@ def render_to_files(scene, settings, *, resolution=None, output: str, masks_dir:
     scene.validate()
     check_renderable(scene)
     width, height = resolution or scene.resolution
-    pipe = pipeline or Pipeline()
-    check_light_count(pipe.ctx, len(scene.lights))
     if not scene.lights:
         print(f"warning: scene '{scene.name}' has no lights: rendering the world colour (ambient) only",
               file=sys.stderr, flush=True)
-    bake_ms = pipe.set_scene(scene, settings.structure) if settings.mode == "raytrace" else 0.0
-    frame = pipe.render(scene, settings, width, height, progress=progress)
+    if remote is not None:
+        frame = remote.render(scene, settings, width, height, want=(), masks=bool(masks_dir), on_progress=progress)
+        bake_ms = frame.stats.pop("bake_ms", 0.0)
+    else:
+        pipe = pipeline or Pipeline()
+        bake_ms = pipe.set_scene(scene, settings.structure) if settings.mode == "raytrace" else 0.0
+        frame = pipe.render(scene, settings, width, height, progress=progress)
     stats = frame_stats(scene, frame, bake_ms)
     if progress is not None:
         progress(1, 1, "written")
@@ -252,7 +257,7 @@ def _read_stats(path: Path) -> dict:
 
 def render_frames(source, frames, settings, *, output: str, resolution=None, masks_dir: str | None = None,
                   stats_path: str | None = None, overwrite: bool = False, progress=None, pipeline=None,
-                  reuse: bool = False) -> dict:
+                  reuse: bool = False, remote=None) -> dict:
     """Render ``frames`` of ``source`` (``source.scene_at(frame) -> Scene``) to ``output`` (a
     ``#`` pattern, see :func:`frame_path`), baking once and updating the bake between frames
     (:func:`~..core.scene_sync.sync_scene`). Each frame's files appear all at once, its image last;
@@ -261,7 +266,9 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
     frame (``frame``, ``bake``, the per-pass ms, ``rays_traced``, ``pixels_reused``, ``reuse``),
     rewritten after every frame. ``reuse``: hard lights' masks carry over between frames where
     the surface and the shadow rays stay the same (``core/gpu/passes/reproject.py``); soft
-    lights take their own samples in every frame. Returns
+    lights take their own samples in every frame. ``remote``: a
+    :class:`~..core.gpu.remote.FinalRenderer` renders the frames in its process, its bake kept
+    and updated between them (as :func:`render_to_files`). Returns
     ``{"frames": [entries], "rendered": n, "skipped": n, "total_ms": ms}``."""
     from ..core.gpu.pipeline import Pipeline
     from ..core.scene_sync import sync_scene
@@ -289,10 +296,12 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
     earlier = _read_stats(stats_file) if stats_file is not None and stats_file.exists() else {}
     entries = {f: earlier.get(f, {"frame": f, "bake": "none", "output": str(paths[f])}) | {"skipped": True}
                for f in frames if f not in todo}
-    pipe = pipeline or Pipeline()
-    was_reusing, pipe.reuse = pipe.reuse, bool(reuse)
-    # (every light reuses, whatever it costs here: the same frames give the same masks on any machine)
-    was_choice, pipe.reuse_choice = pipe.reuse_choice, "always"
+    pipe = None if remote is not None else (pipeline or Pipeline())
+    key = ("frames", id(source), time.time_ns())  # (the renderer's bake of this run, updated frame to frame)
+    if pipe is not None:
+        was_reusing, pipe.reuse = pipe.reuse, bool(reuse)
+        # (every light reuses, whatever it costs here: the same frames give the same masks on any machine)
+        was_choice, pipe.reuse_choice = pipe.reuse_choice, "always"
     raytrace = settings.mode == "raytrace"
     prev = None
     warned = False
@@ -310,18 +319,25 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
             print_report(scene.report, reported)
             scene.validate()
             check_renderable(scene)
-            check_light_count(pipe.ctx, len(scene.lights))
             if not scene.lights and not warned:
                 warned = True
                 print(f"warning: scene '{scene.name}' has no lights: rendering the world colour (ambient) only",
                       file=sys.stderr, flush=True)
-            sync = sync_scene(pipe, prev, scene, bake=raytrace, structure=settings.structure)
-            prev = scene
             width, height = resolution or scene.resolution
-            frame = pipe.render(scene, settings, width, height)
-            entry = {"frame": f, "bake": sync.kind, "output": str(paths[f]), "export_ms": export_ms}
-            entry.update(frame_stats(scene, frame, sync.ms))
-            entry["bake_updates"] = {"instances": len(sync.moved), "models": len(sync.models), "reason": sync.reason}
+            if remote is not None:
+                frame = remote.render(scene, settings, width, height, persistent_key=key, reuse=bool(reuse), want=(),
+                                      masks=bool(masks_dir))
+                kind, bake_ms = frame.stats.pop("bake"), frame.stats.pop("bake_ms", 0.0)
+                updates = frame.stats.pop("bake_updates", {})
+            else:
+                sync = sync_scene(pipe, prev, scene, bake=raytrace, structure=settings.structure)
+                prev = scene
+                frame = pipe.render(scene, settings, width, height)
+                kind, bake_ms = sync.kind, sync.ms
+                updates = {"instances": len(sync.moved), "models": len(sync.models), "reason": sync.reason}
+            entry = {"frame": f, "bake": kind, "output": str(paths[f]), "export_ms": export_ms}
+            entry.update(frame_stats(scene, frame, bake_ms))
+            entry["bake_updates"] = updates
             entry["reuse"] = {"hard": bool(reuse) and k > 0, "soft": "own samples"}
             entries[f] = entry
             listing = [entries[g] for g in frames if g in entries]
@@ -329,8 +345,9 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
             write_outputs(paths[f], scene, frame, masks_dir=frame_masks_dir(masks_dir, f) if masks_dir else None,
                           files=files)
     finally:
-        pipe.reuse = was_reusing
-        pipe.reuse_choice = was_choice
+        if pipe is not None:
+            pipe.reuse = was_reusing
+            pipe.reuse_choice = was_choice
     if progress is not None:
         progress(len(todo), max(len(todo), 1), f"{len(todo)} frames rendered{note}")
     if stats_file is not None and not todo:

@@ -28,7 +28,7 @@ from ..errors import SceneError
 from ..progress import Progress
 from ..settings import Settings
 from . import memory
-from .context import check_render_size, create_context, make_current
+from .context import check_light_count, check_render_size, create_context, make_current
 from .frame import CameraUniforms, FrameJob, read_mask
 from .host_counts import counts_of
 from .lights import select_shadowed_lights
@@ -334,6 +334,7 @@ class Pipeline:
         width = int(width or scene.resolution[0])
         height = int(height or scene.resolution[1])
         check_render_size(self.ctx, width, height)
+        check_light_count(self.ctx, len(scene.lights))
         n = target_samples(settings)
         if n > 1 and self.see_through.in_view(scene, width, height):
             return self._render_see_through(scene, settings, width, height, film_transparent, progress, n,

@@ -114,12 +114,15 @@ class FinalJobs:
             before = ledger.bytes
             ledger.reset_peak()
             progress(0, 1, "Baking")
-            kind = self._bake(pipe, scene, settings, options.get("persistent_key"))
+            t0 = time.perf_counter()
+            kind, updates = self._bake(pipe, scene, settings, options.get("persistent_key"))
+            bake_ms = (time.perf_counter() - t0) * 1e3
             kwargs = {"max_draw_ms": options["max_draw_ms"]} if options.get("max_draw_ms") else {}
             frame = pipe.render(scene, settings, width, height, film_transparent=options.get("film_transparent", False),
                                 progress=progress, **kwargs)
             data = frame_data(frame, options.get("want", ()), options.get("masks", True))
-            data.stats.update(bake=kind, gpu_memory_before_mb=round(before / MB, 1),
+            data.stats.update(bake=kind, bake_ms=bake_ms, bake_updates=updates,
+                              gpu_memory_before_mb=round(before / MB, 1),
                               gpu_peak_mb=round(ledger.peak / MB, 1))
             self._free(pipe, keep_bake=options.get("persistent_key") is not None, keep_history=keep)
             memory.collect(pipe.ctx)
@@ -142,21 +145,23 @@ class FinalJobs:
             if not isinstance(exc, Exception):
                 raise
 
-    def _bake(self, pipe, scene, settings, key) -> str:
+    def _bake(self, pipe, scene, settings, key) -> tuple:
+        """``(kind, updates)``: how the bake was made ready for ``scene`` (``scene_sync``'s
+        kinds) and, for an update, ``{"instances", "models", "reason"}``."""
         from ..scene_sync import FULL, NONE, sync_scene
 
         raytrace = settings.mode == "raytrace"
         if key is None:
             self.state.clear()
             if not raytrace:
-                return NONE
+                return NONE, {"instances": 0, "models": 0, "reason": "no ray tracing"}
             pipe.set_scene(scene, settings.structure)
-            return FULL
+            return FULL, {"instances": 0, "models": 0, "reason": "no persistent data"}
         prev = self.state.get("scene") if self.state.get("key") == key else None
         self.state.clear()  # (until the update below succeeded)
-        kind = sync_scene(pipe, prev, scene, bake=raytrace, structure=settings.structure).kind
+        sync = sync_scene(pipe, prev, scene, bake=raytrace, structure=settings.structure)
         self.state.update(key=key, scene=scene)
-        return kind
+        return sync.kind, {"instances": len(sync.moved), "models": len(sync.models), "reason": sync.reason}
 
     @staticmethod
     def _free(pipe, keep_bake: bool, keep_history: bool = False) -> None:
