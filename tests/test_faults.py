@@ -309,6 +309,17 @@ def test_a_hung_final_renderer_is_ended_after_its_deadline(loaded, final_rendere
     assert not any(_alive(p) for p in hit)
 
 
+def test_a_final_renderer_without_progress_past_its_stage_deadline_is_one_line(loaded, final_renderer,
+                                                                              monkeypatch):
+    """A renderer that beats but does not advance (here: any stage longer than 0.05 s) is ended
+    after ``HYBRID_SHADOWS_STAGE_DEADLINE_S``, the frame tried once more, then one line."""
+    monkeypatch.setenv("HYBRID_SHADOWS_STAGE_DEADLINE_S", "0.05")
+    r = final_renderer()
+    with pytest.raises(RendererError, match=r"made no progress for [\d.]+ s and was ended in '.*', twice") as info:
+        r.render(loaded("forest"), Settings(samples=16), 320, 180)
+    assert r.starts == 2 and "\n" not in str(info.value)
+
+
 def test_a_frame_that_cannot_be_sent_is_one_line_at_once(loaded, final_renderer):
     r = final_renderer()
     t0 = time.monotonic()

@@ -419,6 +419,17 @@ class RemoteWorker(ViewResults):
 _SCENE_COMMANDS = ("render", "move", "model", "reset", "reset_light")
 
 
+def stage_deadline_s() -> float:
+    """How long a final frame may go without progress (a bake's steps, a pass, a tile) before its
+    renderer is taken for stuck: a backstop for a renderer that beats but does not advance.
+    ``HYBRID_SHADOWS_STAGE_DEADLINE_S`` overrides the 3600 s."""
+    try:
+        value = float(os.environ.get("HYBRID_SHADOWS_STAGE_DEADLINE_S", "3600"))
+    except ValueError:
+        value = 3600.0
+    return value if value > 0 else 3600.0
+
+
 def ended(code, silent_s=None) -> str:
     """How a renderer process ended, in words."""
     if silent_s is not None:
@@ -511,21 +522,22 @@ class FinalRenderer:
         ``persistent_key``: hard masks reused from the last frame, its history kept), ``want``
         (G-buffer targets to read), ``masks``, ``max_draw_ms``. ``should_stop()`` polled every 20 ms: True
         cancels (raises :class:`Cancelled`); ``on_progress(done, total, label)`` follows the child.
-        A renderer that ends (or stays silent past :func:`deadline_s`) is started again and the
-        frame rendered once more; a second failure raises :class:`RendererError` naming the stage
-        (the last progress label) where it happened."""
-        stage = "the start"
+        A renderer that ends (or stays silent past :func:`deadline_s`, or makes no progress for
+        :func:`stage_deadline_s`) is started again and the frame rendered once more; a second
+        failure raises :class:`RendererError` naming the stage (the last progress label) where it
+        happened."""
+        stage, limit = "the start", stage_deadline_s()
         for attempt in (1, 2):
             job = self._begin()
             self._proc.post(("final", job, scene, settings, int(width), int(height), options))
-            exited = None
+            exited, stuck, last = None, None, time.monotonic()
             while exited is None:
                 events, exited = self._wait()
                 for ev in events:
                     if ev[1] != job:
                         continue
                     if ev[0] == "progress":
-                        stage = ev[4] or stage
+                        stage, last = ev[4] or stage, time.monotonic()
                         if on_progress is not None:
                             on_progress(*ev[2:])
                         continue
@@ -536,7 +548,14 @@ class FinalRenderer:
                 if exited is None and should_stop is not None and should_stop():
                     self._cancel(job)
                     raise Cancelled()
-            how = ended(*exited)
+                if exited is None and time.monotonic() - last > limit:
+                    stuck = time.monotonic() - last
+                    self._proc.kill()
+                    with self._cond:
+                        self._cond.wait_for(lambda: self._exited is not None, 10.0)
+                        exited = self._exited or (None, None)
+            how = (f"the renderer process made no progress for {stuck:.1f} s and was ended" if stuck is not None
+                   else ended(*exited))
             if attempt == 2:
                 raise RendererError(f"{how} in '{stage}', twice: the frame was not rendered")
             print(f"Hybrid Shadows: {how} in '{stage}'; rendering the frame again", file=sys.stderr, flush=True)
