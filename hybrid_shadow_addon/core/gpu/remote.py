@@ -292,7 +292,9 @@ class RemoteWorker(ViewResults):
 
     # -- commands ---------------------------------------------------------------------------------
     def set_scene(self, scene, structure=None) -> None:
-        self._proc.post(("bake", snapshot(scene), structure))
+        """A new bake; it stands for the unsent bakes, moves and model edits before it (a move
+        queued later is never merged with one of an earlier scene, whose rows may differ)."""
+        self._proc.post(("bake", snapshot(scene), structure), replace=lambda b: b[0] in ("bake", "move", "model"))
 
     def move_instances(self, scene, indices) -> None:
         """Instances moved; moves not sent yet become one (their instances, the newest scene)."""

@@ -214,7 +214,11 @@ class RenderWorker(ViewResults):
 
     # -- commands (caller's thread) ---------------------------------------------------------------
     def set_scene(self, scene, structure: str | None = None) -> None:
-        """Bake ``scene`` (as :meth:`Pipeline.set_scene`)."""
+        """Bake ``scene`` (as :meth:`Pipeline.set_scene`). It stands for the bakes, moves and
+        model edits still queued (a move queued later never merges with one of an earlier scene,
+        whose rows may differ)."""
+        with self._cond:
+            self._remove(lambda it: it[0] in ("bake", "move", "model"))
         self._command(("bake", snapshot(scene), structure))
 
     def move_instances(self, scene, indices) -> None:
