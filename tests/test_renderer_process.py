@@ -226,6 +226,12 @@ def test_queued_moves_and_model_edits_merge(loaded):
         kinds = [it[0] for it in worker._queue]
         assert kinds == ["move", "reset", "model"], kinds
         assert worker._queue[0][2].tolist() == [0, 1]
+        # a bake stands for what was queued before it; a later move merges with nothing before it
+        worker.set_scene(scene)
+        worker.move_instances(scene, [1])
+        kinds = [it[0] for it in worker._queue]
+        assert kinds == ["reset", "bake", "move"], kinds
+        assert worker._queue[2][2].tolist() == [1]
     finally:
         worker.close()
     merged = _merge_moves([("move", "old", np.array([3, 1]))], ("move", "new", np.array([1, 2])))
