@@ -232,6 +232,13 @@ def _put_blocks(tex4, first, rows, row0, cnt, per, tt) -> None:
         return
     blk = np.zeros((n, tt * 4), np.float32)
     blk[:, :cnt * per] = np.take(rows, row0[:, None] + np.arange(cnt), axis=0).reshape(n, cnt * per)
+    # the blocks land in runs of back-to-back texels (a tree's leaves of one size, broken where
+    # a leaf of another size sits): a slice per run, unless the runs are short
+    cut = np.flatnonzero(np.diff(first) != tt) + 1
+    if len(cut) < n // 16:
+        for a, b in zip([0, *cut.tolist()], [*cut.tolist(), n]):
+            tex4[first[a]:first[a] + (b - a) * tt].reshape(b - a, tt * 4)[:] = blk[a:b]
+        return
     dst = ((first[:, None] + np.arange(tt)) * 2)[:, :, None] + np.arange(2)
     tex4.view(np.uint64).reshape(-1)[dst.reshape(-1)] = blk.view(np.uint64).reshape(-1)
 
