@@ -1,5 +1,7 @@
 """The scene camera, the world colour and the render resolution."""
 import math
+import os
+import tempfile
 
 import bpy
 import numpy as np
@@ -73,14 +75,161 @@ def test_environment_texture_world_is_its_mean(scene):
 
 
 def test_sky_texture_world_is_its_average(scene):
-    from hybrid_shadow_addon.blender.export.world import SKY_MEAN
+    from hybrid_shadow_addon.blender.export.world import sky_table
 
     node = _world_with(scene, "ShaderNodeTexSky")
     node.sun_elevation = math.radians(15.0)
+    table, stand_in = sky_table(node.sky_type, bpy.app.version[0])
+    assert stand_in is None  # the node's default sky type has a table in this Blender
     s = export_scene()
-    np.testing.assert_allclose(s.world_color, 2.0 * np.float32(dict(SKY_MEAN)[15.0]), rtol=1e-5)
+    measured = {row[0]: row[1:] for row in table["mean"]}
+    np.testing.assert_allclose(s.world_color, 2.0 * np.float32(measured[15.0]), rtol=1e-5)
+    node.sun_intensity = 4.0  # Cycles' Sun Intensity scales the sun disc only: not the sky
+    np.testing.assert_allclose(export_scene().world_color, s.world_color, rtol=1e-6)
     node.sun_elevation = math.radians(60.0)
     low_sun = s.world_color
     s2 = export_scene()
     assert s2.world_color[2] > low_sun[2]  # a high sun: a bluer, brighter sky on average
     assert any("Sky Texture" in w for w in s2.report), s2.report
+    assert not any("approximate" in w for w in s2.report), s2.report  # the defaults: as measured
+
+
+# --------------------------------------------------------------------------------------------
+# the Sky Texture's average against Cycles
+# --------------------------------------------------------------------------------------------
+#: every sky type of Blender 4.5 and 5.x (a test of a type the running Blender lacks skips)
+SKY_TYPES = ("NISHITA", "SINGLE_SCATTERING", "MULTIPLE_SCATTERING", "PREETHAM", "HOSEK_WILKIE")
+#: the export's sky average against Cycles' panorama at an elevation between the table's (and a
+#: sun rotation other than the table's): measured within 0.4 % (of the brightest channel) on
+#: Blender 4.5 and 5.2, the table's interpolation and the panoramas' sampling together
+SKY_TOLERANCE = 0.015
+
+
+def _sky_node(scene, sky_type):
+    """A Sky Texture world of ``sky_type``, skipped where the running Blender has no such sky."""
+    have = [i.identifier for i in bpy.types.ShaderNodeTexSky.bl_rna.properties["sky_type"].enum_items]
+    if sky_type not in have:
+        pytest.skip(f"Blender {bpy.app.version_string} has no {sky_type} sky (it has {', '.join(have)})")
+    node = _world_with(scene, "ShaderNodeTexSky")
+    node.sky_type = sky_type
+    return node
+
+
+def _cycles_world_mean(scene, size=(64, 32), samples=16):
+    """Cycles' (CPU) view of the world: the solid-angle-weighted mean of an equirectangular panorama."""
+    from hybrid_shadow_addon.blender.export.world import equirect_mean
+    from hybrid_shadow_addon.tools.exr import read_exr
+
+    cam = bpy.data.objects.new("panorama", bpy.data.cameras.new("panorama"))
+    scene.collection.objects.link(cam)
+    cam.data.type, cam.data.panorama_type = "PANO", "EQUIRECTANGULAR"
+    cam.rotation_euler = (math.pi / 2, 0.0, 0.0)  # the horizon across the middle: rows are latitudes
+    scene.camera = cam
+    r = scene.render
+    r.engine, r.film_transparent, r.use_compositing = "CYCLES", False, False
+    r.resolution_x, r.resolution_y, r.resolution_percentage = size[0], size[1], 100
+    im = r.image_settings
+    if hasattr(im, "media_type"):  # Blender 5.0
+        im.media_type = "MULTI_LAYER_IMAGE"
+    else:
+        im.file_format = "OPEN_EXR_MULTILAYER"
+    im.color_depth = "32"
+    c = scene.cycles
+    c.device, c.samples, c.use_denoising, c.use_adaptive_sampling = "CPU", samples, False, False
+    with tempfile.TemporaryDirectory() as tmp:
+        r.filepath = os.path.join(tmp, "world.exr")
+        bpy.ops.render.render(write_still=True, scene=scene.name)
+        channels = read_exr(r.filepath)
+    return equirect_mean(next(v for k, v in channels.items() if "Combined" in k))
+
+
+@pytest.mark.cycles
+@pytest.mark.parametrize("sky_type", SKY_TYPES)
+def test_sky_world_colour_is_cycles_average(scene, sky_type):
+    from hybrid_shadow_addon.blender.export.world import set_sun_elevation
+
+    node = _sky_node(scene, sky_type)
+    set_sun_elevation(node, math.radians(25.0))  # between the table's elevations
+    node.sun_rotation = 1.0
+    node.sun_intensity = 3.0  # scales the sun disc only (off here, as the export leaves it out)
+    node.sun_disc = False
+    scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.7
+    s = export_scene()
+    cycles = _cycles_world_mean(scene)
+    err = np.abs(s.world_color - cycles).max() / cycles.max()
+    assert err < SKY_TOLERANCE, (s.world_color, cycles, err)
+    assert not any("approximate" in w for w in s.report), s.report
+    if sky_type not in ("PREETHAM", "HOSEK_WILKIE"):
+        node.sun_disc = True  # the disc is left out (a Sun lamp stands for it), and said so
+        s2 = export_scene()
+        np.testing.assert_allclose(s2.world_color, s.world_color, rtol=1e-6)
+        assert any("sun disc left out" in w for w in s2.report), s2.report
+
+
+@pytest.mark.parametrize("sky_type", SKY_TYPES)
+def test_sky_settings_other_than_measured_are_reported(scene, sky_type):
+    node = _sky_node(scene, sky_type)
+    assert not any("approximate" in w for w in export_scene().report)
+    if sky_type in ("PREETHAM", "HOSEK_WILKIE"):
+        node.turbidity, what = 5.0, "turbidity 5"
+    else:
+        node.air_density, what = 2.0, "air density 2"
+    report = export_scene().report
+    assert any(what in w and "approximate" in w for w in report), report
+
+
+def test_sky_without_a_table_or_outside_it_is_reported(scene, monkeypatch):
+    from hybrid_shadow_addon.blender.export import world
+
+    node = _world_with(scene, "ShaderNodeTexSky")
+    node.sun_elevation = math.radians(100.0)  # past the zenith: Cycles' sun at 80°, turned
+    past = export_scene().world_color
+    node.sun_elevation = math.radians(80.0)
+    np.testing.assert_allclose(past, export_scene().world_color, rtol=1e-6)
+    node.sun_elevation = math.radians(-40.0)  # below the table's lowest elevation
+    report = export_scene().report
+    assert any("outside the measured" in w and "approximate" in w for w in report), report
+    node.sun_elevation = math.radians(15.0)
+    major = str(bpy.app.version[0])
+    tables = {m: dict(t) for m, t in world.sky_tables().items()}
+    del tables[major][node.sky_type]
+    monkeypatch.setattr(world, "sky_tables", lambda: tables)
+    s = export_scene()
+    assert any(f"no measured average for a {node.sky_type} Sky Texture" in w and "approximate" in w
+               for w in s.report), s.report
+    assert np.all(s.world_color > 0)
+    monkeypatch.setattr(world, "sky_tables", dict)
+    s = export_scene()  # no table at all: the Background's own colour
+    bg_colour = scene.world.node_tree.nodes["Background"].inputs["Color"].default_value[:3]
+    np.testing.assert_allclose(s.world_color, 2.0 * np.float32(bg_colour), rtol=1e-6)
+    assert any("no measured Sky Texture average" in w for w in s.report), s.report
+
+
+@pytest.mark.cycles
+def test_measure_sky_checks_the_table(scene, tmp_path):
+    """tools/measure_sky.py --check: the table holds for this Blender's default sky (at one table
+    elevation and one between), and an entry off is one line and a non-zero exit."""
+    import json
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from hybrid_shadow_addon.blender.export.world import SKY_TABLE_PATH
+
+    repo = Path(__file__).resolve().parents[1]
+    sky_type = _world_with(scene, "ShaderNodeTexSky").sky_type  # a new node's
+    table = tmp_path / "sky.json"
+    shutil.copy(SKY_TABLE_PATH, table)
+    cmd = [sys.executable, str(repo / "tools/measure_sky.py"), "--check", "--quiet", "--table", str(table),
+           "--types", sky_type, "--elevations", "30,12.5"]  # (12.5°'s cubic does not reach to 30°)
+    r = subprocess.run(cmd, cwd=repo, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+    doc = json.loads(table.read_text())
+    row = next(row for row in doc["tables"][str(bpy.app.version[0])][sky_type]["mean"] if row[0] == 30.0)
+    row[1:] = [1.1 * c for c in row[1:]]
+    table.write_text(json.dumps(doc))
+    r = subprocess.run(cmd, cwd=repo, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1, r.stdout + r.stderr
+    lines = [line for line in r.stdout.splitlines() if line.startswith("Blender ")]  # (not Blender's own log)
+    assert len(lines) == 1 and "30°" in lines[0] and sky_type in lines[0], r.stdout

@@ -1,25 +1,36 @@
 """The world's ambient colour (the scene model's uniform ambient light): its Background node's
 colour x strength, where the colour is an Environment Texture the image's mean over the sphere,
-and where it is a Sky Texture the sky's average (:data:`SKY_MEAN`)."""
+and where it is a Sky Texture the sky's average (:func:`sky_table`)."""
 from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
 
 import numpy as np
 
 from .common import warn_export
 from .nodes import constant, resolve
 
-#: Mean linear RGB over the sphere of Blender's Nishita sky (default air, dust and ozone, sun
-#: intensity 1, the sun disc left out: a sun lamp stands for it) by sun elevation in degrees,
-#: measured from 128x64 equirectangular Cycles renders (Blender 4.5, 16 samples); linear in
-#: between. Every sky type reads this table.
-SKY_MEAN = (
-    (0.0, (0.30651, 0.24276, 0.20584)), (2.0, (0.83406, 0.61649, 0.43296)),
-    (5.0, (1.47404, 1.22543, 0.90493)), (10.0, (1.98375, 1.84168, 1.58871)),
-    (15.0, (2.10409, 2.08669, 2.00328)), (20.0, (2.06990, 2.15777, 2.23755)),
-    (30.0, (1.89350, 2.12215, 2.44049)), (45.0, (1.66123, 1.98698, 2.49486)),
-    (60.0, (1.50709, 1.86858, 2.46441)), (75.0, (1.41746, 1.79082, 2.42673)),
-    (90.0, (1.38858, 1.76412, 2.41160)),
-)
+#: The Sky Texture's mean linear RGB over the sphere, the sun disc left out (a Sun lamp stands for
+#: it), by Blender major version, sky type and sun elevation: ``{"tables": {major: {sky type:
+#: {"settings": the node settings it holds for, "mean": [[elevation°, r, g, b], ...]}}}}``, measured
+#: from equirectangular Cycles renders by ``tools/measure_sky.py`` (which also checks it); a
+#: shape-preserving cubic in between. Cycles' Sun Intensity scales the sun disc only (Cycles'
+#: ``src/kernel/svm/sky.h``, ``sky_radiance_nishita``): the sky's average does not depend on it.
+SKY_TABLE_PATH = Path(__file__).with_name("sky_mean.json")
+#: The node settings a sky type's average depends on besides the sun's elevation: Preetham and
+#: Hosek-Wilkie read these; the Nishita skies (4.x Nishita, 5.x single and multiple scattering) read
+#: :data:`NISHITA_SETTINGS` (dust density is 5.x's aerosol density; a setting the running Blender
+#: lacks is skipped). Sun Size, Sun Disc and Sun Intensity change only the disc.
+SKY_SETTINGS = {"PREETHAM": ("turbidity",), "HOSEK_WILKIE": ("turbidity", "ground_albedo")}
+NISHITA_SETTINGS = ("altitude", "air_density", "dust_density", "aerosol_density", "ozone_density")
+#: A sky type without a table of its own in any Blender takes the first of these the nearest
+#: Blender version has
+_STAND_INS = ("MULTIPLE_SCATTERING", "NISHITA", "SINGLE_SCATTERING")
+#: Sky types whose sun is the node's Sun Direction (the others': Sun Elevation)
+_DIRECTION_TYPES = ("PREETHAM", "HOSEK_WILKIE")
+_SKY_TABLES: dict = {}
 #: Environment images averaged once per (image, its pixels' update): pointer -> (key, mean RGB)
 _ENV_CACHE: dict = {}
 
@@ -36,12 +47,137 @@ def world_background(world):
     return next((n for n in world.node_tree.nodes if n.type == "BACKGROUND"), None)
 
 
-def sky_mean(elevation_rad: float) -> np.ndarray:
-    """:data:`SKY_MEAN` at a sun elevation (radians; below the horizon: the horizon's)."""
-    deg = float(np.clip(np.degrees(elevation_rad), 0.0, 90.0))
-    xs = np.array([e for e, _ in SKY_MEAN])
-    rgb = np.array([c for _, c in SKY_MEAN])
-    return np.array([np.interp(deg, xs, rgb[:, k]) for k in range(3)], np.float32)
+def sky_tables() -> dict:
+    """The measured sky averages (:data:`SKY_TABLE_PATH`'s ``tables``: Blender major version ->
+    sky type -> table), read once; empty where the file cannot be read."""
+    if not _SKY_TABLES:
+        try:
+            _SKY_TABLES.update(json.loads(SKY_TABLE_PATH.read_text(encoding="utf-8"))["tables"])
+        except (OSError, ValueError, KeyError):
+            return {}
+    return _SKY_TABLES
+
+
+def sky_table(sky_type: str, major: int) -> tuple:
+    """``(table, stand_in)``: the table measured for ``sky_type`` in Blender ``major`` and None;
+    without one, the same type's table of the nearest Blender version that has it, else the
+    nearest :data:`_STAND_INS` table, else any, and words saying which; ``(None, None)`` without
+    any table."""
+    tables = sky_tables()
+    entry = tables.get(str(major), {}).get(sky_type)
+    if entry is not None:
+        return entry, None
+    nearest = sorted(tables, key=lambda m: (abs(int(m) - major), -int(m)))  # ties: the newer
+    for types in ((sky_type,), _STAND_INS, None):
+        for m in nearest:
+            t = next((t for t in (types or tables[m]) if t in tables[m]), None)
+            if t is not None:
+                return tables[m][t], f"the {t} sky of Blender {m}"
+    return None, None
+
+
+def _pchip(x: np.ndarray, y: np.ndarray, xe: float) -> float:
+    """Shape-preserving piecewise cubic (Fritsch-Carlson) through (x, y) at ``xe`` (inside x): no
+    overshoot at a peak or a flat run. Between the table's elevations above the horizon it is within
+    0.5 % of the measured Nishita skies and 1.3 % of Preetham's, where straight lines are off by up
+    to 4 % and 7 %."""
+    h, d = np.diff(x), np.diff(y) / np.diff(x)
+    m = np.zeros_like(y)
+    for i in range(1, len(x) - 1):
+        if d[i - 1] * d[i] > 0:
+            w1, w2 = 2 * h[i] + h[i - 1], h[i] + 2 * h[i - 1]
+            m[i] = (w1 + w2) / (w1 / d[i - 1] + w2 / d[i])
+    for i, (h0, h1, d0, d1) in ((0, (h[0], h[1], d[0], d[1])), (-1, (h[-1], h[-2], d[-1], d[-2]))):
+        s = ((2 * h0 + h1) * d0 - h0 * d1) / (h0 + h1)
+        if np.sign(s) != np.sign(d0):
+            s = 0.0
+        elif np.sign(d0) != np.sign(d1) and abs(s) > abs(3 * d0):
+            s = 3 * d0
+        m[i] = s
+    i = int(np.clip(np.searchsorted(x, xe) - 1, 0, len(x) - 2))
+    t = (xe - x[i]) / h[i]
+    return float((1 + 2 * t) * (1 - t) ** 2 * y[i] + t * (1 - t) ** 2 * h[i] * m[i]
+                 + t * t * (3 - 2 * t) * y[i + 1] + t * t * (t - 1) * h[i] * m[i + 1])
+
+
+def sky_mean(elevation_deg: float, table: dict) -> np.ndarray:
+    """A table's mean RGB at a sun elevation in degrees (:func:`_pchip` in between; outside the
+    measured elevations: the nearest end's)."""
+    rows = np.array(table["mean"], np.float64)
+    e = float(np.clip(elevation_deg, rows[0, 0], rows[-1, 0]))
+    if len(rows) < 3:
+        return np.array([np.interp(e, rows[:, 0], rows[:, k]) for k in (1, 2, 3)], np.float32)
+    return np.array([_pchip(rows[:, 0], rows[:, k], e) for k in (1, 2, 3)], np.float32)
+
+
+def sky_settings(node) -> dict:
+    """The node's settings that its sky type's average depends on besides the sun's elevation
+    (:data:`SKY_SETTINGS`), rounded to 6 significant digits."""
+    names = SKY_SETTINGS.get(node.sky_type, NISHITA_SETTINGS)
+    return {n: float(f"{float(getattr(node, n)):.6g}") for n in names if hasattr(node, n)}
+
+
+def sun_elevation(node) -> float:
+    """The Sky Texture's sun elevation in degrees, in [-90, 90], as Cycles reads it: Preetham's and
+    Hosek-Wilkie's from the (normalised) Sun Direction, the others' Sun Elevation folded into
+    [-90°, 90°] (the sun past the zenith is the sun at the supplementary elevation, turned)."""
+    if node.sky_type in _DIRECTION_TYPES:
+        d = np.array(node.sun_direction, np.float64)
+        n = float(np.linalg.norm(d))
+        return 90.0 if n < 1e-12 else math.degrees(math.asin(float(np.clip(d[2] / n, -1.0, 1.0))))
+    e = math.fmod(float(node.sun_elevation), 2 * math.pi)
+    if abs(e) >= math.pi:
+        e -= math.copysign(2 * math.pi, e)
+    if abs(e) >= math.pi / 2:
+        e = math.copysign(math.pi, e) - e
+    return math.degrees(e)
+
+
+def set_sun_elevation(node, elevation_rad: float) -> None:
+    """Put the Sky Texture's sun at an elevation (radians), for every sky type: Sun Elevation and a
+    Sun Direction in the y-z plane."""
+    node.sun_elevation = elevation_rad
+    node.sun_direction = (0.0, math.cos(elevation_rad), math.sin(elevation_rad))
+
+
+def _sky_rgb(world, node) -> np.ndarray | None:
+    """The Sky Texture's average over the sphere (:func:`sky_table`), and what it approximates
+    reported: a table of another sky type or Blender version, a sun elevation outside the measured
+    ones, settings other than those measured. None without any table."""
+    import bpy
+
+    name, sky_type, major = f"world '{world.name}'", node.sky_type, int(bpy.app.version[0])
+    table, stand_in = sky_table(sky_type, major)
+    if table is None:
+        warn_export(f"{name}: no measured Sky Texture average ({SKY_TABLE_PATH.name} unreadable): "
+                    f"its default colour is used")
+        return None
+    deg = sun_elevation(node)
+    lo, hi = table["mean"][0][0], table["mean"][-1][0]
+    used = min(max(deg, lo), hi)
+    mean = sky_mean(used, table)
+    has_disc = sky_type not in _DIRECTION_TYPES and getattr(node, "sun_disc", False)
+    disc = "; the sun disc left out: a Sun lamp stands for it" if has_disc else ""
+    warn_export(f"{name}: Sky Texture lights as its average sky {_fmt(mean)} ({sky_type}, sun elevation "
+                f"{deg:.0f}°; uniform ambient, no directions{disc})")
+    if stand_in:
+        warn_export(f"{name}: no measured average for a {sky_type} Sky Texture in Blender {major}: "
+                    f"{stand_in} stands in (approximate)")
+    if used != deg:
+        warn_export(f"{name}: the Sky Texture's sun elevation {deg:.1f}° lies outside the measured "
+                    f"{lo:g}°..{hi:g}°: the sky at {used:g}° stands in (approximate)")
+    measured = table.get("settings", {})
+    differ = {k: v for k, v in sky_settings(node).items()
+              if k in measured and not math.isclose(v, measured[k], rel_tol=1e-4, abs_tol=1e-6)}
+    if differ:
+        ours = ", ".join(f"{k.replace('_', ' ')} {v:g}" for k, v in differ.items())
+        theirs = ", ".join(f"{k.replace('_', ' ')} {measured[k]:g}" for k in differ)
+        warn_export(f"{name}: the Sky Texture's {ours} differ from the settings its average was measured at "
+                    f"({theirs}): the average of the sky at those stands in (approximate)")
+    vector = next((i for i in node.inputs if i.identifier == "Vector"), None)  # (4.5: not found by name)
+    if vector is not None and vector.is_linked:
+        warn_export(f"{name}: the Sky Texture's Vector is linked: the average is the unmapped sky's")
+    return mean
 
 
 def equirect_mean(pixels: np.ndarray) -> np.ndarray:
@@ -98,12 +234,9 @@ def _background_rgb(world, bg) -> np.ndarray:
             return mean
         warn_export(f"world '{world.name}': the Environment Texture has no pixels: its default colour is used")
     elif node.type == "TEX_SKY" and not node.mute:
-        elevation = float(getattr(node, "sun_elevation", np.radians(15.0)))
-        mean = sky_mean(elevation) * np.float32(getattr(node, "sun_intensity", 1.0))
-        warn_export(f"world '{world.name}': Sky Texture lights as the average sky at sun elevation "
-                    f"{np.degrees(elevation):.0f}° {_fmt(mean)} (uniform ambient; air, dust and ozone at "
-                    f"Blender's defaults, no sun disc)")
-        return mean
+        mean = _sky_rgb(world, node)
+        if mean is not None:
+            return mean
     else:
         warn_export(f"world '{world.name}': the Background colour is linked from '{node.name}' "
                     f"({node.bl_idname}): its default colour is used")
