@@ -7,7 +7,8 @@
   pass: the frame is rendered again in a new process, the same image and files; killed twice:
   one line naming the stage.
 - A renderer that hangs (SIGSTOP): ended after its deadline (``HYBRID_SHADOWS_DEADLINE_S``),
-  the frame rendered again; in the viewport one status line, and the next frame renders.
+  the frame rendered again. In the viewport a renderer killed (while the caller exports, in a
+  bake, in a pass) or hung is one status line, and the next frame renders in a new process.
 - An output disk that fills during ``--frames``: one line (exit code 74), the frames before it
   complete, nothing of the failing one; a rerun finishes with the same files. A truncated or
   foreign ``.blend``: one line (exit code 2), nothing written.
@@ -355,6 +356,47 @@ def test_no_child_outlives_close(loaded, final_renderer):
     w.close()
     time.sleep(0.5)
     assert w.pid is None or not _alive(w.pid)
+
+
+@pytest.mark.parametrize("stage", ["export", "bake", "pass"])
+def test_a_viewport_renderer_killed_is_one_status_line_and_the_next_frame_renders(loaded, stage):
+    """Killed while the caller exports (the child idle), in a bake or in a frame's passes: one
+    error, and the next frame renders in a new process."""
+    import dataclasses
+
+    from hybrid_shadow_addon.core.gpu.remote import RemoteWorker
+    from hybrid_shadow_addon.core.gpu.worker import RenderRequest
+
+    forest = dataclasses.replace(loaded("forest"), resolution=(320, 180))
+    settings = Settings(hard=True)
+
+    def request(scene):
+        return RenderRequest(view="v", scene=scene, fast=settings, full=settings, width=scene.resolution[0],
+                             height=scene.resolution[1])
+
+    w = RemoteWorker()
+    try:
+        w.render(request(dataclasses.replace(loaded("cube_on_plane"), resolution=SIZE)))
+        assert w.wait_idle(120) and w.poll("v")[1] == []
+        pid = w.pid
+        if stage == "bake":
+            w.set_scene(forest)
+            time.sleep(0.15)
+        elif stage == "pass":
+            w.render(request(forest))
+            time.sleep(0.6)
+        os.kill(pid, signal.SIGKILL)
+        deadline, errors = time.monotonic() + 30, []
+        while not errors and time.monotonic() < deadline:
+            errors = w.poll("v")[1]
+            time.sleep(0.05)
+        assert len(errors) == 1 and "ended unexpectedly" in str(errors[0]), errors
+        w.render(request(forest))
+        assert w.wait_idle(120)
+        result, errors = w.poll("v")
+        assert result is not None and errors == [] and w.pid != pid
+    finally:
+        w.close()
 
 
 def test_a_hung_viewport_renderer_is_one_status_line_and_the_next_frame_renders(loaded, monkeypatch):
