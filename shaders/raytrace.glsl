@@ -43,6 +43,8 @@
 // |                  | (reproject.glsl MARK): +-(3 + footprint), 0.5 between 0 and 1    | reproject.py      |
 // | HS_LOOP_CHECK    | tests: a pixel whose loop hit llvmpipe's budget reads            | soft.py           |
 // |                  | HS_LOOP_SPENT (RaytraceOptions.loop_check; see below)            |                   |
+// | HS_LOOP_DROP     | a soft ray (packet) walked after llvmpipe's loop budget was      | soft.py           |
+// |                  | spent is dropped (RaytraceOptions.loop_guard; hs_budget_left)    |                   |
 // | HS_QUEUE_GEN     | compute: one invocation per mask texel writes the answers known  | queue.py          |
 // |                  | without a ray and appends the other texels to the ray queue      |                   |
 // | HS_QUEUE_TRACE   | compute: one invocation per queued texel traces its ray          | queue.py          |
@@ -83,6 +85,23 @@ uniform ivec2 u_offset;         // texel q traces pixel 2q + u_offset (this fram
 #endif
 
 #define HS_LOOP_SPENT -7.0
+#if defined(HS_LOOP_DROP) && defined(HS_SOFT)
+// Whether llvmpipe's loop budget is left (every loop of an invocation ends after its first pass
+// once all of them together have run 65535 iterations): a loop that wants two passes makes both.
+// (Its end is a float test and its bound a uniform: the compiler cannot count its passes, so it
+// stays a loop.) A ray or packet walked after the budget was spent ended its walk as if nothing
+// were in the way: the soft loops drop it and stop, the pixel's share comes from the rays it
+// traced in full.
+bool hs_budget_left()
+{
+    int q = 0;
+    for (int z = 0; z <= u_samples; ++z) {
+        ++q;
+        if (float(q) > 1.5) break;
+    }
+    return q >= 2;
+}
+#endif
 #if defined(HS_SOFT_PROBE) || defined(HS_SOFT_ACCUM)
 #define HS_SOFT_SUMS
 #define HS_ACCUM_TOP_WEIGHT 1.0e-30
@@ -229,6 +248,9 @@ void trace_main(ivec2 mt)
 #endif
         }
         uvec2 occ = hs_trace_packet(o, slots, live);
+#ifdef HS_LOOP_DROP
+        if (!hs_budget_left()) break;
+#endif
         for (int j = 0; j < slots; ++j) {
             if (hs_has(live, j)) {
 #ifdef HS_HAS_ALPHA
@@ -255,6 +277,9 @@ void trace_main(ivec2 mt)
 #endif
         if (w > 0.0) {
             float v = w * hs_visibility(o, sd, stm);
+#ifdef HS_LOOP_DROP
+            if (!hs_budget_left()) break;
+#endif
             sv += v;
             sw += w;
 #ifdef HS_SOFT_SUMS

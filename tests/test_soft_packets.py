@@ -244,3 +244,37 @@ def test_chunk_draws_end_on_aligned_blocks():
     spans = chunk_spans(5, 3, 200, 28)                             # ray by ray
     assert sum(n for _, n in spans) == 197 and all(n <= 28 for _, n in spans)
     assert all((5 + s + n) % 28 == 0 for s, n in spans[:-1])
+
+
+@pytest.mark.parametrize("samples", [512, 700])
+def test_rays_cut_short_by_the_loop_budget_are_dropped(pipe, monkeypatch, samples):
+    """Draws of more rays than llvmpipe's loop budget lets a pixel trace (``CHUNK_RAYS`` raised
+    to 512, ray by ray on ``forest``: thousands of refined pixels spend it, as ``HS_LOOP_CHECK``
+    shows). Without the guard, the ray whose walk the budget cut counts as lit: the penumbrae
+    come out too lit (a mean bias) against the masks of draws within the budget. With it
+    (``RaytraceOptions.loop_guard``, on by default on a software rasteriser) that ray is dropped
+    and the pixel's share comes from the rays it traced in full (512: one draw; 700: two)."""
+    from hybrid_shadow_addon.blender.load import load_scene
+    from hybrid_shadow_addon.core.gpu.passes import soft
+
+    scene = load_scene("forest")
+    rt = pipe.shadow_pass("raytrace")
+    assert rt.options.loop_guard is None
+    _, ref = masks(pipe, scene, packets=False, samples=samples)
+    sun = ref[0]
+    pen = np.isfinite(sun) & (sun > 0.02) & (sun < 0.98)
+    monkeypatch.setattr(soft, "CHUNK_RAYS", {"rays": 512, "packets": 512})
+    out = {}
+    try:
+        for name, opts in (("check", dict(loop_check=True)), ("off", dict(loop_guard=False)),
+                           ("guard", dict(loop_guard=True))):
+            rt.options = replace(rt.options, **opts)
+            out[name] = masks(pipe, scene, packets=False, samples=samples)[1][0]
+            rt.options = replace(rt.options, loop_check=False, loop_guard=None)
+    finally:
+        rt.options = replace(rt.options, loop_check=False, loop_guard=None)
+    assert (np.nan_to_num(out["check"]) < -0.5).sum() > 1000
+    bias = {k: float(np.mean(out[k][pen] - sun[pen])) for k in ("off", "guard")}
+    mae = {k: float(np.mean(np.abs(out[k][pen] - sun[pen]))) for k in ("off", "guard")}
+    assert bias["off"] > 0.001 and abs(bias["guard"]) < bias["off"] / 4, bias
+    assert mae["guard"] <= mae["off"], mae

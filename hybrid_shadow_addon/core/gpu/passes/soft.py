@@ -24,6 +24,7 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
+from ..context import software_context
 from ..targets import TargetCache, draw_fullscreen, read_texture, set_uniforms
 from .base import LightVisibility
 from .hard import CLASSIFY_DEFINES
@@ -385,11 +386,18 @@ class SoftVisibility(LightVisibility):
 
     def _soft_defines(self, defines, rays: int) -> dict:
         """A soft pass's own defines for ``rays`` rays per pixel: packets where they pay
-        (:meth:`_packet_defines`, recorded in the stats) and, in tests, ``HS_LOOP_CHECK``."""
+        (:meth:`_packet_defines`, recorded in the stats), ``HS_LOOP_CHECK`` in tests and, with
+        ``HS_LOOP_DROP``, where llvmpipe's loop budget can cut rays short
+        (:attr:`RaytraceOptions.loop_guard`)."""
         d = self._packet_defines(defines, rays)
         self.defines_used.update({k: v for k, v in d.items() if k != "HS_SOFT_FULL"})
+        guard = self.options.loop_guard
+        if guard is None:
+            guard = software_context(self.ctx)
         if self.options.loop_check:
             d["HS_LOOP_CHECK"] = 1
+        elif guard:
+            d["HS_LOOP_DROP"] = 1
         return d
 
     def _chunk_draws(self, accum_defines, ray, gbuffer, settings, first: int, total: int):

@@ -32,6 +32,11 @@ class RaytraceOptions:
     early_stop: bool = True
     #: tests: refined pixels whose loops hit llvmpipe's budget read HS_LOOP_SPENT
     loop_check: bool = False
+    #: soft lights: a draw whose rays llvmpipe's loop budget cut short (every loop of an
+    #: invocation ends after 65535 iterations in all; a walk cut short ends as if nothing were in
+    #: the way) drops them: its sums add nothing, a refined mask keeps its probes' answer. None:
+    #: on a software rasteriser, the only place with that budget
+    loop_guard: bool | None = None
     #: build a hard light's grid at its first sight, in the frame (benchmarks, tests, tools),
     #: not once it pays back in the background (``passes/light_grid.py``)
     eager_light_grids: bool = False
