@@ -342,6 +342,35 @@ def test_a_channel_closed_mid_message_ends_the_child_and_the_next_render_starts_
     assert r.render(scene, Settings(hard=True), *SIZE).image is not None and r.pid != pid
 
 
+_PARENT = """
+import os, sys, time
+sys.path.insert(0, {repo!r})
+from hybrid_shadow_addon.blender.load import load_scene
+from hybrid_shadow_addon.core.gpu.remote import FinalRenderer
+from hybrid_shadow_addon.core.settings import Settings
+r = FinalRenderer()
+r.render(load_scene("cube_on_plane"), Settings(hard=True), 64, 36)
+print(r.pid, flush=True)
+time.sleep(600)
+"""
+
+
+def test_no_child_outlives_its_parent():
+    """The caller killed (SIGKILL: no clean-up runs): its renderer sees its channel close and ends."""
+    parent = subprocess.Popen([sys.executable, "-c", _PARENT.format(repo=str(REPO))], cwd=REPO,
+                              stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        child = int(parent.stdout.readline())
+        assert _alive(child)
+    finally:
+        parent.kill()
+        parent.wait(30)
+    deadline = time.monotonic() + 15
+    while _alive(child) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _alive(child)
+
+
 def test_no_child_outlives_close(loaded, final_renderer):
     from hybrid_shadow_addon.core.gpu.remote import RemoteWorker
 
