@@ -17,7 +17,9 @@ import sys
 import moderngl
 
 from ..errors import GPUError
+from ..limits import host_memory_bytes
 from .host_counts import track as track_host_counts
+from .lights import LIGHT_TEXELS
 from .memory import track as track_memory
 
 MIN_GL_VERSION = 410
@@ -150,21 +152,128 @@ def software_context(ctx) -> bool:
     return software_renderer((getattr(ctx, "info", None) or {}).get("GL_RENDERER", ""))
 
 
+#: bytes per pixel of the widest render target a frame makes (RGBA32F: the G-buffer's position,
+#: normals and material, the lit image)
+TARGET_BYTES_PER_PIXEL = 16
+
+# GL enums of the proxy texture queries (GL 1.1 / 3.0 core): a proxy "allocation" asks the driver
+# whether a texture of that size and format can be made, and allocates nothing
+_PROXY_2D, _PROXY_2D_ARRAY, _TEXTURE_WIDTH = 0x8064, 0x8C1B, 0x1000
+#: (moderngl dtype, components) -> (internal format, format, type) of a proxy query
+_PROXY_FORMATS = {
+    ("f4", 1): (0x822E, 0x1903, 0x1406), ("f4", 2): (0x8230, 0x8227, 0x1406),  # R32F, RG32F
+    ("f4", 3): (0x8815, 0x1907, 0x1406), ("f4", 4): (0x8814, 0x1908, 0x1406),  # RGB32F, RGBA32F
+    ("u4", 1): (0x8236, 0x8D94, 0x1405), ("u4", 2): (0x823C, 0x8228, 0x1405),  # R32UI, RG32UI
+    ("u4", 3): (0x8D71, 0x8D98, 0x1405), ("u4", 4): (0x8D70, 0x8D99, 0x1405),  # RGB32UI, RGBA32UI
+    ("f1", 4): (0x8058, 0x1908, 0x1401),  # RGBA8
+}
+_proxy_fns: list = []
+
+
+def _proxy_functions():
+    """``(glTexImage2D, glTexImage3D, glGetTexLevelParameteriv)`` through ctypes, or None."""
+    if not _proxy_fns:
+        from .buffer_textures import _resolver
+
+        fns = None
+        try:
+            find = _resolver()
+            addrs = [find(n) for n in ("glTexImage2D", "glTexImage3D", "glGetTexLevelParameteriv")] if find else []
+            if addrs and all(addrs):
+                u, i, p = ctypes.c_uint, ctypes.c_int, ctypes.c_void_p
+                fns = (ctypes.CFUNCTYPE(None, u, i, i, i, i, i, u, u, p)(addrs[0]),
+                       ctypes.CFUNCTYPE(None, u, i, i, i, i, i, i, u, u, p)(addrs[1]),
+                       ctypes.CFUNCTYPE(None, u, i, u, ctypes.POINTER(i))(addrs[2]))
+        except (OSError, AttributeError, TypeError):
+            fns = None
+        _proxy_fns.append(fns)
+    return _proxy_fns[0]
+
+
+def texture_fits(ctx: moderngl.Context, width: int, height: int, components: int = 4, dtype: str = "f4",
+                 layers: int = 0) -> bool | None:
+    """Whether the driver would make a ``width`` x ``height`` texture (a 2D array of ``layers``
+    when ``layers`` > 0) of that format, by a proxy query (nothing is allocated; ``ctx`` must be
+    current); None where it cannot be asked. GL states only a size per side, but a software
+    rasteriser also refuses a texture of more bytes than it allows (Mesa's llvmpipe: 1.5 GiB,
+    e.g. 16384 x 6140 RGBA32F) with a ``GL_OUT_OF_MEMORY`` that moderngl does not raise: the
+    texture stays empty and a framebuffer over it is incomplete. The proxy says so beforehand."""
+    fns = _proxy_functions()
+    fmt = _PROXY_FORMATS.get((dtype, int(components)))
+    if fns is None or fmt is None:
+        return None
+    tex2d, tex3d, level = fns
+    if layers > 0:
+        tex3d(_PROXY_2D_ARRAY, 0, fmt[0], int(width), int(height), int(layers), 0, fmt[1], fmt[2], None)
+        target = _PROXY_2D_ARRAY
+    else:
+        tex2d(_PROXY_2D, 0, fmt[0], int(width), int(height), 0, fmt[1], fmt[2], None)
+        target = _PROXY_2D
+    out = ctypes.c_int(0)
+    level(target, 0, _TEXTURE_WIDTH, ctypes.byref(out))
+    return out.value != 0
+
+
+def _gib(n: int) -> str:
+    return f"{n / 2**30:.2f} GiB"
+
+
+def largest_rows(ctx: moderngl.Context, width: int, components: int = 4, dtype: str = "f4", layers: int = 0,
+                 cap: int | None = None) -> int:
+    """The most rows (up to ``cap``, else ``GL_MAX_TEXTURE_SIZE``) of a ``width``-wide texture of
+    that format the driver makes (:func:`texture_fits`; a binary search of proxy queries)."""
+    lo, hi = 0, int(cap or gpu_limits(ctx)["max_texture_size"])
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        lo, hi = (mid, hi) if texture_fits(ctx, width, mid, components, dtype, layers) is not False else (lo, mid - 1)
+    return lo
+
+
 def check_render_size(ctx: moderngl.Context, width: int, height: int, what: str = "render") -> None:
-    """GPUError when a ``width`` x ``height`` target exceeds the GPU's limits."""
+    """GPUError when a ``width`` x ``height`` target exceeds the GPU's limits: a side beyond the
+    largest texture, renderbuffer or viewport, or more pixels than the driver makes an RGBA32F
+    texture of (``TARGET_BYTES_PER_PIXEL``, :func:`texture_fits`)."""
     lim = gpu_limits(ctx)
     cap = min(lim["max_texture_size"], lim["max_renderbuffer_size"], *lim["max_viewport_dims"])
     if width < 1 or height < 1 or width > cap or height > cap:
         raise GPUError(f"{what} size {width}x{height} is outside this GPU's limits (1..{cap} per side)")
+    if texture_fits(ctx, width, height, 4, "f4") is False:
+        rows = largest_rows(ctx, width, cap=height)
+        raise GPUError(f"{what} size {width}x{height} needs {_gib(width * height * TARGET_BYTES_PER_PIXEL)} per "
+                       f"RGBA32F target; this GPU makes at most {width}x{rows} "
+                       f"({_gib(width * rows * TARGET_BYTES_PER_PIXEL)}, {width * rows:,} pixels)")
+
+
+#: bytes per pixel a frame holds whatever its lights: the G-buffer's seven targets and its depth
+#: (96), the lit image (16) and its read-back (16)
+FRAME_BYTES_PER_PIXEL = 128
+#: bytes per pixel each shadowed light adds: its R32F mask, kept at full resolution until the
+#: lighting pass has read every mask (a soft light's sums and ranges add more, left out here)
+MASK_BYTES_PER_PIXEL = 4
+
+
+def check_frame_memory(ctx: moderngl.Context, width: int, height: int, shadowed_lights: int) -> None:
+    """GPUError when a ``width`` x ``height`` frame with ``shadowed_lights`` masks needs more
+    memory than there is, before any of it is made: on a software rasteriser (its textures are
+    this process's memory, :func:`host_memory_bytes`), where running out kills the process or
+    leaves targets silently empty. The need counted is a lower bound (``FRAME_BYTES_PER_PIXEL``
+    + ``MASK_BYTES_PER_PIXEL`` per light); a GPU pages its own memory and is not checked."""
+    if not software_context(ctx):
+        return
+    have = host_memory_bytes()
+    need = int(width) * int(height) * (FRAME_BYTES_PER_PIXEL + MASK_BYTES_PER_PIXEL * int(shadowed_lights))
+    if have and need > have:
+        raise GPUError(f"a {width}x{height} frame with {shadowed_lights} shadowed lights needs at least {_gib(need)} "
+                       f"of render targets; this machine has {_gib(have)} (shadow fewer lights or render smaller)")
 
 
 #: texels per light in the lighting pass's light table (``shaders/common/lights.glsl``)
-LIGHT_TABLE_TEXELS = 4
+LIGHT_TABLE_TEXELS = LIGHT_TEXELS
 
 
 def max_lights(ctx: moderngl.Context) -> int:
     """Lights the lighting pass can hold: one row of ``LIGHT_TABLE_TEXELS`` texels per light in a
-    texture at most ``GL_MAX_TEXTURE_SIZE`` wide (4096 on a 16384 GPU)."""
+    texture at most ``GL_MAX_TEXTURE_SIZE`` wide (3276 on a 16384 GPU)."""
     return gpu_limits(ctx)["max_texture_size"] // LIGHT_TABLE_TEXELS
 
 

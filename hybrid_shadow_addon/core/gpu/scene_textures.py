@@ -17,9 +17,20 @@ import numpy as np
 
 from ..errors import GPUError
 from .buffer_textures import BufferTexture, gl_functions, max_texels
+from .context import largest_rows, texture_fits
 
 #: textures the shaders sample as images or share with other passes: always 2D arrays
 ARRAY_ONLY = frozenset({"mat", "atlas"})
+
+
+def largest_layers(ctx, td) -> int:
+    """The most layers of ``td``'s width, height and format the driver makes in one 2D array."""
+    lo, hi = 0, int(td.layers)
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        lo, hi = (mid, hi) if texture_fits(ctx, td.width, td.height, td.components, td.fmt, mid) is not False \
+            else (lo, mid - 1)
+    return lo
 
 
 class SceneTextures:
@@ -49,14 +60,32 @@ class SceneTextures:
                            f"a scene texture needs {need} texels; this GPU's buffer textures hold {limit}")
         return ok
 
-    def _create(self, td):
-        if self.using_buffers and td.name not in ARRAY_ONLY:
-            return BufferTexture(self.ctx, np.ascontiguousarray(td.data).tobytes(), td.fmt, td.components)
+    def check(self, td, buffers: bool) -> None:
+        """GPUError (one line) when ``td`` does not fit this GPU as what it would be made: a 2D
+        array wider, taller or of more layers than GL allows, or one the driver will not make
+        (its bytes: :func:`~.context.texture_fits`, a software rasteriser's limit that it would
+        otherwise fail silently). A buffer texture's texels are checked by :meth:`_fit_buffers`."""
+        if buffers and td.name not in ARRAY_ONLY:
+            return
         limits_2d = self.ctx.info["GL_MAX_TEXTURE_SIZE"]
         limits_layers = self.ctx.info["GL_MAX_ARRAY_TEXTURE_LAYERS"]
         if td.width > limits_2d or td.height > limits_2d or td.layers > limits_layers:
             raise GPUError(f"scene texture '{td.name}' needs {td.width}x{td.height}x{td.layers} texels; "
                            f"this GPU allows {limits_2d}x{limits_2d}x{limits_layers}")
+        if texture_fits(self.ctx, td.width, td.height, td.components, td.fmt, td.layers) is False:
+            if td.layers == 1:
+                rows = largest_rows(self.ctx, td.width, td.components, td.fmt, 1, cap=td.height)
+            else:
+                rows = td.height * largest_layers(self.ctx, td)
+            fit = td.width * rows
+            gib = fit * (td.nbytes // max(td.capacity, 1)) / 2**30
+            raise GPUError(f"scene texture '{td.name}' needs {td.capacity:,} texels ({td.nbytes / 2**30:.2f} GiB); "
+                           f"this GPU makes one of at most {fit:,} ({gib:.2f} GiB)")
+
+    def _create(self, td):
+        if self.using_buffers and td.name not in ARRAY_ONLY:
+            return BufferTexture(self.ctx, np.ascontiguousarray(td.data).tobytes(), td.fmt, td.components)
+        self.check(td, False)
         tex = self.ctx.texture_array((td.width, td.height, td.layers), td.components,
                                      np.ascontiguousarray(td.data).tobytes(), dtype=td.fmt)
         tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
@@ -64,7 +93,9 @@ class SceneTextures:
         return tex
 
     def upload(self, baked) -> None:
-        buffers = self._fit_buffers(baked)  # (its error leaves the textures as they were)
+        buffers = self._fit_buffers(baked)  # (its errors leave the textures as they were)
+        for td in baked.textures.values():
+            self.check(td, buffers)
         self.release()
         self.generation += 1
         self.using_buffers = buffers

@@ -5,6 +5,7 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
+from ..errors import GPUError
 from .context import check_render_size, make_current
 
 _NUMPY = {"f4": np.float32, "f2": np.float16, "f1": np.uint8, "u1": np.uint8, "i4": np.int32, "u4": np.uint32}
@@ -82,7 +83,13 @@ class TargetCache:
                 t.release()
             check_render_size(self.ctx, width, height, self.what)
             tex = create_texture(self.ctx, width, height, comps, self.dtype, self.fill)
-            t = self._targets[key] = Target(tex, self.ctx.framebuffer(color_attachments=[tex]))
+            try:
+                fbo = self.ctx.framebuffer(color_attachments=[tex])
+            except moderngl.Error as exc:  # (a texture the driver left empty: out of its memory)
+                tex.release()
+                raise GPUError(f"could not make a {width}x{height} {self.what} ({' '.join(str(exc).split())}): the GPU "
+                               f"is out of memory; render smaller or shadow fewer lights") from None
+            t = self._targets[key] = Target(tex, fbo)
             self.created = True
         return t
 

@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 
+from ...limits import check_instance_count
 from ...progress import checkpoint
 from .. import grid as _grid
 from ..bvh import build_bvhs
@@ -71,6 +72,7 @@ class HierarchicalGrid(GridUpdates, AccelerationStructure):
         cfg = config
         tex = structure.tex
         n = len(scene.instances)
+        check_instance_count(n)
         models = list(scene.models)
         m_count = len(models)
 

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...errors import SceneError
+from ...limits import check_bake_memory, check_instance_count, out_of_memory
 from ...progress import checkpoint
 from ..state import UpdateReport
 from ..textures import (
@@ -31,8 +33,42 @@ from ..textures import (
     texel_rows,
 )
 from .base import AccelerationStructure, ModelSlots
-from .blas import FORMATS, INST_TEXELS, LEAF_READ, NAMES, TLAS_PAD, build_blas, leaf_size, model_box, relocate_nodes
+from .blas import (
+    FORMATS,
+    INST_TEXELS,
+    LEAF_READ,
+    NAMES,
+    TLAS_PAD,
+    build_blas,
+    leaf_size,
+    model_box,
+    relocate_nodes,
+    tri_texels,
+)
 from .tlas import TopLevel
+
+#: [leaf] texels the model trees can address: a leaf node's payload is (first [leaf] texel << 3) |
+#: triangle count in the 31 bits below LEAF_FLAG, so its texel must stay below 2^28 (about 119
+#: million unique triangles at 2.25 texels each, less 5 texels per instance). Past it the
+#: payloads would wrap silently onto other triangles.
+MAX_LEAF_TEXELS = 1 << 28
+
+
+def leaf_texels(triangle_counts, leaf: int) -> int:
+    """[leaf] texels of model trees over ``triangle_counts`` (one per model) with ``leaf``
+    triangles per leaf: ``leaf`` consecutive triangles per leaf (the last one of a model fewer),
+    ``ceil(9 count / 4)`` texels each (:func:`.blas.build_blas`)."""
+    tc = np.asarray(triangle_counts, np.int64)
+    full, rest = tc // leaf, tc % leaf
+    return int((full * tri_texels(leaf)).sum() + tri_texels(rest).sum())
+
+
+def check_leaf_texels(texels: int, triangles: int, instances: int) -> None:
+    """SceneError when the [leaf] texture would need texels past :data:`MAX_LEAF_TEXELS`."""
+    if texels > MAX_LEAF_TEXELS:
+        raise SceneError(f"the scene's {triangles:,} unique triangles and {instances:,} instances need {texels:,} "
+                         f"BVH leaf texels; at most {MAX_LEAF_TEXELS:,} (2^28) can be addressed "
+                         f"(about {MAX_LEAF_TEXELS * 4 // 9:,} triangles; instance repeated meshes instead)")
 
 
 @dataclass
@@ -84,6 +120,20 @@ class TwoLevelBVH(AccelerationStructure):
     # ----------------------------------------------------------------------------- bake --
     @classmethod
     def bake(cls, scene, config, origin, materials) -> TwoLevelBVH:
+        """The structure of ``scene``; first the limits it must fit (instances, [leaf] texels,
+        memory), each a one-line error before anything is built."""
+        n = len(scene.instances)
+        check_instance_count(n)
+        counts = [m.triangle_count for m in scene.models]
+        check_leaf_texels(n * INST_TEXELS + leaf_texels(counts, leaf_size(config)) + LEAF_READ, sum(counts), n)
+        check_bake_memory(sum(counts), n)
+        try:
+            return cls._bake(scene, config, origin, materials)
+        except MemoryError:  # (past the lower bound checked above: numpy could not allocate)
+            raise out_of_memory(sum(counts), n) from None
+
+    @classmethod
+    def _bake(cls, scene, config, origin, materials) -> TwoLevelBVH:
         t_start = time.perf_counter()
         self = cls(config, origin, materials)
         models = list(scene.models)
@@ -355,6 +405,10 @@ class TwoLevelBVH(AccelerationStructure):
             uvm = self.uv_models[m:m + 1]
         blas = build_blas([scene.models[m]], leaf_size(self.config), uvm)
         nc, texels = int(blas.node_count[0]), int(blas.tri_texels[0])
+        if nc > trees.node_cap[m] or texels > trees.tri_cap[m]:  # (it goes to the tails: check before)
+            check_leaf_texels(self.leaf_tail + texels + LEAF_READ,
+                              int(trees.tri_count.sum()) - int(trees.tri_count[m]) + int(blas.tri_count[0]),
+                              len(self.member))
         node_base, tri_base, at_tail = trees.place(m, nc, texels, self.node_tail, self.leaf_tail)
         if at_tail:
             self.node_tail += nc

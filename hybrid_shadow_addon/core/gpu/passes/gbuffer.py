@@ -30,8 +30,9 @@ import moderngl
 import numpy as np
 
 from ...errors import SceneError
+from ...limits import check_instance_count
 from ...scene import max_scale
-from ..context import check_render_size, software_context
+from ..context import check_frame_memory, check_render_size, software_context
 from ..frame import GBUFFER_TARGETS, CameraUniforms, GBuffer
 from ..geometry import (
     INDEXED_ATTRS,
@@ -252,7 +253,9 @@ class GBufferPass(Pass):
         scene = job.scene
         if scene.camera is None:
             raise SceneError(f"scene '{scene.name}' has no camera")
+        check_instance_count(len(scene.instances))  # (the instance index is a float channel below)
         width, height = job.size
+        check_frame_memory(self.ctx, width, height, len(job.lights or ()))
         gb = self._targets(width, height)
         cam = CameraUniforms.from_camera(scene.camera, width, height)
         gb.camera = cam
