@@ -552,7 +552,7 @@ def test_image_colour_spaces_and_settings(scene):
     assert {n: (i.srgb, i.interpolation, i.extension) for n, i in imgs.items()} == {
         "byte": (True, "Cubic", "EXTEND"), "data": (False, "Closest", "MIRROR"),
         "float": (False, "Linear", "CLIP"), "no alpha": (True, "Cubic", "REPEAT")}  # Smart: Cycles' cubic
-    np.testing.assert_array_equal(imgs["float"].pixels, (np.clip(fpx, 0, 1) * 255 + 0.5).astype(np.uint8))
+    np.testing.assert_array_equal(imgs["float"].pixels, np.clip(fpx, 0, 1))  # (float: kept unquantised)
     assert (imgs["no alpha"].pixels[..., 3] == 255).all()
 
 

@@ -238,6 +238,25 @@ def test_queued_moves_and_model_edits_merge(loaded):
     assert merged[1] == "new" and merged[2].tolist() == [1, 2, 3]
 
 
+def test_renders_rewritten_to_a_new_scene_are_queued_behind_it():
+    """A render waiting for a scene the sender already took is rewritten to the newer scene and
+    queued behind it: the child never gets a render before its scene."""
+    import collections
+    import itertools
+    import threading
+
+    from hybrid_shadow_addon.core.gpu.remote import RendererProcess
+
+    proc = RendererProcess.__new__(RendererProcess)  # (no threads: the queue alone)
+    proc._cond, proc._outbox, proc._seq, proc._closing = threading.Condition(), collections.deque(), \
+        itertools.count(1), False
+    proc.post(("render", "view", 5, 1))
+    proc.post(("move", "scene", [0]))
+    proc.post(("scene", 6, "newer"), replace=lambda b: b[0] == "scene",
+              rewrite=lambda b: (b[0], b[1], 6, b[3]) if b[0] == "render" else b)
+    assert [b for _, b in proc._outbox] == [("move", "scene", [0]), ("scene", 6, "newer"), ("render", "view", 6, 1)]
+
+
 def test_compare_measures_in_the_process_and_a_closed_call_cancels(loaded, final):
     from hybrid_shadow_addon.tools.variants import resolve_variants
 

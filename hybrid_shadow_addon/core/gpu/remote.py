@@ -110,7 +110,8 @@ class RendererProcess:
     def post(self, body, replace=None, merge=None, rewrite=None) -> tuple:
         """Queue ``body``. ``replace(body)``: unsent messages it matches are dropped first, and
         ``merge(dropped bodies, body)`` makes the body queued from them; ``rewrite(body)``:
-        what each unsent message becomes. Returns ``(message seq, dropped count)``."""
+        what each unsent message becomes; one it changes now depends on ``body`` and moves
+        behind it. Returns ``(message seq, dropped count)``."""
         with self._cond:
             if self._closing:
                 return 0, 0
@@ -122,11 +123,17 @@ class RendererProcess:
                 self._outbox = collections.deque(keep)
                 if gone and merge is not None:
                     body = merge(gone, body)
+            behind = []
             if rewrite is not None:
-                self._outbox = collections.deque((seq, rewrite(b)) for seq, b in self._outbox)
+                keep = collections.deque()
+                for m in self._outbox:
+                    nb = rewrite(m[1])
+                    (keep if nb is m[1] else behind).append((m[0], nb))
+                self._outbox = keep
             seq = next(self._seq)
             self.posted = seq
             self._outbox.append((seq, body))
+            self._outbox.extend(behind)
             self._cond.notify_all()
             return seq, dropped
 
@@ -332,7 +339,8 @@ class RemoteWorker(ViewResults):
         if key != self._scene_key:
             self._scene_key, self._scene_refs, self._token = key, refs, next(self._tokens)
             token = self._token
-            # an unsent older scene is replaced: renders waiting for it take the newer one
+            # an unsent older scene is replaced: renders waiting for it take the newer one, queued
+            # behind it (the sender may have taken that older scene already)
             self._proc.post(("scene", token, dataclasses.replace(scene, camera=None)),
                             replace=lambda b: b[0] == "scene",
                             rewrite=lambda b: (b[0], b[1], token, b[3]) if b[0] == "render" else b)
