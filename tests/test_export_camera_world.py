@@ -1,13 +1,15 @@
 """The scene camera, the world colour and the render resolution."""
 import math
-import os
-import tempfile
+import sys
+from pathlib import Path
 
 import bpy
 import numpy as np
 import pytest
 
 from tests.helpers.export_scenes import empty_scene, export_scene
+
+REPO = Path(__file__).resolve().parents[1]
 
 pytestmark = [pytest.mark.blender]
 
@@ -115,32 +117,14 @@ def _sky_node(scene, sky_type):
     return node
 
 
-def _cycles_world_mean(scene, size=(64, 32), samples=16):
-    """Cycles' (CPU) view of the world: the solid-angle-weighted mean of an equirectangular panorama."""
-    from hybrid_shadow_addon.blender.export.world import equirect_mean
-    from hybrid_shadow_addon.tools.exr import read_exr
+def _cycles_world_mean(scene):
+    """Cycles' (CPU) view of the world: the solid-angle-weighted mean of an equirectangular
+    panorama (``tools/measure_sky.py``'s, as the tables are measured)."""
+    sys.path.insert(0, str(REPO / "tools"))
+    import measure_sky
 
-    cam = bpy.data.objects.new("panorama", bpy.data.cameras.new("panorama"))
-    scene.collection.objects.link(cam)
-    cam.data.type, cam.data.panorama_type = "PANO", "EQUIRECTANGULAR"
-    cam.rotation_euler = (math.pi / 2, 0.0, 0.0)  # the horizon across the middle: rows are latitudes
-    scene.camera = cam
-    r = scene.render
-    r.engine, r.film_transparent, r.use_compositing = "CYCLES", False, False
-    r.resolution_x, r.resolution_y, r.resolution_percentage = size[0], size[1], 100
-    im = r.image_settings
-    if hasattr(im, "media_type"):  # Blender 5.0
-        im.media_type = "MULTI_LAYER_IMAGE"
-    else:
-        im.file_format = "OPEN_EXR_MULTILAYER"
-    im.color_depth = "32"
-    c = scene.cycles
-    c.device, c.samples, c.use_denoising, c.use_adaptive_sampling = "CPU", samples, False, False
-    with tempfile.TemporaryDirectory() as tmp:
-        r.filepath = os.path.join(tmp, "world.exr")
-        bpy.ops.render.render(write_still=True, scene=scene.name)
-        channels = read_exr(r.filepath)
-    return equirect_mean(next(v for k, v in channels.items() if "Combined" in k))
+    measure_sky.panorama(scene)
+    return measure_sky.render_mean(scene)
 
 
 @pytest.mark.cycles
@@ -212,24 +196,21 @@ def test_measure_sky_checks_the_table(scene, tmp_path):
     import json
     import shutil
     import subprocess
-    import sys
-    from pathlib import Path
 
     from hybrid_shadow_addon.blender.export.world import SKY_TABLE_PATH
 
-    repo = Path(__file__).resolve().parents[1]
     sky_type = _world_with(scene, "ShaderNodeTexSky").sky_type  # a new node's
     table = tmp_path / "sky.json"
     shutil.copy(SKY_TABLE_PATH, table)
-    cmd = [sys.executable, str(repo / "tools/measure_sky.py"), "--check", "--quiet", "--table", str(table),
+    cmd = [sys.executable, str(REPO / "tools/measure_sky.py"), "--check", "--quiet", "--table", str(table),
            "--types", sky_type, "--elevations", "30,12.5"]  # (12.5°'s cubic does not reach to 30°)
-    r = subprocess.run(cmd, cwd=repo, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
     doc = json.loads(table.read_text())
     row = next(row for row in doc["tables"][str(bpy.app.version[0])][sky_type]["mean"] if row[0] == 30.0)
     row[1:] = [1.1 * c for c in row[1:]]
     table.write_text(json.dumps(doc))
-    r = subprocess.run(cmd, cwd=repo, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120)
     assert r.returncode == 1, r.stdout + r.stderr
     lines = [line for line in r.stdout.splitlines() if line.startswith("Blender ")]  # (not Blender's own log)
     assert len(lines) == 1 and "30°" in lines[0] and sky_type in lines[0], r.stdout

@@ -245,7 +245,7 @@ def test_renders_rewritten_to_a_new_scene_are_queued_behind_it():
     import itertools
     import threading
 
-    from hybrid_shadow_addon.core.gpu.remote import RendererProcess
+    from hybrid_shadow_addon.core.gpu.renderer_process import RendererProcess
 
     proc = RendererProcess.__new__(RendererProcess)  # (no threads: the queue alone)
     proc._cond, proc._outbox, proc._seq, proc._closing = threading.Condition(), collections.deque(), \

@@ -11,6 +11,7 @@ import random
 import numpy as np
 import pytest
 
+from hybrid_shadow_addon.core.gpu.memory import process_rss_mb
 from hybrid_shadow_addon.core.gpu.remote import RemoteWorker
 from hybrid_shadow_addon.core.gpu.worker import RenderRequest
 from hybrid_shadow_addon.core.scene import Instances, Light, Scene
@@ -23,14 +24,6 @@ EDITS = 10_000
 WARMUP = 1_000
 SIZE = (96, 54)
 SETTINGS = Settings(hard=True)
-
-
-def _rss(pid) -> float:
-    with open(f"/proc/{pid}/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    raise AssertionError("no VmRSS")
 
 
 class Session:
@@ -131,9 +124,9 @@ def test_ten_thousand_edits_end_as_a_fresh_render_without_growing():
                 assert worker.wait_idle(300)
                 assert worker.poll("v")[1] == []
             if k == WARMUP:
-                rss["warm"] = (_rss(worker.pid), _rss(os.getpid()))
+                rss["warm"] = (process_rss_mb(worker.pid), process_rss_mb(os.getpid()))
         got = _last_frame(worker, scene)
-        rss["end"] = (_rss(worker.pid), _rss(os.getpid()))
+        rss["end"] = (process_rss_mb(worker.pid), process_rss_mb(os.getpid()))
         fresh.set_scene(scene)
         want = _last_frame(fresh, scene)
         assert np.array_equal(got.image, want.image)

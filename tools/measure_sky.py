@@ -66,11 +66,9 @@ def sky_types() -> list:
     return [item.identifier for item in bpy.types.ShaderNodeTexSky.bl_rna.properties["sky_type"].enum_items]
 
 
-def sky_scene(size=(64, 32), samples=16):
-    """A factory-empty scene: an equirectangular Cycles camera at the origin (rows: latitudes) and a
-    world whose Background (strength 1) shows a new Sky Texture, sun disc off. Returns (scene, the node)."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    sc = bpy.context.scene
+def panorama(sc, size=(64, 32), samples=16) -> None:
+    """An equirectangular camera at the origin of ``sc`` (rows: latitudes) and Cycles (CPU,
+    ``samples``, no denoising) writing a 32-bit multilayer EXR: what :func:`render_mean` reads."""
     cam = bpy.data.objects.new("panorama", bpy.data.cameras.new("panorama"))
     sc.collection.objects.link(cam)
     sc.camera = cam
@@ -94,6 +92,14 @@ def sky_scene(size=(64, 32), samples=16):
     c.use_denoising = False
     c.use_adaptive_sampling = False
     c.seed = 0
+
+
+def sky_scene(size=(64, 32), samples=16):
+    """A factory-empty scene: :func:`panorama` and a world whose Background (strength 1) shows a
+    new Sky Texture, sun disc off. Returns (scene, the node)."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    sc = bpy.context.scene
+    panorama(sc, size, samples)
     world = bpy.data.worlds.new("sky")
     if world.node_tree is None:  # Blender 4.x (5.x: always a node tree, use_nodes deprecated)
         world.use_nodes = True

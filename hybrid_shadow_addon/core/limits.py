@@ -52,10 +52,11 @@ def host_memory_bytes() -> int:
     return int(max(total, 0))
 
 
-def process_memory_bytes() -> int:
-    """This process's resident memory (Linux's ``/proc``; 0 elsewhere)."""
+def process_memory_bytes(pid=None) -> int:
+    """The resident memory of process ``pid`` (None: this one), from Linux's ``/proc``; 0
+    elsewhere."""
     try:
-        with open("/proc/self/status") as f:
+        with open(f"/proc/{pid or 'self'}/status") as f:
             for line in f:
                 if line.startswith("VmRSS:"):
                     return int(line.split()[1]) * 1024
@@ -64,7 +65,8 @@ def process_memory_bytes() -> int:
     return 0
 
 
-def _gib(n: int) -> str:
+def gib(n: int) -> str:
+    """``n`` bytes in GiB, for the limits' messages."""
     return f"{n / 2**30:.2f} GiB"
 
 
@@ -80,10 +82,10 @@ def check_bake_memory(triangles: int, instances: int) -> None:
     need = int(triangles) * BAKE_BYTES_PER_TRIANGLE + int(instances) * BAKE_BYTES_PER_INSTANCE
     if need > left:
         raise SceneError(f"baking {triangles:,} unique triangles and {instances:,} instances needs at least "
-                         f"{_gib(need)} of memory; this process has {_gib(max(left, 0))} left of {_gib(have)}")
+                         f"{gib(need)} of memory; this process has {gib(max(left, 0))} left of {gib(have)}")
 
 
 def out_of_memory(triangles: int, instances: int) -> SceneError:
     """The one-line error of a bake that ran out of memory all the same."""
     return SceneError(f"the bake of {triangles:,} unique triangles and {instances:,} instances ran out of memory "
-                      f"(this process may have {_gib(host_memory_bytes())})")
+                      f"(this process may have {gib(host_memory_bytes())})")

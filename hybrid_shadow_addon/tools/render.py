@@ -95,11 +95,10 @@ def write_outputs(out: Path, scene, frame, *, masks_dir=None, files=()) -> None:
     text)`` pairs): staged next to each destination, renamed into place once all are written, the
     image last. The image is the frame's commit: a run killed before it leaves the frame to be
     rendered again, whatever of its other files were already in place."""
-    staged = []  # (tmp, dest), the image last
-    image = None
+    staged = []  # (tmp, dest), the image first
     try:
         t = _staged(out)
-        image = (t, out)
+        staged.append((t, out))
         write_image(t, frame.image)
         if masks_dir:
             Path(masks_dir).mkdir(parents=True, exist_ok=True)  # only once the frame exists
@@ -113,14 +112,11 @@ def write_outputs(out: Path, scene, frame, *, masks_dir=None, files=()) -> None:
             t = _staged(Path(dest))
             staged.append((t, Path(dest)))
             Path(t).write_text(text)
-        staged.append(image)
-        image = None
-        for t, dest in staged:
+        for t, dest in staged[1:] + staged[:1]:  # the image last: the frame's commit
             os.replace(t, dest)
         staged.clear()
     finally:
-        left = staged + ([image] if image is not None else [])
-        for t, _ in left:
+        for t, _ in staged:
             try:
                 os.unlink(t)
             except OSError:

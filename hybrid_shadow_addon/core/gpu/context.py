@@ -17,7 +17,7 @@ import sys
 import moderngl
 
 from ..errors import GPUError
-from ..limits import host_memory_bytes
+from ..limits import gib, host_memory_bytes
 from .host_counts import track as track_host_counts
 from .lights import LIGHT_TEXELS
 from .memory import track as track_memory
@@ -214,19 +214,22 @@ def texture_fits(ctx: moderngl.Context, width: int, height: int, components: int
     return out.value != 0
 
 
-def _gib(n: int) -> str:
-    return f"{n / 2**30:.2f} GiB"
+def largest_fit(most: int, fits) -> int:
+    """The largest ``n`` in ``0 .. most`` for which ``fits(n)`` is not False (a binary search:
+    ``fits`` a :func:`texture_fits` query that holds up to some size)."""
+    lo, hi = 0, int(most)
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        lo, hi = (mid, hi) if fits(mid) is not False else (lo, mid - 1)
+    return lo
 
 
 def largest_rows(ctx: moderngl.Context, width: int, components: int = 4, dtype: str = "f4", layers: int = 0,
                  cap: int | None = None) -> int:
     """The most rows (up to ``cap``, else ``GL_MAX_TEXTURE_SIZE``) of a ``width``-wide texture of
-    that format the driver makes (:func:`texture_fits`; a binary search of proxy queries)."""
-    lo, hi = 0, int(cap or gpu_limits(ctx)["max_texture_size"])
-    while lo < hi:
-        mid = (lo + hi + 1) // 2
-        lo, hi = (mid, hi) if texture_fits(ctx, width, mid, components, dtype, layers) is not False else (lo, mid - 1)
-    return lo
+    that format the driver makes (:func:`texture_fits`)."""
+    return largest_fit(cap or gpu_limits(ctx)["max_texture_size"],
+                       lambda rows: texture_fits(ctx, width, rows, components, dtype, layers))
 
 
 def check_render_size(ctx: moderngl.Context, width: int, height: int, what: str = "render") -> None:
@@ -239,9 +242,9 @@ def check_render_size(ctx: moderngl.Context, width: int, height: int, what: str 
         raise GPUError(f"{what} size {width}x{height} is outside this GPU's limits (1..{cap} per side)")
     if texture_fits(ctx, width, height, 4, "f4") is False:
         rows = largest_rows(ctx, width, cap=height)
-        raise GPUError(f"{what} size {width}x{height} needs {_gib(width * height * TARGET_BYTES_PER_PIXEL)} per "
+        raise GPUError(f"{what} size {width}x{height} needs {gib(width * height * TARGET_BYTES_PER_PIXEL)} per "
                        f"RGBA32F target; this GPU makes at most {width}x{rows} "
-                       f"({_gib(width * rows * TARGET_BYTES_PER_PIXEL)}, {width * rows:,} pixels)")
+                       f"({gib(width * rows * TARGET_BYTES_PER_PIXEL)}, {width * rows:,} pixels)")
 
 
 #: bytes per pixel a frame holds whatever its lights: the G-buffer's seven targets and its depth
@@ -263,8 +266,8 @@ def check_frame_memory(ctx: moderngl.Context, width: int, height: int, shadowed_
     have = host_memory_bytes()
     need = int(width) * int(height) * (FRAME_BYTES_PER_PIXEL + MASK_BYTES_PER_PIXEL * int(shadowed_lights))
     if have and need > have:
-        raise GPUError(f"a {width}x{height} frame with {shadowed_lights} shadowed lights needs at least {_gib(need)} "
-                       f"of render targets; this machine has {_gib(have)} (shadow fewer lights or render smaller)")
+        raise GPUError(f"a {width}x{height} frame with {shadowed_lights} shadowed lights needs at least {gib(need)} "
+                       f"of render targets; this machine has {gib(have)} (shadow fewer lights or render smaller)")
 
 
 #: texels per light in the lighting pass's light table (``shaders/common/lights.glsl``)

@@ -15,7 +15,11 @@ can tell.
 """
 from __future__ import annotations
 
+import ctypes
+import sys
 import weakref
+
+from ..limits import process_memory_bytes
 
 _DTYPE_BYTES = {"f1": 1, "u1": 1, "i1": 1, "f2": 2, "u2": 2, "i2": 2, "f4": 4, "u4": 4, "i4": 4}
 #: constructors whose objects hold memory (counted in bytes)
@@ -185,54 +189,24 @@ def driver_memory(ctx) -> dict | None:
 
 
 def _gl_int(ctx, enum: int):
-    """``glGetIntegerv(enum)`` on ``ctx`` (current) through the GL library; None where it fails."""
-    import ctypes
+    """``glGetIntegerv(enum)``'s first value on ``ctx`` (current); None where it cannot be asked."""
+    from .buffer_textures import gl_functions
 
-    lib = _gl_library()
-    if lib is None:
+    gl = gl_functions()
+    if gl is None:
         return None
-    out = (ctypes.c_int * 4)()
-    try:
-        lib.glGetIntegerv(ctypes.c_uint(enum), out)
-    except Exception:  # noqa: BLE001
-        return None
+    out = (ctypes.c_int * 4)()  # (GL_ATI_meminfo's queries write four)
+    gl["glGetIntegerv"](enum, out)
     return int(out[0])
-
-
-_GL = []
-
-
-def _gl_library():
-    import ctypes
-    import ctypes.util
-    import sys
-
-    if not _GL:
-        lib = None
-        names = (["opengl32"] if sys.platform == "win32" else
-                 ["/System/Library/Frameworks/OpenGL.framework/OpenGL"] if sys.platform == "darwin" else
-                 [ctypes.util.find_library("GL") or "libGL.so.1", "libGL.so.1"])
-        for name in names:
-            try:
-                lib = (ctypes.WinDLL if sys.platform == "win32" else ctypes.CDLL)(name)
-                break
-            except (OSError, AttributeError):
-                continue
-        _GL.append(lib)
-    return _GL[0]
 
 
 def trim_heap() -> None:
     """Give the C heap's free pages back to the system (glibc's ``malloc_trim``): a frame's
     read-backs and scene arrays are freed in pieces that glibc otherwise keeps, so a renderer
     process would grow from frame to frame without holding more. A no-op elsewhere."""
-    import sys
-
     if not sys.platform.startswith("linux"):
         return
     if not _LIBC:
-        import ctypes
-
         try:
             libc = ctypes.CDLL("libc.so.6")
             libc.malloc_trim  # noqa: B018 - musl has none
@@ -246,13 +220,8 @@ def trim_heap() -> None:
 _LIBC = []
 
 
-def process_rss_mb() -> float | None:
-    """This process's resident memory in MiB (Linux's ``/proc``; None elsewhere)."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return None
+def process_rss_mb(pid=None) -> float | None:
+    """The resident memory in MiB of process ``pid`` (None: this one); None where the system
+    does not tell (:func:`..limits.process_memory_bytes`)."""
+    n = process_memory_bytes(pid)
+    return n / 2**20 if n else None

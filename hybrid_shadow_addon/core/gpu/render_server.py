@@ -345,7 +345,7 @@ def _claim_stdout():
 
 def _heartbeat(out, lock) -> None:
     """Tell the caller every :data:`HEARTBEAT_S` that this process lives (it ends a renderer
-    that stays silent past its deadline: ``remote.deadline_s``); ends with the channel."""
+    that stays silent past its deadline: ``renderer_process.deadline_s``); ends with the channel."""
     while True:
         time.sleep(HEARTBEAT_S)
         try:

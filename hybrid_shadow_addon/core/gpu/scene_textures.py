@@ -16,21 +16,12 @@ import moderngl
 import numpy as np
 
 from ..errors import GPUError
+from ..limits import gib
 from .buffer_textures import BufferTexture, gl_functions, max_texels
-from .context import largest_rows, texture_fits
+from .context import largest_fit, largest_rows, texture_fits
 
 #: textures the shaders sample as images or share with other passes: always 2D arrays
 ARRAY_ONLY = frozenset({"mat", "atlas"})
-
-
-def largest_layers(ctx, td) -> int:
-    """The most layers of ``td``'s width, height and format the driver makes in one 2D array."""
-    lo, hi = 0, int(td.layers)
-    while lo < hi:
-        mid = (lo + hi + 1) // 2
-        lo, hi = (mid, hi) if texture_fits(ctx, td.width, td.height, td.components, td.fmt, mid) is not False \
-            else (lo, mid - 1)
-    return lo
 
 
 class SceneTextures:
@@ -76,11 +67,11 @@ class SceneTextures:
             if td.layers == 1:
                 rows = largest_rows(self.ctx, td.width, td.components, td.fmt, 1, cap=td.height)
             else:
-                rows = td.height * largest_layers(self.ctx, td)
+                rows = td.height * largest_fit(td.layers, lambda n: texture_fits(
+                    self.ctx, td.width, td.height, td.components, td.fmt, n))
             fit = td.width * rows
-            gib = fit * (td.nbytes // max(td.capacity, 1)) / 2**30
-            raise GPUError(f"scene texture '{td.name}' needs {td.capacity:,} texels ({td.nbytes / 2**30:.2f} GiB); "
-                           f"this GPU makes one of at most {fit:,} ({gib:.2f} GiB)")
+            raise GPUError(f"scene texture '{td.name}' needs {td.capacity:,} texels ({gib(td.nbytes)}); this GPU "
+                           f"makes one of at most {fit:,} ({gib(fit * (td.nbytes // max(td.capacity, 1)))})")
 
     def _create(self, td):
         if self.using_buffers and td.name not in ARRAY_ONLY:
