@@ -48,10 +48,14 @@
 // | HS_QUEUE_GEN     | compute: one invocation per mask texel writes the answers known  | queue.py          |
 // |                  | without a ray and appends the other texels to the ray queue      |                   |
 // | HS_QUEUE_TRACE   | compute: one invocation per queued texel traces its ray          | queue.py          |
+// | HS_QUEUE_LANES   | compute, soft sums: a queued texel's samples spread over this    | soft.py           |
+// |                  | many invocations, their sums added up in lane order              |                   |
+// | HS_SUMS_ADD      | compute, soft sums: added to the sums image's (the blend's add)  | soft.py           |
 //
 // Two stages trace: the fragment stage (GL 4.1: a full-screen draw, one texel per fragment, the
 // refinement's marks through the depth test) and the compute stage (GL 4.3: the same code over
-// the compact ray queue of common/ray_queue.glsl, results stored into image units 0 and 1).
+// the compact ray queue of common/ray_queue.glsl, results stored into image units 0 and 1; the
+// soft sums into an RGBA32F image on unit 0).
 
 #ifdef VERTEX_SHADER
 #include "common/fullscreen.glsl"
@@ -84,6 +88,10 @@ uniform ivec2 u_full_size;      // G-buffer size
 uniform ivec2 u_offset;         // texel q traces pixel 2q + u_offset (this frame's phase)
 #endif
 
+#ifdef COMPUTE_SHADER
+#include "common/ray_queue.glsl"
+#endif
+
 #define HS_LOOP_SPENT -7.0
 #if defined(HS_LOOP_DROP) && defined(HS_SOFT)
 // Whether llvmpipe's loop budget is left (every loop of an invocation ends after its first pass
@@ -105,12 +113,11 @@ bool hs_budget_left()
 #if defined(HS_SOFT_PROBE) || defined(HS_SOFT_ACCUM)
 #define HS_SOFT_SUMS
 #define HS_ACCUM_TOP_WEIGHT 1.0e-30
-#ifdef COMPUTE_SHADER
-#error the soft sums (probes, accumulation) are traced by the fragment stage
-#endif
+#ifndef COMPUTE_SHADER
 out vec4 o_sums;                // (weighted visibility, weight) of this pass's rays, and the same
                                 // of those among them before sample u_split (the first half of
                                 // a final render's samples, for its noise check: soft.py)
+#endif
 uniform int u_split;
 float o_mask;                   // the answers known without a ray: written as (o_mask, 1)
 vec2 hs_sums = vec2(-1.0);
@@ -119,7 +126,6 @@ vec2 hs_first = vec2(0.0);
 #if defined(HS_CODE_OUT) && (defined(HS_INTERLACE) || defined(HS_SOFT))
 #error HS_CODE_OUT is for a hard light's full-resolution mask
 #endif
-#include "common/ray_queue.glsl"
 float o_mask;                   // stored into image unit 0 (and the code into unit 1)
 #ifdef HS_CODE_OUT
 float o_code;
@@ -132,6 +138,19 @@ layout(location = 0) out float o_mask;
 layout(location = 1) out float o_code;
 #else
 out float o_mask;
+#endif
+
+#ifdef HS_QUEUE_LANES
+#if !defined(HS_QUEUE_TRACE) || !defined(HS_SOFT_ACCUM) || defined(HS_SOFT_PROBE) || defined(HS_SOFT_REFINE) || defined(HS_SOFT_PACKET)
+#error HS_QUEUE_LANES spreads the tracing kernel's soft sums' ray-by-ray loop (HS_SOFT_ACCUM) over lanes
+#endif
+#define HS_LANE_STEP HS_QUEUE_LANES
+int hs_lane = 0;                // this invocation's lane among its texel's
+vec3 hs_top_o, hs_top_d;        // the light's highest point from the ray's origin (hs_light_top)
+float hs_top_tmax, hs_top_w;
+#else
+#define HS_LANE_STEP 1
+const int hs_lane = 0;
 #endif
 
 // The answer of mask texel mt into o_mask (HS_QUEUE_GEN: the answer known without a ray, or
@@ -268,7 +287,9 @@ void trace_main(ivec2 mt)
         k = kend;
     }
 #else
-    for (int k = k0; k < n_samples; ++k) {
+    // (HS_QUEUE_LANES: this invocation takes every HS_QUEUE_LANES-th sample from its lane's;
+    // the tracing kernel's main adds the lanes' sums up)
+    for (int k = k0 + hs_lane; k < n_samples; k += HS_LANE_STEP) {
         vec3 sd;
         float stm, w;
         hs_light_sample(o, ns, hs_sample2(px, u_sample_base + k), sd, stm, w);
@@ -294,7 +315,9 @@ void trace_main(ivec2 mt)
 #endif
     }
 #endif
-#ifndef HS_SOFT_PROBE
+#ifdef HS_QUEUE_LANES
+    hs_top_o = o; hs_top_d = top_d; hs_top_tmax = top_tmax; hs_top_w = top_w;   // (main's, once the lanes are summed)
+#elif !defined(HS_SOFT_PROBE)
     if (sw == 0.0 && top_w > 0.0) {   // no sample reached above the horizon: the highest point decides
 #ifdef HS_MAX_DISTANCE
         top_tmax = min(top_tmax, u_max_distance / length(top_d));
@@ -379,6 +402,23 @@ void main()
 #endif
 }
 #else
+#ifdef HS_SOFT_SUMS
+layout(rgba32f, binding = 0) uniform image2D u_mask_out;     // the sums (HS_SUMS_ADD: added to)
+
+// sums s into texel mt (HS_SUMS_ADD: added to what is there, as the fragment stage's blend adds)
+void store_sums(ivec2 mt, vec4 s)
+{
+#ifdef HS_SUMS_ADD
+    s += imageLoad(u_mask_out, mt);
+#endif
+    imageStore(u_mask_out, mt, s);
+}
+
+void store(ivec2 mt)
+{
+    store_sums(mt, hs_sums.y >= 0.0 ? vec4(hs_sums, hs_first) : vec4(o_mask, 1.0, 0.0, 0.0));
+}
+#else
 layout(r32f, binding = 0) uniform writeonly image2D u_mask_out;
 #ifdef HS_CODE_OUT
 layout(r32f, binding = 1) uniform writeonly image2D u_code_out;
@@ -391,7 +431,46 @@ void store(ivec2 mt)
     imageStore(u_code_out, mt, vec4(trace_code(mt)));
 #endif
 }
+#endif
 
+#ifdef HS_QUEUE_LANES
+// A queued texel's samples spread over HS_QUEUE_LANES neighbouring invocations of a group: each
+// traces its lane's share, then the texel's first lane adds the lanes' sums up in lane order (so
+// the result does not depend on timing) and stores them.
+shared vec4 hs_lane_sums[HS_QUEUE_GROUP];
+
+void main()
+{
+    ivec2 mt;
+    bool live = hs_dequeue(mt);
+    uint me = gl_LocalInvocationID.x;
+    hs_lane = int(me) % HS_QUEUE_LANES;
+    if (live) trace_main(mt);
+    hs_lane_sums[me] = live && hs_sums.y >= 0.0 ? vec4(hs_sums, hs_first) : vec4(0.0);
+    barrier();
+    if (!live || hs_lane != 0) return;
+    if (hs_sums.y < 0.0) {      // an answer known without a ray (the same on every lane)
+        store_sums(mt, vec4(o_mask, 1.0, 0.0, 0.0));
+        return;
+    }
+    vec4 s = vec4(0.0);
+    bool spent = false;
+    for (uint l = 0u; l < uint(HS_QUEUE_LANES); ++l) {
+        vec4 part = hs_lane_sums[me + l];
+        spent = spent || part.x == HS_LOOP_SPENT;
+        s += part;
+    }
+    if (s.y == 0.0 && hs_top_w > 0.0) {   // no sample reached above the horizon: the highest point decides
+#ifdef HS_MAX_DISTANCE
+        hs_top_tmax = min(hs_top_tmax, u_max_distance / length(hs_top_d));
+#endif
+        s.y = HS_ACCUM_TOP_WEIGHT;
+        s.x = s.y * hs_visibility(hs_top_o, hs_top_d, hs_top_tmax);
+    }
+    if (spent) s = vec4(HS_LOOP_SPENT, 1.0, 0.0, 0.0);
+    store_sums(mt, s);
+}
+#else
 void main()
 {
 #ifdef HS_QUEUE_GEN
@@ -407,5 +486,6 @@ void main()
     store(mt);
 #endif
 }
+#endif
 #endif
 #endif

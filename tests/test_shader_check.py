@@ -120,7 +120,8 @@ def test_raytrace_is_checked_as_both_stages():
     kernels = set(shader_check.COMPUTE_KERNELS)
     assert not any(kernels & set(d) for d in graphics)
     assert all(len(kernels & set(d)) == 1 for d in compute)
-    assert not any(set(shader_check.FRAGMENT_ONLY) & set(d) for d in compute)
+    assert not any(set(shader_check.COMPUTE_ONLY) & set(d) for d in graphics)
+    assert any("HS_QUEUE_LANES" in d and "HS_QUEUE_TRACE" in d for d in compute)
 
 
 def test_companions_follow_requirements():

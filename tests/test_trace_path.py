@@ -173,3 +173,58 @@ def test_trace_path_choice(paths):
         rt.queue = queue
     with pytest.raises(ValueError, match="trace_path must be one of"):
         HARD.replace(trace_path="cuda")
+
+
+#: soft modes: (settings, frames); the last frame's masks are compared
+SOFT_MODES = {
+    "final": (Settings(samples=24, noise_target=0.0, light_grid=False), 1),
+    "noise_check": (Settings(samples=24, light_grid=False), 1),
+    "accumulate": (Settings(samples=32, accumulate=True, light_grid=False), 3),
+}
+
+
+def soft_frames(paths, scene, mode, lanes):
+    settings, frames = SOFT_MODES[mode]
+    rt = paths["compute"].shadow_pass("raytrace")
+    rt.options = dataclasses.replace(rt.options, soft_lanes=lanes)
+    try:
+        out = {}
+        for path, pipe in paths.items():
+            pipe.reset_history()
+            for _ in range(frames):
+                out[path] = pipe.render(scene, settings.replace(trace_path=path), W, H)
+        return out
+    finally:
+        rt.options = dataclasses.replace(rt.options, soft_lanes=None)
+
+
+@pytest.mark.parametrize("name", ["soft_lights", "forest", "alpha_cards", "smooth_shapes", "linking"])
+def test_soft_masks_across_paths(name, paths, loaded):
+    """Soft lights on the compute path: probes, penumbra samples, the noise check's second
+    round and the viewport's accumulation, queued. Walking as packets (a software rasteriser's
+    default), a final frame with the noise check gives the fragment path's masks bit for bit
+    (both add the penumbra's sums to the probes'); where the fragment stage traces a pixel's
+    samples in one draw it continues from the probes' sums, the compute path adds to them, so
+    the masks differ by rounding. Spread over lanes (a GPU's default), each lane sums its own samples and the
+    texel's first lane adds the lanes up: the same rays, summed in another order (through
+    alpha-cut casters each ray's transmittance too), so they differ by rounding; the noise
+    check's estimate from those sums moves in its fourth digit, which the filter of its second
+    round carries a little further."""
+    scene = loaded(name)
+    paths["compute"].set_scene(scene)
+    for lanes in (False, True):
+        for mode in SOFT_MODES:
+            got = soft_frames(paths, scene, mode, lanes)
+            c, f = got["compute"], got["fragment"]
+            assert c.stats["trace_path"] == "compute" and c.stats["dispatches"] > 0, mode
+            assert ("HS_QUEUE_LANES" in " ".join(c.stats["defines"])) == lanes
+            for li in c.lights:
+                a, b = c.mask_array(li), f.mask_array(li)
+                d = np.abs(np.nan_to_num(a) - np.nan_to_num(b))
+                what = f"{name} {mode} lanes={lanes}: light {scene.lights[li].name}"
+                if not lanes and mode == "noise_check":
+                    assert differing(a, b) == 0, f"{what}: {differing(a, b)} pixels differ"
+                elif mode == "noise_check":
+                    assert d.mean() < 1e-5 and d.max() < 0.05, f"{what}: off by {d.max()} (mean {d.mean()})"
+                else:
+                    assert d.max() < 5e-5, f"{what}: off by {d.max()}"

@@ -56,6 +56,7 @@ REQUIRES = {
     "HS_SOFT_SHAPE=1": ("HS_SOFT", "HS_LIGHT_LOCAL"),
     "HS_SOFT_SHAPE=2": ("HS_SOFT", "HS_LIGHT_LOCAL"),
     "HS_SOFT_PROBE": ("HS_SOFT",),
+    "HS_QUEUE_LANES": ("HS_SOFT_ACCUM",),
     "HS_SOFT_REFINE": ("HS_SOFT",),
     "HS_SOFT_ACCUM": ("HS_SOFT",),
     "HS_SOFT_FULL": ("HS_SOFT",),
@@ -80,9 +81,9 @@ GL_ONLY = {"HS_GROUP_VOTE": "glslang declares GL_ARB_shader_group_vote from #ver
 #: The compute stage's kernels (``shaders/common/ray_queue.glsl``): a compute set of a program
 #: that tests them names one (the first where it names none); a graphics set names none.
 COMPUTE_KERNELS = ("HS_QUEUE_TRACE", "HS_QUEUE_GEN")
-#: Defines the compute stage refuses (``#error``: raytrace.glsl's soft sums are traced by the
-#: fragment stage): a compute set with one is not compiled.
-FRAGMENT_ONLY = ("HS_SOFT_PROBE", "HS_SOFT_ACCUM")
+#: Defines of the compute stage's tracing kernel alone (``#error`` elsewhere: raytrace.glsl's
+#: lanes of a queued texel): a graphics set with one is not compiled.
+COMPUTE_ONLY = ("HS_QUEUE_LANES",)
 #: Lines of a compiler's log kept per failure.
 LOG_LINES = 12
 
@@ -205,15 +206,15 @@ def with_companions(base: dict, key: str, value) -> dict:
 
 def single_define_sets(cache: _programs.ProgramCache, name: str, kind: str = "graphics") -> list[dict]:
     """(b): the base set, then each optional define on its own, then each decisive value (a
-    ``compute`` program's sets each with one of :data:`COMPUTE_KERNELS`, none with
-    :data:`FRAGMENT_ONLY`; a graphics program's without the kernels)."""
+    ``compute`` program's sets each with one of :data:`COMPUTE_KERNELS`; a graphics
+    program's without the kernels and :data:`COMPUTE_ONLY`)."""
     base = mentioned_values(cache, name)
     flags, values = optional_defines(cache, name)
     kernels = [k for k in COMPUTE_KERNELS if k in flags]
     for k in COMPUTE_KERNELS:
         flags.pop(k, None)
-    if kind == "compute":
-        for k in FRAGMENT_ONLY:
+    if kind != "compute":
+        for k in COMPUTE_ONLY:
             flags.pop(k, None)
     for group in ONE_OF:
         if set(group) & set(flags):

@@ -53,23 +53,30 @@ class RayQueue:
         self._counts = None
 
     # -- one mask ---------------------------------------------------------------------------------
-    def trace(self, generate, trace, outputs, size, kind: str | None = None, key=None) -> None:
+    def trace(self, generate, trace, outputs, size, kind: str | None = None, key=None, lanes: int = 1,
+              read: bool = False) -> None:
         """Queue and trace the texels of a ``size`` (w, h) grid: ``generate()`` binds and returns
         the generating program (one invocation per texel), ``trace()`` the tracing one (binding
         textures and uniforms only); both store into ``outputs`` (textures on image units 0, 1,
-        ...). The queue's length is tallied as ``kind`` (None: not counted)."""
+        ...; ``read``: loaded too, to add to). The tracing kernel runs ``lanes`` invocations per
+        queued texel (its ``HS_QUEUE_LANES``, a divisor of QUEUE_GROUP). The queue's length is
+        tallied as ``kind`` (None: not counted)."""
+        if lanes < 1 or QUEUE_GROUP % lanes:
+            raise ValueError(f"lanes per queued texel must divide {QUEUE_GROUP}, not {lanes}")
         w, h = (int(v) for v in size)
         self._reset(w * h)
         gen = generate()
-        self._bind(outputs)
+        gen["u_queue_per_group"].value = QUEUE_GROUP // lanes
+        self._bind(outputs, read)
         gen.run(-(-w // GEN_TILE), -(-h // GEN_TILE))
         self.ctx.memory_barrier(_AFTER_GEN)
         if kind is not None:
             self._tally_length(kind, key)
-        self._dispatch(trace())
+        self._dispatch(trace(), lanes)
         self.ctx.memory_barrier(_AFTER_TRACE)
 
-    def trace_marked(self, marks, trace, outputs, kind: str, key=None) -> None:
+    def trace_marked(self, marks, trace, outputs, kind: str | None, key=None, lanes: int = 1,
+                     read: bool = False) -> None:
         """:meth:`trace` of the pixels ``marks`` (the refinement's depth texture: below 0.5, a
         ray) marks, queued by ``queue_marked.glsl``."""
         def generate():
@@ -78,7 +85,7 @@ class RayQueue:
             gen["u_marks"].value = 0
             return gen
 
-        self.trace(generate, trace, outputs, marks.size, kind, key)
+        self.trace(generate, trace, outputs, marks.size, kind, key, lanes, read)
 
     # -- counts -----------------------------------------------------------------------------------
     def count(self, kind: str) -> int:
@@ -99,11 +106,11 @@ class RayQueue:
             self._items = self.ctx.buffer(reserve=need)
         self._head.write(_HEAD)
 
-    def _bind(self, outputs) -> None:
+    def _bind(self, outputs, read: bool) -> None:
         self._head.bind_to_storage_buffer(0)
         self._items.bind_to_storage_buffer(1)
         for unit, tex in enumerate(outputs):
-            tex.bind_to_image(unit, read=False, write=True)
+            tex.bind_to_image(unit, read=read, write=True)
 
     def _tally_length(self, kind: str, key) -> None:
         slot = len(self.counted)
@@ -115,7 +122,7 @@ class RayQueue:
         self.ctx.copy_buffer(self._tally, self._head, 4, 0, 4 * slot)
         self.counted.append((kind, key))
 
-    def _dispatch(self, prog) -> None:
+    def _dispatch(self, prog, lanes: int) -> None:
         """The tracing kernel over the whole queue: one indirect dispatch, or under a final
         render's budget slices of it (the length read back once: a final render waits anyway)."""
         budget = self.budget
@@ -128,7 +135,7 @@ class RayQueue:
         for first, n in budget.slices(total, QUEUE_GROUP):
             if "u_queue_first" in prog:
                 prog["u_queue_first"].value = first
-            prog.run(-(-n // QUEUE_GROUP))
+            prog.run(-(-n * lanes // QUEUE_GROUP))
 
     def release(self) -> None:
         for b in (self._head, self._items, self._tally):

@@ -67,7 +67,7 @@ class RaytracePass(ShadowPass):
         self._options = options or RaytraceOptions()
         self.reuse = MaskReprojection(gpu, self.refiner)
         self.hard = HardVisibility(gpu, self.refiner, self.trace, self._options, self.reuse, self.queue)
-        self.soft = SoftVisibility(gpu, self.refiner, self.trace, self._options, self.reuse)
+        self.soft = SoftVisibility(gpu, self.refiner, self.trace, self._options, self.reuse, self.queue)
         self.cull = LightCull(gpu)
         self.maps = None  # ConservativeMaps, made by the first frame with Settings.conservative on
         self.last_map_ms = 0.0  # time spent building the maps in the last render (incl. finish)
@@ -177,7 +177,7 @@ class RaytracePass(ShadowPass):
         self.last_defines = {}
         self.last_map_ms = 0.0
         self.path = self.trace_path(settings)
-        self.hard.compute = self.path == "compute"
+        self.hard.compute = self.soft.compute = self.path == "compute"
         if self.queue is not None:
             self.queue.begin_frame()
         self.refiner.begin_frame()

@@ -192,12 +192,15 @@ class Refiner:
             with self._query(kind, key):
                 self.budget.draw(vao, target.texture.size)
 
-    def trace_marked(self, key, target, trace, kind: str = "refined", extra=()) -> None:
+    def trace_marked(self, key, target, trace, kind: str | None = "refined", extra=(), lanes: int = 1,
+                     read: bool = False) -> None:
         """:meth:`refine` on the compute path: the marked pixels queued and traced by the
         program ``trace()`` binds and returns (``raytrace.glsl``'s tracing kernel) into
-        ``target`` (and ``extra``), counted as ``kind``."""
+        ``target`` (and ``extra``), counted as ``kind`` (None: not counted); ``lanes`` and
+        ``read`` as :meth:`.queue.RayQueue.trace` takes them."""
         self._fbo(key, target, extra)  # (the depth buffer of target's size)
-        self.queue.trace_marked(self._depth, trace, [target.texture, *(t.texture for t in extra)], kind, key)
+        self.queue.trace_marked(self._depth, trace, [target.texture, *(t.texture for t in extra)], kind, key,
+                                lanes, read)
 
     def mark(self, key, target, vao, color: bool = True, extra=()) -> None:
         """Draw ``vao``, a full-screen program that writes its answers and marks (``gl_FragDepth``

@@ -43,6 +43,7 @@ CHUNK_RAYS = {"rays": 28, "packets": 64}
 #: soft masks against many-sample masks, BENCHMARKS.md)
 NOISE_PER_SPLIT = 0.45
 PLANE_SIGMA = 0.02  # the penumbra filter's tangent-plane distance scale, relative to the view depth
+LANES = (4, 16)  # a queued texel's lanes on the compute path: below 16 rays, and from 16 on
 
 
 def first_frame_lead(frame_samples: int) -> int:
@@ -68,6 +69,12 @@ def chunk_spans(base: int, first: int, total: int, step: int) -> list:
     return spans
 
 
+def lanes_for(rays: int) -> int:
+    """Invocations a queued texel's ``rays`` soft samples spread over on the compute path
+    (``HS_QUEUE_LANES``): 4 below 16 rays, else 16 (two variants, so few programs to compile)."""
+    return LANES[0] if rays < 16 else LANES[1]
+
+
 def denoise_radius(samples: int) -> int:
     """Filter radius (pixels) of a soft mask with ``samples`` per pixel: 4 at 4 samples,
     shrinking as 1/sqrt(samples), 1 from 29 samples on (its range kernel narrows with the noise,
@@ -83,9 +90,11 @@ class SoftVisibility(LightVisibility):
     """Masks of the soft lights of a ``full`` plan: probes and refinement, or a frame of the
     accumulation; each filtered within its penumbrae."""
 
-    def __init__(self, gpu, refiner, program: TraceProgram, options: RaytraceOptions, reuse=None):
+    def __init__(self, gpu, refiner, program: TraceProgram, options: RaytraceOptions, reuse=None, queue=None):
         super().__init__(gpu)
         self.refiner = refiner
+        self.queue = queue  # the compute path's RayQueue
+        self.compute = False  # this frame traces on the compute path
         self.reuse = reuse  # a MaskReprojection: the accumulation carries its sums across moves
         self.trace = program
         self.options = options
@@ -149,24 +158,26 @@ class SoftVisibility(LightVisibility):
         total = int(settings.samples)
         rays = total - SOFT_PROBES
         packet = self._packet_defines(defines, rays)
-        # a final render's noise check (packets): the sums keep their first half's apart; a light
-        # whose masks of the two halves, each filtered, differ by more than the target allows
-        # gives its partial pixels as many samples again
-        check = bool(packet) and not accum and float(settings.noise_target) > 0.0 and total >= 2 * SOFT_PROBES
-        chunked = rays > self._chunk(packet) or check
+        # every sample of a refined pixel (packets; the compute path's lanes), no early stop
+        whole = bool(packet) or self._lanes()
+        # a final render's noise check (all samples traced): the sums keep their first half's
+        # apart; a light whose masks of the two halves, each filtered, differ by more than the
+        # target allows gives its partial pixels as many samples again
+        check = whole and not accum and float(settings.noise_target) > 0.0 and total >= 2 * SOFT_PROBES
+        chunked = self.compute or rays > self._chunk(packet) or check
         # ray by ray in several draws (the grid): the early stop between draws, the second half
         # only where the first left the share partial
-        half = SOFT_PROBES + rays // 2 if chunked and not (accum or packet) and self.options.early_stop else total
+        half = SOFT_PROBES + rays // 2 if chunked and not (accum or whole) and self.options.early_stop else total
         stages = [(SOFT_PROBES, half), (half, total)] if half < total else [(SOFT_PROBES, total)]
         probe_defs = {k: v for k, v in defines.items() if k != "HS_SOFT_ACCUM"}  # (the same probes either way)
-        _, pvao, _ = self._program({**probe_defs, "HS_SOFT_PROBE": 1}, ray, gbuffer, settings)
-        probe = self._target((li, "probe"), *full, components=2)  # (sums: raytrace.glsl)
-        self.gpu.budget.fullscreen(pvao, probe)
+        probe = self._target((li, "probe"), *full, components=self._sums_components(2))  # (sums: raytrace.glsl)
+        self._trace_all({**probe_defs, "HS_SOFT_PROBE": 1}, ray, gbuffer, settings, probe)
         # the probe ranges' second pass writes the probe answers where they stand and marks the
         # rest in the depth buffer: only those are shaded by the refinement
         sums = out
         if chunked and not accum:  # (the refinement adds up sums, divided at the end)
-            sums = self._target((li, "sums4" if check else "sums"), *full, components=4 if check else 2)
+            sums = self._target((li, "sums4" if check else "sums"), *full,
+                                components=4 if check else self._sums_components(2))
         self._range((li, "probe"), probe.texture, gbuffer, sums=True,
                     classify=(sums, probe.texture, accum or chunked))
         got = total
@@ -179,16 +190,14 @@ class SoftVisibility(LightVisibility):
                 for j, (first, last) in enumerate(stages):
                     if j:  # (the second half: only the pixels the first left partial)
                         self._mark_partial(li, sums)
-                    for vao in self._chunk_draws(accum_defs, ray, gbuffer, settings, first, last):
-                        self.refiner.draw_marked((li, "soft"), sums, vao, add=True)
+                    self._add_marked(li, sums, accum_defs, ray, gbuffer, settings, first, last)
             finally:
                 self.split = 0
             if check:
                 self.last_noise[ray.light.name] = noise = self._noise(li, sums, gbuffer, total // 2)
                 if noise > float(settings.noise_target):
                     self._mark_partial(li, sums)
-                    for vao in self._chunk_draws(accum_defs, ray, gbuffer, settings, total, 2 * total):
-                        self.refiner.draw_marked((li, "soft"), sums, vao, add=True)
+                    self._add_marked(li, sums, accum_defs, ray, gbuffer, settings, total, 2 * total)
                     got = 2 * total
             if not accum:
                 self._resolve(sums.texture, out)
@@ -266,10 +275,15 @@ class SoftVisibility(LightVisibility):
             base = self.sample_base
             self.sample_base = traced(n)
             accum = {**defines, "HS_SOFT_ACCUM": 1}
-            new = self._target((li, "new"), *full, components=2)
+            new = self._target((li, "new"), *full, components=self._sums_components(2))
             if n == 0 and lead:  # probes everywhere, fs + lead samples in the penumbrae (at most samples)
                 first = settings.replace(samples=min(fs + lead, int(settings.samples)))
                 self._probe_and_refine(ray, accum, gbuffer, first, new)
+            elif self.compute:  # fs samples over lanes, in dispatches whose sums add up
+                for j, (defs, n_rays, lanes, start) in enumerate(self._lane_spans(accum, 0, fs)):
+                    self.sample_base = traced(n) + start
+                    self._trace_all({**defs, **({"HS_SUMS_ADD": 1} if j else {})}, ray, gbuffer,
+                                    settings.replace(samples=n_rays), new, lanes)
             else:  # fs samples, in draws of at most CHUNK_RAYS whose sums add up
                 for j, vao in enumerate(self._chunk_draws(accum, ray, gbuffer, settings, 0, fs)):
                     if j:
@@ -376,7 +390,8 @@ class SoftVisibility(LightVisibility):
         :attr:`RaytraceOptions.packets` is off. With it ``HS_SOFT_FULL``: a refined
         pixel traces all its samples in one walk (cheaper than two halves with the ray-by-ray
         path's early stop between them, and exact)."""
-        ok = self.options.packets and rays >= PACKET_MIN_RAYS and self.gpu.scene_textures.baked.accel.supports_packets
+        ok = (self.options.packets and not self._lanes() and rays >= PACKET_MIN_RAYS
+              and self.gpu.scene_textures.baked.accel.supports_packets)
         return {"HS_SOFT_PACKET": 1, "HS_SOFT_FULL": 1} if ok else {}
 
     @staticmethod
@@ -399,6 +414,78 @@ class SoftVisibility(LightVisibility):
         elif guard:
             d["HS_LOOP_DROP"] = 1
         return d
+
+    # -- the compute path: a texel's samples spread over lanes -------------------------------------
+    def _lanes(self) -> bool:
+        """Whether this frame's soft samples spread over lanes, ray by ray (the compute path;
+        :attr:`RaytraceOptions.soft_lanes`, None: on a GPU), rather than walk as packets."""
+        if not self.compute:
+            return False
+        lanes = self.options.soft_lanes
+        return not software_context(self.ctx) if lanes is None else bool(lanes)
+
+    def _sums_components(self, fragment: int) -> int:
+        """Components of a sums target the trace writes: the compute stage's sums image is
+        RGBA32F."""
+        return 4 if self.compute else fragment
+
+    def _trace_all(self, defines, ray, gbuffer, settings, target, lanes: int = 1) -> None:
+        """Trace every texel of ``target`` (full resolution) with ``defines``: a full-screen draw,
+        or on the compute path the queue of the texels that need a ray (``lanes`` invocations
+        each; ``HS_SUMS_ADD`` in ``defines``: added to the sums there)."""
+        if not self.compute:
+            _, vao, _ = self._program(defines, ray, gbuffer, settings)
+            self.gpu.budget.fullscreen(vao, target)
+            return
+        defs = {**defines, **self._lane_define(lanes)}
+
+        def bound(kernel):
+            return self.trace.bind_compute(defs, ray, gbuffer, settings, 1, kernel, self.sample_base, self.split)[0]
+
+        self.queue.trace(lambda: bound("gen"), lambda: bound("trace"), [target.texture], target.size,
+                         lanes=lanes, read="HS_SUMS_ADD" in defines)
+
+    def _add_marked(self, li, sums, accum_defines, ray, gbuffer, settings, first: int, total: int) -> None:
+        """Add the sums of samples [first, total) of each pixel's sequence after ``sample_base``
+        to ``sums`` where the last mark marked pixels: draws of at most CHUNK_RAYS each (their
+        blend adds), or on the compute path the marked pixels queued, their samples over lanes."""
+        if not self.compute:
+            for vao in self._chunk_draws(accum_defines, ray, gbuffer, settings, first, total):
+                self.refiner.draw_marked((li, "soft"), sums, vao, add=True)
+            return
+        base = self.sample_base
+        try:
+            for defs, n, lanes, start in self._lane_spans(accum_defines, first, total):
+                self.sample_base = base + start
+                defs = {**defs, **self._lane_define(lanes), "HS_SUMS_ADD": 1}
+                part = settings.replace(samples=n)
+
+                def bound(defs=defs, part=part):
+                    return self.trace.bind_compute(defs, ray, gbuffer, part, 1, "trace", self.sample_base,
+                                                   self.split)[0]
+
+                self.refiner.trace_marked((li, "soft"), sums, bound, kind=None, lanes=lanes, read=True)
+        finally:
+            self.sample_base = base
+
+    def _lane_define(self, lanes: int) -> dict:
+        """``HS_QUEUE_LANES`` for ``lanes`` per queued texel (none for 1), recorded in the stats."""
+        if lanes <= 1:
+            return {}
+        self.defines_used["HS_QUEUE_LANES"] = max(lanes, self.defines_used.get("HS_QUEUE_LANES", 0))
+        return {"HS_QUEUE_LANES": lanes}
+
+    def _lane_spans(self, accum_defines, first: int, total: int) -> list:
+        """``(defines, rays, lanes, first sample after sample_base)`` of the compute dispatches
+        that trace samples [first, total) as sums: with :meth:`_lanes` each texel's rays over
+        :func:`lanes_for` lanes, at most CHUNK_RAYS a lane per dispatch (llvmpipe's loop
+        budget); else one invocation per texel, as the fragment stage's draws chunk them."""
+        if self._lanes():
+            step, lanes = CHUNK_RAYS["rays"] * lanes_for(total - first), lanes_for
+        else:
+            step, lanes = self._chunk(self._packet_defines(accum_defines, total - first)), (lambda n: 1)
+        return [({**accum_defines, **self._soft_defines(accum_defines, n)}, n, lanes(n), start)
+                for start, n in chunk_spans(self.sample_base, first, total, step)]
 
     def _chunk_draws(self, accum_defines, ray, gbuffer, settings, first: int, total: int):
         """The vaos of the draws that trace samples [first, total) of each pixel's sequence

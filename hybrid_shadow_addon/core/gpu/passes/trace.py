@@ -28,6 +28,10 @@ class RaytraceOptions:
     cull_lights: bool | None = None
     #: soft lights: a pixel's rays walk the scene together (else ray by ray)
     packets: bool = True
+    #: soft lights on the compute path: a pixel's samples spread over lanes, ray by ray, instead
+    #: of walking as packets. None: on a GPU (a packet's arrays live in slow local memory there);
+    #: packets on a software rasteriser, where one walk for many rays pays
+    soft_lanes: bool | None = None
     #: ray by ray: a penumbra's fringe pixel may stop after half its samples
     early_stop: bool = True
     #: tests: refined pixels whose loops hit llvmpipe's budget read HS_LOOP_SPENT
@@ -149,13 +153,17 @@ class TraceProgram:
         unit = self._bind_inputs(prog, defines, ray, gbuffer, settings, scale, sample_base, split)
         return prog, vao, unit
 
-    def bind_compute(self, defines, ray: LightRay, gbuffer, settings, scale: int, kernel: str):
+    def bind_compute(self, defines, ray: LightRay, gbuffer, settings, scale: int, kernel: str,
+                     sample_base: int = 0, split: int = 0):
         """The compute program of ``defines`` (``kernel`` ``"gen"``: the generating kernel over
         the mask's texels, ``"trace"``: the tracing kernel over the queue; :mod:`.queue`),
         bound as :meth:`bind` binds: ``(prog, next free texture unit)``."""
         mode = {"gen": "HS_QUEUE_GEN", "trace": "HS_QUEUE_TRACE"}[kernel]
+        if kernel == "gen":  # (the lanes are the tracing kernel's)
+            defines = {k: v for k, v in defines.items() if k != "HS_QUEUE_LANES"}
         prog = self.programs.compute("raytrace", {**defines, mode: 1})
-        return prog, self._bind_inputs(prog, defines, ray, gbuffer, settings, scale, walk=kernel == "trace")
+        return prog, self._bind_inputs(prog, defines, ray, gbuffer, settings, scale, sample_base, split,
+                                       walk=kernel == "trace")
 
     def _bind_inputs(self, prog, defines, ray, gbuffer, settings, scale, sample_base=0, split=0,
                      walk: bool = True) -> int:
