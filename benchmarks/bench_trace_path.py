@@ -24,7 +24,10 @@ Configurations (hard lights, as the hard Cycles references; mode ``raytrace``):
   its ms are the frames' total, and ``waits`` / ``read_back`` the most waits and bytes read back
   beyond the RGBA32F image of one of its timed frames (the tree before: not counted).
 
-``--soft`` adds ``soft``: lights with their sizes at high, 64 samples.
+``--soft`` adds ``soft lanes`` and ``soft packets``: lights with their sizes at high, 64 samples,
+on the compute path a pixel's samples spread over lanes (a GPU's default) or walking the scene as
+packets (a software rasteriser's default; ``RaytraceOptions.soft_lanes``); the peer and the
+fragment path take no such choice, so they run the same work twice.
 
     rm -rf /tmp/peer && mkdir /tmp/peer && git archive <commit> | tar -x -C /tmp/peer
     .venv/bin/python benchmarks/bench_trace_path.py --peer /tmp/peer [--scenes forest clusters city]
@@ -51,7 +54,8 @@ CONFIGS = {
     "low": ({"quality": "low", "light_grid": False}, False),
     "viewport": ({"quality": "high", "light_grid": True, "viewport": True}, False),
 }
-SOFT = {"soft": ({"quality": "high", "hard": False, "samples": 64, "light_grid": False}, False)}
+SOFT = {f"soft {k}": ({"quality": "high", "hard": False, "samples": 64, "light_grid": False, "soft_lanes": v}, False)
+        for k, v in (("lanes", True), ("packets", False))}
 
 CHILD = r"""
 import dataclasses, hashlib, json, os, statistics, sys
@@ -77,6 +81,9 @@ for name, (kw, eager) in configs.items():
     rt.options = dataclasses.replace(rt.options, eager_light_grids=eager)
     kw = dict(kw, mode="raytrace", hard=kw.get("hard", True))
     viewport = kw.pop("viewport", False)
+    lanes = kw.pop("soft_lanes", None)
+    if lanes is not None and hasattr(rt.options, "soft_lanes"):
+        rt.options = dataclasses.replace(rt.options, soft_lanes=lanes)
     if viewport:
         pipe.timing, pipe.reuse = "frame", True
     if path != "peer":

@@ -2,7 +2,8 @@
 # This tree against a peer tree on a machine with a GPU and without Blender, same run (one command,
 # under 8 minutes at 1920x1080 on an H100/H200):
 #   1. the trace paths (benchmarks/bench_trace_path.py): the peer tree, this tree's compute path and
-#      its fragment path alternating, hard lights (cold, light grids, medium, low), then soft lights,
+#      its fragment path alternating, hard lights (cold, light grids, medium, low), then soft lights
+#      (on the compute path a pixel's samples over lanes, and as packets),
 #      with digests of the masks (equal digests: equal masks);
 #   2. digests of every mask and image (tools/mask_digest.py) of both trees at 320x180;
 #   3. Cycles on the same GPU as a peer, where this Python has bpy (the wheel is larger than what a
@@ -28,7 +29,8 @@ $py benchmarks/bench_trace_path.py --peer "$peer" --scenes "${hard[@]}" --size "
 if [ -f "$scenes/soft_lights.pkl.gz" ]; then
     echo "## soft lights, $size"
     $py benchmarks/bench_trace_path.py --peer "$peer" --scenes "$scenes/soft_lights.pkl.gz" "$scenes/forest.pkl.gz" \
-        --size "$size" --frames 3 --alternations 1 --soft --json "$out/paths_soft.json" \
+        --size "$size" --frames 3 --alternations 1 --soft --configs "soft lanes" "soft packets" \
+        --json "$out/paths_soft.json" \
         | sed "s#$scenes/##g; s#.pkl.gz##g" | tee "$out/paths_soft.md"
 fi
 all=$(ls "$scenes"/*.pkl.gz | grep -v 1000000 | paste -sd ';')

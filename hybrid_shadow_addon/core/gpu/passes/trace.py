@@ -62,7 +62,7 @@ class RaytraceStats:
     those lights' pixels. ``reuse_ways`` how many hard lights reused their history and how many
     were traced plainly where reusing did not pay (:class:`.reproject.ReuseChoice`),
     ``lights_culled`` the lights traced by no ray (:mod:`.light_cull`), ``trace_path`` the
-    path the hard masks were traced on (``compute`` or ``fragment``). The three counts the GPU
+    path the masks were traced on (``compute`` or ``fragment``). The three counts the GPU
     keeps (``rays_traced``, ``pixels``, ``pixels_reused``) are None in a frame that does not
     read them (``Pipeline.timing`` ``"frame"``)."""
 
