@@ -15,10 +15,11 @@ builder and with the Morton-run builder it replaced (``spatial_min=0``). With ``
 also re-lays every tree out with another child order (the stackless walk visits the first child first) and counts again:
 the current order, front-to-back along the sun's direction (suns only), low boxes first, high
 boxes first, larger boxes first. Deterministic (no timing): step counts are what the GPU walk
-executes, whatever the machine.
+executes, whatever the machine. With ``--wide`` the same trees are walked as 4- and 8-wide nodes
+with a stack (``core/oracle/tracer/wide.py``): the dependent fetches such a layout would take.
 
     .venv/bin/python benchmarks/profile_traversal.py [forest clusters city scaling:triangles=1000000]
-        [--size 320x180] [--orders]
+        [--size 320x180] [--orders] [--wide]
 """
 from __future__ import annotations
 
@@ -56,6 +57,44 @@ def active_lanes(fetch_img: np.ndarray, bw: int = 8, bh: int = 4) -> float:
     b = fetch_img[: h // bh * bh, : w // bw * bw].reshape(h // bh, bh, w // bw, bw)
     span = b.max(axis=(1, 3)).sum() * bw * bh
     return float(b.sum() / span) if span else 1.0
+
+
+#: the wide layouts counted by ``--wide``: (label, binary levels per node, child order)
+WIDE = (("4-wide, nearest first", 2, "distance"), ("4-wide, farthest first", 2, "far"),
+        ("4-wide, tree order", 2, "tree"), ("8-wide, nearest first", 3, "distance"), ("8-wide, tree order", 3, "tree"))
+
+
+def wide_table(spec, baked, rays) -> None:
+    """Dependent fetches per ray of each light with the binary walk and with the layouts of
+    WIDE (answers checked equal to the binary walk's), and the 8x4 warp model's active lanes."""
+    from hybrid_shadow_addon.core.oracle.tracer.wide import trace_wide
+
+    print(f"\n{spec}: dependent fetches per ray as wide nodes (the same trees; a wide node's children's boxes "
+          "one fetch; active lanes of 8x4 groups in brackets)\n")
+    print("| light | binary | " + " | ".join(label for label, *_ in WIDE) + " |")
+    print("|---|---:|" + "---:|" * len(WIDE))
+    tot = np.zeros(1 + len(WIDE))
+    n_all = 0
+    for light, o, d, tm, occ, _mean, fetch_b, where in rays:
+        row = [f"{fetch_b.mean():.1f} ({active_lanes(image_of(fetch_b, where)):.2f})"]
+        tot[0] += fetch_b.sum()
+        for j, (_label, levels, order) in enumerate(WIDE):
+            occ_w, fw, _ = trace_wide(baked, o, d, tm, levels, order)
+            assert (occ_w == occ).all(), f"{light.name}: the wide walk changed an answer"
+            tot[1 + j] += fw.sum()
+            row.append(f"{fw.mean():.1f} ({active_lanes(image_of(fw, where)):.2f})")
+        n_all += len(o)
+        print(f"| {light.name} | " + " | ".join(row) + " |", flush=True)
+    ratios = ", ".join(f"{label} {tot[0] / tot[1 + j]:.2f}x fewer" for j, (label, *_) in enumerate(WIDE))
+    print(f"\nall lights: binary {tot[0] / n_all:.1f} fetches per ray; {ratios}")
+
+
+def image_of(values, where) -> np.ndarray:
+    """``values`` of the rays at pixels ``where`` ((rows, cols), shape) as an image (0 elsewhere)."""
+    (rows, cols), shape = where
+    img = np.zeros(shape, np.int64)
+    img[rows, cols] = values
+    return img
 
 
 def sah_costs(scene, baked) -> str:
@@ -126,6 +165,9 @@ def main(argv=None) -> int:
     ap.add_argument("scenes", nargs="*", default=["forest", "clusters", "city", "scaling:triangles=1000000"])
     ap.add_argument("--size", default="320x180")
     ap.add_argument("--orders", action="store_true", help="also count the steps under other child orders")
+    ap.add_argument("--wide", action="store_true",
+                    help="also count the fetches of the same trees walked as 4- and 8-wide nodes with a stack "
+                         "(core/oracle/tracer/wide.py), nearest or farthest child first or in tree order")
     ap.add_argument("--blas-spatial-min", type=int, default=None,
                     help="bake the model trees with this spatial_min (0: the Morton-run builder before)")
     ap.add_argument("--tlas-spatial-min", type=int, default=None,
@@ -183,9 +225,12 @@ def main(argv=None) -> int:
                   f"{occ_s} / {un_s} | {stats['tlas_nodes'] / n:.0f} / {stats['bvh_nodes'] / n:.0f} | "
                   f"{stats['triangles'] / n:.1f} | {top} | {lane_waste(img):.2f} | {active_lanes(fimg):.2f} |",
                   flush=True)
-            rays.append((light, o[facing], d[facing], tmax[facing], occ, float(steps.mean())))
+            rays.append((light, o[facing], d[facing], tmax[facing], occ, float(steps.mean()), fetches,
+                         ((rows[facing], cols[facing]), m.shape)))
         if totals[1]:
             print(f"\nall lights: {totals[0] / totals[1]:.1f} dependent fetches per ray")
+        if args.wide and rays:
+            wide_table(spec, baked, rays)
         if args.orders and rays:
             node = baked.textures["node"].linear()
             saved = node.copy()
@@ -198,12 +243,12 @@ def main(argv=None) -> int:
             print(f"\n{spec}: node steps per ray under other child orders (occlusion unchanged)\n")
             print("| light | current | " + " | ".join(orders) + " | front-to-back along the sun |")
             print("|---|---:|" + "---:|" * (len(orders) + 1))
-            results = {light.name: [f"{mean:.0f}"] for light, *_, mean in rays}
+            results = {r[0].name: [f"{r[5]:.0f}"] for r in rays}
             def count(key, which):
                 node[:] = saved
                 for (s_, e_) in trees:
                     node[s_:e_] = relayout(saved, s_, e_, key)
-                for light, o, d, tm, occ, _ in which:
+                for light, o, d, tm, occ, *_ in which:
                     stats = {"per_ray": True}
                     occ2 = tracer.trace_structured(baked, o, d, tm, stats)
                     assert (occ2 == occ).all(), "a child order changed an answer"

@@ -287,3 +287,43 @@ def test_glsl_bvh_spheres_only_and_meshes_only(gl_ctx):
         assert ("HS_HAS_MESHES" in baked.defines) == (spheres < 1)
         o, d, t = random_rays(rng, scene, 4000)
         assert (trace_structured(baked, o, d, t) == gl_trace(gl_ctx, baked, o, d, t)).mean() >= 0.999
+
+
+@pytest.mark.parametrize("levels,order", [(2, "distance"), (2, "far"), (2, "tree"), (3, "distance")])
+def test_wide_walk_answers_as_the_binary_walk_with_fewer_fetches(levels, order):
+    """The trees walked as wide nodes with a stack (``oracle/tracer/wide.py``, the projection
+    of ``profile_traversal.py --wide``): meshes, spheres and far misses give the binary walk's
+    answers (and brute force's); a terrain's rays take fewer than half the dependent fetches."""
+    from hybrid_shadow_addon.core.oracle.tracer.wide import trace_wide
+
+    rng = np.random.default_rng(5)
+    scene = random_scene(rng, n_inst=150)
+    baked = bake_scene(scene, BVH)
+    o, d, t = random_rays(rng, scene, 2000)
+    occ, fetches, visits = trace_wide(baked, o, d, t, levels, order)
+    assert (occ == trace_brute(scene, o, d, t)).all() and occ.any() and (~occ).any()
+    assert (fetches >= visits).all() and visits.max() > 0
+    n = 158
+    xs = np.linspace(-10, 10, n + 1)
+    X, Y = np.meshgrid(xs, xs)
+    v = np.stack([X.ravel(), Y.ravel(), (0.2 * np.sin(X) * np.cos(Y)).ravel()], 1)
+    i = np.arange(n)
+    a = (i[None, :] + (n + 1) * i[:, None]).ravel()
+    tris = np.concatenate([np.stack([a, a + 1, a + n + 2], 1), np.stack([a, a + n + 2, a + n + 1], 1)])
+    terrain = bake_scene(Scene(models=[Model("terrain", v, tris)], instances=Instances(names=["t"])), BVH)
+    R = 300
+    o = np.stack([rng.uniform(-9, 9, R), rng.uniform(-9, 9, R), np.full(R, 3.0)], 1)
+    d = np.stack([rng.normal(scale=0.6, size=R), rng.normal(scale=0.6, size=R), -np.ones(R)], 1)
+    stats = {"per_ray": True}
+    binary = trace_structured(terrain, o, d, np.inf, stats=stats)
+    occ, fetches, _ = trace_wide(terrain, o, d, np.inf, levels, order)
+    assert (occ == binary).all() and binary.mean() > 0.5
+    assert fetches.sum() * 2 < stats["ray_fetches"].sum()
+
+
+def test_wide_walk_rejects_an_unknown_order():
+    from hybrid_shadow_addon.core.oracle.tracer.wide import trace_wide
+
+    baked = bake_scene(Scene(), BVH)
+    with pytest.raises(ValueError, match="order must be one of"):
+        trace_wide(baked, np.zeros((1, 3)), np.eye(3)[:1], np.inf, 2, "random")
