@@ -27,13 +27,14 @@ BPY5_TESTS := tests/test_export_objects.py tests/test_export_meshes.py tests/tes
 lint: setup
 	$(PY) -m ruff check .
 
+# the suite runs a worker per core, a test module's tests on one worker (their module fixtures);
 # the tests record each shader define set they build (programs.py); the shader check compiles
 # those and each optional define alone with the GL and with glslangValidator (tools/shader_check.py)
 SHADER_DEFINES := out/test/shader_defines.jsonl
 test: export HS_RECORD_DEFINES := $(CURDIR)/$(SHADER_DEFINES)
 test: setup lint
 	@mkdir -p $(dir $(SHADER_DEFINES)) && rm -f $(SHADER_DEFINES)
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q -n auto --dist loadfile tests
 	@if [ -f .venv-bpy5/.requirements.sha256 ]; then \
 		echo "$(BPY5) -m pytest -q $(BPY5_TESTS)"; $(BPY5) -m pytest -q $(BPY5_TESTS); \
 	else echo "bpy 5 tests skipped: python3.13 not found (see tools/setup.sh)"; fi
@@ -41,7 +42,7 @@ test: setup lint
 
 # the inner loop: everything but the slow tests and the Cycles renders (markers: pyproject.toml)
 test-fast: setup
-	$(PY) -m pytest -q -m "not slow and not cycles" tests
+	$(PY) -m pytest -q -n auto --dist loadfile -m "not slow and not cycles" tests
 
 extension: setup
 	$(PY) tools/build_extension.py

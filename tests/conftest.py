@@ -16,6 +16,8 @@ import pytest  # noqa: E402
 
 from tests.helpers.blender_env import TEST_SCENES  # noqa: E402
 
+_EXIT = pytest.StashKey[int]()  # pytest's exit status, kept for pytest_unconfigure
+
 
 @pytest.fixture(scope="session")
 def gl_ctx():
@@ -60,3 +62,19 @@ def loaded():
         return cache[name]
 
     return get
+
+
+def pytest_sessionfinish(session, exitstatus):
+    session.config.stash[_EXIT] = int(exitstatus)
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_unconfigure(config):
+    """The parallel run's controller (``make test`` runs ``pytest -n``) reads the workers'
+    warnings, whose add-on classes import bpy; bpy 4.5 then crashes while the interpreter
+    finalises a process that never ran Blender. That process ends here, with pytest's status
+    (everything is written by now)."""
+    if "bpy" in sys.modules and config.pluginmanager.hasplugin("dsession") and _EXIT in config.stash:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(config.stash[_EXIT])
