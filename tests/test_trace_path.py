@@ -140,13 +140,14 @@ def test_budget_slices_give_the_whole_mask(paths, loaded):
     scene = loaded("forest")
     pipe = paths["compute"]
     pipe.set_scene(scene)
-    whole = pipe.render(scene, HARD.replace(trace_path="compute"), 160, 120)
+    frame = pipe.render(scene, HARD.replace(trace_path="compute"), 160, 120)
+    whole = {li: frame.mask_array(li) for li in frame.lights}  # (read now: the next frame reuses the targets)
     budget = pipe.gpu.budget
     budget.reset_stats()
     sliced = pipe.render(scene, HARD.replace(trace_path="compute"), 160, 120, max_draw_ms=0.5)
     assert budget.tiles > 2 * len(sliced.lights)
-    for li in whole.lights:
-        assert differing(whole.mask_array(li), sliced.mask_array(li)) == 0
+    for li, mask in whole.items():
+        assert differing(mask, sliced.mask_array(li)) == 0
 
 
 def test_trace_path_choice(paths):
@@ -228,3 +229,26 @@ def test_soft_masks_across_paths(name, paths, loaded):
                     assert d.mean() < 1e-5 and d.max() < 0.05, f"{what}: off by {d.max()} (mean {d.mean()})"
                 else:
                     assert d.max() < 5e-5, f"{what}: off by {d.max()}"
+
+
+def test_soft_budget_slices_give_the_whole_mask(paths, loaded):
+    """A final render's budget slices the soft lights' queues too, lanes and packets: the masks
+    are those of whole dispatches."""
+    scene = loaded("soft_lights")
+    pipe = paths["compute"]
+    pipe.set_scene(scene)
+    rt = pipe.shadow_pass("raytrace")
+    settings = Settings(samples=24, light_grid=False, trace_path="compute")
+    try:
+        for lanes in (True, False):
+            rt.options = dataclasses.replace(rt.options, soft_lanes=lanes)
+            frame = pipe.render(scene, settings, 160, 120)
+            whole = {li: frame.mask_array(li) for li in frame.lights}  # (before the next frame reuses the targets)
+            budget = pipe.gpu.budget
+            budget.reset_stats()
+            sliced = pipe.render(scene, settings, 160, 120, max_draw_ms=0.5)
+            assert budget.tiles > 2 * len(sliced.lights)
+            for li, mask in whole.items():
+                assert differing(mask, sliced.mask_array(li)) == 0, (lanes, scene.lights[li].name)
+    finally:
+        rt.options = dataclasses.replace(rt.options, soft_lanes=None)
