@@ -14,6 +14,9 @@
 # work on a small part of the chip, so its fragment figures say little about an artist's GPU.
 #
 #   bash benchmarks/gpu_peer.sh PEER_TREE SCENES_DIR OUT_DIR [WxH]
+#
+# On a lent GPU machine: `bash benchmarks/gpu_prepare.sh PEER_COMMIT` here first; it prepares the
+# loaders, wheels, scenes and peer tree and prints the one device command that runs this script.
 set -euo pipefail
 peer=$1 scenes=$(cd "$2" && pwd) out=$3 size=${4:-1920x1080}
 py=${PYTHON:-python3}
@@ -35,8 +38,9 @@ if [ -f "$scenes/soft_lights.pkl.gz" ]; then
 fi
 all=$(ls "$scenes"/*.pkl.gz | grep -v 1000000 | paste -sd ';')
 $py tools/mask_digest.py --tree "$peer" --scenes "$all" --resolution 320x180 --output "$out/digest_peer.json" >/dev/null
+# (differing digests are reported, not fatal: the Cycles peer below still runs)
 $py tools/mask_digest.py --scenes "$all" --resolution 320x180 --output "$out/digest_this.json" \
-    --against "$out/digest_peer.json" | tail -n 20
+    --against "$out/digest_peer.json" | tail -n 20 || echo "digests: some variants differ from the peer's (above)"
 if $py -c "import bpy" 2>/dev/null; then
     $py benchmarks/bench_cycles_frame.py --scenes forest clusters --size "$size" --alternations 1 --frames 3 \
         | tee "$out/cycles.md"
