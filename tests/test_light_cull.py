@@ -48,12 +48,12 @@ LIGHTS = [
 ]
 
 
-def needs_rays(frame, scene, li, origin) -> int:
-    """Pixels a hard light's trace gives a ray (numpy mirror of shadow_ray_prelude)."""
+def needs_rays(gbuffer, m, scene, li, origin) -> int:
+    """Pixels of light ``li``'s mask ``m`` that its trace gives a ray (numpy mirror of
+    shadow_ray_prelude over ``gbuffer``, the mask's frame's)."""
     from hybrid_shadow_addon.core.oracle.rays import shadow_rays
-    m = frame.mask_array(li)
     rows, cols = np.nonzero(~np.isnan(m))
-    facing = shadow_rays(frame.gbuffer, (rows, cols), scene.lights[li], origin)[3]
+    facing = shadow_rays(gbuffer, (rows, cols), scene.lights[li], origin)[3]
     return int(facing.sum())
 
 
@@ -116,7 +116,8 @@ def test_a_light_with_a_ray_is_never_left_out(pipeline):
     pipeline.set_scene(scene)
     got = render_both(pipeline, scene, Settings(mode="raytrace", hard=True))
     frame, masks, culled, _ = got[True]
-    rays = {li: needs_rays(frame, scene, li, pipeline.baked.origin) for li in frame.lights}
+    # (the G-buffer is the later frame's: the same scene, camera and size)
+    rays = {li: needs_rays(frame.gbuffer, masks[li], scene, li, pipeline.baked.origin) for li in frame.lights}
     assert all(rays[li] == 0 for li in culled)
     assert sum(r == 0 for r in rays.values()) > len(culled) // 2 >= 1  # some left out, not all misses
     assert any(0 < r < 6 for r in rays.values())  # cones of a few pixels were among them

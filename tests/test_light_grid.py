@@ -294,13 +294,13 @@ def test_a_build_out_of_memory_keeps_the_bvh(monkeypatch, pipeline, loaded):
 
     scene = loaded("cube_on_plane")
     pipeline.set_scene(scene, "bvh")
-    ref = pipeline.render(scene, Settings(hard=True, light_grid=False), W, H)
+    _, ref = masks(pipeline, scene, Settings(hard=True, light_grid=False))
     monkeypatch.setattr(light_grid, "build_sun_grid", no_memory)
     pipeline.set_scene(scene, "bvh")
-    fr = pipeline.render(scene, Settings(hard=True), W, H)
+    fr, got = masks(pipeline, scene, Settings(hard=True))
     assert not gridded(pipeline)
-    for k in range(len(fr.lights)):
-        np.testing.assert_array_equal(fr.mask_array(k), ref.mask_array(k))
+    for li in fr.lights:
+        np.testing.assert_array_equal(got[li], ref[li])
 
 
 def test_grids_stop_at_the_memory_budget(monkeypatch, pipeline, loaded):
@@ -309,13 +309,13 @@ def test_grids_stop_at_the_memory_budget(monkeypatch, pipeline, loaded):
 
     scene = loaded("clusters")
     pipeline.set_scene(scene, "bvh")
-    ref = pipeline.render(scene, Settings(hard=True, light_grid=False), W, H)
+    _, ref = masks(pipeline, scene, Settings(hard=True, light_grid=False))
     monkeypatch.setattr(light_grid, "MAX_BYTES", 1)
     pipeline.set_scene(scene, "bvh")
-    fr = pipeline.render(scene, Settings(hard=True), W, H)
+    fr, got = masks(pipeline, scene, Settings(hard=True))
     assert len(gridded(pipeline)) == 1  # (the first light's grid, then the budget is spent)
-    for k in range(len(fr.lights)):
-        np.testing.assert_array_equal(fr.mask_array(k), ref.mask_array(k))
+    for li in fr.lights:
+        np.testing.assert_array_equal(got[li], ref[li])
 
 
 def test_grids_follow_moves_and_the_lights(pipeline, loaded):
@@ -332,11 +332,11 @@ def test_grids_follow_moves_and_the_lights(pipeline, loaded):
     assert {light.type for light in scene.lights} >= {"SUN", "POINT"}
 
     def check(changed_from=None):
-        fr = pipeline.render(scene, s, W, H)
-        ref = pipeline.render(scene, s.replace(light_grid=False), W, H)
+        fr, got = masks(pipeline, scene, s)
+        _, ref = masks(pipeline, scene, s.replace(light_grid=False))
         out = {}
-        for k, li in enumerate(fr.lights):
-            a, b = fr.mask_array(k), ref.mask_array(k)
+        for li in fr.lights:
+            a, b = got[li], ref[li]
             v = ~np.isnan(b)
             np.testing.assert_array_equal(a[v], b[v], err_msg=scene.lights[li].name)
             out[li] = a
@@ -400,13 +400,13 @@ def test_grids_are_built_once_they_pay_back(monkeypatch, pipeline, loaded):
     fr = pipeline.render(scene, s, W, H)  # (the builds start in the background: this frame the tree)
     assert not gridded(pipeline)
     grids.wait()
-    ref = pipeline.render(scene, s.replace(light_grid=False), W, H)
-    fr = pipeline.render(scene, s, W, H)  # (uploads and uses them)
+    _, ref = masks(pipeline, scene, s.replace(light_grid=False))
+    fr, got = masks(pipeline, scene, s)  # (uploads and uses them)
     culled = {scene.lights[li].name for li in pipeline.shadow_pass("raytrace").culled}
     assert gridded(pipeline) == {scene.lights[li].name for li in fr.lights} - culled
     assert grids.build_ms > 0
-    for k in range(len(fr.lights)):
-        np.testing.assert_array_equal(fr.mask_array(k), ref.mask_array(k))
+    for li in fr.lights:
+        np.testing.assert_array_equal(got[li], ref[li])
     pipeline.render(scene, s, W, H)
     assert grids.build_ms == 0  # (kept)
     pipeline.set_scene(scene, "bvh")  # a new bake: the first frame traces the tree again

@@ -260,3 +260,19 @@ def test_a_cancelled_frame_leaves_nothing_behind(gl_ctx, loaded):
     finally:
         pipe.release()
         fresh.release()
+
+
+def test_a_frames_masks_are_read_before_the_next_frame(pipeline, loaded):
+    """A frame's masks live in the pipeline's targets: read after the next frame (or after the
+    targets were given back) they are one clear error, not the later frame's masks."""
+    scene = loaded("cube_on_plane")
+    pipeline.set_scene(scene)
+    first = pipeline.render(scene, Settings(hard=True), W, H)
+    kept = first.mask_array(first.lights[0])
+    second = pipeline.render(scene, Settings(hard=True), W, H)
+    np.testing.assert_array_equal(second.mask_array(second.lights[0]), kept)
+    with pytest.raises(RuntimeError, match="drawn over by a later frame"):
+        first.mask_array(first.lights[0])
+    pipeline.release_targets()
+    with pytest.raises(RuntimeError, match="drawn over by a later frame"):
+        second.mask_array(second.lights[0])

@@ -56,9 +56,22 @@ def mask_inputs(scene) -> bytes:
     return h.digest()
 
 
+class FrameCount:
+    """How many frames a pipeline has begun (or targets it has given back): a frame whose masks
+    live in the pipeline's targets reads them only while this is what it was when it was made."""
+
+    __slots__ = ("value",)
+
+    def __init__(self):
+        self.value = 0
+
+
 @dataclass
 class Frame:
-    """One rendered frame. ``image``: float32 (H, W, 4) linear RGBA, row 0 = top."""
+    """One rendered frame. ``image``: float32 (H, W, 4) linear RGBA, row 0 = top. Its masks and
+    G-buffer live in the pipeline's targets until the pipeline's next frame draws over them:
+    :meth:`mask_array` reads them until then, and after it raises (a see-through average's
+    masks are host copies, read any time)."""
 
     image: np.ndarray
     masks: dict  # light index -> moderngl texture at full resolution (valid until the next render)
@@ -68,11 +81,16 @@ class Frame:
     gbuffer: object = None
     mask_arrays: dict = None  # light index -> float32 mask (a see-through average), else read
     _coverage: np.ndarray = field(default=None, repr=False)
+    _count: FrameCount = field(default=None, repr=False)  # the pipeline's, and its value at this frame
+    _made: int = field(default=0, repr=False)
 
     def mask_array(self, light_index: int) -> np.ndarray:
         """float32 (H, W), row 0 = top, 1 lit / 0 shadowed, NaN where there is no geometry."""
         if self.mask_arrays is not None:
             return self.mask_arrays[light_index].copy()
+        if self._count is not None and self._count.value != self._made:
+            raise RuntimeError("this frame's masks were drawn over by a later frame of the same pipeline "
+                               "(or its targets given back): read them before rendering again")
         if self._coverage is None:  # one G-buffer read for all the frame's masks
             self._coverage = self.gbuffer.coverage()
         return read_mask(self.masks[light_index], self.gbuffer, self._coverage)
@@ -164,6 +182,7 @@ class Pipeline:
         self._make_passes()
         self.see_through = SeeThroughScene()
         self.gbuffer_renders = 0  # G-buffer passes rendered (a see-through frame renders several)
+        self.frames_begun = FrameCount()  # (a Frame reads its masks while it is the last one)
 
     def _make_passes(self) -> None:
         """New passes (their targets and history made on first use)."""
@@ -331,6 +350,7 @@ class Pipeline:
         settings = settings or Settings()
         if scene.camera is None:
             raise SceneError(f"scene '{scene.name}' has no camera")
+        self.frames_begun.value += 1  # (the frames before this one no longer own the targets)
         width = int(width or scene.resolution[0])
         height = int(height or scene.resolution[1])
         check_render_size(self.ctx, width, height)
@@ -381,7 +401,8 @@ class Pipeline:
             coverage = gbuffer.coverage()
         out = Frame(image=(acc.image / acc.count).astype(np.float32), masks=acc.mask_textures(coverage),
                     lights=list(acc.lights), timings=timings, stats=stats, gbuffer=gbuffer,
-                    mask_arrays={li: acc.mask(li, coverage) for li in acc.lights})
+                    mask_arrays={li: acc.mask(li, coverage) for li in acc.lights}, _count=self.frames_begun,
+                    _made=self.frames_begun.value)
         acc.frame = out
         if not settings.accumulate:
             acc.reset()
@@ -460,7 +481,8 @@ class Pipeline:
         }
         memory.collect(self.ctx)  # (what was dropped unreleased, and moderngl's husks of released objects)
         return Frame(image=image, masks=job.masks, lights=job.lights, timings=timings, stats=stats,
-                     gbuffer=job.gbuffer)
+                     gbuffer=job.gbuffer,
+                     _count=self.frames_begun, _made=self.frames_begun.value)
 
     def _reset_gl_state(self) -> None:
         ctx = self.ctx
@@ -483,6 +505,7 @@ class Pipeline:
         the ray-traced pass stays whole (its masks and reuse history: the next frame of an
         animation reuses them)."""
         make_current(self.ctx)
+        self.frames_begun.value += 1
         kept = self._shadow.get("raytrace") if keep_history else None
         for p in self._passes():
             if p is not kept:
