@@ -6,7 +6,9 @@ with ``HS_QUEUE_GEN`` stores the answers known without a ray (background, facing
 reach) and appends the other texels to the queue; ``queue_marked.glsl`` appends the pixels a
 refinement or a reuse marked. The tracing kernel (``HS_QUEUE_TRACE``) is then dispatched
 indirectly, with the group count the appends left on the GPU, one queued texel per invocation:
-its lanes are all rays, so its time follows the rays traced, not the pixels around them.
+its lanes are all rays, so its time follows the rays traced, not the pixels around them. A
+soft light's tracing kernel may give each queued texel several invocations (``lanes``, its
+``HS_QUEUE_LANES``); the generating kernel then counts the groups by the texels a group takes.
 
 Nothing is read back to size the work. Each queue's length is copied into a tally on the GPU;
 :meth:`RayQueue.count` reads the frame's tallies once, when the stats ask. With a final

@@ -18,6 +18,15 @@ noise (``Settings.noise_target``): its sums keep those of the first half of the 
 (``u_split``), the masks of the two halves are filtered as masks of half the samples and
 compared (NOISE), and a light estimated above the target gives its partial pixels as many
 samples again.
+
+On the compute path (:attr:`SoftVisibility.compute`) the same stages run over ray queues
+(:mod:`.queue`): the probes queue the pixels that need a ray, the refinement the marked ones, and
+their sums are stored into (or, where the fragment stage blends, added to) RGBA32F images. On a
+GPU a queued pixel's samples spread over ``HS_QUEUE_LANES`` invocations (:func:`lanes_for`),
+each summing its share, the first adding the shares up in lane order; on a software rasteriser
+they walk as packets, as the fragment stage's do (``RaytraceOptions.soft_lanes``). Either way a
+refined pixel traces all its samples (no early stop between halves) and final renders check
+their noise.
 """
 from __future__ import annotations
 
