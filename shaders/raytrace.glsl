@@ -153,6 +153,18 @@ float hs_top_tmax, hs_top_w;
 const int hs_lane = 0;
 #endif
 
+#ifdef HS_SOFT
+// The visibility of a soft light's highest point (hs_light_top: direction d, the light at tmax)
+// from o, which decides a pixel none of whose samples had a weight.
+float hs_top_visibility(vec3 o, vec3 d, float tmax)
+{
+#ifdef HS_MAX_DISTANCE
+    tmax = min(tmax, u_max_distance / length(d));
+#endif
+    return hs_visibility(o, d, tmax);
+}
+#endif
+
 // The answer of mask texel mt into o_mask (HS_QUEUE_GEN: the answer known without a ray, or
 // the texel appended to the ray queue and nothing written).
 void trace_main(ivec2 mt)
@@ -319,15 +331,12 @@ void trace_main(ivec2 mt)
     hs_top_o = o; hs_top_d = top_d; hs_top_tmax = top_tmax; hs_top_w = top_w;   // (main's, once the lanes are summed)
 #elif !defined(HS_SOFT_PROBE)
     if (sw == 0.0 && top_w > 0.0) {   // no sample reached above the horizon: the highest point decides
-#ifdef HS_MAX_DISTANCE
-        top_tmax = min(top_tmax, u_max_distance / length(top_d));
-#endif
 #ifdef HS_SOFT_ACCUM
         sw = HS_ACCUM_TOP_WEIGHT;
 #else
         sw = 1.0;
 #endif
-        sv = sw * hs_visibility(o, top_d, top_tmax);
+        sv = sw * hs_top_visibility(o, top_d, top_tmax);
     }
 #endif
 #ifdef HS_SOFT_SUMS
@@ -461,11 +470,8 @@ void main()
         s += part;
     }
     if (s.y == 0.0 && hs_top_w > 0.0) {   // no sample reached above the horizon: the highest point decides
-#ifdef HS_MAX_DISTANCE
-        hs_top_tmax = min(hs_top_tmax, u_max_distance / length(hs_top_d));
-#endif
         s.y = HS_ACCUM_TOP_WEIGHT;
-        s.x = s.y * hs_visibility(hs_top_o, hs_top_d, hs_top_tmax);
+        s.x = s.y * hs_top_visibility(hs_top_o, hs_top_d, hs_top_tmax);
     }
     if (spent) s = vec4(HS_LOOP_SPENT, 1.0, 0.0, 0.0);
     store_sums(mt, s);

@@ -5,7 +5,7 @@ from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 from hybrid_shadow_addon.core.bake.bvh import build_bvhs
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
-from tests.helpers.scenes import blob_model, plate_model
+from tests.helpers.scenes import blob_model, plate_model, terrain_model
 
 
 def test_bvh_invariants():
@@ -39,14 +39,7 @@ def test_bvh_invariants():
 
 def test_bvh_cost_is_logarithmic():
     """A 50k-triangle mesh: a ray tests a few dozen nodes, not 50k triangles."""
-    n = 158  # 2 * 158^2 = 49928 triangles
-    xs = np.linspace(-10, 10, n + 1)
-    X, Y = np.meshgrid(xs, xs)
-    v = np.stack([X.ravel(), Y.ravel(), (0.2 * np.sin(X) * np.cos(Y)).ravel()], 1)
-    i = np.arange(n)
-    a = (i[None, :] + (n + 1) * i[:, None]).ravel()
-    tris = np.concatenate([np.stack([a, a + 1, a + n + 2], 1), np.stack([a, a + n + 2, a + n + 1], 1)])
-    model = Model("terrain", v, tris)
+    model = terrain_model(158)  # (2 * 158^2 = 49928 triangles)
     assert model.triangle_count > 49000
     scene = Scene(models=[model], instances=Instances(names=["t"]))
     baked = bake_scene(scene, BakeConfig(structure="grid"))

@@ -11,7 +11,7 @@ from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 from hybrid_shadow_addon.core.settings import Settings
 from tests.helpers.bake import assert_equal_tracers, assert_report_covers, snapshot
 from tests.helpers.rays import random_rays
-from tests.helpers.scenes import adversarial_scene, blob_model, plate_model, random_scene
+from tests.helpers.scenes import adversarial_scene, blob_model, plate_model, random_scene, terrain_model
 
 pytestmark = [pytest.mark.gpu]
 
@@ -141,14 +141,7 @@ def test_empty_and_far_from_origin():
 
 
 def test_bvh_cost_is_logarithmic():
-    n = 158
-    xs = np.linspace(-10, 10, n + 1)
-    X, Y = np.meshgrid(xs, xs)
-    v = np.stack([X.ravel(), Y.ravel(), (0.2 * np.sin(X) * np.cos(Y)).ravel()], 1)
-    i = np.arange(n)
-    a = (i[None, :] + (n + 1) * i[:, None]).ravel()
-    tris = np.concatenate([np.stack([a, a + 1, a + n + 2], 1), np.stack([a, a + n + 2, a + n + 1], 1)])
-    scene = Scene(models=[Model("terrain", v, tris)], instances=Instances(names=["t"]))
+    scene = Scene(models=[terrain_model(158)], instances=Instances(names=["t"]))
     baked = bake_scene(scene, BVH)
     rng = np.random.default_rng(1)
     R = 200
@@ -303,14 +296,7 @@ def test_wide_walk_answers_as_the_binary_walk_with_fewer_fetches(levels, order):
     occ, fetches, visits = trace_wide(baked, o, d, t, levels, order)
     assert (occ == trace_brute(scene, o, d, t)).all() and occ.any() and (~occ).any()
     assert (fetches >= visits).all() and visits.max() > 0
-    n = 158
-    xs = np.linspace(-10, 10, n + 1)
-    X, Y = np.meshgrid(xs, xs)
-    v = np.stack([X.ravel(), Y.ravel(), (0.2 * np.sin(X) * np.cos(Y)).ravel()], 1)
-    i = np.arange(n)
-    a = (i[None, :] + (n + 1) * i[:, None]).ravel()
-    tris = np.concatenate([np.stack([a, a + 1, a + n + 2], 1), np.stack([a, a + n + 2, a + n + 1], 1)])
-    terrain = bake_scene(Scene(models=[Model("terrain", v, tris)], instances=Instances(names=["t"])), BVH)
+    terrain = bake_scene(Scene(models=[terrain_model(158)], instances=Instances(names=["t"])), BVH)
     R = 300
     o = np.stack([rng.uniform(-9, 9, R), rng.uniform(-9, 9, R), np.full(R, 3.0)], 1)
     d = np.stack([rng.normal(scale=0.6, size=R), rng.normal(scale=0.6, size=R), -np.ones(R)], 1)

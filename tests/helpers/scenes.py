@@ -174,6 +174,17 @@ def blob_model(rng, n_tri, name="blob", size=1.0):
     return Model(name, v, np.arange(3 * n_tri).reshape(-1, 3))
 
 
+def terrain_model(n=158, name="terrain"):
+    """A bumpy 20 m height field of 2 n^2 triangles (n = 158: 49,928) around the origin."""
+    xs = np.linspace(-10, 10, n + 1)
+    X, Y = np.meshgrid(xs, xs)
+    v = np.stack([X.ravel(), Y.ravel(), (0.2 * np.sin(X) * np.cos(Y)).ravel()], 1)
+    i = np.arange(n)
+    a = (i[None, :] + (n + 1) * i[:, None]).ravel()
+    tris = np.concatenate([np.stack([a, a + 1, a + n + 2], 1), np.stack([a, a + n + 2, a + n + 1], 1)])
+    return Model(name, v, tris)
+
+
 def plate_model(n=4, name="plate"):
     """A watertight-ish n x n grid of quads in the unit square at z = 0 (shared edges)."""
     xs = np.linspace(-1, 1, n + 1)

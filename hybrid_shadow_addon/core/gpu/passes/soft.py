@@ -179,14 +179,14 @@ class SoftVisibility(LightVisibility):
         half = SOFT_PROBES + rays // 2 if chunked and not (accum or whole) and self.options.early_stop else total
         stages = [(SOFT_PROBES, half), (half, total)] if half < total else [(SOFT_PROBES, total)]
         probe_defs = {k: v for k, v in defines.items() if k != "HS_SOFT_ACCUM"}  # (the same probes either way)
-        probe = self._target((li, "probe"), *full, components=self._sums_components(2))  # (sums: raytrace.glsl)
+        probe = self._target((li, "probe"), *full, components=self._sums_components())  # (sums: raytrace.glsl)
         self._trace_all({**probe_defs, "HS_SOFT_PROBE": 1}, ray, gbuffer, settings, probe)
         # the probe ranges' second pass writes the probe answers where they stand and marks the
         # rest in the depth buffer: only those are shaded by the refinement
         sums = out
         if chunked and not accum:  # (the refinement adds up sums, divided at the end)
             sums = self._target((li, "sums4" if check else "sums"), *full,
-                                components=4 if check else self._sums_components(2))
+                                components=4 if check else self._sums_components())
         self._range((li, "probe"), probe.texture, gbuffer, sums=True,
                     classify=(sums, probe.texture, accum or chunked))
         got = total
@@ -284,13 +284,12 @@ class SoftVisibility(LightVisibility):
             base = self.sample_base
             self.sample_base = traced(n)
             accum = {**defines, "HS_SOFT_ACCUM": 1}
-            new = self._target((li, "new"), *full, components=self._sums_components(2))
+            new = self._target((li, "new"), *full, components=self._sums_components())
             if n == 0 and lead:  # probes everywhere, fs + lead samples in the penumbrae (at most samples)
                 first = settings.replace(samples=min(fs + lead, int(settings.samples)))
                 self._probe_and_refine(ray, accum, gbuffer, first, new)
             elif self.compute:  # fs samples over lanes, in dispatches whose sums add up
-                for j, (defs, n_rays, lanes, start) in enumerate(self._lane_spans(accum, 0, fs)):
-                    self.sample_base = traced(n) + start
+                for j, (defs, n_rays, lanes) in enumerate(self._spans(accum, 0, fs)):
                     self._trace_all({**defs, **({"HS_SUMS_ADD": 1} if j else {})}, ray, gbuffer,
                                     settings.replace(samples=n_rays), new, lanes)
             else:  # fs samples, in draws of at most CHUNK_RAYS whose sums add up
@@ -433,10 +432,10 @@ class SoftVisibility(LightVisibility):
         lanes = self.options.soft_lanes
         return not software_context(self.ctx) if lanes is None else bool(lanes)
 
-    def _sums_components(self, fragment: int) -> int:
-        """Components of a sums target the trace writes: the compute stage's sums image is
-        RGBA32F."""
-        return 4 if self.compute else fragment
+    def _sums_components(self) -> int:
+        """Components of a sums target the trace writes (RG32F; the compute stage's sums image
+        is RGBA32F)."""
+        return 4 if self.compute else 2
 
     def _trace_all(self, defines, ray, gbuffer, settings, target, lanes: int = 1) -> None:
         """Trace every texel of ``target`` (full resolution) with ``defines``: a full-screen draw,
@@ -462,20 +461,14 @@ class SoftVisibility(LightVisibility):
             for vao in self._chunk_draws(accum_defines, ray, gbuffer, settings, first, total):
                 self.refiner.draw_marked((li, "soft"), sums, vao, add=True)
             return
-        base = self.sample_base
-        try:
-            for defs, n, lanes, start in self._lane_spans(accum_defines, first, total):
-                self.sample_base = base + start
-                defs = {**defs, **self._lane_define(lanes), "HS_SUMS_ADD": 1}
-                part = settings.replace(samples=n)
+        for defs, n, lanes in self._spans(accum_defines, first, total):
+            defs = {**defs, **self._lane_define(lanes), "HS_SUMS_ADD": 1}
+            part = settings.replace(samples=n)
 
-                def bound(defs=defs, part=part):
-                    return self.trace.bind_compute(defs, ray, gbuffer, part, 1, "trace", self.sample_base,
-                                                   self.split)[0]
+            def bound(defs=defs, part=part):
+                return self.trace.bind_compute(defs, ray, gbuffer, part, 1, "trace", self.sample_base, self.split)[0]
 
-                self.refiner.trace_marked((li, "soft"), sums, bound, kind=None, lanes=lanes, read=True)
-        finally:
-            self.sample_base = base
+            self.refiner.trace_marked((li, "soft"), sums, bound, kind=None, lanes=lanes, read=True)
 
     def _lane_define(self, lanes: int) -> dict:
         """``HS_QUEUE_LANES`` for ``lanes`` per queued texel (none for 1), recorded in the stats."""
@@ -484,31 +477,31 @@ class SoftVisibility(LightVisibility):
         self.defines_used["HS_QUEUE_LANES"] = max(lanes, self.defines_used.get("HS_QUEUE_LANES", 0))
         return {"HS_QUEUE_LANES": lanes}
 
-    def _lane_spans(self, accum_defines, first: int, total: int) -> list:
-        """``(defines, rays, lanes, first sample after sample_base)`` of the compute dispatches
-        that trace samples [first, total) as sums: with :meth:`_lanes` each texel's rays over
-        :func:`lanes_for` lanes, at most CHUNK_RAYS a lane per dispatch (llvmpipe's loop
-        budget); else one invocation per texel, as the fragment stage's draws chunk them."""
+    def _spans(self, accum_defines, first: int, total: int):
+        """``(defines, rays, lanes)`` of each draw or dispatch that traces samples [first, total)
+        of each pixel's sequence after ``sample_base`` as sums, with ``sample_base`` moved to the
+        span's first sample while the caller traces it (restored after the last): with
+        :meth:`_lanes` each texel's rays over :func:`lanes_for` lanes, at most CHUNK_RAYS a lane
+        per dispatch (llvmpipe's loop budget); else one invocation per texel, at most CHUNK_RAYS
+        per draw."""
         if self._lanes():
             step, lanes = CHUNK_RAYS["rays"] * lanes_for(total - first), lanes_for
         else:
             step, lanes = self._chunk(self._packet_defines(accum_defines, total - first)), (lambda n: 1)
-        return [({**accum_defines, **self._soft_defines(accum_defines, n)}, n, lanes(n), start)
-                for start, n in chunk_spans(self.sample_base, first, total, step)]
+        base = self.sample_base
+        try:
+            for start, n in chunk_spans(base, first, total, step):
+                self.sample_base = base + start
+                yield {**accum_defines, **self._soft_defines(accum_defines, n)}, n, lanes(n)
+        finally:
+            self.sample_base = base
 
     def _chunk_draws(self, accum_defines, ray, gbuffer, settings, first: int, total: int):
         """The vaos of the draws that trace samples [first, total) of each pixel's sequence
         after ``sample_base`` as sums (``accum_defines`` hold ``HS_SOFT_ACCUM``), at most
         CHUNK_RAYS per draw: the caller adds their outputs up."""
-        base = self.sample_base
-        step = self._chunk(self._packet_defines(accum_defines, total - first))
-        try:
-            for start, n in chunk_spans(base, first, total, step):
-                self.sample_base = base + start
-                defs = {**accum_defines, **self._soft_defines(accum_defines, n)}
-                yield self._program(defs, ray, gbuffer, settings.replace(samples=n))[1]
-        finally:
-            self.sample_base = base
+        for defs, n, _ in self._spans(accum_defines, first, total):
+            yield self._program(defs, ray, gbuffer, settings.replace(samples=n))[1]
 
     def release(self) -> None:
         self._targets.release()

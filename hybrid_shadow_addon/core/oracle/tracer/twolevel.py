@@ -44,6 +44,44 @@ def _count_by(counts: dict, keys) -> None:
         counts[a] = counts.get(a, 0) + b
 
 
+def enter_instances(leafd, ids, r, o, d, tm, occ, q, om, dm):
+    """Rays ``r`` at instance records ``ids``: each ray moved into its instance's model space; a
+    sphere's hit marked in ``occ``; for meshes, the quantised ray ``q`` = (lo, hi, inv) and the
+    model-space ray ``om``, ``dm`` set. ``(positions in r of the meshes, the records)``: the
+    caller enters their model trees (record texel 3: root, end)."""
+    rec = leafd[(5 * ids)[:, None] + np.arange(5)].reshape(-1, 20)
+    mo, md = transform_rays(rec[:, 0:12].view(F), o[r], d[r])
+    sph = (rec[:, 14] & SPHERE_FLAG) != 0
+    if sph.any():
+        s_ = np.nonzero(sph)[0]
+        sp = rec[s_, 16:20].view(F)
+        occ[r[s_]] |= sphere_hit(mo[s_], md[s_], sp[:, 0:3], sp[:, 3], tm[r[s_]])
+    m_ = np.nonzero(~sph)[0]
+    if m_.size:
+        rm = r[m_]
+        fr = rec[m_, 16:20].view(F)
+        with np.errstate(over="ignore", invalid="ignore"):
+            oq = ((mo[m_] - fr[:, 0:3]) * fr[:, 3:4]).astype(F)
+            e = QEPS * _l1(oq)
+            q[0][rm] = oq + e[:, None]
+            q[1][rm] = oq - e[:, None]
+            q[2][rm] = slab_inv((md[m_] * fr[:, 3:4]).astype(F))
+        om[rm], dm[rm] = mo[m_], md[m_]
+    return m_, rec
+
+
+def leaf_hits(tri, words, r, om, dm, tm):
+    """Rays ``r`` at model leaves (payloads ``words``: first [leaf] texel << 3 | count): each
+    triangle tested against its ray in model space (``om``, ``dm``). ``(the ray of each
+    triangle, whether it hits)``."""
+    first, cnt = words >> 3, words & 7
+    owner, j = ragged_pairs(np.zeros(len(words), np.int64), cnt)
+    f0 = first[owner] * 4 + j * 9
+    v = tri[f0[:, None] + np.arange(9)].reshape(-1, 3, 3)
+    p = r[owner]
+    return p, woop_hit(om[p], woop_setup(dm[p]), v[:, 0], v[:, 1], v[:, 2], tm[p], floor=True)
+
+
 def trace_twolevel(baked, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
     """The two-level walk of ``shaders/common/scene_bvh.glsl``, all rays at once. ``stats``
     (when given) gets totals of node steps (``iterations``: top level ``tlas_nodes`` + model
@@ -110,43 +148,20 @@ def trace_twolevel(baked, origins, dirs, tmax=np.inf, stats: dict | None = None)
         # instances: transform, sphere test or enter the model tree
         k = np.nonzero(hit & leaf & in_tlas)[0]
         if k.size:
-            r = act[k]
-            rec = leafd[(5 * pay[k])[:, None] + np.arange(5)].reshape(-1, 20)
-            mo, md = transform_rays(rec[:, 0:12].view(F), o[r], d[r])
-            sph = (rec[:, 14] & SPHERE_FLAG) != 0
             if stats is not None:
                 stats["objects"] += k.size
-            if sph.any():
-                s_ = np.nonzero(sph)[0]
-                sp = rec[s_, 16:20].view(F)
-                occ[r[s_]] |= sphere_hit(mo[s_], md[s_], sp[:, 0:3], sp[:, 3], tm[r[s_]])
-            m_ = np.nonzero(~sph)[0]
+            m_, rec = enter_instances(leafd, pay[k], act[k], o, d, tm, occ, (q_lo, q_hi, q_inv), om, dm)
             if m_.size:
-                rm = r[m_]
-                fr = rec[m_, 16:20].view(F)
-                with np.errstate(over="ignore", invalid="ignore"):
-                    oq = ((mo[m_] - fr[:, 0:3]) * fr[:, 3:4]).astype(F)
-                    e = QEPS * _l1(oq)
-                    q_lo[rm] = oq + e[:, None]
-                    q_hi[rm] = oq - e[:, None]
-                    q_inv[rm] = slab_inv((md[m_] * fr[:, 3:4]).astype(F))
-                om[rm], dm[rm] = mo[m_], md[m_]
+                rm = act[k][m_]
                 ret[rm] = i[rm] + 1
                 nxt[k[m_]] = rec[m_, 12].astype(np.int64)
                 bend[rm] = rec[m_, 13].astype(np.int64)
         # model leaves: up to 4 triangles, 9 floats each from texel (pay >> 3)
         k = np.nonzero(hit & leaf & ~in_tlas)[0]
         if k.size:
-            r = act[k]
-            first, cnt = pay[k] >> 3, pay[k] & 7
-            owner, j = ragged_pairs(np.zeros(k.size, np.int64), cnt)
-            f0 = first[owner] * 4 + j * 9
-            v = tri[f0[:, None] + np.arange(9)].reshape(-1, 3, 3)
-            p = r[owner]
-            setup = woop_setup(dm[p])
-            h = woop_hit(om[p], setup, v[:, 0], v[:, 1], v[:, 2], tm[p], floor=True)
+            p, h = leaf_hits(tri, pay[k], act[k], om, dm, tm)
             if stats is not None:
-                stats["triangles"] += owner.size
+                stats["triangles"] += p.size
             if per_ray:
                 _count_by(tree_tris, bend[p])
             occ[p[h]] = True

@@ -16,20 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...bake.textures import SPHERE_FLAG
-from .primitives import (
-    TFAR_SCALE,
-    F,
-    bake_space,
-    prepare_rays,
-    ragged_pairs,
-    slab_inv,
-    sphere_hit,
-    transform_rays,
-    woop_hit,
-    woop_setup,
-)
-from .twolevel import LEAF_FLAG, QEPS, TLAS_EPS, _l1
+from .primitives import TFAR_SCALE, F, bake_space, prepare_rays, slab_inv
+from .twolevel import LEAF_FLAG, TLAS_EPS, _l1, enter_instances, leaf_hits
 
 #: child orders: the nearest box popped first, the farthest, or the tree's own order
 ORDERS = ("distance", "far", "tree")
@@ -139,25 +127,9 @@ def trace_wide(baked, origins, dirs, tmax=np.inf, levels: int = 2, order: str = 
         # instance records: a sphere's test, or the model tree entered
         k = np.nonzero(leaf & ~inside)[0]
         if k.size:
-            r = act[k]
-            rec = leafd[(5 * pay[k])[:, None] + np.arange(5)].reshape(-1, 20)
-            mo, md = transform_rays(rec[:, 0:12].view(F), o[r], d[r])
-            sph = (rec[:, 14] & SPHERE_FLAG) != 0
-            if sph.any():
-                s_ = np.nonzero(sph)[0]
-                sp = rec[s_, 16:20].view(F)
-                occ[r[s_]] |= sphere_hit(mo[s_], md[s_], sp[:, 0:3], sp[:, 3], tm[r[s_]])
-            m_ = np.nonzero(~sph)[0]
+            m_, rec = enter_instances(leafd, pay[k], act[k], o, d, tm, occ, (q_lo, q_hi, q_inv), om, dm)
             if m_.size:
-                rm = r[m_]
-                fr = rec[m_, 16:20].view(F)
-                with np.errstate(over="ignore", invalid="ignore"):
-                    oq = ((mo[m_] - fr[:, 0:3]) * fr[:, 3:4]).astype(F)
-                    ee = QEPS * _l1(oq)
-                    q_lo[rm] = oq + ee[:, None]
-                    q_hi[rm] = oq - ee[:, None]
-                    q_inv[rm] = slab_inv((md[m_] * fr[:, 3:4]).astype(F))
-                om[rm], dm[rm] = mo[m_], md[m_]
+                rm = act[k][m_]
                 in_model[rm] = True
                 stack[rm, top[rm]] = RETURN
                 stack[rm, top[rm] + 1] = rec[m_, 12].astype(np.int64)
@@ -165,13 +137,7 @@ def trace_wide(baked, origins, dirs, tmax=np.inf, levels: int = 2, order: str = 
         # model leaves: their triangles
         k = np.nonzero(leaf & inside)[0]
         if k.size:
-            r = act[k]
-            first, cnt = pay[k] >> 3, pay[k] & 7
-            owner, j = ragged_pairs(np.zeros(k.size, np.int64), cnt)
-            f0 = first[owner] * 4 + j * 9
-            v = tri[f0[:, None] + np.arange(9)].reshape(-1, 3, 3)
-            p = r[owner]
-            h = woop_hit(om[p], woop_setup(dm[p]), v[:, 0], v[:, 1], v[:, 2], tm[p], floor=True)
+            p, h = leaf_hits(tri, pay[k], act[k], om, dm, tm)
             occ[p[h]] = True
         if (top >= STACK - K).any():
             raise RuntimeError("a ray's stack outgrew STACK entries")
