@@ -24,6 +24,10 @@ Configurations (hard lights, as the hard Cycles references; mode ``raytrace``):
   its ms are the frames' total, and ``waits`` / ``read_back`` the most waits and bytes read back
   beyond the RGBA32F image of one of its timed frames (the tree before: not counted).
 
+``--layouts`` adds this tree on both paths with its single rays walking 4-wide nodes and binary
+nodes (``BakeConfig.bvh_wide`` True and False; "compute" and "fragment" take the context's
+default: binary on a software rasteriser), as four more subjects.
+
 ``--soft`` adds ``soft lanes`` and ``soft packets``: lights with their sizes at high, 64 samples,
 on the compute path a pixel's samples spread over lanes (a GPU's default) or walking the scene as
 packets (a software rasteriser's default; ``RaytraceOptions.soft_lanes``); the peer and the
@@ -64,6 +68,7 @@ from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.settings import Settings
 scene_arg, size, frames, path = sys.argv[2], sys.argv[3], int(sys.argv[4]), sys.argv[5]
 configs = json.loads(sys.argv[6])
+path, _, layout = path.partition(" ")
 W, H = (int(v) for v in size.split("x"))
 if scene_arg.endswith(".pkl.gz"):
     import gzip, pickle
@@ -76,6 +81,8 @@ known = {f.name for f in dataclasses.fields(Settings)}
 out = {}
 for name, (kw, eager) in configs.items():
     pipe = Pipeline()
+    if layout:
+        pipe.bake_options["bvh_wide"] = layout == "wide"
     pipe.set_scene(scene)
     rt = pipe.shadow_pass("raytrace")
     rt.options = dataclasses.replace(rt.options, eager_light_grids=eager)
@@ -129,6 +136,8 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=5)
     ap.add_argument("--alternations", type=int, default=2)
     ap.add_argument("--soft", action="store_true", help="add soft lights at high (64 samples)")
+    ap.add_argument("--layouts", action="store_true",
+                    help="also this tree with its single rays on 4-wide and on binary nodes (BakeConfig.bvh_wide)")
     ap.add_argument("--json", default=None)
     ap.add_argument("--configs", nargs="+", default=None, help=f"a subset of {list(CONFIGS)} (and soft)")
     a = ap.parse_args(argv)
@@ -138,10 +147,14 @@ def main(argv=None) -> int:
     if a.configs:
         configs = {k: v for k, v in configs.items() if k in a.configs}
     subjects = {"peer": a.peer.resolve(), "compute": REPO, "fragment": REPO}
+    if a.layouts:
+        subjects.update({f"{p} {k}": REPO for k in ("wide", "binary") for p in ("compute", "fragment")})
     print(f"{a.size}, {a.frames} frames (first 2 dropped), {a.alternations} alternations; "
           f"peer: {subjects['peer']}")
+    more = [k for k in subjects if " " in k]
     print("| scene | configuration | peer ms | compute ms | fragment ms | peer / compute | fragment / compute "
-          "| masks |\n|---|---|---:|---:|---:|---:|---:|---|")
+          + "".join(f"| {k} ms | peer / {k} " for k in more) + "| masks |\n|---|---|---:|---:|---:|---:|---:|"
+          + "---:|---:|" * len(more) + "---|")
     record = {}
     for scene in a.scenes:
         got = {k: [] for k in subjects}
@@ -152,13 +165,15 @@ def main(argv=None) -> int:
         for c in configs:
             ms = {k: statistics.median(r[c]["shadow_ms"] for r in got[k]) for k in subjects}
             digests = {k: got[k][-1][c]["digest"] for k in subjects}
+            extra = "".join(f"| {ms[k]:.1f} | {ms['peer'] / ms[k]:.2f}x " for k in more)
             same = ("all equal" if len(set(digests.values())) == 1 else
                     "compute = fragment" if digests["compute"] == digests["fragment"] else
                     "compute = peer" if digests["compute"] == digests["peer"] else "all differ")
             rows[c] = dict(ms=ms, digests=digests, rays={k: got[k][-1][c]["rays_traced"] for k in subjects},
                            counts={k: (got[k][-1][c].get("waits"), got[k][-1][c].get("read_back")) for k in subjects})
             print(f"| {scene} | {c} | {ms['peer']:.1f} | {ms['compute']:.1f} | {ms['fragment']:.1f} | "
-                  f"{ms['peer'] / ms['compute']:.2f}x | {ms['fragment'] / ms['compute']:.2f}x | {same} |", flush=True)
+                  f"{ms['peer'] / ms['compute']:.2f}x | {ms['fragment'] / ms['compute']:.2f}x {extra}| {same} |",
+                  flush=True)
     if "viewport" in configs:
         print("\nviewport frames, the most of one (waits; bytes read back beyond the image):")
         print("| scene | compute | fragment |\n|---|---|---|")

@@ -2,7 +2,8 @@
 # This tree against a peer tree on a machine with a GPU and without Blender, same run (one command,
 # under 8 minutes at 1920x1080 on an H100/H200):
 #   1. the trace paths (benchmarks/bench_trace_path.py): the peer tree, this tree's compute path and
-#      its fragment path alternating, hard lights (cold, light grids, medium, low), then soft lights
+#      its fragment path alternating, and both paths with single rays on 4-wide and on binary nodes
+#      (--layouts), hard lights (cold, light grids), then soft lights
 #      (on the compute path a pixel's samples over lanes, and as packets),
 #      with digests of the masks (equal digests: equal masks);
 #   2. digests of every mask and image (tools/mask_digest.py) of both trees at 320x180;
@@ -28,7 +29,7 @@ for s in forest clusters city scaling_triangles_1000000; do
 done
 echo "## hard lights, $size"
 $py benchmarks/bench_trace_path.py --peer "$peer" --scenes "${hard[@]}" --size "$size" --frames 5 \
-    --alternations 1 --json "$out/paths_hard.json" | sed "s#$scenes/##g; s#.pkl.gz##g" | tee "$out/paths_hard.md"
+    --alternations 1 --layouts --configs "high cold" "high grids" --json "$out/paths_hard.json" | sed "s#$scenes/##g; s#.pkl.gz##g" | tee "$out/paths_hard.md"
 if [ -f "$scenes/soft_lights.pkl.gz" ]; then
     echo "## soft lights, $size"
     $py benchmarks/bench_trace_path.py --peer "$peer" --scenes "$scenes/soft_lights.pkl.gz" "$scenes/forest.pkl.gz" \

@@ -67,25 +67,32 @@ WIDE = (("4-wide, nearest first", 2, "distance"), ("4-wide, farthest first", 2, 
 def wide_table(spec, baked, rays) -> None:
     """Dependent fetches per ray of each light with the binary walk and with the layouts of
     WIDE (answers checked equal to the binary walk's), and the 8x4 warp model's active lanes."""
-    from hybrid_shadow_addon.core.oracle.tracer.wide import trace_wide
+    from hybrid_shadow_addon.core.oracle.tracer.wide import trace_wide, trace_wide_packed
 
     print(f"\n{spec}: dependent fetches per ray as wide nodes (the same trees; a wide node's children's boxes "
-          "one fetch; active lanes of 8x4 groups in brackets)\n")
-    print("| light | binary | " + " | ".join(label for label, *_ in WIDE) + " |")
-    print("|---|---:|" + "---:|" * len(WIDE))
-    tot = np.zeros(1 + len(WIDE))
+          "one fetch; active lanes of 8x4 groups in brackets; the packed walk: [wide], the shaders' HS_BVH_WIDE)\n")
+    print("| light | binary | packed 4-wide | " + " | ".join(label for label, *_ in WIDE) + " |")
+    print("|---|---:|---:|" + "---:|" * len(WIDE))
+    tot = np.zeros(2 + len(WIDE))
     n_all = 0
     for light, o, d, tm, occ, _mean, fetch_b, where in rays:
         row = [f"{fetch_b.mean():.1f} ({active_lanes(image_of(fetch_b, where)):.2f})"]
         tot[0] += fetch_b.sum()
+        st = {}
+        occ_p = trace_wide_packed(baked, o, d, tm, stats=st)
+        assert (occ_p == occ).all(), f"{light.name}: the packed wide walk changed an answer"
+        fp = st["ray_fetches"]
+        tot[1] += fp.sum()
+        row.append(f"{fp.mean():.1f} ({active_lanes(image_of(fp, where)):.2f}; stack {st['max_stack']})")
         for j, (_label, levels, order) in enumerate(WIDE):
             occ_w, fw, _ = trace_wide(baked, o, d, tm, levels, order)
             assert (occ_w == occ).all(), f"{light.name}: the wide walk changed an answer"
-            tot[1 + j] += fw.sum()
+            tot[2 + j] += fw.sum()
             row.append(f"{fw.mean():.1f} ({active_lanes(image_of(fw, where)):.2f})")
         n_all += len(o)
         print(f"| {light.name} | " + " | ".join(row) + " |", flush=True)
-    ratios = ", ".join(f"{label} {tot[0] / tot[1 + j]:.2f}x fewer" for j, (label, *_) in enumerate(WIDE))
+    labels = ["packed 4-wide"] + [label for label, *_ in WIDE]
+    ratios = ", ".join(f"{label} {tot[0] / tot[1 + j]:.2f}x fewer" for j, label in enumerate(labels))
     print(f"\nall lights: binary {tot[0] / n_all:.1f} fetches per ray; {ratios}")
 
 

@@ -41,14 +41,15 @@ from hybrid_shadow_addon.core.gpu import programs as _programs  # noqa: E402
 VALUES = {
     "HS_TEX_WIDTH": 4096, "HS_TEX_WIDTH_LOG2": 12, "HS_TEX_ROWS_LOG2": 14, "HS_GRID_LEVELS": 3,
     "HS_BVH_LEAF_SIZE": 4, "HS_CULL_BLOCK": 8, "HS_MASKS": 1, "HS_MASKS_POINT": 1, "HS_LIGHT_ROWS": 5,
-    "HS_SOFT_SHAPE": 0,
+    "HS_SOFT_SHAPE": 0, "HS_WIDE_STACK": 32,
 }
 
 #: Defines that the code only ever gives together with others (a key ``NAME=value`` applies to
 #: that value alone): the check adds these companions, recursively, when it tries the key on its
 #: own. A soft light's sub-passes are variants of raytrace.py's soft program, which always carries
 #: HS_SOFT; packets walk the two-level BVH only (raytrace.py's _soft_defines); soft shapes 1 and 2
-#: (sphere, area) are local lights, shape 0 the sun (soft_light.glsl); a bake has alpha-cut
+#: (sphere, area) are local lights, shape 0 the sun (soft_light.glsl); 4-wide nodes are a layout of
+#: the two-level BVH (its bake's defines); a bake has alpha-cut
 #: casters only where some mesh caster has triangles (AccelerationStructure.has_alpha).
 REQUIRES = {
     "HS_HAS_ALPHA": ("HS_HAS_MESHES",),
@@ -62,6 +63,8 @@ REQUIRES = {
     "HS_SOFT_FULL": ("HS_SOFT",),
     "HS_SOFT_PACKET": ("HS_SOFT", "HS_STRUCTURE_BVH"),
     "HS_PACKET_PLANES": ("HS_SOFT_PACKET",),
+    "HS_BVH_WIDE": ("HS_STRUCTURE_BVH",),
+    "HS_WIDE_STACK": ("HS_BVH_WIDE",),
 }
 
 #: Defines of which the code always gives exactly one (the first: when the program tests the group

@@ -23,6 +23,7 @@ class BakeConfig:
     object_leaf_size: int = 4  # grid-index entries per object-BVH leaf (1..7)
     structure: str | None = None  # a name of structures.STRUCTURES; None: DEFAULT_STRUCTURE
     bvh_leaf_size: int = 2  # structure "bvh": triangles per model-tree leaf (1..4)
+    bvh_wide: bool = True  # structure "bvh": single rays walk 4-wide nodes ([wide]); False: binary
 
     def __post_init__(self):
         from .structures import DEFAULT_STRUCTURE, STRUCTURES  # (the structures import this module)

@@ -28,7 +28,7 @@ from ..errors import SceneError
 from ..progress import Progress
 from ..settings import Settings
 from . import memory
-from .context import check_light_count, check_render_size, create_context, make_current
+from .context import check_light_count, check_render_size, create_context, make_current, software_context
 from .frame import CameraUniforms, FrameJob, read_mask
 from .host_counts import counts_of
 from .lights import select_shadowed_lights
@@ -138,6 +138,7 @@ class _SharedBake:
     def __init__(self):
         self.baked = None
         self.bake_ms = 0.0
+        self.options: dict = {}  # BakeConfig fields beside the structure (e.g. {"bvh_wide": False})
         self.generation = 0
         self.edits: list = []  # (generation, bake-space boxes it invalidates; None: everything)
         self.boxes = None  # (n, 2, 3) world boxes of the baked instances
@@ -207,6 +208,13 @@ class Pipeline:
         self._bake.baked = value
 
     @property
+    def bake_options(self) -> dict:
+        """:class:`BakeConfig` fields the bakes take beside the structure (shared with the views;
+        benchmarks and tests compare layouts with them, e.g. ``{"bvh_wide": True}``: the bake
+        otherwise chooses ``bvh_wide`` by the context, 4-wide nodes on a GPU only)."""
+        return self._bake.options
+
+    @property
     def bake_ms(self) -> float:
         return self._bake.bake_ms
 
@@ -230,7 +238,11 @@ class Pipeline:
         t0 = time.perf_counter()
         if structure is None:
             structure = Settings.structure
-        baked = bake_scene(scene, BakeConfig(structure=structure), progress=progress)
+        # single rays walk 4-wide nodes on a GPU (a third of the dependent fetches), binary nodes
+        # on a software rasteriser, whose private arrays (the wide walk's stack) cost more than
+        # the fetches they save
+        options = {"bvh_wide": not software_context(self.ctx), **self._bake.options}
+        baked = bake_scene(scene, BakeConfig(structure=structure, **options), progress=progress)
         self.baked = baked
         try:
             self.scene_textures.upload(baked)

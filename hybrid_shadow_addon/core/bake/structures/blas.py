@@ -33,8 +33,9 @@ NODE_TEXELS = 1  # [node] u4: quantised box (3 x 2 x 16 bits), escape or LEAF_FL
 TRI4_FLOATS = 9  # [leaf] triangles: a leaf's triangles back to back, 9 float bits each
 LEAF_READ = 9  # texels the shader reads from any [leaf] record start (the tail is padded)
 
-FORMATS = {"node": (4, "u4"), "leaf": (4, "u4"), "uv": (4, "f4")}
-NAMES = tuple(FORMATS)  # "uv" (UVs at the [leaf] texels of alpha-cut models) only when present
+FORMATS = {"node": (4, "u4"), "leaf": (4, "u4"), "uv": (4, "f4"), "wide": (4, "u4")}
+#: "uv" (UVs at the [leaf] texels of alpha-cut models) and "wide" (:mod:`.wide`) only when present
+NAMES = tuple(FORMATS)
 
 
 def leaf_size(config) -> int:

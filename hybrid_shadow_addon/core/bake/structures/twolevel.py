@@ -46,6 +46,7 @@ from .blas import (
     tri_texels,
 )
 from .tlas import TopLevel
+from .wide import STRIDE, WIDTH, WideIndex
 
 #: [leaf] texels the model trees can address: a leaf node's payload is (first [leaf] texel << 3) |
 #: triangle count in the 31 bits below LEAF_FLAG, so its texel must stay below 2^28 (about 119
@@ -104,6 +105,7 @@ class TwoLevelBVH(AccelerationStructure):
         self.box_lo = np.zeros((0, 3))  # padded world box, bake space
         self.box_hi = np.zeros((0, 3))
         self.uv_models: np.ndarray | None = None  # (M,) bool: models whose UVs are in "uv"
+        self.wide: WideIndex | None = None  # where [wide] copies each [node] texel (config.bvh_wide)
 
     def _new_texture(self, name, n) -> TextureData:
         comps, fmt = FORMATS[name]
@@ -215,6 +217,8 @@ class TwoLevelBVH(AccelerationStructure):
             self.write_instance_records(scene, np.arange(n))
         checkpoint()
         self.place_top(top["count"])
+        self.pack_wide(np.append(trees.node_start, self.top.start),
+                       np.append(trees.node_start + trees.node_count, self.top.start + self.top.count))
         tlas_ms = top["ms"] + (time.perf_counter() - t0) * 1e3  # (its tree overlaps the model trees)
         self.stats = {"bake_ms": (time.perf_counter() - t_start) * 1e3, "blas_ms": blas_ms, "tlas_ms": tlas_ms}
         return self
@@ -296,6 +300,36 @@ class TwoLevelBVH(AccelerationStructure):
         self.member[idx] = inst.casts_shadow[idx] & (sph | tri) & ok
         self.sphere_of[idx] = sph
 
+    # ----------------------------------------------------------------------------- wide --
+    def fit_wide(self, rep=None) -> None:
+        """[wide] (created at the first call) with room for a block at every [node] texel."""
+        cap = self.tex["node"].capacity
+        need = STRIDE * cap + WIDTH
+        if self.wide is None:
+            self.tex["wide"] = self._new_texture("wide", need)
+            self.wide = WideIndex(cap)
+        elif grow_texture(self.tex["wide"], need) and rep is not None:
+            rep.resized.add("wide")
+        self.tex["wide"].used = need
+        self.wide.fit(cap)
+
+    def pack_wide(self, roots, ends, rep=None) -> None:
+        """[wide] blocks of the trees at [node] ``[roots[k], ends[k])`` (``config.bvh_wide``)."""
+        if not self.config.bvh_wide:
+            return
+        self.fit_wide(rep)
+        at = self.wide.pack(self.tex["node"].linear(), self.tex["wide"].linear(), roots, ends)
+        if rep is not None and at.size and "wide" not in rep.resized:
+            rep.ranges += rows_of_texels("wide", at, self.config.tex_width)
+
+    def refit_wide(self, changed, rep) -> None:
+        """The [wide] copies of refitted [node] texels ``changed``."""
+        if self.wide is None:
+            return
+        at = self.wide.refit(self.tex["node"].linear(), self.tex["wide"].linear(), changed)
+        if at.size:
+            rep.ranges += rows_of_texels("wide", at, self.config.tex_width)
+
     # ------------------------------------------------------------------------ top level --
     def alloc_top_nodes(self, n) -> tuple[int, bool]:
         """[node] records for the top level: in place when it fits, else at the tail."""
@@ -375,6 +409,7 @@ class TwoLevelBVH(AccelerationStructure):
             else:
                 changed = top.write(self.tex["node"], refit)
                 rep.ranges += rows_of_texels("node", changed, W)
+                self.refit_wide(changed, rep)
                 rep.nodes_changed += int(changed.size)
         if rebuild:
             grown = self.build_top()
@@ -383,6 +418,7 @@ class TwoLevelBVH(AccelerationStructure):
                 rep.resized.add("node")
             else:
                 rep.ranges += texel_rows("node", top.start, top.start + top.count, W)
+            self.pack_wide([top.start], [top.start + top.count], rep)
             rep.nodes_changed += top.count
         new_uniforms = top.uniforms()
         if any(not np.array_equal(new_uniforms[k], old_uniforms[k]) for k in new_uniforms):
@@ -430,6 +466,7 @@ class TwoLevelBVH(AccelerationStructure):
                 self.tex["uv"].linear()[tri_base:tri_base + texels] = blas.uv4
         rep.ranges += texel_rows("node", node_base, node_base + nc, W)
         rep.ranges += texel_rows("leaf", tri_base, tri_base + texels, W)
+        self.pack_wide([node_base], [node_base + nc], rep)
         if blas.uv4 is not None:
             rep.ranges += texel_rows("uv", tri_base, tri_base + texels, W)
         self.ensure_uvs(scene, [m], rep)
@@ -462,6 +499,8 @@ class TwoLevelBVH(AccelerationStructure):
             d["HS_HAS_SPHERES"] = 1
         if self.has_alpha:
             d["HS_HAS_ALPHA"] = 1
+        if self.wide is not None:
+            d["HS_BVH_WIDE"] = 1
         return d
 
     @property

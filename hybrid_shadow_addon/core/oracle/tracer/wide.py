@@ -1,5 +1,7 @@
-"""The two-level BVH walked as wide nodes: what a wide layout would cost a ray, measured on the
-binary trees the bake builds (``benchmarks/profile_traversal.py --wide``).
+"""The two-level BVH walked as wide nodes: the packed 4-wide walk of ``shaders/common/scene_bvh.glsl``
+(:func:`trace_wide_packed`, texture [wide]), and what other widths and child orders would cost a
+ray, measured on the binary trees the bake builds (:func:`trace_wide`,
+``benchmarks/profile_traversal.py --wide``).
 
 Each binary tree (the top level, every model tree) is read as nodes of up to ``2**levels``
 children: an inner binary node at a depth that is a multiple of ``levels`` (from its tree's root)
@@ -16,31 +18,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...bake.structures.wide import STRIDE, WIDTH, grandchildren
 from .primitives import TFAR_SCALE, F, bake_space, prepare_rays, slab_inv
-from .twolevel import LEAF_FLAG, TLAS_EPS, _l1, enter_instances, leaf_hits
+from .twolevel import LEAF_FLAG, TLAS_EPS, _l1, _qbox_hit, enter_instances, leaf_hits, trace_twolevel
 
 #: child orders: the nearest box popped first, the farthest, or the tree's own order
 ORDERS = ("distance", "far", "tree")
 RETURN = -2  # a stack entry: the model tree is done, back to the top level's ray
+RETURN_WORD = 0x7FFFFFFF  # the packed walk's (HS_WIDE_RETURN)
 STACK = 96  # entries per ray (a wide node pushes at most 2**levels - 1 more than it pops)
-
-
-def _children(node: np.ndarray, at: np.ndarray, levels: int) -> np.ndarray:
-    """(M, 2**levels) binary node indices of the wide children of binary inner nodes ``at``
-    (-1: none): each inner node's two children, ``levels`` times; a leaf stays as it is."""
-    w = node[:, 3]
-    leaf = (w & LEAF_FLAG) != 0
-    front = at[:, None].astype(np.int64)
-    for _ in range(levels):
-        ok = front >= 0
-        f = np.where(ok, front, 0)
-        is_leaf = leaf[f] | ~ok
-        left = f + 1
-        right = np.where(leaf[left], left + 1, w[left].astype(np.int64))
-        a = np.where(is_leaf, front, left)
-        b = np.where(is_leaf, -1, right)
-        front = np.stack([a, b], axis=2).reshape(len(at), -1)
-    return front
 
 
 def _box_entry(rlo, rhi, inv, n, tmax) -> np.ndarray:
@@ -55,6 +41,17 @@ def _box_entry(rlo, rhi, inv, n, tmax) -> np.ndarray:
         tf = np.maximum(t1, t2).min(axis=2) * TFAR_SCALE
         hit = np.maximum(tn, F(0)) <= np.minimum(tf, tmax[:, None])
     return np.where(hit, np.maximum(tn, F(0)), np.inf)
+
+
+def _tlas_ray(baked, o, d):
+    """The rays quantised on the top level's grid: (lo, hi, inv)."""
+    u = baked.uniforms
+    base = np.asarray(u["hs_tlas_base"], F)
+    qs = F(u["hs_tlas_inv_scale"])
+    with np.errstate(over="ignore", invalid="ignore"):
+        toq = ((o - base) * qs).astype(F)
+        te = TLAS_EPS * (_l1(toq) + F(u["hs_tlas_babs"]))
+        return toq + te[:, None], toq - te[:, None], slab_inv((d * qs).astype(F))
 
 
 def trace_wide(baked, origins, dirs, tmax=np.inf, levels: int = 2, order: str = "distance") -> tuple:
@@ -72,14 +69,7 @@ def trace_wide(baked, origins, dirs, tmax=np.inf, levels: int = 2, order: str = 
     leafd = t["leaf"].linear()
     tri = leafd.reshape(-1).view(F)
     u = baked.uniforms
-    base = np.asarray(u["hs_tlas_base"], F)
-    qs = F(u["hs_tlas_inv_scale"])
-    with np.errstate(over="ignore", invalid="ignore"):
-        toq = ((o - base) * qs).astype(F)
-        te = TLAS_EPS * (_l1(toq) + F(u["hs_tlas_babs"]))
-        t_lo = toq + te[:, None]
-        t_hi = toq - te[:, None]
-    t_inv = slab_inv((d * qs).astype(F))
+    t_lo, t_hi, t_inv = _tlas_ray(baked, o, d)
     q_lo, q_hi, q_inv = t_lo.copy(), t_hi.copy(), t_inv.copy()
     om = np.zeros((N, 3), F)
     dm = np.zeros((N, 3), F)
@@ -109,7 +99,7 @@ def trace_wide(baked, origins, dirs, tmax=np.inf, levels: int = 2, order: str = 
         if k.size:
             r = act[k]
             visits[r] += 1
-            ch = _children(node, e[k], levels)
+            ch = grandchildren(node, e[k], levels)
             tn = _box_entry(q_lo[r], q_hi[r], q_inv[r], node[np.maximum(ch, 0)], tm[r])
             tn[ch < 0] = np.inf
             if order == "distance":
@@ -143,3 +133,101 @@ def trace_wide(baked, origins, dirs, tmax=np.inf, levels: int = 2, order: str = 
             raise RuntimeError("a ray's stack outgrew STACK entries")
         act = np.nonzero((top > 0) & ~occ)[0]
     return occ, fetches, visits
+
+
+def _root_words(node, root, end) -> np.ndarray:
+    """``hs_wide_root``: what a tree's walk starts from (its root's block, or a one-leaf tree's
+    leaf word)."""
+    root = np.asarray(root, np.int64)
+    return np.where(np.asarray(end) - root == 1, node[root, 3].astype(np.int64), root)
+
+
+def trace_wide_packed(baked, origins, dirs, tmax=np.inf, stack: int = 32, stats: dict | None = None) -> np.ndarray:
+    """The 4-wide walk of ``shaders/common/scene_bvh.glsl`` (``HS_BVH_WIDE``) over the packed
+    [wide] texture, all rays at once, each with a stack of ``stack`` entries; a ray whose stack
+    would overflow is answered by the binary walk (:func:`.twolevel.trace_twolevel`), as the
+    shader does. ``stats`` (when given) gets each ray's dependent fetches (``ray_fetches``: a
+    wide node's block, an instance record, a leaf's triangles, a one-leaf tree's root),
+    ``max_stack`` and ``fallbacks``."""
+    o, d, tm, valid = prepare_rays(bake_space(baked, origins), dirs, tmax)
+    N = len(o)
+    occ = np.zeros(N, bool)
+    fetches = np.zeros(N, np.int64)
+    t = baked.textures
+    node = t["node"].linear()
+    wide = t["wide"].linear()
+    leafd = t["leaf"].linear()
+    tri = leafd.reshape(-1).view(F)
+    u = baked.uniforms
+    t_lo, t_hi, t_inv = _tlas_ray(baked, o, d)
+    q_lo, q_hi, q_inv = t_lo.copy(), t_hi.copy(), t_inv.copy()
+    om = np.zeros((N, 3), F)
+    dm = np.zeros((N, 3), F)
+    stk = np.zeros((N, stack + 1), np.int64)
+    top = np.zeros(N, np.int64)
+    root, end = int(u["hs_tlas_root"]), int(u["hs_tlas_end"])
+    if end > root:
+        stk[:, 0] = _root_words(node, [root], [end])[0]
+        top[valid] = 1
+        fetches[valid] += end - root == 1
+    in_model = np.zeros(N, bool)
+    binary = np.zeros(N, bool)  # rays whose stack would overflow
+    deepest = int(top.max()) if N else 0
+    act = np.nonzero(top > 0)[0]
+    while act.size:
+        top[act] -= 1
+        e = stk[act, top[act]]
+        back = e == RETURN_WORD
+        r = act[back]
+        q_lo[r], q_hi[r], q_inv[r] = t_lo[r], t_hi[r], t_inv[r]
+        in_model[r] = False
+        act, e = act[~back], e[~back]
+        inner = (e & int(LEAF_FLAG)) == 0
+        inside = in_model[act]  # (before this step enters a model tree)
+        fetches[act] += 1
+        # wide nodes: children pushed last first where their boxes are hit
+        k = np.nonzero(inner)[0]
+        full = top[act[k]] > stack - WIDTH
+        binary[act[k[full]]] = True
+        k = k[~full]
+        if k.size:
+            r = act[k]
+            blk = wide[STRIDE * e[k][:, None] + np.arange(WIDTH)]  # (K, 4, 4)
+            for c in range(WIDTH - 1, -1, -1):
+                n = blk[:, c]
+                h = _qbox_hit(q_lo[r], q_hi[r], q_inv[r], n, tm[r]) & (n[:, 3] != 0)
+                rh = r[h]
+                stk[rh, top[rh]] = n[h, 3].astype(np.int64)
+                top[rh] += 1
+        # instance records: a sphere's test, or the model tree entered
+        pay = e & 0x7FFFFFFF
+        k = np.nonzero(~inner & ~inside)[0]
+        if k.size:
+            m_, rec = enter_instances(leafd, pay[k], act[k], o, d, tm, occ, (q_lo, q_hi, q_inv), om, dm)
+            if m_.size:
+                rm = act[k][m_]
+                a, b = rec[m_, 12].astype(np.int64), rec[m_, 13].astype(np.int64)
+                go = b > a
+                full = top[rm] > stack - 2
+                binary[rm[go & full]] = True
+                go &= ~full
+                rm, a, b = rm[go], a[go], b[go]
+                in_model[rm] = True
+                stk[rm, top[rm]] = RETURN_WORD
+                stk[rm, top[rm] + 1] = _root_words(node, a, b)
+                fetches[rm] += b - a == 1
+                top[rm] += 2
+        # model leaves: their triangles
+        k = np.nonzero(~inner & inside)[0]
+        if k.size:
+            p, h = leaf_hits(tri, pay[k], act[k], om, dm, tm)
+            occ[p[h]] = True
+        deepest = max(deepest, int(top.max()))
+        act = np.nonzero((top > 0) & ~occ & ~binary)[0]
+    if binary.any():
+        b = np.nonzero(binary)[0]
+        occ[b] = trace_twolevel(baked, np.asarray(origins)[b], np.asarray(dirs)[b],
+                                np.broadcast_to(np.asarray(tmax, np.float64), (N,))[b])
+    if stats is not None:
+        stats.update({"ray_fetches": fetches, "max_stack": deepest, "fallbacks": int(binary.sum())})
+    return occ
