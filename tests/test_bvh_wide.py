@@ -189,3 +189,28 @@ def test_wide_masks_equal_binary_masks_on_both_paths(name, layouts, loaded):
                 same = (a == b) | (np.isnan(a) & np.isnan(b))
                 what = f"{name} {mode} {path}: light {scene.lights[li].name}"
                 assert same.all(), f"{what}: {int((~same).sum())} pixels differ"
+
+
+@pytest.mark.blender
+def test_wide_masks_follow_moved_instances(layouts, loaded):
+    """Instances moved a little (a refit) and far (the top level rebuilt) through the pipeline:
+    the 4-wide bake's partial uploads give the binary bake's masks."""
+    import copy
+
+    scene = copy.deepcopy(loaded("forest"))
+    for pipe in layouts.values():
+        pipe.set_scene(scene)
+    rng = np.random.default_rng(8)
+    for far in (1.0, 400.0):
+        idx = rng.choice(len(scene.instances), 6, replace=False)
+        M = scene.instances.matrices[idx].copy()
+        M[:, :3, 3] += rng.normal(scale=0.5, size=(6, 3)) * [far, 1.0, 0.1]
+        scene.instances.set_matrices(idx, M)
+        masks = {}
+        for k, pipe in layouts.items():
+            pipe.move_instances(scene, idx)
+            frame = pipe.render(scene, MODES["high"].replace(trace_path="compute"), W, H)
+            masks[k] = {li: frame.mask_array(li) for li in frame.lights}
+        for li, a in masks["wide"].items():
+            b = masks["binary"][li]
+            assert ((a == b) | (np.isnan(a) & np.isnan(b))).all(), f"moved x{far}: light {scene.lights[li].name}"

@@ -1,7 +1,8 @@
 /* scene_bvh.glsl -- the two-level BVH (HS_STRUCTURE_BVH, structure "bvh"): its textures and
  * the walk that reads them; included by scene_data.glsl (shared fetches and tests).
- * Packer: hybrid_shadow_addon/core/bake/structures/twolevel.py, blas.py, tlas.py (TwoLevelBVH).
- * Oracle: hybrid_shadow_addon/core/oracle/tracer/twolevel.py (trace_twolevel mirrors this file step by step).
+ * Packer: hybrid_shadow_addon/core/bake/structures/twolevel.py, blas.py, tlas.py, wide.py (TwoLevelBVH).
+ * Oracle: hybrid_shadow_addon/core/oracle/tracer/twolevel.py (trace_twolevel mirrors the binary walk
+ * step by step), wide.py (trace_wide_packed: the 4-wide walk).
  *
  * ============================== BVH TEXTURE LAYOUT =======================================
  * [node]  RGBA32UI "hs_node_tex", 1 texel per node: every model tree (BLAS), then the top-level
@@ -33,6 +34,9 @@
  *
  * [uv]  RGBA32F "hs_uv_tex" (HS_HAS_ALPHA only): the UVs of alpha-cut models' triangles at the
  *         same [leaf] texels as their triangles (6 floats per triangle).
+ * [wide] RGBA32UI "hs_wide_tex" (HS_BVH_WIDE only): the same trees as 4-wide nodes, the block of
+ *         binary inner node i at an even depth of its tree in texels 2i .. 2i+3 (see hs_trace
+ *         below; packer: structures/wide.py). Single rays walk it; packets walk [node].
  */
 #ifndef HS_SCENE_BVH_GLSL
 #define HS_SCENE_BVH_GLSL

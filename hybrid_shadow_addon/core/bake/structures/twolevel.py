@@ -7,7 +7,9 @@ corners, padded by ``TLAS_PAD`` relative, quantised on one grid over the scene. 
 top level: the moved leaves and their ancestors only, re-packing just those texels (rebuild when
 the boxes leave the grid, membership changes or the SAH area doubles); a model edit rebuilds that
 model's tree (in place when it fits) and refits. The bake builds the top-level tree on a second
-thread while the model trees build (it needs only the model boxes).
+thread while the model trees build (it needs only the model boxes). With ``BakeConfig.bvh_wide``
+the trees are also packed as 4-wide nodes ([wide], :mod:`.wide`) for the single rays' walk: a
+refit copies the changed boxes there, a rebuilt tree packs its blocks again.
 """
 from __future__ import annotations
 
