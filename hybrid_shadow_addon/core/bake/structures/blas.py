@@ -73,6 +73,44 @@ def quantise(nmin, nmax, base, inv_s):
     return out[0], out[1]
 
 
+def _grid_cells(t9) -> np.ndarray:
+    """(T, 3) uint32 cells of the triangles' centroids (``t9``: (T, 9) vertex coordinates) on a
+    1024^3 grid over their box; by component (1-D passes: ops on (T, 3) arrays are slow)."""
+    T = len(t9)
+    third = np.float32(1.0 / 3.0)
+    cen = np.empty((3, T), np.float32)
+    for k in range(3):
+        np.add(t9[:, k], t9[:, 3 + k], out=cen[k])
+        cen[k] += t9[:, 6 + k]
+        cen[k] *= third
+    cmin = cen.min(axis=1)
+    span = np.maximum(cen.max(axis=1) - cmin, np.float32(1e-30))
+    sc = np.float32(1023.0) / span
+    q = np.empty((3, T), np.uint32)
+    for k in range(3):
+        x = cen[k] - cmin[k]
+        x *= sc[k]
+        q[k] = np.clip(x, 0, 1023, out=x)  # (the cast truncates, as astype)
+    return q.T
+
+
+#: the Morton codes of (0, 0, i): the bits of i (< 1024) spread to every third bit
+_SPREAD = _morton3(np.stack([np.zeros(1024, np.uint32), np.zeros(1024, np.uint32), np.arange(1024)], 1))
+
+
+def morton_order(q) -> np.ndarray:
+    """The stable order of the 30-bit Morton codes of ``q`` ((N, 3) integers in [0, 1023], the
+    bits spread by a table): ``np.argsort(codes, kind="stable")`` as two 16-bit passes (numpy's
+    stable sort of 16-bit integers is a radix sort; of wider ones a merge sort)."""
+    code = np.take(_SPREAD, q[:, 0]) << np.uint32(2)
+    code |= np.take(_SPREAD, q[:, 1]) << np.uint32(1)
+    code |= np.take(_SPREAD, q[:, 2])
+    lo = (code & np.uint32(0xFFFF)).astype(np.uint16)
+    hi = (code >> np.uint32(16)).astype(np.uint16)
+    order = np.argsort(lo, kind="stable")
+    return order[np.argsort(hi[order], kind="stable")]
+
+
 def pack_nodes(qlo, qhi, w) -> np.ndarray:
     out = np.empty((len(qlo), 4), np.uint32)
     out[:, 0] = qlo[:, 0] | (qlo[:, 1] << np.uint32(16))
@@ -115,8 +153,8 @@ def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None, spatial_m
     want_uv = uv_models is not None and bool(np.any(uv_models))
     uvs = np.zeros((total, 3, 2), np.float32) if want_uv else None
     t0 = np.concatenate([[0], np.cumsum(tc)[:-1]]).astype(np.int64) if M else np.zeros(0, np.int64)
-    third = np.float32(1.0 / 3.0)
-    t9 = tris.reshape(total, 9)
+    t9 = tris.reshape(total, 9)  # the triangles in model order
+    morton = np.empty(total, np.int64)  # the triangle at each place of its model's Morton order
     tmin = np.empty((3, total), np.float32)  # triangle boxes by component (while the model's
     tmax = np.empty((3, total), np.float32)  # triangles are in cache)
     for mi, (m, s0) in enumerate(zip(models, t0.tolist())):
@@ -124,25 +162,18 @@ def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None, spatial_m
         T = m.triangle_count
         if not T:
             continue
-        tr = m.vertices.take(m.triangles.ravel(), axis=0).reshape(T, 3, 3)
-        checkpoint()
-        cen = (tr[:, 0] + tr[:, 1] + tr[:, 2]) * third
-        cmin = np.array([cen[:, k].min() for k in range(3)], np.float32)  # (a column is faster
-        cmax = np.array([cen[:, k].max() for k in range(3)], np.float32)  # than min(axis=0))
-        span = np.maximum(cmax - cmin, np.float32(1e-30))
-        q = np.clip((cen - cmin) * (np.float32(1023.0) / span), 0, 1023).astype(np.uint32)
-        checkpoint()
-        order = np.argsort(_morton3(q), kind="stable")
-        checkpoint()
-        np.take(tr, order, axis=0, out=tris[s0:s0 + T])
-        checkpoint()
         tm = t9[s0:s0 + T]
+        np.take(m.vertices, m.triangles.ravel(), axis=0, out=tm.reshape(3 * T, 3))
+        checkpoint()
+        order = morton_order(_grid_cells(tm))
+        np.add(order, s0, out=morton[s0:s0 + T])
+        checkpoint()
         for k in range(3):
             np.minimum(np.minimum(tm[:, k], tm[:, 3 + k]), tm[:, 6 + k], out=tmin[k, s0:s0 + T])
             np.maximum(np.maximum(tm[:, k], tm[:, 3 + k]), tm[:, 6 + k], out=tmax[k, s0:s0 + T])
         if want_uv and uv_models[mi] and m.uvs is not None:
-            uvs[s0:s0 + T] = m.uvs[order]
-    # clusters of L consecutive triangles per model
+            uvs[s0:s0 + T] = m.uvs
+    # clusters of L consecutive triangles (in Morton order) per model
     ncl = -(-tc // L)
     c0 = np.concatenate([[0], np.cumsum(ncl)[:-1]]).astype(np.int64) if M else np.zeros(0, np.int64)
     mod = np.repeat(np.arange(M), ncl)
@@ -152,27 +183,27 @@ def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None, spatial_m
     # cluster boxes: min(min(t0, t1), ..) like a reduceat over the cluster (its last triangle
     # repeats in a short cluster: min is idempotent)
     if len(cl_tri0):
-        cmn = np.take(tmin, cl_tri0, axis=1)
-        cmx = np.take(tmax, cl_tri0, axis=1)
+        tri = np.take(morton, cl_tri0)
+        cmn = np.take(tmin, tri, axis=1)
+        cmx = np.take(tmax, tri, axis=1)
         for jj in range(1, L):
             checkpoint()
-            nxt = cl_tri0 + np.minimum(jj, cl_cnt - 1)
-            np.minimum(cmn, np.take(tmin, nxt, axis=1), out=cmn)
-            np.maximum(cmx, np.take(tmax, nxt, axis=1), out=cmx)
-        cmn, cmx = np.ascontiguousarray(cmn.T), np.ascontiguousarray(cmx.T)
+            tri = np.take(morton, cl_tri0 + np.minimum(jj, cl_cnt - 1))
+            np.minimum(cmn, np.take(tmin, tri, axis=1), out=cmn)
+            np.maximum(cmx, np.take(tmax, tri, axis=1), out=cmx)
     else:
-        cmn = cmx = np.zeros((0, 3))
+        cmn = cmx = np.zeros((3, 0), np.float32)
     checkpoint()
     sm = BLAS_SPATIAL_MIN if spatial_min is None else int(spatial_min)
-    tree = build_sah(cmn, cmx, c0, ncl, leaf_size=1, bins=8, sah_min=RUN_SAH_MIN, spatial_min=sm)
+    tree = build_sah(cmn.T, cmx.T, c0, ncl, leaf_size=1, bins=8, sah_min=RUN_SAH_MIN, spatial_min=sm)
     checkpoint()
     # model frames
     lo = np.zeros((M, 3))
     hi = np.zeros((M, 3))
     has = ncl > 0
     if has.any():
-        lo[has] = np.minimum.reduceat(cmn, c0[has], axis=0)
-        hi[has] = np.maximum.reduceat(cmx, c0[has], axis=0)
+        lo[has] = np.minimum.reduceat(cmn, c0[has], axis=1).T
+        hi[has] = np.maximum.reduceat(cmx, c0[has], axis=1).T
     base, inv_s = quant_frame(lo, hi)
     # triangles in leaf order; a leaf = one cluster, ceil(9 c / 4) texels
     nmod = np.repeat(np.arange(M), tree.node_count)
@@ -195,10 +226,10 @@ def build_blas(models, leaf_size: int = 4, uv_models=None, alloc=None, spatial_m
         checkpoint()
         sel = np.nonzero(lcnt == cnt)[0]
         tt = -(-cnt * TRI4_FLOATS // 4)
-        t_first = ltri0[sel]
-        _put_blocks(tri4, lfirst[sel], t9, t_first, cnt, TRI4_FLOATS, tt)
+        tri = np.take(morton, (ltri0[sel, None] + np.arange(cnt)).reshape(-1))  # the leaves' triangles
+        _put_blocks(tri4, lfirst[sel], t9, tri, cnt, TRI4_FLOATS, tt)
         if want_uv:
-            _put_blocks(uv4, lfirst[sel], uvs.reshape(total, 6), t_first, cnt, 6, tt)
+            _put_blocks(uv4, lfirst[sel], uvs.reshape(total, 6), tri, cnt, 6, tt)
     checkpoint()
     # packed nodes
     qlo, qhi = quantise(tree.node_min, tree.node_max, np.repeat(base.T, tree.node_count, axis=1).T,
@@ -219,27 +250,27 @@ def _run(a, step) -> bool:
     return n == 1 or (int(a[-1] - a[0]) == (n - 1) * step and bool((np.diff(a) == step).all()))
 
 
-def _put_blocks(tex4, first, rows, row0, cnt, per, tt) -> None:
-    """Leaf blocks: rows ``row0[i] .. row0[i] + cnt`` of ``rows`` (R, per) float32, back to back,
-    at texels ``first[i] ..`` of ``tex4`` (texels, 4), a block spanning ``tt`` texels (the tail
-    stays zero). Slices when both sides run back to back, else a scatter of whole texels (as
-    uint64 pairs: bit-exact)."""
+def _put_blocks(tex4, first, rows, ri, cnt, per, tt) -> None:
+    """Leaf blocks: rows ``ri[cnt i:cnt (i + 1)]`` of ``rows`` (R, per) float32, back to back, at
+    texels ``first[i] ..`` of ``tex4`` (texels, 4, zeroed), a block spanning ``tt`` texels (the
+    tail stays zero). Slices where the blocks land back to back, else a scatter of whole texels
+    (as uint64 pairs: bit-exact)."""
     n = len(first)
     if not n:
         return
-    if _run(first, tt) and _run(row0, cnt):
-        dst = tex4[first[0]:first[0] + n * tt].reshape(n, tt * 4)
-        dst[:, :cnt * per] = rows[row0[0]:row0[0] + n * cnt].reshape(n, cnt * per)
-        return
-    blk = np.zeros((n, tt * 4), np.float32)
-    blk[:, :cnt * per] = np.take(rows, row0[:, None] + np.arange(cnt), axis=0).reshape(n, cnt * per)
+    if _run(ri, 1):
+        src = rows[ri[0]:ri[0] + n * cnt].reshape(n, cnt * per)
+    else:
+        src = np.take(rows, ri, axis=0).reshape(n, cnt * per)
     # the blocks land in runs of back-to-back texels (a tree's leaves of one size, broken where
     # a leaf of another size sits): a slice per run, unless the runs are short
     cut = np.flatnonzero(np.diff(first) != tt) + 1
-    if len(cut) < n // 16:
+    if len(cut) <= n // 16:
         for a, b in zip([0, *cut.tolist()], [*cut.tolist(), n]):
-            tex4[first[a]:first[a] + (b - a) * tt].reshape(b - a, tt * 4)[:] = blk[a:b]
+            tex4[first[a]:first[a] + (b - a) * tt].reshape(b - a, tt * 4)[:, :cnt * per] = src[a:b]
         return
+    blk = np.zeros((n, tt * 4), np.float32)
+    blk[:, :cnt * per] = src
     dst = ((first[:, None] + np.arange(tt)) * 2)[:, :, None] + np.arange(2)
     tex4.view(np.uint64).reshape(-1)[dst.reshape(-1)] = blk.view(np.uint64).reshape(-1)
 

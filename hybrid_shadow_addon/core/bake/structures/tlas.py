@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..bvh import _morton3
 from ..sah import build_sah
-from .blas import FRAME_MARGIN, LEAF_FLAG, QMAX, RUN_SAH_MIN, pack_nodes, quant_frame, quantise
+from .blas import FRAME_MARGIN, LEAF_FLAG, QMAX, RUN_SAH_MIN, morton_order, pack_nodes, quant_frame, quantise
 
 #: top-level nodes of more instances than this split by spatially binned SAH, smaller ones between
 #: runs of their Morton order (above RUN_SAH_MIN) or at its middle
@@ -66,7 +65,7 @@ class TopLevel:
             c = (lo_m + hi_m) * 0.5
             cmin, cmax = c.min(axis=0), c.max(axis=0)
             q = np.clip((c - cmin) * (1023.0 / np.maximum((cmax - cmin).max(), 1e-30)), 0, 1023).astype(np.uint32)
-            mem = mem[np.argsort(_morton3(q), kind="stable")]
+            mem = mem[morton_order(q)]
             sb = build_sah(box_lo[mem], box_hi[mem], [0], [n], leaf_size=1, bins=16, sah_min=RUN_SAH_MIN,
                            spatial_min=TLAS_SPATIAL_MIN)
             cnt = int(sb.node_count[0])
