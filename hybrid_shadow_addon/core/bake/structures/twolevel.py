@@ -219,8 +219,8 @@ class TwoLevelBVH(AccelerationStructure):
             self.write_instance_records(scene, np.arange(n))
         checkpoint()
         self.place_top(top["count"])
-        self.pack_wide(np.append(trees.node_start, self.top.start),
-                       np.append(trees.node_start + trees.node_count, self.top.start + self.top.count))
+        self.pack_wide(trees.node_start, trees.node_start + trees.node_count)
+        self.pack_wide([self.top.start], [self.top.start + self.top.count], refits=True)
         tlas_ms = top["ms"] + (time.perf_counter() - t0) * 1e3  # (its tree overlaps the model trees)
         self.stats = {"bake_ms": (time.perf_counter() - t_start) * 1e3, "blas_ms": blas_ms, "tlas_ms": tlas_ms}
         return self
@@ -315,12 +315,13 @@ class TwoLevelBVH(AccelerationStructure):
         self.tex["wide"].used = need
         self.wide.fit(cap)
 
-    def pack_wide(self, roots, ends, rep=None) -> None:
-        """[wide] blocks of the trees at [node] ``[roots[k], ends[k])`` (``config.bvh_wide``)."""
+    def pack_wide(self, roots, ends, rep=None, refits=False) -> None:
+        """[wide] blocks of the trees at [node] ``[roots[k], ends[k])`` (``config.bvh_wide``;
+        ``refits``: the top level, which :meth:`refit_wide` follows)."""
         if not self.config.bvh_wide:
             return
         self.fit_wide(rep)
-        at = self.wide.pack(self.tex["node"].linear(), self.tex["wide"].linear(), roots, ends)
+        at = self.wide.pack(self.tex["node"].linear(), self.tex["wide"].linear(), roots, ends, refits)
         if rep is not None and at.size and "wide" not in rep.resized:
             rep.ranges += rows_of_texels("wide", at, self.config.tex_width)
 
@@ -420,7 +421,7 @@ class TwoLevelBVH(AccelerationStructure):
                 rep.resized.add("node")
             else:
                 rep.ranges += texel_rows("node", top.start, top.start + top.count, W)
-            self.pack_wide([top.start], [top.start + top.count], rep)
+            self.pack_wide([top.start], [top.start + top.count], rep, refits=True)
             rep.nodes_changed += top.count
         new_uniforms = top.uniforms()
         if any(not np.array_equal(new_uniforms[k], old_uniforms[k]) for k in new_uniforms):

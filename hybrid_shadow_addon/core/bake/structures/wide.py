@@ -11,8 +11,8 @@ an inner child, 0 for no child (an inner node's index is never 0: node 0 is a ro
 keep the binary tree's order, so a walk that pops them first to last meets the leaves in the
 binary walk's order.
 
-:class:`WideIndex` keeps, per [node] texel, the [wide] texel that copies it: a refit copies the
-changed boxes there; a rebuilt tree packs its blocks again from its root.
+:class:`WideIndex` keeps, per [node] texel of the top level, the [wide] texel that copies it: a
+refit copies the changed boxes there; a rebuilt tree packs its blocks again from its root.
 """
 from __future__ import annotations
 
@@ -22,6 +22,11 @@ from .blas import LEAF_FLAG
 
 WIDTH = 4  # children per wide node
 STRIDE = 2  # [wide] texels per [node] index: the block of node i starts at texel STRIDE * i
+
+
+def _texels(a: np.ndarray) -> np.ndarray:
+    """(N, 4) uint32 texels as N 16-byte items (a texel gathered or scattered as one)."""
+    return np.ascontiguousarray(a).view(np.dtype((np.void, 16))).reshape(-1)
 
 
 def grandchildren(node: np.ndarray, at: np.ndarray, levels: int = 2) -> np.ndarray:
@@ -42,6 +47,23 @@ def grandchildren(node: np.ndarray, at: np.ndarray, levels: int = 2) -> np.ndarr
     return front
 
 
+def wide_nodes(node: np.ndarray, roots, ends) -> np.ndarray:
+    """The [node] indices of the inner nodes at even depths of the trees at ``[roots[k],
+    ends[k])``. A node's depth is how many inner nodes' subtrees ``(i, escape(i))`` hold it: a
+    prefix sum of +1 after each inner node and -1 at its escape, over every tree at once."""
+    roots = np.asarray(roots, np.int64)
+    ends = np.asarray(ends, np.int64)
+    if not roots.size:
+        return np.zeros(0, np.int64)
+    lo, n = int(roots.min()), int(ends.max() - roots.min())
+    w = node[lo:lo + n, 3]
+    live = np.cumsum(np.bincount(roots - lo, minlength=n + 1) - np.bincount(ends - lo, minlength=n + 1))[:n] > 0
+    i = np.flatnonzero(live & ((w & LEAF_FLAG) == 0))
+    esc = w[i].astype(np.int64) - lo
+    depth = np.cumsum(np.bincount(i + 1, minlength=n + 1) - np.bincount(esc, minlength=n + 1))
+    return i[(depth[i] & 1) == 0] + lo
+
+
 class WideIndex:
     """Where each [node] texel is copied in [wide] (``slot``: -1 where it is not a child)."""
 
@@ -53,30 +75,31 @@ class WideIndex:
         if capacity > len(self.slot):
             self.slot = np.concatenate([self.slot, np.full(capacity - len(self.slot), -1, np.int64)])
 
-    def pack(self, node: np.ndarray, wide: np.ndarray, roots, ends) -> np.ndarray:
+    def pack(self, node: np.ndarray, wide: np.ndarray, roots, ends, refits: bool = False) -> np.ndarray:
         """Write the blocks of the trees at [node] ``[roots[k], ends[k])`` (``node``, ``wide``:
-        the textures' linear texels). Returns the [wide] texels written."""
+        the textures' linear texels); with ``refits``, note where each of their texels is copied
+        (trees that :meth:`refit` later: the top level; a model tree is rebuilt whole). Returns
+        the [wide] texels written."""
         roots = np.asarray(roots, np.int64)
         ends = np.asarray(ends, np.int64)
-        for a, b in zip(roots.tolist(), ends.tolist()):
-            self.slot[a:b] = -1
-        front = roots[ends > roots]
-        front = front[(node[front, 3] & LEAF_FLAG) == 0]
-        written = []
-        while front.size:
-            ch = grandchildren(node, front)
-            at = STRIDE * front[:, None] + np.arange(WIDTH)
-            ok = ch >= 0
-            c = np.maximum(ch, 0)
-            tex = node[c]
-            inner = ok & ((tex[..., 3] & LEAF_FLAG) == 0)
-            tex[..., 3] = np.where(inner, c.astype(np.uint32), tex[..., 3])
-            tex[~ok] = 0
-            wide[at] = tex
-            self.slot[ch[ok]] = at[ok]
-            written.append(at.ravel())
-            front = ch[inner]
-        return np.concatenate(written) if written else np.zeros(0, np.int64)
+        if refits:
+            for a, b in zip(roots.tolist(), ends.tolist()):
+                self.slot[a:b] = -1
+        at = wide_nodes(node, roots[ends > roots], ends[ends > roots])
+        if not at.size:
+            return at
+        ch = grandchildren(node, at)
+        pos = STRIDE * at[:, None] + np.arange(WIDTH)
+        ok = ch >= 0
+        c = np.maximum(ch, 0)
+        tex = _texels(node)[c].view(np.uint32).reshape(c.shape + (4,))  # (a texel a copy)
+        wc = tex[..., 3]
+        np.copyto(wc, c.astype(np.uint32), where=(wc & LEAF_FLAG) == 0)  # an inner child: its block
+        tex *= ok[..., None]  # (no child: zeros)
+        _texels(wide)[pos] = _texels(tex.reshape(-1, 4)).reshape(pos.shape)
+        if refits:
+            self.slot[ch[ok]] = pos[ok]
+        return pos.ravel()
 
     def refit(self, node: np.ndarray, wide: np.ndarray, changed: np.ndarray) -> np.ndarray:
         """Copy the boxes of [node] texels ``changed`` (their tree's shape unchanged) to their
