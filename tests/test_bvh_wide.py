@@ -192,6 +192,24 @@ def test_wide_masks_equal_binary_masks_on_both_paths(name, layouts, loaded):
 
 
 @pytest.mark.blender
+def test_wide_alpha_masks_equal_the_grids(layouts, loaded):
+    """Through alpha-cut cards the 4-wide walk multiplies the transmittances as the grid's walk
+    (other code) does, bit for bit: the binary walk's products, not merely its own."""
+    scene = loaded("alpha_cards")
+    pipe = layouts["wide"]
+    masks = {}
+    for structure in ("bvh", "grid"):
+        pipe.set_scene(scene, structure)
+        assert ("HS_BVH_WIDE" in pipe.baked.defines) == (structure == "bvh")
+        frame = pipe.render(scene, MODES["high"].replace(structure=structure, trace_path="fragment"), 160, 120)
+        masks[structure] = {li: frame.mask_array(li) for li in frame.lights}
+    for li, a in masks["bvh"].items():
+        b = masks["grid"][li]
+        same = (a == b) | (np.isnan(a) & np.isnan(b))
+        assert same.all(), f"light {scene.lights[li].name}: {int((~same).sum())} pixels differ"
+
+
+@pytest.mark.blender
 def test_wide_masks_follow_moved_instances(layouts, loaded):
     """Instances moved a little (a refit) and far (the top level rebuilt) through the pipeline:
     the 4-wide bake's partial uploads give the binary bake's masks."""

@@ -276,142 +276,97 @@ bool hs_walk(inout int i, inout uint w, int limit, vec3 q_lo, vec3 q_hi, vec3 q_
     return found;
 }
 
-// A walk's state: the top level's quantised ray (t_*) and the tree being walked's (q_*), and
-// inside a model tree its model-space origin and shear (and with alpha, the light kept so far
-// and the instance's cut).
-struct HsWalk {
-    vec3 t_lo; vec3 t_hi; vec3 t_inv;
-    vec3 q_lo; vec3 q_hi; vec3 q_inv;
-#ifdef HS_HAS_MESHES
-    vec3 om;
-    HsShear sh;
-#endif
-#ifdef HS_HAS_ALPHA
-    float vis;   // light kept through the alpha-cut surfaces crossed so far
-    int amat;    // 1 + material of the current instance when it cuts its shadow
-    HsCut cut;
-#endif
-};
-
-// The walk of ray (o, d) starting at the top level: false for a ray that can hit nothing.
-bool hs_walk_setup(vec3 o, vec3 d, inout float tmax, out HsWalk s)
+// The shadow-ray query, "while-while" (Aila & Laine 2009): the inner loop walks nodes (top level
+// or model tree, one node per iteration) until the ray hits a leaf; the outer loop handles that
+// leaf (an instance: enter its model tree; a model leaf: its triangles) and resumes. The model
+// tree's end returns the walk to the top-level node after the instance's leaf. Per ray the nodes
+// are visited in the same order as by one flat loop; the split only keeps the leaf work out of
+// the node steps (a SIMD software rasteriser runs every branch of a loop body for all lanes).
+HS_TRACE_T hs_trace_binary(vec3 o, vec3 d, float tmax)
 {
+#ifdef HS_HAS_ALPHA
+    float vis = 1.0;   // light kept through the alpha-cut surfaces crossed so far
+    int amat = 0;      // 1 + material of the current instance when it cuts its shadow
+    HsCut cut = hs_cut_setup(0);
+#endif
     tmax = min(tmax, HS_FLT_BIG);
+    if (!(tmax > 0.0) || (d.x == 0.0 && d.y == 0.0 && d.z == 0.0)) return HS_UNBLOCKED;
     precise vec3 toq = (o - hs_tlas_base) * hs_tlas_inv_scale;
     vec3 tdq = d * hs_tlas_inv_scale;
     vec3 ta = abs(toq);
     precise float te = HS_TLAS_EPS * (((ta.x + ta.y) + ta.z) + hs_tlas_babs);
     precise vec3 t_lo = toq + vec3(te);
     precise vec3 t_hi = toq - vec3(te);
-    s.t_lo = t_lo; s.t_hi = t_hi; s.t_inv = hs_slab_inv(tdq);
-    s.q_lo = s.t_lo; s.q_hi = s.t_hi; s.q_inv = s.t_inv;
-#ifdef HS_HAS_MESHES
-    s.om = vec3(0.0);
-    s.sh.mx = vec3(0.0); s.sh.my = vec3(0.0); s.sh.mz = vec3(0.0); s.sh.sz = 0.0;
-#endif
-#ifdef HS_HAS_ALPHA
-    s.vis = 1.0;
-    s.amat = 0;
-    s.cut = hs_cut_setup(0);
-#endif
-    return tmax > 0.0 && !(d.x == 0.0 && d.y == 0.0 && d.z == 0.0);
-}
-
-// Back from a model tree to the top level.
-void hs_walk_leave(inout HsWalk s) { s.q_lo = s.t_lo; s.q_hi = s.t_hi; s.q_inv = s.t_inv; }
-
-#define HS_LEAF_ON -1       // hs_walk_leaf: on along the walk
-#define HS_LEAF_BLOCKED -2  // the ray is blocked
-
-// A leaf the ray's box test reached, payload pay: in a model tree (inside) its triangles; at the
-// top level an instance, whose sphere is tested or whose model tree is entered: then its root
-// is returned (end: the tree's end) and s holds the model-space ray.
-int hs_walk_leaf(inout HsWalk s, uint pay, bool inside, vec3 o, vec3 d, float tmax, out int end)
-{
-    end = 0;
-#ifdef HS_LINKING
-    if (!inside && !hs_link_blocks(int(pay))) return HS_LEAF_ON;   // not the light's blocker
-#endif
-    int at = inside ? int(pay >> 3u) : 5 * int(pay);
-    vec4 x0, x1, x2, x3, x4, x5, x6, x7, x8;
-    uvec4 u3;
-    hs_leaf_record(at, x0, x1, x2, u3, x3, x4, x5, x6, x7, x8);
-    if (!inside) {
-        vec3 m_o = hs_affine(x0, x1, x2, o);
-        vec3 m_d = hs_linear(x0, x1, x2, d);
-        bool is_sphere = (u3.z & HS_SPHERE_FLAG) != 0u;
-#ifdef HS_HAS_SPHERES
-        if (is_sphere && hs_sphere_hit(m_o, m_d, x4.xyz, x4.w, tmax)) return HS_LEAF_BLOCKED;
-#endif
-#ifdef HS_HAS_MESHES
-        if (!is_sphere) {
-            precise vec3 oq = (m_o - x4.xyz) * x4.w;
-            vec3 aq = abs(oq);
-            precise float e = HS_QEPS * ((aq.x + aq.y) + aq.z);
-            precise vec3 qlo = oq + vec3(e);
-            precise vec3 qhi = oq - vec3(e);
-            s.q_lo = qlo; s.q_hi = qhi;
-            s.q_inv = hs_slab_inv(m_d * x4.w);
-            s.om = m_o;
-            s.sh = hs_shear_setup(m_d);
-#ifdef HS_HAS_ALPHA
-            s.amat = int(u3.w);
-            if (s.amat != 0) s.cut = hs_cut_setup(s.amat - 1);
-#endif
-            end = int(u3.y);
-            return int(u3.x);
-        }
-#endif
-        return HS_LEAF_ON;
-    }
-#ifdef HS_HAS_MESHES
-#ifdef HS_HAS_ALPHA
-    s.vis *= hs_leaf_vis(s.om, s.sh, int(pay & 7u), x0, x1, x2, x3, x4, x5, x6, x7, x8, tmax, s.cut, s.amat != 0, at);
-    if (s.vis < HS_VIS_MIN) return HS_LEAF_BLOCKED;
-#else
-    if (hs_leaf_hit(s.om, s.sh, int(pay & 7u), x0, x1, x2, x3, x4, x5, x6, x7, x8, tmax)) return HS_LEAF_BLOCKED;
-#endif
-#endif
-    return HS_LEAF_ON;
-}
-
-#ifdef HS_HAS_ALPHA
-#define HS_WALK_UNBLOCKED(s) (s).vis
-#else
-#define HS_WALK_UNBLOCKED(s) false
-#endif
-
-// The shadow-ray query on the binary trees, "while-while" (Aila & Laine 2009): the inner loop
-// walks nodes (top level or model tree, one node per iteration) until the ray hits a leaf; the
-// outer loop handles that leaf (an instance: enter its model tree; a model leaf: its triangles)
-// and resumes. The model tree's end returns the walk to the top-level node after the instance's
-// leaf. Per ray the nodes are visited in the same order as by one flat loop; the split only
-// keeps the leaf work out of the node steps (a SIMD software rasteriser runs every branch of a
-// loop body for all lanes).
-HS_TRACE_T hs_trace_binary(vec3 o, vec3 d, float tmax)
-{
-    HsWalk s;
-    if (!hs_walk_setup(o, d, tmax, s)) return HS_WALK_UNBLOCKED(s);
+    vec3 t_inv = hs_slab_inv(tdq);
+    vec3 q_lo = t_lo, q_hi = t_hi, q_inv = t_inv;
     int i = hs_tlas_root;
     int ret = -1;   // >= 0: inside a model tree, resume the top level there
+#ifdef HS_HAS_MESHES
+    vec3 om = vec3(0.0);
+    HsShear sh;
+    sh.mx = vec3(0.0); sh.my = vec3(0.0); sh.mz = vec3(0.0); sh.sz = 0.0;
+#endif
     int limit = hs_tlas_end;   // the end of the tree being walked (the top level's, or the model tree's)
     for (;;) {
         // nodes until a leaf; the return from a model tree to the top level is tested here,
         // once a walk ends, not at every node (a sixth less time), and walks on at once
         uint w = 0u;
-        bool found = hs_walk(i, w, limit, s.q_lo, s.q_hi, s.q_inv, tmax);
+        bool found = hs_walk(i, w, limit, q_lo, q_hi, q_inv, tmax);
         if (!found && ret >= 0) {   // the model tree's end: on along the top level
-            i = ret; ret = -1; limit = hs_tlas_end;
-            hs_walk_leave(s);
-            found = hs_walk(i, w, limit, s.q_lo, s.q_hi, s.q_inv, tmax);
+            i = ret; ret = -1; q_lo = t_lo; q_hi = t_hi; q_inv = t_inv; limit = hs_tlas_end;
+            found = hs_walk(i, w, limit, q_lo, q_hi, q_inv, tmax);
         }
         if (!found) break;
-        int end;
-        int r = hs_walk_leaf(s, w & 0x7FFFFFFFu, ret >= 0, o, d, tmax, end);
-        if (r == HS_LEAF_BLOCKED) return HS_BLOCKED;
-        if (r >= 0) { ret = i; i = r; limit = end; }
+        uint pay = w & 0x7FFFFFFFu;
+        int next = i;
+#ifdef HS_LINKING
+        if (ret < 0 && !hs_link_blocks(int(pay))) continue;   // not the light's blocker: on
+#endif
+        int at = ret < 0 ? 5 * int(pay) : int(pay >> 3u);
+        vec4 x0, x1, x2, x3, x4, x5, x6, x7, x8;
+        uvec4 u3;
+        hs_leaf_record(at, x0, x1, x2, u3, x3, x4, x5, x6, x7, x8);
+        if (ret < 0) {
+            vec3 m_o = hs_affine(x0, x1, x2, o);
+            vec3 m_d = hs_linear(x0, x1, x2, d);
+            bool is_sphere = (u3.z & HS_SPHERE_FLAG) != 0u;
+#ifdef HS_HAS_SPHERES
+            if (is_sphere && hs_sphere_hit(m_o, m_d, x4.xyz, x4.w, tmax)) return HS_BLOCKED;
+#endif
+#ifdef HS_HAS_MESHES
+            if (!is_sphere) {
+                precise vec3 oq = (m_o - x4.xyz) * x4.w;
+                vec3 aq = abs(oq);
+                precise float e = HS_QEPS * ((aq.x + aq.y) + aq.z);
+                precise vec3 qlo = oq + vec3(e);
+                precise vec3 qhi = oq - vec3(e);
+                q_lo = qlo; q_hi = qhi;
+                q_inv = hs_slab_inv(m_d * x4.w);
+                om = m_o;
+                sh = hs_shear_setup(m_d);
+                ret = next;
+                next = int(u3.x);
+                limit = int(u3.y);
+#ifdef HS_HAS_ALPHA
+                amat = int(u3.w);
+                if (amat != 0) cut = hs_cut_setup(amat - 1);
+#endif
+            }
+#endif
+        }
+#ifdef HS_HAS_MESHES
+        else {
+#ifdef HS_HAS_ALPHA
+            vis *= hs_leaf_vis(om, sh, int(pay & 7u), x0, x1, x2, x3, x4, x5, x6, x7, x8, tmax, cut, amat != 0, at);
+            if (vis < HS_VIS_MIN) return HS_BLOCKED;
+#else
+            if (hs_leaf_hit(om, sh, int(pay & 7u), x0, x1, x2, x3, x4, x5, x6, x7, x8, tmax)) return HS_BLOCKED;
+#endif
+        }
+#endif
+        i = next;
     }
-    return HS_WALK_UNBLOCKED(s);
+    return HS_UNBLOCKED;
 }
 
 #ifdef HS_BVH_WIDE
@@ -431,14 +386,34 @@ uint hs_wide_root(int root, int end) { return end - root == 1 ? HS_FETCH(hs_node
 
 // The shadow-ray query on 4-wide nodes with a stack, "while-while" as the binary walk: the inner
 // loop pops wide nodes (and the returns from model trees) until a leaf pops; the outer loop
-// handles the leaf. A wide node's children whose boxes the ray hits are pushed so that they pop
-// in tree order, so the leaves are met in the binary walk's order (the same product of
-// transmittances); the pushes are stores at the top that only the hits keep (no branch). A ray
-// whose stack would overflow is traced again by the binary walk.
+// handles the leaf as the binary walk does (its code repeated line for line: written as a shared
+// function, llvmpipe rounded the alpha-cut transmittances differently). A wide node's children
+// whose boxes the ray hits are pushed so that they pop in tree order, so the leaves are met in
+// the binary walk's order (the same product of transmittances); the pushes are stores at the top
+// that only the hits keep (no branch). A ray whose stack would overflow is traced again by the
+// binary walk.
 HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax)
 {
-    HsWalk s;
-    if (!hs_walk_setup(o, d, tmax, s)) return HS_WALK_UNBLOCKED(s);
+#ifdef HS_HAS_ALPHA
+    float vis = 1.0;
+    int amat = 0;
+    HsCut cut = hs_cut_setup(0);
+#endif
+    tmax = min(tmax, HS_FLT_BIG);
+    if (!(tmax > 0.0) || (d.x == 0.0 && d.y == 0.0 && d.z == 0.0)) return HS_UNBLOCKED;
+    precise vec3 toq = (o - hs_tlas_base) * hs_tlas_inv_scale;
+    vec3 tdq = d * hs_tlas_inv_scale;
+    vec3 ta = abs(toq);
+    precise float te = HS_TLAS_EPS * (((ta.x + ta.y) + ta.z) + hs_tlas_babs);
+    precise vec3 t_lo = toq + vec3(te);
+    precise vec3 t_hi = toq - vec3(te);
+    vec3 t_inv = hs_slab_inv(tdq);
+    vec3 q_lo = t_lo, q_hi = t_hi, q_inv = t_inv;
+#ifdef HS_HAS_MESHES
+    vec3 om = vec3(0.0);
+    HsShear sh;
+    sh.mx = vec3(0.0); sh.my = vec3(0.0); sh.mz = vec3(0.0); sh.sz = 0.0;
+#endif
     uint stack[HS_WIDE_STACK];
     int top = 0;
     if (hs_tlas_end > hs_tlas_root) stack[top++] = hs_wide_root(hs_tlas_root, hs_tlas_end);
@@ -453,7 +428,7 @@ HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax)
             bool back = e == HS_WIDE_RETURN;
             bool node = (e & HS_LEAF_FLAG) == 0u && !back;
             over = node && top > HS_WIDE_STACK - 4;
-            if (back) { inside = false; hs_walk_leave(s); }
+            if (back) { inside = false; q_lo = t_lo; q_hi = t_hi; q_inv = t_inv; }
             if (node && !over) {
                 int at = 2 * int(e);
                 uvec4 c0 = HS_FETCH(hs_wide_tex, at);
@@ -462,31 +437,70 @@ HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax)
                 uvec4 c3 = HS_FETCH(hs_wide_tex, at + 3);
                 // (c0 and c2 are the two binary children or their first children: always there)
                 stack[top] = c3.w;
-                top += (c3.w != 0u && hs_qbox_hit(s.q_lo, s.q_hi, s.q_inv, c3, tmax)) ? 1 : 0;
+                top += (c3.w != 0u && hs_qbox_hit(q_lo, q_hi, q_inv, c3, tmax)) ? 1 : 0;
                 stack[top] = c2.w;
-                top += hs_qbox_hit(s.q_lo, s.q_hi, s.q_inv, c2, tmax) ? 1 : 0;
+                top += hs_qbox_hit(q_lo, q_hi, q_inv, c2, tmax) ? 1 : 0;
                 stack[top] = c1.w;
-                top += (c1.w != 0u && hs_qbox_hit(s.q_lo, s.q_hi, s.q_inv, c1, tmax)) ? 1 : 0;
+                top += (c1.w != 0u && hs_qbox_hit(q_lo, q_hi, q_inv, c1, tmax)) ? 1 : 0;
                 stack[top] = c0.w;
-                top += hs_qbox_hit(s.q_lo, s.q_hi, s.q_inv, c0, tmax) ? 1 : 0;
+                top += hs_qbox_hit(q_lo, q_hi, q_inv, c0, tmax) ? 1 : 0;
             }
             found = !node && !back;
             walking = !found && !over && top > 0;
         }
         if (over) return hs_trace_binary(o, d, tmax);
         if (!found) break;
-        int end;
-        int r = hs_walk_leaf(s, e & 0x7FFFFFFFu, inside, o, d, tmax, end);
-        if (r == HS_LEAF_BLOCKED) return HS_BLOCKED;
-        if (r >= 0 && end > r) {
-            if (top > HS_WIDE_STACK - 2) return hs_trace_binary(o, d, tmax);
-            inside = true;
-            stack[top++] = HS_WIDE_RETURN;
-            stack[top++] = hs_wide_root(r, end);
-        }
         found = top > 0;
+        uint pay = e & 0x7FFFFFFFu;
+#ifdef HS_LINKING
+        if (!inside && !hs_link_blocks(int(pay))) continue;   // not the light's blocker: on
+#endif
+        int at = inside ? int(pay >> 3u) : 5 * int(pay);
+        vec4 x0, x1, x2, x3, x4, x5, x6, x7, x8;
+        uvec4 u3;
+        hs_leaf_record(at, x0, x1, x2, u3, x3, x4, x5, x6, x7, x8);
+        if (!inside) {
+            vec3 m_o = hs_affine(x0, x1, x2, o);
+            vec3 m_d = hs_linear(x0, x1, x2, d);
+            bool is_sphere = (u3.z & HS_SPHERE_FLAG) != 0u;
+#ifdef HS_HAS_SPHERES
+            if (is_sphere && hs_sphere_hit(m_o, m_d, x4.xyz, x4.w, tmax)) return HS_BLOCKED;
+#endif
+#ifdef HS_HAS_MESHES
+            if (!is_sphere && int(u3.y) > int(u3.x)) {
+                if (top > HS_WIDE_STACK - 2) return hs_trace_binary(o, d, tmax);
+                precise vec3 oq = (m_o - x4.xyz) * x4.w;
+                vec3 aq = abs(oq);
+                precise float e = HS_QEPS * ((aq.x + aq.y) + aq.z);
+                precise vec3 qlo = oq + vec3(e);
+                precise vec3 qhi = oq - vec3(e);
+                q_lo = qlo; q_hi = qhi;
+                q_inv = hs_slab_inv(m_d * x4.w);
+                om = m_o;
+                sh = hs_shear_setup(m_d);
+                inside = true;
+                stack[top++] = HS_WIDE_RETURN;
+                stack[top++] = hs_wide_root(int(u3.x), int(u3.y));
+                found = true;
+#ifdef HS_HAS_ALPHA
+                amat = int(u3.w);
+                if (amat != 0) cut = hs_cut_setup(amat - 1);
+#endif
+            }
+#endif
+        }
+#ifdef HS_HAS_MESHES
+        else {
+#ifdef HS_HAS_ALPHA
+            vis *= hs_leaf_vis(om, sh, int(pay & 7u), x0, x1, x2, x3, x4, x5, x6, x7, x8, tmax, cut, amat != 0, at);
+            if (vis < HS_VIS_MIN) return HS_BLOCKED;
+#else
+            if (hs_leaf_hit(om, sh, int(pay & 7u), x0, x1, x2, x3, x4, x5, x6, x7, x8, tmax)) return HS_BLOCKED;
+#endif
+        }
+#endif
     }
-    return HS_WALK_UNBLOCKED(s);
+    return HS_UNBLOCKED;
 }
 #else
 HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax) { return hs_trace_binary(o, d, tmax); }
