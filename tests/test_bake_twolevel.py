@@ -10,7 +10,7 @@ from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 from hybrid_shadow_addon.core.settings import Settings
 from tests.helpers.bake import assert_equal_tracers, assert_report_covers, snapshot
-from tests.helpers.rays import random_rays
+from tests.helpers.rays import random_rays, terrain_rays
 from tests.helpers.scenes import adversarial_scene, blob_model, plate_model, random_scene, terrain_model
 
 pytestmark = [pytest.mark.gpu]
@@ -145,8 +145,7 @@ def test_bvh_cost_is_logarithmic():
     baked = bake_scene(scene, BVH)
     rng = np.random.default_rng(1)
     R = 200
-    o = np.stack([rng.uniform(-9, 9, R), rng.uniform(-9, 9, R), np.full(R, 3.0)], 1)
-    d = np.stack([rng.normal(scale=0.2, size=R), rng.normal(scale=0.2, size=R), -np.ones(R)], 1)
+    o, d = terrain_rays(rng, R, spread=0.2)
     stats = {}
     assert trace_structured(baked, o, d, np.inf, stats=stats).all()
     assert stats["iterations"] / R < 120 and stats["triangles"] / R < 40
@@ -297,9 +296,7 @@ def test_wide_walk_answers_as_the_binary_walk_with_fewer_fetches(levels, order):
     assert (occ == trace_brute(scene, o, d, t)).all() and occ.any() and (~occ).any()
     assert (fetches >= visits).all() and visits.max() > 0
     terrain = bake_scene(Scene(models=[terrain_model(158)], instances=Instances(names=["t"])), BVH)
-    R = 300
-    o = np.stack([rng.uniform(-9, 9, R), rng.uniform(-9, 9, R), np.full(R, 3.0)], 1)
-    d = np.stack([rng.normal(scale=0.6, size=R), rng.normal(scale=0.6, size=R), -np.ones(R)], 1)
+    o, d = terrain_rays(rng, 300)
     stats = {"per_ray": True}
     binary = trace_structured(terrain, o, d, np.inf, stats=stats)
     occ, fetches, _ = trace_wide(terrain, o, d, np.inf, levels, order)

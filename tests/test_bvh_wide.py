@@ -14,18 +14,12 @@ from hybrid_shadow_addon.core.oracle.tracer.wide import trace_wide, trace_wide_p
 from hybrid_shadow_addon.core.scene import Instances, Scene
 from hybrid_shadow_addon.core.settings import Settings
 from tests.helpers.bake import assert_report_covers, snapshot
-from tests.helpers.rays import random_rays
+from tests.helpers.rays import random_rays, terrain_rays
 from tests.helpers.scenes import adversarial_scene, blob_model, random_scene, terrain_model
 
 pytestmark = [pytest.mark.gpu]
 
 WIDE = BakeConfig(structure="bvh", bvh_wide=True)
-
-
-def terrain_rays(rng, n=300):
-    o = np.stack([rng.uniform(-9, 9, n), rng.uniform(-9, 9, n), np.full(n, 3.0)], 1)
-    d = np.stack([rng.normal(scale=0.6, size=n), rng.normal(scale=0.6, size=n), -np.ones(n)], 1)
-    return o, d
 
 
 def test_packed_walk_answers_as_binary_and_brute_with_fewer_fetches():

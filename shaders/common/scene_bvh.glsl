@@ -256,6 +256,32 @@ vec3 hs_linear(vec4 r0, vec4 r1, vec4 r2, vec3 d)
     return q;
 }
 
+// The ray (bake space) on the top level's grid: its origin planes (lo, hi: o_q widened by the
+// top level's e) and 1 / d_q.
+void hs_tlas_ray(vec3 o, vec3 d, out vec3 lo, out vec3 hi, out vec3 inv)
+{
+    precise vec3 toq = (o - hs_tlas_base) * hs_tlas_inv_scale;
+    vec3 ta = abs(toq);
+    precise float te = HS_TLAS_EPS * (((ta.x + ta.y) + ta.z) + hs_tlas_babs);
+    precise vec3 t_lo = toq + vec3(te);
+    precise vec3 t_hi = toq - vec3(te);
+    lo = t_lo; hi = t_hi;
+    inv = hs_slab_inv(d * hs_tlas_inv_scale);
+}
+
+// The model-space ray (m_o, m_d) on its model tree's grid (frame: base xyz, inv_s), as above
+// with the model trees' e.
+void hs_model_ray(vec3 m_o, vec3 m_d, vec4 frame, out vec3 lo, out vec3 hi, out vec3 inv)
+{
+    precise vec3 oq = (m_o - frame.xyz) * frame.w;
+    vec3 aq = abs(oq);
+    precise float e = HS_QEPS * ((aq.x + aq.y) + aq.z);
+    precise vec3 qlo = oq + vec3(e);
+    precise vec3 qhi = oq - vec3(e);
+    lo = qlo; hi = qhi;
+    inv = hs_slab_inv(m_d * frame.w);
+}
+
 // Nodes from i on, until a leaf whose box the ray hits (true: w is its word, i the node after
 // it) or the end of the tree (i >= limit). (A flag, not a nested break: llvmpipe miscompiled the
 // break out of this inner loop, lanes lost their node index.) Its body is the walk's cost on a
@@ -291,13 +317,8 @@ HS_TRACE_T hs_trace_binary(vec3 o, vec3 d, float tmax)
 #endif
     tmax = min(tmax, HS_FLT_BIG);
     if (!(tmax > 0.0) || (d.x == 0.0 && d.y == 0.0 && d.z == 0.0)) return HS_UNBLOCKED;
-    precise vec3 toq = (o - hs_tlas_base) * hs_tlas_inv_scale;
-    vec3 tdq = d * hs_tlas_inv_scale;
-    vec3 ta = abs(toq);
-    precise float te = HS_TLAS_EPS * (((ta.x + ta.y) + ta.z) + hs_tlas_babs);
-    precise vec3 t_lo = toq + vec3(te);
-    precise vec3 t_hi = toq - vec3(te);
-    vec3 t_inv = hs_slab_inv(tdq);
+    vec3 t_lo, t_hi, t_inv;
+    hs_tlas_ray(o, d, t_lo, t_hi, t_inv);
     vec3 q_lo = t_lo, q_hi = t_hi, q_inv = t_inv;
     int i = hs_tlas_root;
     int ret = -1;   // >= 0: inside a model tree, resume the top level there
@@ -335,13 +356,7 @@ HS_TRACE_T hs_trace_binary(vec3 o, vec3 d, float tmax)
 #endif
 #ifdef HS_HAS_MESHES
             if (!is_sphere) {
-                precise vec3 oq = (m_o - x4.xyz) * x4.w;
-                vec3 aq = abs(oq);
-                precise float e = HS_QEPS * ((aq.x + aq.y) + aq.z);
-                precise vec3 qlo = oq + vec3(e);
-                precise vec3 qhi = oq - vec3(e);
-                q_lo = qlo; q_hi = qhi;
-                q_inv = hs_slab_inv(m_d * x4.w);
+                hs_model_ray(m_o, m_d, x4, q_lo, q_hi, q_inv);
                 om = m_o;
                 sh = hs_shear_setup(m_d);
                 ret = next;
@@ -401,13 +416,8 @@ HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax)
 #endif
     tmax = min(tmax, HS_FLT_BIG);
     if (!(tmax > 0.0) || (d.x == 0.0 && d.y == 0.0 && d.z == 0.0)) return HS_UNBLOCKED;
-    precise vec3 toq = (o - hs_tlas_base) * hs_tlas_inv_scale;
-    vec3 tdq = d * hs_tlas_inv_scale;
-    vec3 ta = abs(toq);
-    precise float te = HS_TLAS_EPS * (((ta.x + ta.y) + ta.z) + hs_tlas_babs);
-    precise vec3 t_lo = toq + vec3(te);
-    precise vec3 t_hi = toq - vec3(te);
-    vec3 t_inv = hs_slab_inv(tdq);
+    vec3 t_lo, t_hi, t_inv;
+    hs_tlas_ray(o, d, t_lo, t_hi, t_inv);
     vec3 q_lo = t_lo, q_hi = t_hi, q_inv = t_inv;
 #ifdef HS_HAS_MESHES
     vec3 om = vec3(0.0);
@@ -469,13 +479,7 @@ HS_TRACE_T hs_trace(vec3 o, vec3 d, float tmax)
 #ifdef HS_HAS_MESHES
             if (!is_sphere && int(u3.y) > int(u3.x)) {
                 if (top > HS_WIDE_STACK - 2) return hs_trace_binary(o, d, tmax);
-                precise vec3 oq = (m_o - x4.xyz) * x4.w;
-                vec3 aq = abs(oq);
-                precise float e = HS_QEPS * ((aq.x + aq.y) + aq.z);
-                precise vec3 qlo = oq + vec3(e);
-                precise vec3 qhi = oq - vec3(e);
-                q_lo = qlo; q_hi = qhi;
-                q_inv = hs_slab_inv(m_d * x4.w);
+                hs_model_ray(m_o, m_d, x4, q_lo, q_hi, q_inv);
                 om = m_o;
                 sh = hs_shear_setup(m_d);
                 inside = true;

@@ -4,6 +4,14 @@ pixels away from silhouettes."""
 import numpy as np
 
 
+def terrain_rays(rng, n=300, spread=0.6):
+    """``n`` rays down from 3 m over the helpers' terrain (``terrain_model``), their directions
+    tilted by normal draws of ``spread``."""
+    o = np.stack([rng.uniform(-9, 9, n), rng.uniform(-9, 9, n), np.full(n, 3.0)], 1)
+    d = np.stack([rng.normal(scale=spread, size=n), rng.normal(scale=spread, size=n), -np.ones(n)], 1)
+    return o, d
+
+
 def random_rays(rng, scene, n, targeted=0.5, axis=0.2):
     """Mix of rays aimed at instance centres (hits likely), random rays and axis-aligned rays."""
     c = scene.instances.matrices[:, :3, 3]

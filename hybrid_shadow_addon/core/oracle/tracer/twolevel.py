@@ -44,6 +44,18 @@ def _count_by(counts: dict, keys) -> None:
         counts[a] = counts.get(a, 0) + b
 
 
+def tlas_ray(baked, o, d) -> tuple:
+    """Rays ``o``, ``d`` (bake space) quantised on the top level's grid: ``(lo, hi, inv)``, the
+    origin planes widened by the top level's epsilon and 1 / d_q."""
+    u = baked.uniforms
+    base = np.asarray(u["hs_tlas_base"], F)
+    qs = F(u["hs_tlas_inv_scale"])
+    with np.errstate(over="ignore", invalid="ignore"):
+        toq = ((o - base) * qs).astype(F)
+        te = TLAS_EPS * (_l1(toq) + F(u["hs_tlas_babs"]))
+        return toq + te[:, None], toq - te[:, None], slab_inv((d * qs).astype(F))
+
+
 def enter_instances(leafd, ids, r, o, d, tm, occ, q, om, dm):
     """Rays ``r`` at instance records ``ids``: each ray moved into its instance's model space; a
     sphere's hit marked in ``occ``; for meshes, the quantised ray ``q`` = (lo, hi, inv) and the
@@ -106,15 +118,8 @@ def trace_twolevel(baked, origins, dirs, tmax=np.inf, stats: dict | None = None)
     leafd = t["leaf"].linear()
     tri = leafd.reshape(-1).view(F)
     u = baked.uniforms
-    base = np.asarray(u["hs_tlas_base"], F)
-    qs = F(u["hs_tlas_inv_scale"])
     end = int(u["hs_tlas_end"])
-    with np.errstate(over="ignore", invalid="ignore"):
-        toq = ((o - base) * qs).astype(F)
-        te = TLAS_EPS * (_l1(toq) + F(u["hs_tlas_babs"]))
-        t_lo = toq + te[:, None]
-        t_hi = toq - te[:, None]
-    t_inv = slab_inv((d * qs).astype(F))
+    t_lo, t_hi, t_inv = tlas_ray(baked, o, d)
     q_lo, q_hi, q_inv = t_lo.copy(), t_hi.copy(), t_inv.copy()
     i = np.full(N, int(u["hs_tlas_root"]), np.int64)
     ret = np.full(N, -1, np.int64)

@@ -19,8 +19,8 @@ from __future__ import annotations
 import numpy as np
 
 from ...bake.structures.wide import STRIDE, WIDTH, grandchildren
-from .primitives import TFAR_SCALE, F, bake_space, prepare_rays, slab_inv
-from .twolevel import LEAF_FLAG, TLAS_EPS, _l1, _qbox_hit, enter_instances, leaf_hits, trace_twolevel
+from .primitives import TFAR_SCALE, F, bake_space, prepare_rays
+from .twolevel import LEAF_FLAG, _qbox_hit, enter_instances, leaf_hits, tlas_ray, trace_twolevel
 
 #: child orders: the nearest box popped first, the farthest, or the tree's own order
 ORDERS = ("distance", "far", "tree")
@@ -43,15 +43,40 @@ def _box_entry(rlo, rhi, inv, n, tmax) -> np.ndarray:
     return np.where(hit, np.maximum(tn, F(0)), np.inf)
 
 
-def _tlas_ray(baked, o, d):
-    """The rays quantised on the top level's grid: (lo, hi, inv)."""
-    u = baked.uniforms
-    base = np.asarray(u["hs_tlas_base"], F)
-    qs = F(u["hs_tlas_inv_scale"])
-    with np.errstate(over="ignore", invalid="ignore"):
-        toq = ((o - base) * qs).astype(F)
-        te = TLAS_EPS * (_l1(toq) + F(u["hs_tlas_babs"]))
-        return toq + te[:, None], toq - te[:, None], slab_inv((d * qs).astype(F))
+class _Walk:
+    """What both wide walks start from: the rays (bake space, ``tm``, ``valid``), their answers
+    and fetches so far, the textures, the top level's quantised rays (``t``) and the current
+    tree's (``q``, starting as the top level's), and the model-space rays (``om``, ``dm``)."""
+
+    def __init__(self, baked, origins, dirs, tmax):
+        self.o, self.d, self.tm, self.valid = prepare_rays(bake_space(baked, origins), dirs, tmax)
+        N = len(self.o)
+        self.occ = np.zeros(N, bool)
+        self.fetches = np.zeros(N, np.int64)
+        tex = baked.textures
+        self.node = tex["node"].linear()
+        self.leafd = tex["leaf"].linear()
+        self.tri = self.leafd.reshape(-1).view(F)
+        self.t = tlas_ray(baked, self.o, self.d)
+        self.q = tuple(a.copy() for a in self.t)
+        self.om = np.zeros((N, 3), F)
+        self.dm = np.zeros((N, 3), F)
+        self.in_model = np.zeros(N, bool)
+
+    def leave(self, r) -> None:
+        """Rays ``r`` back from their model trees to the top level."""
+        for q, t in zip(self.q, self.t):
+            q[r] = t[r]
+        self.in_model[r] = False
+
+    def enter(self, ids, r):
+        """Rays ``r`` at instance records ``ids`` (:func:`.twolevel.enter_instances`)."""
+        return enter_instances(self.leafd, ids, r, self.o, self.d, self.tm, self.occ, self.q, self.om, self.dm)
+
+    def triangles(self, words, r) -> None:
+        """Rays ``r`` at model leaves ``words``: their hits marked."""
+        p, h = leaf_hits(self.tri, words, r, self.om, self.dm, self.tm)
+        self.occ[p[h]] = True
 
 
 def trace_wide(baked, origins, dirs, tmax=np.inf, levels: int = 2, order: str = "distance") -> tuple:
@@ -59,40 +84,26 @@ def trace_wide(baked, origins, dirs, tmax=np.inf, levels: int = 2, order: str = 
     BVH bake), ``levels`` binary levels per wide node (2: 4-wide, 3: 8-wide)."""
     if order not in ORDERS:
         raise ValueError(f"order must be one of {', '.join(ORDERS)}, not {order!r}")
-    o, d, tm, valid = prepare_rays(bake_space(baked, origins), dirs, tmax)
-    N = len(o)
-    occ = np.zeros(N, bool)
-    fetches = np.zeros(N, np.int64)
+    s = _Walk(baked, origins, dirs, tmax)
+    node, tm = s.node, s.tm
+    N = len(s.o)
     visits = np.zeros(N, np.int64)
-    t = baked.textures
-    node = t["node"].linear()
-    leafd = t["leaf"].linear()
-    tri = leafd.reshape(-1).view(F)
-    u = baked.uniforms
-    t_lo, t_hi, t_inv = _tlas_ray(baked, o, d)
-    q_lo, q_hi, q_inv = t_lo.copy(), t_hi.copy(), t_inv.copy()
-    om = np.zeros((N, 3), F)
-    dm = np.zeros((N, 3), F)
     stack = np.zeros((N, STACK), np.int64)
     top = np.zeros(N, np.int64)  # entries on each ray's stack
-    stack[:, 0] = int(u["hs_tlas_root"])
-    top[valid] = 1
-    in_model = np.zeros(N, bool)
+    stack[:, 0] = int(baked.uniforms["hs_tlas_root"])
+    top[s.valid] = 1
     K = 2 ** levels
     act = np.nonzero(top > 0)[0]
     while act.size:
         top[act] -= 1
         e = stack[act, top[act]]
         back = e == RETURN
-        if back.any():
-            r = act[back]
-            q_lo[r], q_hi[r], q_inv[r] = t_lo[r], t_hi[r], t_inv[r]
-            in_model[r] = False
+        s.leave(act[back])
         act, e = act[~back], e[~back]
         w = node[np.maximum(e, 0), 3]
         leaf = (w & LEAF_FLAG) != 0
-        inside = in_model[act]  # (before this step enters a model tree)
-        fetches[act] += 1
+        inside = s.in_model[act]  # (before this step enters a model tree)
+        s.fetches[act] += 1
         pay = (w & np.uint32(0x7FFFFFFF)).astype(np.int64)
         # wide nodes: their children's boxes, the hit ones pushed (the nearest on top)
         k = np.nonzero(~leaf)[0]
@@ -100,7 +111,7 @@ def trace_wide(baked, origins, dirs, tmax=np.inf, levels: int = 2, order: str = 
             r = act[k]
             visits[r] += 1
             ch = grandchildren(node, e[k], levels)
-            tn = _box_entry(q_lo[r], q_hi[r], q_inv[r], node[np.maximum(ch, 0)], tm[r])
+            tn = _box_entry(*(q[r] for q in s.q), node[np.maximum(ch, 0)], tm[r])
             tn[ch < 0] = np.inf
             if order == "distance":
                 srt = np.argsort(-tn, axis=1, kind="stable")  # (far first: the nearest ends on top)
@@ -117,22 +128,21 @@ def trace_wide(baked, origins, dirs, tmax=np.inf, levels: int = 2, order: str = 
         # instance records: a sphere's test, or the model tree entered
         k = np.nonzero(leaf & ~inside)[0]
         if k.size:
-            m_, rec = enter_instances(leafd, pay[k], act[k], o, d, tm, occ, (q_lo, q_hi, q_inv), om, dm)
+            m_, rec = s.enter(pay[k], act[k])
             if m_.size:
                 rm = act[k][m_]
-                in_model[rm] = True
+                s.in_model[rm] = True
                 stack[rm, top[rm]] = RETURN
                 stack[rm, top[rm] + 1] = rec[m_, 12].astype(np.int64)
                 top[rm] += 2
         # model leaves: their triangles
         k = np.nonzero(leaf & inside)[0]
         if k.size:
-            p, h = leaf_hits(tri, pay[k], act[k], om, dm, tm)
-            occ[p[h]] = True
+            s.triangles(pay[k], act[k])
         if (top >= STACK - K).any():
             raise RuntimeError("a ray's stack outgrew STACK entries")
-        act = np.nonzero((top > 0) & ~occ)[0]
-    return occ, fetches, visits
+        act = np.nonzero((top > 0) & ~s.occ)[0]
+    return s.occ, s.fetches, visits
 
 
 def _root_words(node, root, end) -> np.ndarray:
@@ -149,28 +159,17 @@ def trace_wide_packed(baked, origins, dirs, tmax=np.inf, stack: int = 32, stats:
     shader does. ``stats`` (when given) gets each ray's dependent fetches (``ray_fetches``: a
     wide node's block, an instance record, a leaf's triangles, a one-leaf tree's root),
     ``max_stack`` and ``fallbacks``."""
-    o, d, tm, valid = prepare_rays(bake_space(baked, origins), dirs, tmax)
-    N = len(o)
-    occ = np.zeros(N, bool)
-    fetches = np.zeros(N, np.int64)
-    t = baked.textures
-    node = t["node"].linear()
-    wide = t["wide"].linear()
-    leafd = t["leaf"].linear()
-    tri = leafd.reshape(-1).view(F)
-    u = baked.uniforms
-    t_lo, t_hi, t_inv = _tlas_ray(baked, o, d)
-    q_lo, q_hi, q_inv = t_lo.copy(), t_hi.copy(), t_inv.copy()
-    om = np.zeros((N, 3), F)
-    dm = np.zeros((N, 3), F)
+    s = _Walk(baked, origins, dirs, tmax)
+    node, tm, fetches = s.node, s.tm, s.fetches
+    wide = baked.textures["wide"].linear()
+    N = len(s.o)
     stk = np.zeros((N, stack + 1), np.int64)
     top = np.zeros(N, np.int64)
-    root, end = int(u["hs_tlas_root"]), int(u["hs_tlas_end"])
+    root, end = int(baked.uniforms["hs_tlas_root"]), int(baked.uniforms["hs_tlas_end"])
     if end > root:
         stk[:, 0] = _root_words(node, [root], [end])[0]
-        top[valid] = 1
-        fetches[valid] += end - root == 1
-    in_model = np.zeros(N, bool)
+        top[s.valid] = 1
+        fetches[s.valid] += end - root == 1
     binary = np.zeros(N, bool)  # rays whose stack would overflow
     deepest = int(top.max()) if N else 0
     act = np.nonzero(top > 0)[0]
@@ -178,12 +177,10 @@ def trace_wide_packed(baked, origins, dirs, tmax=np.inf, stack: int = 32, stats:
         top[act] -= 1
         e = stk[act, top[act]]
         back = e == RETURN_WORD
-        r = act[back]
-        q_lo[r], q_hi[r], q_inv[r] = t_lo[r], t_hi[r], t_inv[r]
-        in_model[r] = False
+        s.leave(act[back])
         act, e = act[~back], e[~back]
         inner = (e & int(LEAF_FLAG)) == 0
-        inside = in_model[act]  # (before this step enters a model tree)
+        inside = s.in_model[act]  # (before this step enters a model tree)
         fetches[act] += 1
         # wide nodes: children pushed last first where their boxes are hit
         k = np.nonzero(inner)[0]
@@ -195,7 +192,7 @@ def trace_wide_packed(baked, origins, dirs, tmax=np.inf, stack: int = 32, stats:
             blk = wide[STRIDE * e[k][:, None] + np.arange(WIDTH)]  # (K, 4, 4)
             for c in range(WIDTH - 1, -1, -1):
                 n = blk[:, c]
-                h = _qbox_hit(q_lo[r], q_hi[r], q_inv[r], n, tm[r]) & (n[:, 3] != 0)
+                h = _qbox_hit(*(q[r] for q in s.q), n, tm[r]) & (n[:, 3] != 0)
                 rh = r[h]
                 stk[rh, top[rh]] = n[h, 3].astype(np.int64)
                 top[rh] += 1
@@ -203,7 +200,7 @@ def trace_wide_packed(baked, origins, dirs, tmax=np.inf, stack: int = 32, stats:
         pay = e & 0x7FFFFFFF
         k = np.nonzero(~inner & ~inside)[0]
         if k.size:
-            m_, rec = enter_instances(leafd, pay[k], act[k], o, d, tm, occ, (q_lo, q_hi, q_inv), om, dm)
+            m_, rec = s.enter(pay[k], act[k])
             if m_.size:
                 rm = act[k][m_]
                 a, b = rec[m_, 12].astype(np.int64), rec[m_, 13].astype(np.int64)
@@ -212,7 +209,7 @@ def trace_wide_packed(baked, origins, dirs, tmax=np.inf, stack: int = 32, stats:
                 binary[rm[go & full]] = True
                 go &= ~full
                 rm, a, b = rm[go], a[go], b[go]
-                in_model[rm] = True
+                s.in_model[rm] = True
                 stk[rm, top[rm]] = RETURN_WORD
                 stk[rm, top[rm] + 1] = _root_words(node, a, b)
                 fetches[rm] += b - a == 1
@@ -220,10 +217,10 @@ def trace_wide_packed(baked, origins, dirs, tmax=np.inf, stack: int = 32, stats:
         # model leaves: their triangles
         k = np.nonzero(~inner & inside)[0]
         if k.size:
-            p, h = leaf_hits(tri, pay[k], act[k], om, dm, tm)
-            occ[p[h]] = True
+            s.triangles(pay[k], act[k])
         deepest = max(deepest, int(top.max()))
-        act = np.nonzero((top > 0) & ~occ & ~binary)[0]
+        act = np.nonzero((top > 0) & ~s.occ & ~binary)[0]
+    occ = s.occ
     if binary.any():
         b = np.nonzero(binary)[0]
         occ[b] = trace_twolevel(baked, np.asarray(origins)[b], np.asarray(dirs)[b],
