@@ -76,6 +76,8 @@ def main(argv=None):
     ap.add_argument("--size", default="640x360")
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--variant", default="llvm_ad_rgb")
+    ap.add_argument("--cold", action="store_true",
+                    help="a cold frame: no light grids, the tree alone (the first frames after a change)")
     a = ap.parse_args(argv)
     import mitsuba as mi
 
@@ -83,8 +85,9 @@ def main(argv=None):
     w, h = (int(v) for v in a.size.split("x"))
     pipe = Pipeline()
     rt = pipe.shadow_pass("raytrace")
-    rt.options = replace(rt.options, eager_light_grids=True)  # (the sun's grid from the first frame on)
-    print(f"## shadow-ray throughput, sun rays at {w}x{h} (Mitsuba {mi.__version__} {a.variant}, 2 cores)\n")
+    rt.options = replace(rt.options, eager_light_grids=not a.cold)  # (the sun's grid from the first frame on)
+    print(f"## shadow-ray throughput, sun rays at {w}x{h}{', cold (no light grids)' if a.cold else ''} "
+          f"(Mitsuba {mi.__version__} {a.variant}, 2 cores)\n")
     print("| scene | triangles | rays | ours ms | ours Mrays/s | ours with maps Mrays/s | Mitsuba ms | Mitsuba Mrays/s "
           "| ours / Mitsuba | agree |")
     print("|---|---|---|---|---|---|---|---|---|---|")
@@ -97,7 +100,8 @@ def main(argv=None):
         pipe.set_scene(scene)
         timings = {}
         for cons in (False, True):  # (the mask compared below is the last: with maps)
-            settings = Settings(mode="raytrace", conservative="sun" if cons else "off", hard=True)  # (Mitsuba's rays)
+            settings = Settings(mode="raytrace", conservative="sun" if cons else "off", hard=True,  # (Mitsuba's rays)
+                                light_grid=not a.cold)
             pipe.render(scene, settings, w, h, read_image=False)
             ts = []
             for _ in range(a.reps):
