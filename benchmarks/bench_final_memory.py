@@ -52,7 +52,7 @@ print(json.dumps({{"before_mb": 0.0, "peak_mb": ledger.peak / {MB}, "after_mb": 
 
 def ours(scene_arg: str, w: int, h: int, samples: int) -> dict:
     from hybrid_shadow_addon.blender.load import load_scene
-    from hybrid_shadow_addon.core.gpu.remote import FinalRenderer
+    from hybrid_shadow_addon.core.runtime.remote import FinalRenderer
     from hybrid_shadow_addon.core.settings import Settings
 
     scene = load_scene(scene_arg)
@@ -82,7 +82,7 @@ _SERIES = """
 import json, sys, time
 sys.path.insert(0, {tree!r})
 from hybrid_shadow_addon.blender.load import load_scene
-from hybrid_shadow_addon.core.gpu.remote import FinalRenderer
+from hybrid_shadow_addon.core.runtime.remote import FinalRenderer
 from hybrid_shadow_addon.core.settings import Settings
 
 def rss(pid):

@@ -2,7 +2,7 @@
 with the navigation quality ``Low`` against ``Automatic`` (``blender/properties.py``), in the
 same run.
 
-Each change is one render request to the viewport's render worker (``core/gpu/worker.py``,
+Each change is one render request to the viewport's render worker (``core/runtime/worker.py``,
 its own thread and context, as in Blender) with the settings the viewport builds: the fast pass
 (the navigation quality; with soft lights only ``frame_samples`` rays a pixel and no probe pass)
 then the full-quality frames (``high``; soft lights accumulate up to ``--samples``). ``Low``
@@ -26,7 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
-from hybrid_shadow_addon.core.gpu.worker import RenderRequest, RenderWorker, snapshot  # noqa: E402
+from hybrid_shadow_addon.core.runtime.worker import RenderRequest, RenderWorker, snapshot  # noqa: E402
 from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
 
 

@@ -198,7 +198,7 @@ def _renderer():
     if os.environ.get("HYBRID_SHADOWS_RENDERER") == "thread":
         yield None
         return
-    from .core.gpu.remote import FinalRenderer
+    from .core.runtime.remote import FinalRenderer
 
     remote = FinalRenderer(name="hybrid-shadows-cli")
     try:

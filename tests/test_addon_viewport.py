@@ -40,7 +40,7 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
     from hybrid_shadow_addon.blender.gl import create_pipeline, gl_scope, release_pipeline
     from hybrid_shadow_addon.blender.load import open_scene
     from hybrid_shadow_addon.blender.viewport import DisplayImage, ViewportDisplay, ViewportSync, viewport_camera
-    from hybrid_shadow_addon.core.gpu.remote import RemoteWorker
+    from hybrid_shadow_addon.core.runtime.remote import RemoteWorker
     from hybrid_shadow_addon.core.settings import Settings
 
     r = {}
@@ -171,7 +171,7 @@ def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
         # view_draw's refine logic, on a stand-in for the engine instance (inline worker first:
         # one frame per redraw, as the draw callback used to render)
         from hybrid_shadow_addon.blender import viewport_engine as vpe
-        from hybrid_shadow_addon.core.gpu import worker as worker_mod
+        from hybrid_shadow_addon.core.runtime import worker as worker_mod
 
         class Stand:
             _view_render = HybridShadowsEngine._view_render

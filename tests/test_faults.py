@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.gpu.channel import RendererError
+from hybrid_shadow_addon.core.runtime.channel import RendererError
 from hybrid_shadow_addon.core.settings import Settings
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu]
@@ -110,7 +110,7 @@ sys.exit(__import__("hybrid_shadow_addon.__main__", fromlist=["main"]).main(sys.
 _CLI_RENDERER_FAULT = """
 import os, runpy, signal, sys
 sys.path.insert(0, {repo!r})
-from hybrid_shadow_addon.core.gpu import remote
+from hybrid_shadow_addon.core.runtime import remote
 real, calls, hit = remote.FinalRenderer.render, [0], []
 def render(self, *a, on_progress=None, **k):
     calls[0] += 1
@@ -241,7 +241,7 @@ def _alive(pid) -> bool:
 
 @pytest.fixture
 def final_renderer(monkeypatch):
-    from hybrid_shadow_addon.core.gpu.remote import FinalRenderer
+    from hybrid_shadow_addon.core.runtime.remote import FinalRenderer
 
     monkeypatch.setenv("HYBRID_SHADOWS_DEADLINE_S", "4")
     made = []
@@ -346,7 +346,7 @@ _PARENT = """
 import os, sys, time
 sys.path.insert(0, {repo!r})
 from hybrid_shadow_addon.blender.load import load_scene
-from hybrid_shadow_addon.core.gpu.remote import FinalRenderer
+from hybrid_shadow_addon.core.runtime.remote import FinalRenderer
 from hybrid_shadow_addon.core.settings import Settings
 r = FinalRenderer()
 r.render(load_scene("cube_on_plane"), Settings(hard=True), 64, 36)
@@ -372,7 +372,7 @@ def test_no_child_outlives_its_parent():
 
 
 def test_no_child_outlives_close(loaded, final_renderer):
-    from hybrid_shadow_addon.core.gpu.remote import RemoteWorker
+    from hybrid_shadow_addon.core.runtime.remote import RemoteWorker
 
     r = final_renderer()
     r.render(loaded("cube_on_plane"), Settings(hard=True), *SIZE)
@@ -393,8 +393,8 @@ def test_a_viewport_renderer_killed_is_one_status_line_and_the_next_frame_render
     error, and the next frame renders in a new process."""
     import dataclasses
 
-    from hybrid_shadow_addon.core.gpu.remote import RemoteWorker
-    from hybrid_shadow_addon.core.gpu.worker import RenderRequest
+    from hybrid_shadow_addon.core.runtime.remote import RemoteWorker
+    from hybrid_shadow_addon.core.runtime.worker import RenderRequest
 
     forest = dataclasses.replace(loaded("forest"), resolution=(320, 180))
     settings = Settings(hard=True)
@@ -431,8 +431,8 @@ def test_a_viewport_renderer_killed_is_one_status_line_and_the_next_frame_render
 def test_a_hung_viewport_renderer_is_one_status_line_and_the_next_frame_renders(loaded, monkeypatch):
     import dataclasses
 
-    from hybrid_shadow_addon.core.gpu.remote import RemoteWorker
-    from hybrid_shadow_addon.core.gpu.worker import RenderRequest
+    from hybrid_shadow_addon.core.runtime.remote import RemoteWorker
+    from hybrid_shadow_addon.core.runtime.worker import RenderRequest
 
     monkeypatch.setenv("HYBRID_SHADOWS_DEADLINE_S", "3")
     scene = dataclasses.replace(loaded("cube_on_plane"), resolution=SIZE)

@@ -1,4 +1,4 @@
-"""The renderer process (``core/gpu/remote.py``): GL work in a child process, so that waiting
+"""The renderer process (``core/runtime/remote.py``): GL work in a child process, so that waiting
 for the driver never holds the caller's Python lock.
 
 - the viewport's RemoteWorker renders what the in-process worker renders (as half floats), in
@@ -19,10 +19,10 @@ import pytest
 
 from benchmarks.bench_interface import Ticker
 from hybrid_shadow_addon.core.errors import Cancelled
-from hybrid_shadow_addon.core.gpu.channel import RendererError
-from hybrid_shadow_addon.core.gpu.remote import FinalRenderer, RemoteWorker
-from hybrid_shadow_addon.core.gpu.render_server import encode_image
-from hybrid_shadow_addon.core.gpu.worker import RenderRequest, RenderWorker
+from hybrid_shadow_addon.core.runtime.channel import RendererError
+from hybrid_shadow_addon.core.runtime.remote import FinalRenderer, RemoteWorker
+from hybrid_shadow_addon.core.runtime.render_server import encode_image
+from hybrid_shadow_addon.core.runtime.worker import RenderRequest, RenderWorker
 from hybrid_shadow_addon.core.settings import Settings
 from hybrid_shadow_addon.tools.metrics import frame_mismatch
 
@@ -213,7 +213,7 @@ def test_a_cancelled_final_render_stops_within_0_2_s(loaded, final):
 def test_queued_moves_and_model_edits_merge(loaded):
     """A drag queues one move per depsgraph update: the worker applies one for all those still
     queued (every instance they moved, the newest scene), and one edit per model."""
-    from hybrid_shadow_addon.core.gpu.remote import _merge_moves
+    from hybrid_shadow_addon.core.runtime.remote import _merge_moves
 
     scene = loaded("cube_on_plane")
     worker = RenderWorker(synchronous=True)  # (inline: nothing runs until pump)
@@ -245,7 +245,7 @@ def test_renders_rewritten_to_a_new_scene_are_queued_behind_it():
     import itertools
     import threading
 
-    from hybrid_shadow_addon.core.gpu.renderer_process import RendererProcess
+    from hybrid_shadow_addon.core.runtime.renderer_process import RendererProcess
 
     proc = RendererProcess.__new__(RendererProcess)  # (no threads: the queue alone)
     proc._cond, proc._outbox, proc._seq, proc._closing = threading.Condition(), collections.deque(), \

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from hybrid_shadow_addon.core.gpu.memory import process_rss_mb
-from hybrid_shadow_addon.core.gpu.remote import RemoteWorker
-from hybrid_shadow_addon.core.gpu.worker import RenderRequest
+from hybrid_shadow_addon.core.runtime.remote import RemoteWorker
+from hybrid_shadow_addon.core.runtime.worker import RenderRequest
 from hybrid_shadow_addon.core.scene import Instances, Light, Scene
 from hybrid_shadow_addon.core.settings import Settings
 from tests.helpers.scenes import basic_scene, cube_model, plane_model, trs

@@ -1,4 +1,4 @@
-"""The viewport's render worker and the sharing between viewports (core/gpu/worker.py), bpy-free
+"""The viewport's render worker and the sharing between viewports (core/runtime/worker.py), bpy-free
 apart from loading the test scene: the worker's frames equal direct ``Pipeline.render`` calls;
 render requests coalesce; commands apply in order (and stale refinement stops); errors surface
 once and the worker goes on; ``close`` is prompt and an interpreter exits with a live worker;
@@ -15,8 +15,8 @@ import pytest
 from hybrid_shadow_addon.blender import gl  # bpy-free: the context hygiene of Blender's threads
 from hybrid_shadow_addon.core.gpu.context import software_renderer
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
-from hybrid_shadow_addon.core.gpu.viewport_share import SharedRegistry, SharedViewport, UpdateRounds
-from hybrid_shadow_addon.core.gpu.worker import (
+from hybrid_shadow_addon.core.runtime.viewport_share import SharedRegistry, SharedViewport, UpdateRounds
+from hybrid_shadow_addon.core.runtime.worker import (
     RenderRequest,
     RenderWorker,
     fast_settings,
@@ -491,7 +491,7 @@ def test_snapshot_is_not_reached_by_later_edits(base):
 EXIT_SCRIPT = """
 import sys, threading, time
 sys.path.insert(0, {repo!r})
-from hybrid_shadow_addon.core.gpu import worker
+from hybrid_shadow_addon.core.runtime import worker
 if {blocked!r}:
     w = worker.RenderWorker(create=lambda: time.sleep(3600))  # stuck in its first command
 else:

@@ -5,7 +5,7 @@
   core ``Scene``.
 - :mod:`.engine` (the ``HYBRID_SHADOWS`` render engine) with :mod:`.final_render`,
   :mod:`.viewport_engine` (the viewport, rendering on a
-  :class:`~hybrid_shadow_addon.core.gpu.worker.RenderWorker` thread shared by the viewports of a
+  :class:`~hybrid_shadow_addon.core.runtime.worker.RenderWorker` thread shared by the viewports of a
   scene), :mod:`.viewport` and :mod:`.gl` (its OpenGL contexts);
   :mod:`.properties`, :mod:`.ui`, :mod:`.compare_operator` ("Compare with Cycles"): the add-on.
 """

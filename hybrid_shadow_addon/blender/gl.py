@@ -3,7 +3,7 @@
 A pipeline owns a standalone context. It is never left current on Blender's threads: every use
 goes through :func:`gl_scope`, which makes it current and restores whatever context the thread
 had before (Blender's own in the viewport). The viewport's render workers
-(:mod:`..core.gpu.worker`) create, use and release theirs with the same three functions, on
+(:mod:`..core.runtime.worker`) create, use and release theirs with the same three functions, on
 their own thread (or inline, in the synchronous debugging mode).
 """
 from __future__ import annotations
@@ -97,8 +97,8 @@ _final_lock = threading.Lock()
 
 
 def final_renderer():
-    """The shared final-render :class:`~..core.gpu.remote.FinalRenderer` (started on first use)."""
-    from ..core.gpu.remote import FinalRenderer
+    """The shared final-render :class:`~..core.runtime.remote.FinalRenderer` (started on first use)."""
+    from ..core.runtime.remote import FinalRenderer
 
     with _final_lock:
         if _final["renderer"] is None:

@@ -18,7 +18,7 @@ import numpy as np
 from ..core.bake.materials import material_signature
 from ..core.gpu.debug_views import debug_image, grid_occupancy  # noqa: F401 - (re-exported)
 from ..core.gpu.passes.reproject import shadow_key
-from ..core.gpu.worker import writable_matrices
+from ..core.runtime.worker import writable_matrices
 from ..core.scene import Camera, Model, affine_inverse
 from . import export
 from .export.images import PIXELS
@@ -95,7 +95,7 @@ class ViewportSync:
     """The core scene of a viewport depsgraph and the incremental updates of a pipeline.
 
     ``pipeline``: a :class:`~..core.gpu.pipeline.Pipeline`, or the viewport's
-    :class:`~..core.gpu.worker.RenderWorker` (the same calls, queued with a copy of the scene),
+    :class:`~..core.runtime.worker.RenderWorker` (the same calls, queued with a copy of the scene),
     or None (change detection only, as in the tests). The bake is made lazily: only ray tracing
     needs it (:meth:`ensure_baked`)."""
 
@@ -464,7 +464,7 @@ class DisplayImage:
 
 
 def prepare_display(array: np.ndarray) -> DisplayImage:
-    """A renderer process's frame (:func:`~..core.gpu.render_server.encode_image`) as a
+    """A renderer process's frame (:func:`~..core.runtime.render_server.encode_image`) as a
     :class:`DisplayImage`; made on the thread that receives frames, so the draw callback only
     uploads it."""
     h, w = array.shape[:2]
@@ -496,7 +496,7 @@ class ViewportDisplay:
         import gpu
 
         if not isinstance(image, DisplayImage):
-            from ..core.gpu.render_server import encode_image
+            from ..core.runtime.render_server import encode_image
 
             image = DisplayImage(image.shape[1], image.shape[0], encode_image(image))
         buf = image.buffer if image.buffer is not None else _gpu_buffer(image)

@@ -1,11 +1,11 @@
 """The engine's rendered viewport: what ``view_update`` and ``view_draw`` do on an engine instance.
 
 Rendering happens off the draw callback and out of Blender's process, in a renderer process
-(:class:`~..core.gpu.remote.RemoteWorker`: its own OpenGL context and bake; waiting for it never
+(:class:`~..core.runtime.remote.RemoteWorker`: its own OpenGL context and bake; waiting for it never
 holds Python's lock, and its frames arrive as half floats, flipped and wrapped in a
 ``gpu.types.Buffer`` on the receiving thread, so the draw callback only uploads them). The
 viewports of one scene, view layer and local view share one (:data:`_registry`: a
-:class:`~..core.gpu.viewport_share.SharedViewport` with the worker and one
+:class:`~..core.runtime.viewport_share.SharedViewport` with the worker and one
 :class:`~.viewport.ViewportSync`, released with its last engine); each engine is a view of its own
 there (camera, size, render targets, interlacing and soft-shadow history). The main thread does
 everything that touches bpy (export, ``depsgraph.updates``: applied once for all the engines that
@@ -33,11 +33,11 @@ import weakref
 import bpy
 
 from ..core.errors import HybridShadowError
-from ..core.gpu import worker as worker_mod
 from ..core.gpu.debug_views import DebugView
-from ..core.gpu.remote import RemoteWorker
-from ..core.gpu.viewport_share import SharedRegistry, SharedViewport
-from ..core.gpu.worker import RenderRequest, RenderWorker
+from ..core.runtime import worker as worker_mod
+from ..core.runtime.remote import RemoteWorker
+from ..core.runtime.viewport_share import SharedRegistry, SharedViewport
+from ..core.runtime.worker import RenderRequest, RenderWorker
 from . import gl
 from .export.curves import TUBES
 from .final_render import settings_label
@@ -88,7 +88,7 @@ def shared(engine) -> SharedViewport | None:
 
 
 def make_worker():
-    """The viewport's worker: a renderer process (:class:`~..core.gpu.remote.RemoteWorker`;
+    """The viewport's worker: a renderer process (:class:`~..core.runtime.remote.RemoteWorker`;
     frames arrive ready for the display), or with ``HYBRID_SHADOWS_RENDERER=thread`` (or the
     inline debugging mode) a thread of this process, whose GL calls hold Python's lock."""
     if worker_mod.SYNCHRONOUS or os.environ.get("HYBRID_SHADOWS_RENDERER", "").strip() == "thread":

@@ -86,7 +86,7 @@ def compare_steps(scene, output_dir, *, reference, resolution=None, variants=Non
     """Generator doing the comparison of the core ``scene`` with ``reference`` (a
     :class:`~.reference.ReferenceProvider`) step by step; yields ``(done, total, label)`` after
     each step. ``resolution`` overrides the scene's; ``gl_scope()``: a context manager around
-    every use of ``pipeline``; ``remote``: a :class:`~..core.gpu.remote.FinalRenderer` whose
+    every use of ``pipeline``; ``remote``: a :class:`~..core.runtime.remote.FinalRenderer` whose
     process renders the variants instead (the caller's threads then make no GL call, and a step
     waits at most about 20 ms). The final metrics dict is stored in ``result["metrics"]`` (pass a
     dict).

@@ -138,7 +138,7 @@ def render_to_files(scene, settings, *, resolution=None, output: str, masks_dir:
                     stats_path: str | None = None, pipeline=None, progress=None, remote=None) -> dict:
     """Render ``scene`` once and write the outputs; returns the stats dict. ``progress(done,
     total, label)`` is called before each pass and shadowed light. ``remote``: a
-    :class:`~..core.gpu.remote.FinalRenderer` renders it in its process (the command line's
+    :class:`~..core.runtime.remote.FinalRenderer` renders it in its process (the command line's
     way: a renderer that dies or hangs is restarted and the frame rendered once more), else
     ``pipeline`` (or a new one) here."""
     from ..core.gpu.pipeline import Pipeline
@@ -263,7 +263,7 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
     rewritten after every frame. ``reuse``: hard lights' masks carry over between frames where
     the surface and the shadow rays stay the same (``core/gpu/passes/reproject.py``); soft
     lights take their own samples in every frame. ``remote``: a
-    :class:`~..core.gpu.remote.FinalRenderer` renders the frames in its process, its bake kept
+    :class:`~..core.runtime.remote.FinalRenderer` renders the frames in its process, its bake kept
     and updated between them (as :func:`render_to_files`). Returns
     ``{"frames": [entries], "rendered": n, "skipped": n, "total_ms": ms}``."""
     from ..core.gpu.pipeline import Pipeline

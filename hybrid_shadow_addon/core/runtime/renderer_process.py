@@ -63,9 +63,9 @@ for i in range(len(parts) - 1, 0, -1):
         stub = types.ModuleType(name)
         stub.__path__ = [d]
         sys.modules[name] = stub
-importlib.import_module(cfg["root"] + ".core.gpu.render_server").serve(f)
+importlib.import_module(cfg["root"] + ".core.runtime.render_server").serve(f)
 """
-_ROOT = __name__.rsplit(".core.gpu.", 1)[0]
+_ROOT = __name__.rsplit(".core.runtime.", 1)[0]
 
 
 def _package_dir() -> Path:

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import Cancelled
-from . import memory
+from ..gpu import memory
 from .channel import RendererError, error_info, read_message, write_message
 
 MB = float(1 << 20)
@@ -37,7 +37,7 @@ MB = float(1 << 20)
 NICE = 15
 #: seconds between the heartbeats the process sends its caller
 HEARTBEAT_S = 0.5
-_ROOT = __name__.rsplit(".core.gpu.", 1)[0]
+_ROOT = __name__.rsplit(".core.runtime.", 1)[0]
 
 
 def encode_image(image: np.ndarray) -> np.ndarray:
@@ -95,7 +95,7 @@ class FinalJobs:
 
     def run(self, job, scene, settings, width, height, options: dict) -> None:
         """Render and reply ``("final", job, FrameData or None, error_info or None)``."""
-        from .pipeline import Pipeline
+        from ..gpu.pipeline import Pipeline
 
         def progress(done, total, label=""):
             if self.cancel.is_set():
@@ -361,7 +361,8 @@ def serve(rfile) -> None:
     threading.Thread(target=_heartbeat, args=(out, lock), name="hybrid-shadows-heartbeat", daemon=True).start()
     # the modules messages name, imported in the package's own order before any message is
     # read (unpickling a Settings first would enter the bake's imports halfway)
-    from . import pipeline, worker  # noqa: F401
+    from ..gpu import pipeline  # noqa: F401
+    from . import worker  # noqa: F401
 
     if hasattr(os, "nice"):  # where the rasteriser runs on the CPU, the interface comes first
         try:

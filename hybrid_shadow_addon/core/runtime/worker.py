@@ -1,9 +1,9 @@
 """The rendered viewport's render worker (bpy-free).
 
 - :class:`RenderWorker`: a daemon thread owning one standalone OpenGL context and one
-  :class:`~.pipeline.Pipeline` (made in the thread, so its context is only ever current there).
+  :class:`~..gpu.pipeline.Pipeline` (made in the thread, so its context is only ever current there).
   The main thread hands it commands through a queue: bake, move instances, update a model,
-  reset history (the :class:`~.pipeline.Pipeline` methods the viewport sync calls, so the worker
+  reset history (the :class:`~..gpu.pipeline.Pipeline` methods the viewport sync calls, so the worker
   stands in for a pipeline there) and render a view. Each takes a :func:`snapshot` of the scene
   (copy-on-write, no array copied), so the main thread may go on editing its own. Commands run in order;
   render requests for the
@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .context import software_renderer
+from ..gpu.context import software_renderer
 
 #: run the workers' steps inline on the caller's thread (debugging only): the environment
 #: variable ``HYBRID_SHADOWS_VIEWPORT_SYNC=1``, or set this before workers are made
@@ -131,7 +131,7 @@ class _Job:
 
 
 def _default_create():
-    from .pipeline import Pipeline
+    from ..gpu.pipeline import Pipeline
 
     return Pipeline()
 
