@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hybrid_shadow_addon.blender import ui
-from hybrid_shadow_addon.blender.export import export_light
+from hybrid_shadow_addon.blender.export.lights import export_light
 
 pytestmark = [pytest.mark.blender]
 

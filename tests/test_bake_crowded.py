@@ -114,8 +114,8 @@ def test_leaf_sizes_and_thresholds(leaf, threshold):
     rng = np.random.default_rng(10 + leaf)
     scene = crowded_scene(rng, 1500)
     baked = bake_scene(scene, BakeConfig(structure="grid", object_leaf_size=leaf, object_bvh_threshold=threshold))
-    counts = baked.accel.node_count
-    assert ((counts > threshold) == (baked.accel.node_obvh >= 0)).all()
+    counts = baked.accel.grid.count
+    assert ((counts > threshold) == (baked.accel.grid.obvh >= 0)).all()
     for n in _obvh_nodes(baked):
         _check_tree(baked, n)
     o, d, t = crowd_rays(rng, scene, 1500)
@@ -127,7 +127,7 @@ def test_incremental_moves_rebuild_object_bvhs():
     scene = crowded_scene(rng, 2500)
     baked = bake_scene(scene, BakeConfig(structure="grid"))
     n = len(scene.instances)
-    crowd = np.nonzero(baked.accel.node_obvh[baked.accel.inst_node] >= 0)[0]
+    crowd = np.nonzero(baked.accel.grid.obvh[baked.accel.instances.node] >= 0)[0]
     assert crowd.size >= 1000
     steps = [
         ("jiggle inside the crowd", rng.choice(crowd, 40, replace=False),
@@ -153,9 +153,9 @@ def test_incremental_moves_rebuild_object_bvhs():
         assert_equal_tracers(scene, baked, o, d, t)
     assert baked.stats["object_bvh_nodes"] >= 2  # the new crowd got its own tree
     # the remaining crowd thins out below the threshold: back to a flat list
-    idx = np.nonzero(baked.accel.inst_node == baked.accel.inst_node[crowd[0]])[0]
-    node = baked.accel.inst_node[crowd[0]]
-    assert baked.accel.node_obvh[node] >= 0
+    idx = np.nonzero(baked.accel.instances.node == baked.accel.instances.node[crowd[0]])[0]
+    node = baked.accel.instances.node[crowd[0]]
+    assert baked.accel.grid.obvh[node] >= 0
     go = idx[: idx.size - 20]
     M = scene.instances.matrices[go].copy()
     M[:, 0, 3] += rng.uniform(-60, 60, go.size)
@@ -165,7 +165,7 @@ def test_incremental_moves_rebuild_object_bvhs():
     rep = baked.update_instances(scene, go)
     if not rep.regrid:
         assert_report_covers(baked, before, rep)
-        assert baked.accel.node_count[node] <= 32 and baked.accel.node_obvh[node] == -1
+        assert baked.accel.grid.count[node] <= 32 and baked.accel.grid.obvh[node] == -1
         assert baked.textures["grid"].linear()[node, 3] == 0
     o, d, t = crowd_rays(rng, scene, 1200, ((0.0, 0.0), (-40.0, -40.0)))
     a = assert_equal_tracers(scene, baked, o, d, t)
@@ -177,21 +177,21 @@ def test_overflow_relocation_and_regrid_with_object_bvhs():
     scene = crowded_scene(rng, 1200, n_far=600)
     baked = bake_scene(scene, BakeConfig(structure="grid", index_reserve=1.0, outside_rebake_fraction=0.5))
     n = len(scene.instances)
-    node = int(np.argmax(baked.accel.node_count))
+    node = int(np.argmax(baked.accel.grid.count))
     # pile far boxes into the crowded node: its list overflows -> tail, the tree moves too
     # (each box takes the sphere centre of a member, radius a hair bigger: same node)
     far = np.arange(n - 500, n)
-    members = rng.choice(np.nonzero(baked.accel.inst_node == node)[0], far.size)
+    members = rng.choice(np.nonzero(baked.accel.instances.node == node)[0], far.size)
     plate_r = scene.models[2].sphere_radius
     M = np.tile(np.eye(4), (far.size, 1, 1))
-    M[:, :3, :3] *= (baked.accel.inst_radius[members] * 1.001 / plate_r)[:, None, None]
-    M[:, :3, 3] = baked.accel.inst_center[members] + baked.origin - M[:, :3, :3] @ scene.models[2].sphere_center
+    M[:, :3, :3] *= (baked.accel.instances.radius[members] * 1.001 / plate_r)[:, None, None]
+    M[:, :3, 3] = baked.accel.instances.center[members] + baked.origin - M[:, :3, :3] @ scene.models[2].sphere_center
     scene.instances.set_matrices(far, M)
-    tail0, bvh0, root0 = baked.accel.index_tail, baked.accel.bvh_tail, baked.accel.node_obvh[node]
+    tail0, bvh0, root0 = baked.accel.grid.index_tail, baked.accel.tex.bvh_tail, baked.accel.grid.obvh[node]
     before = snapshot(baked)
     rep = baked.update_instances(scene, far)
-    assert not rep.regrid and baked.accel.index_tail > tail0
-    assert baked.accel.bvh_tail > bvh0 and baked.accel.node_obvh[node] != root0
+    assert not rep.regrid and baked.accel.grid.index_tail > tail0
+    assert baked.accel.tex.bvh_tail > bvh0 and baked.accel.grid.obvh[node] != root0
     assert_report_covers(baked, before, rep)
     _check_tree(baked, node)
     o, d, t = crowd_rays(rng, scene, 1500)
@@ -208,8 +208,8 @@ def test_overflow_relocation_and_regrid_with_object_bvhs():
         assert_report_covers(baked, before, rep)
         if rep.regrid:
             regrid = True
-            ends = baked.accel.model_node_start + baked.accel.model_node_cap
-            assert baked.accel.grid_bvh_range[0] == ends.max()
+            ends = baked.accel.models.node_start + baked.accel.models.node_cap
+            assert baked.accel.grid.bvh_range[0] == ends.max()
             break
     assert regrid
     for nd in _obvh_nodes(baked):

@@ -105,10 +105,10 @@ def test_nodes_at_agrees_with_place():
     baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
     assert np.abs(baked.origin).max() > 0
     wc, _ = scene.instance_spheres()
-    held = baked.accel.inst_node
+    held = baked.accel.instances.node
     at = baked.accel.layout.nodes_at(wc[:, :2] - baked.origin[:2])
     assert (at[baked.accel.layout.node_level(held), np.arange(n)] == held).all()
-    assert (baked.accel.node_count[held] > 0).all()
+    assert (baked.accel.grid.count[held] > 0).all()
 
 
 def test_texture_sizes_and_layers():

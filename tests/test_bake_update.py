@@ -46,10 +46,10 @@ def test_crowding_relocates_to_tail_and_leaving_grid_goes_outside():
     M[:, :3, 3] = [1.0, 1.0, 1.0]
     M[:, :3, :3] = np.eye(3) * 0.1
     scene.instances.set_matrices(idx, M)
-    tail0 = baked.accel.index_tail
+    tail0 = baked.accel.grid.index_tail
     before = snapshot(baked)
     rep = baked.update_instances(scene, idx)
-    assert baked.accel.index_tail > tail0 and not rep.regrid
+    assert baked.accel.grid.index_tail > tail0 and not rep.regrid
     assert_report_covers(baked, before, rep)
     o, d, t = random_rays(rng, scene, 1500)
     assert_equal_tracers(scene, baked, o, d, t)
@@ -104,23 +104,23 @@ def test_update_model_rebuilds_that_model_only():
     m = 2
     before = snapshot(baked)
     other = [k for k in range(len(scene.models)) if k != m]
-    old_rows = {k: (baked.accel.model_node_start[k], baked.accel.model_node_count[k]) for k in other}
+    old_rows = {k: (baked.accel.models.node_start[k], baked.accel.models.node_count[k]) for k in other}
     scene.models[m] = blob_model(rng, 200, "edited", size=2.0)  # bigger: appended
     rep = baked.update_model(scene, m)
     for k in other:  # other models' BVHs untouched
         s, c = old_rows[k]
-        assert baked.accel.model_node_start[k] == s and baked.accel.model_node_count[k] == c
+        assert baked.accel.models.node_start[k] == s and baked.accel.models.node_count[k] == c
         a = before["bvh"].reshape(-1, 4)[2 * s:2 * (s + c)]
         assert np.array_equal(a, baked.textures["bvh"].linear()[2 * s:2 * (s + c)])
     assert_report_covers(baked, before, rep)
     o, d, t = random_rays(rng, scene, 1500)
     assert_equal_tracers(scene, baked, o, d, t)
     # smaller edit: in place
-    start = baked.accel.model_node_start[m]
+    start = baked.accel.models.node_start[m]
     scene.models[m] = blob_model(rng, 30, "edited2")
     before = snapshot(baked)
     rep = baked.update_model(scene, m)
-    assert baked.accel.model_node_start[m] == start and not ({"bvh", "tri"} & rep.resized)
+    assert baked.accel.models.node_start[m] == start and not ({"bvh", "tri"} & rep.resized)
     assert_report_covers(baked, before, rep)
     assert_equal_tracers(scene, baked, o, d, t)
     # a new model appended to the scene

@@ -9,8 +9,11 @@ import bpy
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.blender import export
-from hybrid_shadow_addon.blender.export import ExportWarning, blend_settings, export_depsgraph
+from hybrid_shadow_addon.blender.export import export_depsgraph
+from hybrid_shadow_addon.blender.export.common import ExportWarning
+from hybrid_shadow_addon.blender.export.lights import export_lights
+from hybrid_shadow_addon.blender.export.materials import blend_settings
+from hybrid_shadow_addon.blender.export.objects import SceneExporter
 from hybrid_shadow_addon.blender.load import load_scene, open_scene
 from tests.helpers.export_scenes import add_object, cube_mesh, empty_scene, export_scene
 from tests.helpers.export_scenes import row as _row
@@ -192,7 +195,7 @@ def test_vectorised_and_iterated_instances_agree_on_materials(monkeypatch):
         return sorted((s.models[m].name, -1 if k < 0 else s.materials[k].name, tuple(np.round(c, 5)))
                       for m, k, c in zip(s.instances.model_ids, s.instances.material_ids, s.instances.base_color))
     fast = load_scene("alpha_cards")
-    monkeypatch.setattr(export.SceneExporter, "_vectorise", lambda self, ob: False)
+    monkeypatch.setattr(SceneExporter, "_vectorise", lambda self, ob: False)
     slow = load_scene("alpha_cards")
     assert summary(fast) == summary(slow)
     assert [m.name for m in slow.models if m.uvs is not None] == [m.name for m in fast.models if m.uvs is not None]
@@ -795,4 +798,4 @@ def test_light_portal_is_not_a_light(scene):
     s = export_scene()
     assert [light.name for light in s.lights] == ["Lamp"]
     assert any("'Portal'" in w and "portal" in w for w in s.report), s.report
-    assert [light.name for light in export.export_lights(bpy.context.evaluated_depsgraph_get())] == ["Lamp"]
+    assert [light.name for light in export_lights(bpy.context.evaluated_depsgraph_get())] == ["Lamp"]

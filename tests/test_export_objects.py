@@ -4,7 +4,7 @@ import bpy
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.blender import export
+from hybrid_shadow_addon.blender.export.objects import SceneExporter
 from hybrid_shadow_addon.blender.load import open_scene
 from hybrid_shadow_addon.core.errors import SceneError
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene, affine_inverse
@@ -73,7 +73,7 @@ def test_geometry_nodes_instances_share_one_model(scene, as_instance):
 def test_vectorised_and_iterated_geometry_nodes_instances_agree(monkeypatch):
     open_scene("scaling:triangles=3000,instances=150,models=3")
     fast = export_scene()
-    monkeypatch.setattr(export.SceneExporter, "_vectorise", lambda self, ob: False)
+    monkeypatch.setattr(SceneExporter, "_vectorise", lambda self, ob: False)
     slow = export_scene()
     assert len(fast.instances) == len(slow.instances) == 151
     assert sorted(m.triangle_count for m in fast.models) == sorted(m.triangle_count for m in slow.models)
@@ -234,7 +234,7 @@ def test_an_unreadable_indirect_only_is_reported():
     import warnings
     from types import SimpleNamespace
 
-    from hybrid_shadow_addon.blender.export import ExportWarning
+    from hybrid_shadow_addon.blender.export.common import ExportWarning
     from hybrid_shadow_addon.blender.export.ray_visibility import RayVisibility
 
     def fails(**_kw):
@@ -276,7 +276,7 @@ def test_collection_instances_combine_their_instancers_flags(scene):
 @pytest.mark.parametrize("vectorised", [True, False])
 def test_geometry_nodes_instances_combine_their_instancers_flags(scene, monkeypatch, vectorised):
     if not vectorised:
-        monkeypatch.setattr(export.SceneExporter, "_vectorise", lambda self, ob: False)
+        monkeypatch.setattr(SceneExporter, "_vectorise", lambda self, ob: False)
     src = add_object("Src", cube_mesh(), location=(0, 0, 50))
     src.hide_render = True
     src.visible_camera = False

@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 
 from hybrid_shadow_addon.blender import export
-from hybrid_shadow_addon.blender.export import export_depsgraph, slot_name, slot_owner
+from hybrid_shadow_addon.blender.export import export_depsgraph
+from hybrid_shadow_addon.blender.export.common import ExportWarning
+from hybrid_shadow_addon.blender.export.meshes import slot_name, slot_owner, smooth_normals
+from hybrid_shadow_addon.blender.export.objects import SceneExporter
 from hybrid_shadow_addon.blender.load import open_scene
 from tests.helpers.export_scenes import add_object, empty_scene, gn_instancer, object_info
 from tests.helpers.export_scenes import row as _row
@@ -29,7 +32,7 @@ def scene():
 
 def _export(**kw):
     with warnings.catch_warnings():
-        warnings.simplefilter("error", export.ExportWarning)
+        warnings.simplefilter("error", ExportWarning)
         return export_depsgraph(bpy.context.evaluated_depsgraph_get(), **kw).validate()
 
 
@@ -182,7 +185,7 @@ def test_smooth_normals_follow_their_triangles(scene):
     me.shade_smooth()
     add_object("Tree", me)
     s = _export()
-    full = export.smooth_normals(bpy.data.objects["Tree"].evaluated_get(bpy.context.evaluated_depsgraph_get()).data)
+    full = smooth_normals(bpy.data.objects["Tree"].evaluated_get(bpy.context.evaluated_depsgraph_get()).data)
     index = np.array([t.material_index for t in me.loop_triangles])
     for k in (0, 1):
         model = s.models[int(s.instances.model_ids[k])]
@@ -313,9 +316,9 @@ def test_converted_objects_split_by_slot(scene):
         spline.points[1].co = (2, k, 0, 1)
         spline.material_index = k
     ob = add_object("Crv", curve).evaluated_get(bpy.context.evaluated_depsgraph_get())
-    ex = export.SceneExporter(bpy.context.evaluated_depsgraph_get())
+    ex = SceneExporter(bpy.context.evaluated_depsgraph_get())
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", export.ExportWarning)  # the bevel has UVs only when asked
+        warnings.simplefilter("ignore", ExportWarning)  # the bevel has UVs only when asked
         for name in ("A", "B"):
             ex._add_converted_instance(ob, ob.matrix_world, name)
     assert ex.names == ["A", "A [slot 1]", "B", "B [slot 1]"]
@@ -367,7 +370,7 @@ def test_geometry_nodes_instances_split_by_slot(scene, monkeypatch, as_instance)
     bark_colors = {tuple(np.round(c.astype(np.float64), 4)) for c in fast.instances.base_color[bark]}
     assert bark_colors == {(1, 0, 0, 1)} if as_instance else len(bark_colors) == 1
     # the iterator agrees (names aside: it does not number the instances)
-    monkeypatch.setattr(export.SceneExporter, "_vectorise", lambda self, ob: False)
+    monkeypatch.setattr(SceneExporter, "_vectorise", lambda self, ob: False)
     slow = _export()
     assert _summary(slow) == _summary(fast)
     assert sum(n.endswith(" [slot 1]") for n in slow.instances.names) == 40

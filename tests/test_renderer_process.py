@@ -213,7 +213,7 @@ def test_a_cancelled_final_render_stops_within_0_2_s(loaded, final):
 def test_queued_moves_and_model_edits_merge(loaded):
     """A drag queues one move per depsgraph update: the worker applies one for all those still
     queued (every instance they moved, the newest scene), and one edit per model."""
-    from hybrid_shadow_addon.core.runtime.remote import _merge_moves
+    from hybrid_shadow_addon.core.runtime.messages import MoveInstances
 
     scene = loaded("cube_on_plane")
     worker = RenderWorker(synchronous=True)  # (inline: nothing runs until pump)
@@ -234,8 +234,8 @@ def test_queued_moves_and_model_edits_merge(loaded):
         assert worker._queue[2][2].tolist() == [1]
     finally:
         worker.close()
-    merged = _merge_moves([("move", "old", np.array([3, 1]))], ("move", "new", np.array([1, 2])))
-    assert merged[1] == "new" and merged[2].tolist() == [1, 2, 3]
+    merged = MoveInstances("new", np.array([1, 2])).merged([MoveInstances("old", np.array([3, 1]))])
+    assert merged.scene == "new" and merged.indices.tolist() == [1, 2, 3]
 
 
 def test_renders_rewritten_to_a_new_scene_are_queued_behind_it():
@@ -258,12 +258,13 @@ def test_renders_rewritten_to_a_new_scene_are_queued_behind_it():
 
 
 def test_compare_measures_in_the_process_and_a_closed_call_cancels(loaded, final):
+    from hybrid_shadow_addon.tools.compare import measure_variants
     from hybrid_shadow_addon.tools.variants import resolve_variants
 
     scene = loaded("cube_on_plane")
     job = dict(scene=scene, variants=resolve_variants(["raytrace-high,none"]), names=[scene.lights[0].name],
                light_index={scene.lights[0].name: 0}, size=(80, 60), warmup=1, repeats=2)
-    steps = final.call_steps("tools.compare:measure_variants", job)
+    steps = final.call_steps(measure_variants, job)
     labels = []
     while len(labels) < 2:
         label = next(steps)
@@ -272,7 +273,7 @@ def test_compare_measures_in_the_process_and_a_closed_call_cancels(loaded, final
     t0 = time.perf_counter()
     steps.close()  # (a cancelled compare)
     assert time.perf_counter() - t0 < 0.3 and labels[0].startswith("bake")
-    steps = final.call_steps("tools.compare:measure_variants", job)
+    steps = final.call_steps(measure_variants, job)
     seen = []
     while True:
         try:

@@ -175,3 +175,50 @@ def test_structure_change_bakes_afresh_and_bvh_updates_are_exact(gl_ctx, base):
     finally:
         pipe.release()
         ref.release()
+
+
+def test_one_rule_for_a_stale_shadow(base):
+    """A light's colour, power or spot blend leave its shadow; its transform, shape, linking or
+    shadow switch make it stale; lights that came, went or were reordered make every one stale. The
+    scene sync follows the same rule (:func:`changed_shadows`) as the viewport."""
+    from hybrid_shadow_addon.core.scene.lights import changed_shadows
+    from hybrid_shadow_addon.core.scene_sync import forget_changed_lights
+
+    class Recorder:
+        reuse = True
+
+        def __init__(self):
+            self.calls = []
+
+        def reset_history(self):
+            self.calls.append("all")
+
+        def reset_light(self, index):
+            self.calls.append(index)
+
+    old = base.lights
+    assert len(old) >= 2
+    for field, value in (("color", np.float32([0.1, 0.2, 0.3])), ("power", 7.0), ("spot_blend", 0.9)):
+        new = copy.deepcopy(old)
+        setattr(new[1], field, value)
+        assert changed_shadows(old, new) == [], field
+    for field, value in (("radius", 0.5), ("use_shadow", False), ("blocker_set", 3), ("angle", 0.2)):
+        new = copy.deepcopy(old)
+        setattr(new[1], field, value)
+        assert changed_shadows(old, new) == [1], field
+    new = copy.deepcopy(old)
+    new[0].matrix[:3, 3] += 0.1
+    assert changed_shadows(old, new) == [0]
+    assert changed_shadows(old, list(reversed(copy.deepcopy(old)))) is None
+    assert changed_shadows(old, copy.deepcopy(old)[:-1]) is None
+
+    nxt = copy.deepcopy(base)
+    nxt.lights[0].color = np.float32([1.0, 0.0, 0.0])
+    nxt.lights[1].matrix[:3, 3] += 0.1
+    rec = Recorder()
+    forget_changed_lights(rec, base, nxt)
+    assert rec.calls == [1]
+    rec.reuse = False
+    rec.calls.clear()
+    forget_changed_lights(rec, base, nxt)
+    assert rec.calls == ["all"]

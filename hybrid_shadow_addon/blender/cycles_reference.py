@@ -217,7 +217,7 @@ def _spheres_as_traced(saved: _Saved, made: list) -> None:
     docstring); the temporary meshes go into ``made`` (the caller removes them after restoring)."""
     import bmesh
 
-    from .export import is_sphere_primitive
+    from .export.common import is_sphere_primitive
 
     shared = {}  # (the object's mesh, its sphere) -> the stand-in: instances stay instances
     for ob in list(bpy.data.objects):

@@ -22,6 +22,7 @@ import numpy as np
 from ..core.errors import Cancelled, HybridShadowError
 from ..core.scene_sync import FULL, INCREMENTAL, NONE
 from . import export
+from .export.camera import render_resolution
 from .gl import final_renderer
 
 #: final-render bakes of this process by kind (``full``, ``incremental``, ``none``)
@@ -168,7 +169,7 @@ def render(engine, depsgraph) -> None:
     nothing; errors are reported on the render."""
     scene = depsgraph.scene
     view_layer = depsgraph.view_layer
-    width, height = export.render_resolution(scene)
+    width, height = render_resolution(scene)
     try:
         settings = scene.hybrid_shadows.to_settings()
         _stats(engine, "Hybrid Shadows | Exporting scene")

@@ -12,7 +12,8 @@ import bpy
 from ..core.bake.structures import STRUCTURES
 from .compare_operator import draw_compare_button
 from .engine import ENGINE_ID
-from .export import principled_node, world_background
+from .export.materials import principled_node
+from .export.world import world_background
 from .stock_panels import stock_panels
 
 

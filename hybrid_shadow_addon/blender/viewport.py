@@ -17,12 +17,16 @@ import numpy as np
 
 from ..core.bake.materials import material_signature
 from ..core.gpu.debug_views import debug_image, grid_occupancy  # noqa: F401 - (re-exported)
-from ..core.gpu.passes.reproject import shadow_key
 from ..core.runtime.worker import writable_matrices
 from ..core.scene import Camera, Model, affine_inverse
+from ..core.scene.lights import changed_shadows
 from . import export
+from .export.common import GEOMETRY_TYPES, is_sphere_primitive, to_matrix
 from .export.images import PIXELS
+from .export.lights import export_lights
 from .export.linking import collection_states
+from .export.meshes import mesh_arrays, mesh_uv_layer, mesh_uvs, slot_owner, smooth_normals, used_slots
+from .export.world import world_color
 
 #: data-block types whose change only needs the lights re-read (nothing re-baked)
 _LIGHT_TYPES = (bpy.types.Light,)
@@ -55,7 +59,7 @@ class UpdatePlan:
 def _object_attributes(ob) -> tuple:
     """What the exporter reads from an object besides its transform and geometry."""
     mats = tuple(None if s.material is None else s.material.as_pointer() for s in ob.material_slots)
-    return (bool(ob.visible_shadow), export.is_sphere_primitive(ob), mats, tuple(ob.color)) + _ray_attributes(ob)
+    return (bool(ob.visible_shadow), is_sphere_primitive(ob), mats, tuple(ob.color)) + _ray_attributes(ob)
 
 
 def _ray_attributes(ob) -> tuple:
@@ -123,7 +127,7 @@ class ViewportSync:
             scene.lights = self._local_lights(scene.lights)
         rows: dict = {}
         for i, name in enumerate(scene.instances.names):
-            rows.setdefault(export.slot_owner(name), []).append(i)  # (a split mesh's slots: one object)
+            rows.setdefault(slot_owner(name), []).append(i)  # (a split mesh's slots: one object)
         self.rows = {k: np.array(v, np.int64) for k, v in rows.items()}
         self.known = set()
         self.attributes = {}
@@ -142,7 +146,7 @@ class ViewportSync:
     def _local(self, name: str) -> bool:
         """Whether the instance or light ``name`` (``object`` or ``instancer/object``) is in the
         local view (always, outside one)."""
-        return self.only is None or export.slot_owner(name).split("/", 1)[0] in self.only
+        return self.only is None or slot_owner(name).split("/", 1)[0] in self.only
 
     def _local_lights(self, lights: list) -> list:
         return [light for light in lights if self._local(light.name)]
@@ -227,7 +231,7 @@ class ViewportSync:
         if kind == "CAMERA":
             return  # the viewport's own view matrices are compared in view_draw
         if name not in self.known:
-            if kind in export.GEOMETRY_TYPES or ob.is_instancer or kind == "EMPTY" and ob.instance_type != "NONE":
+            if kind in GEOMETRY_TYPES or ob.is_instancer or kind == "EMPTY" and ob.instance_type != "NONE":
                 plan.need_full(f"new object '{name}'")
             return
         if ob.is_instancer and (u.is_updated_transform or u.is_updated_geometry
@@ -237,7 +241,7 @@ class ViewportSync:
         owned = name in self.rows
         if not owned:
             # known but exported no rows: no triangles, an empty, ...
-            if kind in export.GEOMETRY_TYPES and u.is_updated_geometry:
+            if kind in GEOMETRY_TYPES and u.is_updated_geometry:
                 plan.need_full(f"'{name}' may have gained geometry")
             return
         if u.is_updated_geometry:
@@ -272,27 +276,27 @@ class ViewportSync:
         if plan.lights:
             old = self.scene.lights
             sets = {light.name: (light.receiver_set, light.blocker_set) for light in old}
-            self.scene.lights = self._local_lights(export.export_lights(depsgraph, render_visibility=False))
+            self.scene.lights = self._local_lights(export_lights(depsgraph, render_visibility=False))
             for light in self.scene.lights:  # the linking did not change: the same sets
                 light.receiver_set, light.blocker_set = sets.get(light.name, (-1, -1))
             self._reset_lights(old, self.scene.lights)
             self.log.append(("lights", len(self.scene.lights)))
         if plan.world:  # (the world lights, it casts no shadow: every mask stands)
-            self.scene.world_color = np.asarray(export.world_color(depsgraph.scene_eval.world), np.float32)
+            self.scene.world_color = np.asarray(world_color(depsgraph.scene_eval.world), np.float32)
             self.log.append(("world", None))
         return plan
 
     def _reset_lights(self, old: list, new: list) -> None:
         """Forget the history of the lights whose shadow changed (not their colour or power);
         of every light when lights came, went or changed order."""
-        if [light.name for light in old] != [light.name for light in new]:
+        changed = changed_shadows(old, new)
+        if changed is None:
             self._reset_history()
             return
-        for i, (a, b) in enumerate(zip(old, new)):
-            if shadow_key(a) != shadow_key(b):
-                if self.pipeline is not None:
-                    self.pipeline.reset_light(i)
-                self.log.append(("reset light", a.name))
+        for i in changed:
+            if self.pipeline is not None:
+                self.pipeline.reset_light(i)
+            self.log.append(("reset light", old[i].name))
 
     def _reset_history(self) -> None:
         if self.pipeline is not None:
@@ -307,7 +311,7 @@ class ViewportSync:
             if ob is None:
                 continue
             rows = self.rows[name]
-            m = export.to_matrix(ob.matrix_world)
+            m = to_matrix(ob.matrix_world)
             index.append(rows)
             mats.append(np.broadcast_to(m, (len(rows), 4, 4)))
         if not index:
@@ -330,27 +334,27 @@ class ViewportSync:
             return False
         mid = int(self.scene.instances.model_ids[rows[0]])
         old = self.scene.models[mid]
-        if export.slot_owner(old.name) != old.name:
+        if slot_owner(old.name) != old.name:
             return False  # split by slot (its other slots are other rows), or not slot 0's
         n_slots = len(ob.material_slots)
-        if n_slots > 1 and export.used_slots(ob.data, n_slots) != [0]:
+        if n_slots > 1 and used_slots(ob.data, n_slots) != [0]:
             return False  # now split by slot, or showing another slot's material
         if mid in done:
             return True
         done.add(mid)
-        verts, tris = export.mesh_arrays(ob.data)
+        verts, tris = mesh_arrays(ob.data)
         if not len(tris):
             return False
         uvs = None
         if old.uvs is not None:  # a textured material shows it: keep reading its UVs
-            layer = export.mesh_uv_layer(ob.data)
+            layer = mesh_uv_layer(ob.data)
             if layer is None:
                 return False  # the UV map is gone: the full export decides about the material
-            uvs = export.mesh_uvs(ob.data, layer)
+            uvs = mesh_uvs(ob.data, layer)
         self.scene.models[mid] = Model(name=old.name, vertices=verts, triangles=tris,
-                                       normals=export.smooth_normals(ob.data), uvs=uvs)
+                                       normals=smooth_normals(ob.data), uvs=uvs)
         writable_matrices(self.scene.instances)
-        self.scene.instances.set_matrices(rows, export.to_matrix(ob.matrix_world)[None])
+        self.scene.instances.set_matrices(rows, to_matrix(ob.matrix_world)[None])
         if self.pipeline is not None and self.baked:
             self.pipeline.update_model(self.scene, mid)
         self.log.append(("model", name))

@@ -21,6 +21,7 @@ import numpy as np
 
 from .bake.materials import material_signature
 from .scene import Scene
+from .scene.lights import changed_shadows
 
 FULL, INCREMENTAL, NONE = "full", "incremental", "none"
 
@@ -105,12 +106,12 @@ def _align_models(prev: Scene, scene: Scene):
 def forget_changed_lights(pipeline, prev: Scene, scene: Scene) -> None:
     """History after an update: a pipeline that reuses visibility (``Pipeline.reuse``) forgets
     only the lights that changed (its edits and camera it follows itself); another one, all."""
-    if not getattr(pipeline, "reuse", False) or len(prev.lights) != len(scene.lights):
+    changed = changed_shadows(prev.lights, scene.lights)
+    if not getattr(pipeline, "reuse", False) or changed is None:
         pipeline.reset_history()
         return
-    for i, (a, b) in enumerate(zip(prev.lights, scene.lights)):
-        if not all(np.array_equal(getattr(a, f), getattr(b, f)) for f in a.__dataclass_fields__):
-            pipeline.reset_light(i)
+    for i in changed:
+        pipeline.reset_light(i)
 
 
 def _bake(pipeline, scene, reason: str, structure) -> SyncReport:

@@ -151,7 +151,7 @@ def compare_steps(scene, output_dir, *, reference, resolution=None, variants=Non
     job = dict(scene=scene, variants=variants, names=names, light_index=light_index, size=(width, height),
                warmup=warmup, repeats=repeats)
     if remote is not None:  # in a renderer process: no GL on the caller's threads
-        steps = remote.call_steps(f"tools.compare:{measure_variants.__name__}", job)
+        steps = remote.call_steps(measure_variants, job)
     else:
         steps = measure_variants(**job, pipeline=pipeline, gl_scope=gl_scope)
     while True:

@@ -7,39 +7,12 @@ one shared :class:`~hybrid_shadow_addon.core.scene.Model` per evaluated mesh and
 Modules: :mod:`.objects` walks the depsgraph and its instances, :mod:`.meshes` reads mesh arrays,
 normals and UVs and splits meshes by slot, :mod:`.materials` reads node graphs, :mod:`.images`
 their images, :mod:`.shading` collects the per-instance attributes, :mod:`.lights`,
-:mod:`.camera` and :mod:`.world` the rest of the scene. The names below are the package's API.
+:mod:`.camera` and :mod:`.world` the rest of the scene; each module's names are imported from it.
 """
 from __future__ import annotations
 
 from ...core.scene import Scene
-from .camera import export_camera, render_resolution
-from .common import GEOMETRY_TYPES, SPHERE_PROPERTY, ExportWarning, is_sphere_primitive, to_matrices, to_matrix
-from .images import image_pixels
-from .lights import export_light, export_lights, light_color, light_power
-from .materials import (
-    MaterialReading,
-    TextureLink,
-    blend_settings,
-    mapping_affine,
-    material_surface,
-    principled_node,
-    read_material,
-)
-from .meshes import (
-    ModelTable,
-    mesh_arrays,
-    mesh_uv_layer,
-    mesh_uvs,
-    slot_name,
-    slot_owner,
-    slot_triangles,
-    smooth_normals,
-    used_slots,
-)
 from .objects import SceneExporter
-from .shading import ShadingTable
-from .visibility import RenderVisibility
-from .world import world_background, world_color
 
 
 def export_depsgraph(depsgraph, *, resolution=None, render_visibility: bool | None = None,

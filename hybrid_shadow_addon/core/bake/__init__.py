@@ -17,7 +17,8 @@ Texel layouts: next to the GLSL that reads them (``shaders/common/scene_data.gls
 structure's ``glsl_include``), the one description packer and shader follow.
 """
 from .baked import BakedScene, bake_scene
-from .state import BakeConfig, UpdateReport
+from .report import UpdateReport
+from .state import BakeConfig
 from .textures import TextureData
 
 __all__ = ["BakeConfig", "BakedScene", "TextureData", "UpdateReport", "bake_scene"]

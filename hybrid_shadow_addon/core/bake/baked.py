@@ -8,7 +8,8 @@ import numpy as np
 
 from ..progress import Progress, reporting, stage
 from .materials import MaterialBake, bake_materials
-from .state import BakeConfig, UpdateReport
+from .report import UpdateReport
+from .state import BakeConfig
 from .structures import AccelerationStructure, structure_class
 from .textures import TextureData
 

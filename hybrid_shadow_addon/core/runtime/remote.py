@@ -26,6 +26,26 @@ import numpy as np
 
 from ..errors import Cancelled
 from .channel import RendererError, rebuild_error
+from .messages import (
+    SCENE_COMMANDS,
+    Bake,
+    Call,
+    Cancel,
+    DropView,
+    FinalFrame,
+    JobDone,
+    Message,
+    MoveInstances,
+    Progress,
+    RenderView,
+    ResetHistory,
+    ResetLight,
+    SendError,
+    ServerState,
+    UpdateModel,
+    ViewFrame,
+    ViewScene,
+)
 from .renderer_process import CLOSE_S, RendererProcess, ended, env_seconds
 from .worker import ViewResults, snapshot
 
@@ -58,30 +78,28 @@ class RemoteWorker(ViewResults):
     def set_scene(self, scene, structure=None) -> None:
         """A new bake; it stands for the unsent bakes, moves and model edits before it (a move
         queued later is never merged with one of an earlier scene, whose rows may differ)."""
-        self._proc.post(("bake", snapshot(scene), structure), replace=lambda b: b[0] in ("bake", "move", "model"))
+        post(self._proc, Bake(snapshot(scene), structure))
 
     def move_instances(self, scene, indices) -> None:
         """Instances moved; moves not sent yet become one (their instances, the newest scene)."""
-        self._proc.post(("move", snapshot(scene), np.array(indices, np.int64)), replace=lambda b: b[0] == "move",
-                        merge=_merge_moves)
+        post(self._proc, MoveInstances(snapshot(scene), np.array(indices, np.int64)))
 
     def update_model(self, scene, model_id: int) -> None:
         """A model edited; an unsent edit of the same model is replaced (the newest scene has both)."""
-        mid = int(model_id)
-        self._proc.post(("model", snapshot(scene), mid), replace=lambda b: b[0] == "model" and b[2] == mid)
+        post(self._proc, UpdateModel(snapshot(scene), int(model_id)))
 
     def reset_history(self) -> None:
-        self._proc.post(("reset",))
+        post(self._proc, ResetHistory())
 
     def reset_light(self, index: int) -> None:
-        self._proc.post(("reset_light", int(index)))
+        post(self._proc, ResetLight(int(index)))
 
     def drop_view(self, view) -> None:
         with self._cond:
             self._results.pop(view, None)
             self._seen.pop(view, None)
             self._busy.pop(view, None)
-        self._proc.post(("drop", view), replace=lambda b: b[0] == "render" and b[1].view == view)
+        post(self._proc, DropView(view))
 
     def render(self, request) -> int:
         """Queue ``request`` in place of an unsent one of its view; returns its number."""
@@ -98,12 +116,11 @@ class RemoteWorker(ViewResults):
             token = self._token
             # an unsent older scene is replaced: renders waiting for it take the newer one, queued
             # behind it (the sender may have taken that older scene already)
-            self._proc.post(("scene", token, dataclasses.replace(scene, camera=None)),
-                            replace=lambda b: b[0] == "scene",
-                            rewrite=lambda b: (b[0], b[1], token, b[3]) if b[0] == "render" else b)
+            post(self._proc, ViewScene(token, dataclasses.replace(scene, camera=None)),
+                 rewrite=lambda m: dataclasses.replace(m, token=token) if isinstance(m, RenderView) else m)
         view_of = types.SimpleNamespace(camera=scene.camera, resolution=scene.resolution)
-        body = ("render", dataclasses.replace(request, scene=view_of, seq=seq), self._token, seq)
-        _, dropped = self._proc.post(body, replace=lambda b: b[0] == "render" and b[1].view == request.view)
+        msg = RenderView(dataclasses.replace(request, scene=view_of, seq=seq), self._token, seq)
+        _, dropped = post(self._proc, msg)
         self.coalesced += dropped
         return seq
 
@@ -143,10 +160,9 @@ class RemoteWorker(ViewResults):
         self._proc.close(min(timeout, CLOSE_S))
 
     # -- receiver thread --------------------------------------------------------------------------
-    def _on_message(self, msg) -> None:
-        kind = msg[0]
-        if kind == "result":
-            _, view, result, infos = msg
+    def _on_message(self, msg: Message) -> None:
+        if isinstance(msg, ViewFrame):
+            view, result, infos = msg.view, msg.result, msg.errors
             if result is not None and self._prepare is not None:
                 result.image = self._prepare(result.image)  # (outside the lock: it may take a while)
             with self._cond:
@@ -157,23 +173,23 @@ class RemoteWorker(ViewResults):
                     self.log.append((view, result.seq, result.step, result.settings.quality, result.refine_left))
                     del self.log[:-1000]
                 self._cond.notify_all()
-        elif kind == "state":
+        elif isinstance(msg, ServerState):
             with self._cond:
-                self._acked = max(self._acked, msg[1])
-                self._busy = dict(msg[2])
-                self._busy_any = bool(msg[3])
+                self._acked = max(self._acked, msg.acked)
+                self._busy = dict(msg.busy)
+                self._busy_any = bool(msg.busy_any)
                 self._cond.notify_all()
-        elif kind == "send_error":
+        elif isinstance(msg, SendError):
             with self._cond:
-                self._acked = max(self._acked, msg[1])
-                self._add_error(None, RendererError(f"could not send '{msg[3][0]}' to the renderer process: "
-                                                    f"{msg[2][0]}: {msg[2][1]}"))
+                self._acked = max(self._acked, msg.seq)
+                self._add_error(None, RendererError(f"could not send '{type(msg.message).__name__}' to the renderer "
+                                                    f"process: {msg.error[0]}: {msg.error[1]}"))
                 self._cond.notify_all()
 
     def _on_exit(self, code, silent_s=None) -> None:
         # what was queued for that child's scene cannot be applied to a new one: the next frame
         # sends its scene again
-        self._proc.discard(lambda b: b[0] in _SCENE_COMMANDS)
+        self._proc.discard(lambda m: isinstance(m, _DROPPED_ON_EXIT))
         with self._cond:
             self._add_error(None, RendererError(f"{ended(code, silent_s)}; the next frame starts a new one"))
             self._acked = self._proc.posted
@@ -182,8 +198,16 @@ class RemoteWorker(ViewResults):
             self._cond.notify_all()
 
 
-#: messages that act on the scene a child holds (dropped, unsent, when it ends)
-_SCENE_COMMANDS = ("render", "move", "model", "reset", "reset_light")
+#: messages that act on the scene a child holds (dropped, unsent, when it ends; a bake is
+#: kept: it brings the new child its scene)
+_DROPPED_ON_EXIT = tuple(c for c in SCENE_COMMANDS if c is not Bake) + (RenderView,)
+
+
+def post(proc, msg: Message, rewrite=None) -> tuple:
+    """Queue ``msg`` on ``proc`` in place of the unsent messages it supersedes (merged into it
+    where it merges); ``rewrite``: :meth:`.renderer_process.RendererProcess.post`'s."""
+    merge = (lambda dropped, m: m.merged(dropped)) if hasattr(msg, "merged") else None
+    return proc.post(msg, replace=msg.supersedes, merge=merge, rewrite=rewrite)
 
 
 def stage_deadline_s() -> float:
@@ -191,12 +215,6 @@ def stage_deadline_s() -> float:
     renderer is taken for stuck: a backstop for a renderer that beats but does not advance.
     ``HYBRID_SHADOWS_STAGE_DEADLINE_S`` overrides the 3600 s."""
     return env_seconds("HYBRID_SHADOWS_STAGE_DEADLINE_S", 3600.0)
-
-
-def _merge_moves(dropped: list, body: tuple) -> tuple:
-    """One move for unsent ones: every moved instance, the newest scene."""
-    idx = np.unique(np.concatenate([b[2] for b in dropped] + [body[2]]))
-    return body[0], body[1], idx
 
 
 class FinalRenderer:
@@ -218,30 +236,30 @@ class FinalRenderer:
     def starts(self) -> int:
         return self._proc.starts
 
-    def call_steps(self, target: str, kwargs: dict):
-        """Generator: run the generator function ``target`` (``"module:function"`` of this
+    def call_steps(self, function, kwargs: dict):
+        """Generator: run the generator function ``function`` (a module-level function of this
         package) in the process; yields each label it yields, or None after about 20 ms without
         one (so a modal operator's step returns); returns its return value. Closing it cancels
         the call."""
         job = self._begin()
-        self._proc.post(("call", job, target, kwargs))
+        post(self._proc, Call(job, function, kwargs))
         finished = False
         try:
             while True:
                 events, exited = self._wait()
                 labels = []
                 for ev in events:
-                    if ev[1] != job:
+                    if ev.job != job:
                         continue
-                    if ev[0] == "progress":
-                        labels.append(ev[4])
+                    if isinstance(ev, Progress):
+                        labels.append(ev.label)
                         continue
                     finished = True
-                    if ev[3] is not None:
-                        raise rebuild_error(ev[3])
+                    if ev.error is not None:
+                        raise rebuild_error(ev.error)
                     for label in labels:
                         yield label
-                    return ev[2]
+                    return ev.value
                 if exited is not None:
                     finished = True
                     raise RendererError(ended(*exited))
@@ -273,7 +291,7 @@ class FinalRenderer:
 
     def render(self, scene, settings, width: int, height: int, *, should_stop=None, on_progress=None,
                **options):
-        """A :class:`~.render_server.FrameData` of ``scene``. ``options``: ``film_transparent``,
+        """A :class:`~.render_server.FinalFrameData` of ``scene``. ``options``: ``film_transparent``,
         ``persistent_key`` (None: bake afresh and give the bake back after), ``reuse`` (with a
         ``persistent_key``: hard masks reused from the last frame, its history kept), ``want``
         (G-buffer targets to read), ``masks``, ``max_draw_ms``. ``should_stop()`` polled every 20 ms: True
@@ -285,22 +303,21 @@ class FinalRenderer:
         stage, limit = "the start", stage_deadline_s()
         for attempt in (1, 2):
             job = self._begin()
-            self._proc.post(("final", job, scene, settings, int(width), int(height), options))
+            post(self._proc, FinalFrame(job, scene, settings, int(width), int(height), options))
             exited, stuck, last = None, None, time.monotonic()
             while exited is None:
                 events, exited = self._wait()
                 for ev in events:
-                    if ev[1] != job:
+                    if ev.job != job:
                         continue
-                    if ev[0] == "progress":
-                        stage, last = ev[4] or stage, time.monotonic()
+                    if isinstance(ev, Progress):
+                        stage, last = ev.label or stage, time.monotonic()
                         if on_progress is not None:
-                            on_progress(*ev[2:])
+                            on_progress(ev.done, ev.total, ev.label)
                         continue
-                    data, info = ev[2], ev[3]
-                    if info is not None:
-                        raise rebuild_error(info)
-                    return data
+                    if ev.error is not None:
+                        raise rebuild_error(ev.error)
+                    return ev.value
                 if exited is None and should_stop is not None and should_stop():
                     self._cancel(job)
                     raise Cancelled()
@@ -318,13 +335,14 @@ class FinalRenderer:
 
     def _cancel(self, job) -> None:
         """Stop ``job``: the child drops it between two steps, or is ended after :data:`CANCEL_S`."""
-        if self._proc.unsent(lambda b: b[0] in ("final", "call") and b[1] == job):
-            self._proc.post(("cancel", job), replace=lambda b: b[0] in ("final", "call") and b[1] == job)
+        cancel = Cancel(job)
+        if self._proc.unsent(cancel.supersedes):
+            post(self._proc, cancel)
             return
-        self._proc.post(("cancel", job))
+        post(self._proc, cancel)
         with self._cond:
             done = self._cond.wait_for(lambda: self._exited is not None or any(
-                e[0] == "final" and e[1] == job for e in self._events), CANCEL_S)
+                isinstance(e, JobDone) and e.job == job for e in self._events), CANCEL_S)
         if not done:
             self._proc.kill()
             self._killed = True  # (the next job waits for its exit to be recorded)
@@ -332,15 +350,14 @@ class FinalRenderer:
     def close(self) -> None:
         self._proc.close()
 
-    def _on_message(self, msg) -> None:
-        if msg[0] == "send_error":  # (a job that cannot cross fails with what pickling said)
-            body = msg[3]
-            if body[0] not in ("final", "call"):
+    def _on_message(self, msg: Message) -> None:
+        if isinstance(msg, SendError):  # (a job that cannot cross fails with what pickling said)
+            if not isinstance(msg.message, (FinalFrame, Call)):
                 return
-            info = msg[2]
-            msg = ("final", body[1], None, ("RendererError", f"the frame could not be sent to the renderer process "
-                                            f"({info[0]}: {info[1]})", info[2]))
-        if msg[0] in ("progress", "final"):
+            info = msg.error
+            msg = JobDone(msg.message.job, None, ("RendererError", f"the frame could not be sent to the renderer "
+                                                  f"process ({info[0]}: {info[1]})", info[2]))
+        if isinstance(msg, (Progress, JobDone)):
             with self._cond:
                 self._events.append(msg)
                 self._cond.notify_all()

@@ -1,17 +1,19 @@
 """The renderer process's side (:mod:`.remote` starts it): it owns the OpenGL context.
 
-:func:`serve` reads messages ``(seq, body)`` on one thread (a ``cancel`` takes effect at once)
-and runs them in order on the main thread:
+:func:`serve` reads messages ``(seq, message)`` (:mod:`.messages`) on one thread (a
+:class:`~.messages.Cancel` takes effect at once) and runs them in order on the main thread, each
+through :attr:`Server.handlers`:
 
-- the viewport's commands (``bake``, ``move``, ``model``, ``reset``, ``scene``, ``render``,
-  ``drop``) go to a synchronous :class:`~.worker.RenderWorker`, pumped one render step at a
-  time while messages keep arriving; each finished frame goes back as ``result`` with its image
-  already in the display's layout (:func:`encode_image`);
-- ``final`` renders one final frame (:class:`FinalJobs`): bake or persistent-data update,
-  render, every array the render passes need back in one ``final`` reply, then the frame's
-  targets are released (and, without persistent data, the bake); ``call`` runs a generator
-  function of the package (Compare's measurements), its labels sent as progress;
-- after each round a ``state`` message tells the caller which messages were applied and which
+- the viewport's scene commands and frames (``Bake``, ``MoveInstances``, ``UpdateModel``,
+  ``ResetHistory``, ``ResetLight``, ``ViewScene``, ``RenderView``, ``DropView``) go to a
+  synchronous :class:`~.worker.RenderWorker`, pumped one render step at a time while messages
+  keep arriving; each finished frame goes back as a ``ViewFrame`` with its image already in the
+  display's layout (:func:`encode_image`);
+- ``FinalFrame`` renders one final frame (:class:`FinalJobs`): bake or persistent-data update,
+  render, every array the render passes need back in one ``JobDone`` reply, then the frame's
+  targets are released (and, without persistent data, the bake); ``Call`` runs a generator
+  function of the package (Compare's measurements), its labels sent as ``Progress``;
+- after each round a ``ServerState`` tells the caller which messages were applied and which
   views still have work.
 """
 from __future__ import annotations
@@ -30,6 +32,25 @@ import numpy as np
 from ..errors import Cancelled
 from ..gpu import memory
 from .channel import RendererError, error_info, read_message, write_message
+from .messages import (
+    Alive,
+    Bake,
+    Call,
+    Cancel,
+    Close,
+    DropView,
+    FinalFrame,
+    JobDone,
+    MoveInstances,
+    Progress,
+    RenderView,
+    ResetHistory,
+    ResetLight,
+    ServerState,
+    UpdateModel,
+    ViewFrame,
+    ViewScene,
+)
 
 MB = float(1 << 20)
 #: the renderer's scheduling priority below the caller's (POSIX): on a software rasteriser its
@@ -37,7 +58,6 @@ MB = float(1 << 20)
 NICE = 15
 #: seconds between the heartbeats the process sends its caller
 HEARTBEAT_S = 0.5
-_ROOT = __name__.rsplit(".core.runtime.", 1)[0]
 
 
 def encode_image(image: np.ndarray) -> np.ndarray:
@@ -47,21 +67,12 @@ def encode_image(image: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class FrameData:
-    """A final frame's arrays (row 0 = top), read back in the renderer process: what
-    ``Frame``, its G-buffer and its masks give, without GL objects."""
+class GBufferData:
+    """A final frame's G-buffer as read back: what ``GBuffer.read`` and ``coverage`` give,
+    without GL objects."""
 
-    image: np.ndarray
-    lights: list
-    timings: dict
-    stats: dict
-    buffers: dict = field(default_factory=dict)  # G-buffer target name -> array
-    masks: dict = field(default_factory=dict)  # light index -> float32 (H, W), NaN off geometry
+    buffers: dict = field(default_factory=dict)  # target name -> array (row 0 = top)
     coverage_mask: np.ndarray = None
-
-    @property
-    def gbuffer(self):
-        return self
 
     def coverage(self) -> np.ndarray:
         return self.coverage_mask
@@ -69,18 +80,35 @@ class FrameData:
     def read(self, name: str) -> np.ndarray:
         return self.buffers[name]
 
+
+@dataclass
+class FinalFrameData:
+    """A final frame's arrays (row 0 = top), read back in the renderer process: what ``Frame``
+    and its masks give, without GL objects; its G-buffer is :attr:`gbuffer`."""
+
+    image: np.ndarray
+    lights: list
+    timings: dict
+    stats: dict
+    gbuffer: GBufferData
+    masks: dict = field(default_factory=dict)  # light index -> float32 (H, W), NaN off geometry
+
+    @property
+    def buffers(self) -> dict:
+        return self.gbuffer.buffers
+
     def mask_array(self, light_index: int) -> np.ndarray:
         return self.masks[light_index].copy()
 
 
-def frame_data(frame, want=("depth", "shading_normal", "albedo"), masks: bool = True) -> FrameData:
+def frame_data(frame, want=("depth", "shading_normal", "albedo"), masks: bool = True) -> FinalFrameData:
     """Read a rendered ``Frame``'s image, coverage, the G-buffer targets ``want`` and (``masks``)
-    every light's mask into a :class:`FrameData`."""
+    every light's mask into a :class:`FinalFrameData`."""
     gb = frame.gbuffer
-    return FrameData(image=frame.image, lights=list(frame.lights), timings=dict(frame.timings),
-                     stats=dict(frame.stats), buffers={name: gb.read(name) for name in want},
-                     masks={li: frame.mask_array(li) for li in frame.lights} if masks else {},
-                     coverage_mask=gb.coverage())
+    return FinalFrameData(image=frame.image, lights=list(frame.lights), timings=dict(frame.timings),
+                          stats=dict(frame.stats),
+                          gbuffer=GBufferData({name: gb.read(name) for name in want}, gb.coverage()),
+                          masks={li: frame.mask_array(li) for li in frame.lights} if masks else {})
 
 
 class FinalJobs:
@@ -93,14 +121,15 @@ class FinalJobs:
         self.pipe = None
         self.state: dict = {}
 
-    def run(self, job, scene, settings, width, height, options: dict) -> None:
-        """Render and reply ``("final", job, FrameData or None, error_info or None)``."""
+    def run(self, msg: FinalFrame) -> None:
+        """Render and reply a :class:`~.messages.JobDone` (its value a :class:`FinalFrameData`)."""
+        job, scene, settings, options = msg.job, msg.scene, msg.settings, msg.options
         from ..gpu.pipeline import Pipeline
 
         def progress(done, total, label=""):
             if self.cancel.is_set():
                 raise Cancelled()
-            self.send(("progress", job, done, total, label))
+            self.send(Progress(job, done, total, label))
 
         try:
             if self.pipe is None:
@@ -118,8 +147,8 @@ class FinalJobs:
             kind, updates = self._bake(pipe, scene, settings, options.get("persistent_key"))
             bake_ms = (time.perf_counter() - t0) * 1e3
             kwargs = {"max_draw_ms": options["max_draw_ms"]} if options.get("max_draw_ms") else {}
-            frame = pipe.render(scene, settings, width, height, film_transparent=options.get("film_transparent", False),
-                                progress=progress, **kwargs)
+            frame = pipe.render(scene, settings, msg.width, msg.height,
+                                film_transparent=options.get("film_transparent", False), progress=progress, **kwargs)
             data = frame_data(frame, options.get("want", ()), options.get("masks", True))
             data.stats.update(bake=kind, bake_ms=bake_ms, bake_updates=updates,
                               gpu_memory_before_mb=round(before / MB, 1),
@@ -131,7 +160,7 @@ class FinalJobs:
             data.stats.update(gpu_memory_after_mb=round(ledger.bytes / MB, 1), gpu_dropped=len(ledger.dropped),
                               process_rss_mb=memory.process_rss_mb(),
                               gpu_driver_used_mb=None if driver is None else driver.get("used_mb"))
-            self.send(("final", job, data, None))
+            self.send(JobDone(job, data, None))
             del data, frame
             memory.trim_heap()
         except BaseException as exc:  # noqa: BLE001 - the caller gets every failure
@@ -141,7 +170,7 @@ class FinalJobs:
                 except Exception:
                     pass
             self.state.clear()
-            self.send(("final", job, None, error_info(exc)))
+            self.send(JobDone(job, None, error_info(exc)))
             if not isinstance(exc, Exception):
                 raise
 
@@ -196,6 +225,20 @@ class Server:
         self.scenes: dict = {}  # token -> scene (without a camera) of render requests
         self.seqs: dict = {}  # the worker's request numbers -> the caller's
         self.final = FinalJobs(self.send, self.cancel)
+        #: what each message does (its class -> handler); a message of no class here is a bug
+        self.handlers = {
+            Cancel: lambda msg: None,  # (it stopped what was running; nothing queued is cancelled)
+            FinalFrame: lambda msg: self._job(self.final.run, msg),
+            Call: lambda msg: self._job(self.call, msg),
+            Bake: lambda msg: self._viewport().set_scene(msg.scene, msg.structure),
+            MoveInstances: lambda msg: self._viewport().move_instances(msg.scene, msg.indices),
+            UpdateModel: lambda msg: self._viewport().update_model(msg.scene, msg.model_id),
+            ResetHistory: lambda msg: self._viewport().reset_history(),
+            ResetLight: lambda msg: self._viewport().reset_light(msg.index),
+            ViewScene: self._view_scene,
+            RenderView: self._render_view,
+            DropView: self._drop_view,
+        }
 
     def send(self, obj) -> None:
         with self.send_lock:
@@ -204,17 +247,17 @@ class Server:
     def read_loop(self, rfile) -> None:
         try:
             while True:
-                seq, body = read_message(rfile)
-                if body[0] == "cancel":
+                seq, msg = read_message(rfile)
+                if isinstance(msg, Cancel):
                     self.cancel.set()
                 with self.cond:
-                    self.inbox.append((seq, body))
+                    self.inbox.append((seq, msg))
                     self.cond.notify_all()
         except BaseException as exc:  # noqa: BLE001 - the caller gone, or a message unreadable: end
             if not isinstance(exc, (EOFError, OSError)):
                 traceback.print_exc()
             with self.cond:
-                self.inbox.append((0, ("close",)))
+                self.inbox.append((0, Close()))
                 self.cond.notify_all()
 
     def _has_work(self) -> bool:
@@ -227,27 +270,29 @@ class Server:
                     self.cond.wait()
                 msgs = list(self.inbox)
                 self.inbox.clear()
-            for seq, body in msgs:
-                if body[0] == "close":
+            for seq, msg in msgs:
+                if isinstance(msg, Close):
                     return
-                self.handle(body)
+                self.handlers[type(msg)](msg)
                 self.acked = max(self.acked, seq)
             if self.worker is not None:
                 self.worker.pump()
                 self._send_results()
-            self.send(("state", self.acked, {v: self.worker.busy(v) for v in self.views} if self.worker else {},
-                       self._has_work()))
+            self.send(ServerState(self.acked, {v: self.worker.busy(v) for v in self.views} if self.worker else {},
+                                  self._has_work()))
 
-    def call(self, job, target: str, kwargs: dict) -> None:
-        """Run the generator function ``target`` (``"module:function"`` of this package, e.g.
-        ``tools.compare:measure_variants``) to its end: each label it yields goes back as a
-        ``progress`` message, its return value as the ``final`` reply."""
-        import importlib
+    def _job(self, run, msg) -> None:
+        """A final frame or a call: a cancel meant for an earlier job is forgotten first."""
+        self.cancel.clear()
+        run(msg)
+        self.cancel.clear()
 
-        module, name = target.split(":")
+    def call(self, msg: Call) -> None:
+        """Run the generator function ``msg.function`` to its end: each label it yields goes back
+        as a :class:`~.messages.Progress`, its return value as the :class:`~.messages.JobDone`."""
+        job = msg.job
         try:
-            fn = getattr(importlib.import_module(f"{_ROOT}.{module}"), name)
-            steps = fn(**kwargs)
+            steps = msg.function(**msg.kwargs)
             k = 0
             while True:
                 if self.cancel.is_set():
@@ -256,12 +301,12 @@ class Server:
                 try:
                     label = next(steps)
                 except StopIteration as stop:
-                    self.send(("final", job, stop.value, None))
+                    self.send(JobDone(job, stop.value, None))
                     return
                 k += 1
-                self.send(("progress", job, k, 0, label))
+                self.send(Progress(job, k, 0, label))
         except BaseException as exc:  # noqa: BLE001 - the caller gets every failure
-            self.send(("final", job, None, error_info(exc)))
+            self.send(JobDone(job, None, error_info(exc)))
             if not isinstance(exc, Exception):
                 raise
 
@@ -272,48 +317,29 @@ class Server:
             self.worker = RenderWorker(synchronous=True)
         return self.worker
 
-    def handle(self, body) -> None:
-        kind = body[0]
-        if kind == "cancel":
-            return  # (it stopped what was running; nothing queued is cancelled)
-        if kind in ("final", "call"):
-            self.cancel.clear()
-            if kind == "final":
-                self.final.run(*body[1:])
-            else:
-                self.call(*body[1:])
-            self.cancel.clear()
-            return
+    def _view_scene(self, msg: ViewScene) -> None:
+        self._viewport()
+        self.scenes[msg.token] = msg.scene
+        for old in sorted(self.scenes)[:-4]:
+            del self.scenes[old]
+
+    def _render_view(self, msg: RenderView) -> None:
         w = self._viewport()
-        if kind == "bake":
-            w.set_scene(body[1], body[2])
-        elif kind == "move":
-            w.move_instances(body[1], body[2])
-        elif kind == "model":
-            w.update_model(body[1], body[2])
-        elif kind == "reset":
-            w.reset_history()
-        elif kind == "reset_light":
-            w.reset_light(body[1])
-        elif kind == "scene":
-            self.scenes[body[1]] = body[2]
-            for old in sorted(self.scenes)[:-4]:
-                del self.scenes[old]
-        elif kind == "render":
-            request, token, seq = body[1], body[2], body[3]
-            base = self.scenes.get(token)
-            if base is None:  # (its scene went to a renderer that ended: the caller sends it again)
-                self.send(("result", request.view, None, [error_info(RendererError(
-                    "a frame came without its scene (the renderer process was restarted); the next frame sends it"))]))
-                return
-            request.scene = dataclasses.replace(base, camera=request.scene.camera, resolution=request.scene.resolution)
-            self.seqs[w.render(request)] = seq
-            self.views.add(request.view)
-            for old in sorted(self.seqs)[:-64]:
-                del self.seqs[old]
-        elif kind == "drop":
-            w.drop_view(body[1])
-            self.views.discard(body[1])
+        request = msg.request
+        base = self.scenes.get(msg.token)
+        if base is None:  # (its scene went to a renderer that ended: the caller sends it again)
+            self.send(ViewFrame(request.view, None, [error_info(RendererError(
+                "a frame came without its scene (the renderer process was restarted); the next frame sends it"))]))
+            return
+        request.scene = dataclasses.replace(base, camera=request.scene.camera, resolution=request.scene.resolution)
+        self.seqs[w.render(request)] = msg.seq
+        self.views.add(request.view)
+        for old in sorted(self.seqs)[:-64]:
+            del self.seqs[old]
+
+    def _drop_view(self, msg: DropView) -> None:
+        self._viewport().drop_view(msg.view)
+        self.views.discard(msg.view)
 
     def _send_results(self) -> None:
         for view in list(self.views):
@@ -323,9 +349,9 @@ class Server:
             if result is not None:
                 result.seq = self.seqs.get(result.seq, 0)
                 result.image = encode_image(result.image)
-                result.stats["gpu_memory_mb"] = round(memory.in_use(self.worker._pipe.ctx) / MB, 1) \
-                    if self.worker._pipe is not None else 0.0
-            self.send(("result", view, result, [error_info(e) for e in errors]))
+                ctx = self.worker.context
+                result.stats["gpu_memory_mb"] = round(memory.in_use(ctx) / MB, 1) if ctx is not None else 0.0
+            self.send(ViewFrame(view, result, [error_info(e) for e in errors]))
 
     def close(self) -> None:
         if self.worker is not None:
@@ -350,7 +376,7 @@ def _heartbeat(out, lock) -> None:
         time.sleep(HEARTBEAT_S)
         try:
             with lock:
-                write_message(out, ("alive",))
+                write_message(out, Alive())
         except (OSError, ValueError):
             return
 

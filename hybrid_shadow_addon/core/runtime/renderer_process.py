@@ -23,6 +23,7 @@ import weakref
 from pathlib import Path
 
 from .channel import encode_message, error_info, read_message, write_encoded
+from .messages import Alive, SendError
 
 #: how long :meth:`RendererProcess.close` waits for the child to exit before ending it
 CLOSE_S = 2.0
@@ -77,7 +78,7 @@ class RendererProcess:
     child starts on the first); ``on_message(msg)`` and ``on_exit(code, silent_s)`` run on the
     receiver thread (``silent_s``: how long the child had been silent when it was ended for it,
     else None). After an exit the next :meth:`post` starts a new child. A message that cannot be
-    pickled comes back as ``("send_error", seq, error_info, body)``."""
+    pickled comes back as a :class:`~.messages.SendError`."""
 
     def __init__(self, on_message, on_exit, name: str = "hybrid-shadows-renderer"):
         self._on_message = on_message
@@ -212,7 +213,7 @@ class RendererProcess:
             try:
                 pieces = encode_message(msg)
             except Exception as exc:  # noqa: BLE001 - a message that cannot cross (a bug): said, not lost
-                self._on_message(("send_error", msg[0], error_info(exc), msg[1]))
+                self._on_message(SendError(msg[0], error_info(exc), msg[1]))
                 continue
             try:
                 with self._cond:  # (close() sees every child started)
@@ -230,7 +231,7 @@ class RendererProcess:
             while True:
                 msg = read_message(proc.stdout)
                 self._heard[proc.pid] = time.monotonic()
-                if msg[0] != "alive":
+                if not isinstance(msg, Alive):
                     self._on_message(msg)
         except (EOFError, OSError):
             pass

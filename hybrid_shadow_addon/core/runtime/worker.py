@@ -367,6 +367,12 @@ class RenderWorker(ViewResults):
         finally:
             self._release_gl()
 
+    @property
+    def context(self):
+        """The OpenGL context of this worker's pipeline (None before its first command)."""
+        pipe = self._pipe
+        return None if pipe is None else pipe.ctx
+
     def _pipeline(self):
         if self._pipe is None:
             self._pipe = self._create()

@@ -74,3 +74,20 @@ class Light:
                 raise SceneError(f"light '{self.name}' has {label} set {s}; sets are 0..63 (-1: none)")
         if not np.linalg.norm(self.matrix[:3, 2]) > 0:
             raise SceneError(f"light '{self.name}' has a zero-scale matrix (no direction)")
+
+
+def shadow_key(light: Light) -> tuple:
+    """What a light's shadow depends on of the light itself: its colour, power and spot blend
+    change no mask."""
+    return (light.type, np.asarray(light.matrix, np.float64).tobytes(), float(light.radius), float(light.angle),
+            float(light.spot_size), float(light.size), float(light.size_y), str(light.area_shape),
+            float(light.spread), int(light.receiver_set), int(light.blocker_set), bool(light.use_shadow))
+
+
+def changed_shadows(old: list[Light], new: list[Light]) -> list[int] | None:
+    """The one rule for a light's stale shadow (the viewport, the scene sync and reuse follow
+    it): the indices of the lights of ``new`` whose :func:`shadow_key` differs from ``old``'s;
+    None where lights came, went or changed order (by name): every shadow is stale."""
+    if [light.name for light in old] != [light.name for light in new]:
+        return None
+    return [i for i, (a, b) in enumerate(zip(old, new)) if shadow_key(a) != shadow_key(b)]

@@ -9,7 +9,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..state import UpdateReport
+from ..report import UpdateReport
 from ..textures import TextureData, merge_ranges
 
 

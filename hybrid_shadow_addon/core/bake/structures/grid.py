@@ -191,51 +191,6 @@ class HierarchicalGrid(GridUpdates, AccelerationStructure):
             return float(EMPTY_HEIGHT)
         return float(self.grid.maxh[nonempty].max())
 
-    # read-only views of the state arrays by their flat names
-    @property
-    def node_count(self) -> np.ndarray:
-        return self.grid.count
-
-    @property
-    def node_obvh(self) -> np.ndarray:
-        return self.grid.obvh
-
-    @property
-    def index_tail(self) -> int:
-        return self.grid.index_tail
-
-    @property
-    def grid_bvh_range(self) -> tuple[int, int]:
-        return self.grid.bvh_range
-
-    @property
-    def bvh_tail(self) -> int:
-        return self.tex.bvh_tail
-
-    @property
-    def inst_node(self) -> np.ndarray:
-        return self.instances.node
-
-    @property
-    def inst_center(self) -> np.ndarray:
-        return self.instances.center
-
-    @property
-    def inst_radius(self) -> np.ndarray:
-        return self.instances.radius
-
-    @property
-    def model_node_start(self) -> np.ndarray:
-        return self.models.node_start
-
-    @property
-    def model_node_count(self) -> np.ndarray:
-        return self.models.node_count
-
-    @property
-    def model_node_cap(self) -> np.ndarray:
-        return self.models.node_cap
-
     def refresh_stats(self) -> dict:
         """Recompute the derived entries of :attr:`stats` (the timings stay)."""
         lay = self.layout

@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import grid as _grid
 from ..bvh import build_bvhs, build_trees, morton_order_groups
-from ..state import UpdateReport
+from ..report import UpdateReport
 from ..textures import (
     BVH_TEXELS,
     MODEL_TEXELS,

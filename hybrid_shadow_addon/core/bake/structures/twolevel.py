@@ -22,7 +22,7 @@ import numpy as np
 from ...errors import SceneError
 from ...limits import check_bake_memory, check_instance_count, out_of_memory
 from ...progress import checkpoint
-from ..state import UpdateReport
+from ..report import UpdateReport
 from ..textures import (
     MAX_ROWS_LOG2,
     SPHERE_FLAG,

@@ -25,18 +25,11 @@ from contextlib import nullcontext
 import moderngl
 import numpy as np
 
+from ...scene.lights import shadow_key
 from ..targets import TargetCache, draw_fullscreen, set_uniforms
 from .base import Pass
 
 MAX_BOXES = 32  # HS_MAX_BOXES of shaders/reproject.glsl: more edited boxes forget everything
-
-
-def shadow_key(light) -> tuple:
-    """What a light's shadow depends on of the light itself (its colour and power change no
-    mask)."""
-    return (light.type, np.asarray(light.matrix, np.float64).tobytes(), float(light.radius), float(light.angle),
-            float(light.spot_size), float(light.size), float(light.size_y), str(light.area_shape),
-            float(light.spread), int(light.receiver_set), int(light.blocker_set), bool(light.use_shadow))
 
 
 def light_key(light, settings) -> tuple:
