@@ -28,11 +28,14 @@ def driver(out_dir: str) -> None:
     import hybrid_shadow_addon
     from hybrid_shadow_addon.blender import final_render
     from hybrid_shadow_addon.blender.load import open_scene
+    from tests.helpers.blender_env import bake_counts
 
     out = Path(out_dir)
     scene = open_scene("animated")  # factory settings first: they would reset the add-ons
     hybrid_shadow_addon.register()
     report = {}
+    frames = []
+    final_render.frame_handlers.append(frames.append)
     try:
         scene.render.engine = "HYBRID_SHADOWS"
         scene.render.image_settings.file_format = "PNG"
@@ -41,13 +44,13 @@ def driver(out_dir: str) -> None:
         scene.render.use_persistent_data = True
         scene.render.filepath = str(out / "anim_####")
         bpy.ops.render.render(animation=True)
-        report["persistent"] = dict(final_render.BAKES)
+        report["persistent"] = bake_counts(frames)
         # a light edit between two persistent renders of the last frame: no bake
         scene.frame_set(FRAMES[-1])
         bpy.data.objects["Lamp"].location.x += 0.5
         scene.render.filepath = str(out / "lamp_persistent.png")
         bpy.ops.render.render(write_still=True)
-        report["after_light_edit"] = dict(final_render.BAKES)
+        report["after_light_edit"] = bake_counts(frames)
         scene.render.use_persistent_data = False
         scene.render.filepath = str(out / "lamp_single.png")
         bpy.ops.render.render(write_still=True)
@@ -56,7 +59,7 @@ def driver(out_dir: str) -> None:
             scene.frame_set(f)
             scene.render.filepath = str(out / f"single_{f}.png")
             bpy.ops.render.render(write_still=True)
-        report["single"] = dict(final_render.BAKES)
+        report["single"] = bake_counts(frames)
     finally:
         hybrid_shadow_addon.unregister()
     (out / "report.json").write_text(json.dumps(report))

@@ -69,14 +69,16 @@ def driver(out_dir: str) -> None:
     scene = open_scene("forest")
     hybrid_shadow_addon.register()
     report = {}
+    frames = []
+    final_render.frame_handlers.append(frames.append)
     try:
         scene.render.engine = "HYBRID_SHADOWS"
         scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 640, 360, 100
         scene.hybrid_shadows.use_soft_shadows = True
         bpy.ops.render.render()
-        report["first"] = dict(final_render.LAST_STATS)
+        report["first"] = dict(frames[-1])
         bpy.ops.render.render()
-        report["second"] = dict(final_render.LAST_STATS)
+        report["second"] = dict(frames[-1])
         pid = final_renderer().pid
         dg = bpy.context.evaluated_depsgraph_get()
         for name, after in (("export", 0.0), ("render", 1.0)):
@@ -87,7 +89,7 @@ def driver(out_dir: str) -> None:
             report[name] = {"stop_s": end - (eng.asked or end), "total_s": end - t0, "results": eng.results,
                             "errors": eng.errors}
         bpy.ops.render.render()
-        report["after_cancel"] = dict(final_render.LAST_STATS)
+        report["after_cancel"] = dict(frames[-1])
         report["same_process"] = final_renderer().pid == pid
         # an animation with persistent data and Reuse Between Frames: hard masks carry over
         scene.hybrid_shadows.use_soft_shadows = False
@@ -96,7 +98,7 @@ def driver(out_dir: str) -> None:
         for k in range(2):
             scene.frame_set(scene.frame_current + 1)
             bpy.ops.render.render()
-            report[f"anim{k}"] = dict(final_render.LAST_STATS)
+            report[f"anim{k}"] = dict(frames[-1])
         scene.render.use_persistent_data = False
         bpy.ops.render.render()  # (the history is given back with the bake)
     finally:

@@ -15,7 +15,7 @@ from hybrid_shadow_addon.core.bake.structures import (
     TwoLevelBVH,
     structure_class,
 )
-from hybrid_shadow_addon.core.oracle.tracer import trace_brute
+from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 from hybrid_shadow_addon.core.settings import Settings
 
@@ -96,7 +96,7 @@ def test_both_oracles_same_masks(seed):
         baked = bake_scene(scene, BakeConfig(structure=name))
         assert isinstance(baked.accel, STRUCTURES[name]) and baked.structure == name
         assert f"HS_STRUCTURE_{name.upper()}" in baked.defines
-        occ = baked.trace(o, d, t)
+        occ = trace_structured(baked, o, d, t)
         assert (occ == brute).all(), f"{name}: {(occ != brute).sum()} rays differ from brute force"
     assert 0.05 < brute.mean() < 0.95
 
@@ -115,7 +115,7 @@ def test_model_edit_matches_fresh_bake(structure):
     scene.instances.model_ids[:] = ids
     baked.update_model(scene, len(scene.models) - 1)
     o, d, t = random_rays(rng, scene, 2000)
-    assert (baked.trace(o, d, t) == trace_brute(scene, o, d, t)).all()
+    assert (trace_structured(baked, o, d, t) == trace_brute(scene, o, d, t)).all()
     assert baked.stats["models"] == len(scene.models)
 
 

@@ -10,8 +10,8 @@ the pipeline's arrays are top-down.
 Persistent data (``scene.render.use_persistent_data``; Render ▸ Shadows ▸ Limits): the
 exported scene and its bake stay with the shared pipeline between frames, and the next frame
 only updates the bake (:func:`~..core.scene_sync.sync_scene`), so an animation render
-(``blender -b file.blend -a``) bakes once. Off: every frame bakes afresh. :data:`BAKES` counts
-the bakes of this process by kind.
+(``blender -b file.blend -a``) bakes once. Off: every frame bakes afresh. A pipeline script
+sees each frame's stats (the bake's kind, timings, GPU memory) through :data:`frame_handlers`.
 """
 from __future__ import annotations
 
@@ -20,15 +20,15 @@ import traceback
 import numpy as np
 
 from ..core.errors import Cancelled, HybridShadowError
-from ..core.scene_sync import FULL, INCREMENTAL, NONE
 from . import export
 from .export.camera import render_resolution
 from .gl import final_renderer
 
-#: final-render bakes of this process by kind (``full``, ``incremental``, ``none``)
-BAKES = {FULL: 0, INCREMENTAL: 0, NONE: 0}
-#: the stats of the last final frame (its GPU memory before, at the peak and after, in MB)
-LAST_STATS: dict = {}
+#: functions called with each final frame's stats (a dict: ``bake``, the bake's kind ``full``,
+#: ``incremental`` or ``none``; ``bake_ms``; ``gpu_memory_before_mb``, ``gpu_peak_mb``,
+#: ``gpu_memory_after_mb``; the passes' timings), before its result is written: what a
+#: pipeline script appends to log or check its frames
+frame_handlers: list = []
 
 SHADOW_PASS_PREFIX = "Shadow "
 BACKGROUND_DEPTH = 1.0e10
@@ -187,9 +187,8 @@ def render(engine, depsgraph) -> None:
             reuse=bool(scene.hybrid_shadows.use_reuse_animation),
             want=wanted_buffers(scene, view_layer), masks=bool(shadow_pass_lights(scene, view_layer)),
             max_draw_ms=MAX_DRAW_MS)
-        BAKES[frame.stats.get("bake", NONE)] += 1
-        LAST_STATS.clear()
-        LAST_STATS.update(frame.stats)
+        for handler in list(frame_handlers):
+            handler(dict(frame.stats))
         write_result(engine, core, frame, scene, view_layer, width, height)
     except Cancelled:  # before HybridShadowError, its base class: a cancel is no error
         return

@@ -127,6 +127,11 @@ def run(argv: list) -> dict:
     return report
 
 
+def bake_counts(frames: list) -> dict:
+    """The final frames' bakes by kind, from their stats (``final_render.frame_handlers``)."""
+    return {kind: sum(f.get("bake", "none") == kind for f in frames) for kind in ("full", "incremental", "none")}
+
+
 def main(argv: list) -> int:
     sys.path.insert(0, str(REPO))
     import bpy  # noqa: F401
@@ -141,9 +146,11 @@ def main(argv: list) -> int:
     from hybrid_shadow_addon.blender import final_render
 
     hybrid_shadow_addon.register()
+    frames = []
+    final_render.frame_handlers.append(frames.append)
     try:
         report = run(argv)
-        report["bakes"] = dict(final_render.BAKES)
+        report["bakes"] = bake_counts(frames)
     finally:
         hybrid_shadow_addon.unregister()
     print(json.dumps(report))

@@ -103,11 +103,7 @@ class BakedScene:
                       "total_bytes": int(sum(tex_bytes.values()))})
         return stats
 
-    # ------------------------------------------------------------------ oracle, debug ------
-    def trace(self, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
-        """Occlusion of each world-space ray by the structure's numpy walk (its shader's oracle)."""
-        return self.accel.trace(self, origins, dirs, tmax, stats)
-
+    # -------------------------------------------------------------------------- debug ------
     def occupancy(self, points) -> np.ndarray:
         """(N,) float64: the structure's occupancy over world points ``points`` (N, >= 2) seen from
         above (:meth:`AccelerationStructure.occupancy`)."""

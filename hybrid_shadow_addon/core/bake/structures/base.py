@@ -163,12 +163,6 @@ class AccelerationStructure(ABC):
     def refresh_stats(self) -> dict:
         """Recompute the derived entries of :attr:`stats` (the timings stay)."""
 
-    # -------------------------------------------------------------------------- oracle -----
-    @abstractmethod
-    def trace(self, baked, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
-        """Occlusion of each world-space ray, walking the baked textures in numpy exactly as the
-        shader does (``baked``: the :class:`~..baked.BakedScene` holding this structure)."""
-
     @abstractmethod
     def occupancy(self, xy: np.ndarray) -> np.ndarray:
         """(N,) float64: how much of the structure covers each bake-space point ``xy`` (N, 2)

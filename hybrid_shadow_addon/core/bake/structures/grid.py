@@ -220,11 +220,6 @@ class HierarchicalGrid(GridUpdates, AccelerationStructure):
         })
         return s
 
-    def trace(self, baked, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
-        from ...oracle.tracer import trace_grid
-
-        return trace_grid(baked, origins, dirs, tmax, stats)
-
     def occupancy(self, xy: np.ndarray) -> np.ndarray:
         """The casters held by the grid nodes of every level over each point, plus the outside
         node's (every ray tests those)."""

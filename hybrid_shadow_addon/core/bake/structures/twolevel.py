@@ -525,11 +525,6 @@ class TwoLevelBVH(AccelerationStructure):
         })
         return self.stats
 
-    def trace(self, baked, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
-        from ...oracle.tracer import trace_twolevel
-
-        return trace_twolevel(baked, origins, dirs, tmax, stats)
-
     def occupancy(self, xy: np.ndarray) -> np.ndarray:
         """The casters whose top-level (world) box covers each point in x and y: how many
         instances a vertical ray through it would have to consider."""

@@ -41,10 +41,14 @@ from .twolevel import LEAF_FLAG, QEPS, TLAS_EPS, trace_twolevel
 
 
 def trace_structured(baked, origins, dirs, tmax=np.inf, stats: dict | None = None) -> np.ndarray:
-    """Occlusion of each ray through the baked textures by the walk of the bake's structure
-    (its :meth:`AccelerationStructure.trace`: :func:`trace_twolevel` or :func:`trace_grid`).
-    ``origins`` are world space; they move into bake space (``baked.origin``) in float64."""
-    return baked.trace(origins, dirs, tmax, stats)
+    """Occlusion of each ray through the baked textures by the numpy walk of the bake's structure
+    (the oracle of its shader: :func:`trace_twolevel` or :func:`trace_grid`). ``origins`` are
+    world space; they move into bake space (``baked.origin``) in float64."""
+    return WALKS[baked.structure](baked, origins, dirs, tmax, stats)
+
+
+#: each structure's numpy walk, by its registry name (``AccelerationStructure.name``)
+WALKS = {"grid": trace_grid, "bvh": trace_twolevel}
 
 
 __all__ = [
