@@ -124,18 +124,11 @@ def with_transparency_samples(variants, n: int) -> list:
 
 
 def cmd_render(args) -> int:
-    from .core.settings import Settings
+    from .core.settings import from_arguments
     from .tools.render import print_report, render_to_files
 
     try:
-        settings = Settings(mode=args.mode, quality=args.quality, max_shadowed_lights=args.max_shadowed_lights,
-                        max_distance=args.max_distance, interlace=False,
-                        conservative=args.conservative_maps, structure=args.structure or Settings.structure,
-                        light_grid=not args.no_light_grids, trace_path=args.trace_path,
-                        samples=args.samples if args.samples is not None else Settings.samples, hard=args.hard,
-                        noise_target=args.noise_target if args.noise_target is not None else Settings.noise_target,
-                        transparency_samples=(args.transparency_samples if args.transparency_samples is not None
-                                              else Settings.transparency_samples))
+        settings = from_arguments(args, args.setting_names, interlace=False)
     except ValueError as e:
         raise SceneError(str(e)) from None
     if args.frames is not None:
@@ -273,7 +266,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .core.settings import STRUCTURES, TRACE_PATHS
+    from .core.settings import add_arguments
     p = _Parser(
         prog="python -m hybrid_shadow_addon",
         description="Hybrid ray-traced shadows: inspect, render, compare with Cycles, benchmark.",
@@ -295,9 +288,6 @@ def build_parser() -> argparse.ArgumentParser:
                         "G-buffer, shadow masks (ray traced, shadow maps or none), lighting. Writes a PNG "
                         "(8-bit sRGB), an EXR (linear float) or a .npy (linear float) by the output's extension.")
     pr.add_argument("scene", metavar="SCENE", help=scene_help)
-    pr.add_argument("--mode", choices=("raytrace", "shadowmap", "none"), default="raytrace")
-    pr.add_argument("--quality", choices=("low", "medium", "high"), default="high",
-                    help="shadow-mask resolution: full (high), 1/2 (medium) or 1/4 (low) per side")
     pr.add_argument("--resolution", type=parse_resolution, default=None, metavar="WxH",
                     help="image size (default: the scene's)")
     pr.add_argument("--output", required=True, help="image file: .png, .exr or .npy")
@@ -315,30 +305,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "frame's hard-light visibility instead of tracing it again (within 0.02%% of a fresh "
                     "frame's pixels; soft lights take their own samples in every frame either way)")
     pr.add_argument("--quiet", action="store_true", help="no progress bar")
-    pr.add_argument("--max-shadowed-lights", type=int, default=None, metavar="N",
-                    help="shadow only the N nearest lights (suns first); default: every shadow-casting light")
-    pr.add_argument("--max-distance", type=float, default=0.0, metavar="M",
-                    help="shadows only within M metres of the camera (default 0: no limit)")
-    pr.add_argument("--conservative-maps", choices=("off", "sun", "all"), default="off",
-                    help="raytrace: conservative occupancy maps skip or shorten rays (exact; default off)")
-    pr.add_argument("--no-light-grids", action="store_true",
-                    help="raytrace, bvh: hard lights always walk the tree, never a light grid (by default an "
-                         "animation's hard lights build grids where they pay back)")
-    pr.add_argument("--structure", choices=STRUCTURES, default=None,
-                    help="raytrace: acceleration structure, hierarchical grid or two-level BVH (default: Settings')")
-    pr.add_argument("--trace-path", choices=TRACE_PATHS, default="auto",
-                    help="raytrace: trace the hard masks with compute shaders over queues of the rays (GL 4.3) "
-                    "or with full-screen fragment shaders (GL 4.1); auto: compute where a GPU offers it, "
-                    "fragment on a software rasteriser")
-    pr.add_argument("--samples", type=int, default=None, metavar="N",
-                    help="raytrace: shadow rays per pixel towards a light with a size (soft shadows; "
-                    "default: Settings'); pixels away from any penumbra take 1")
-    pr.add_argument("--noise-target", type=float, default=None, metavar="E",
-                    help="raytrace, soft shadows: a light whose mask's noise is estimated above E (mean absolute "
-                    "error) gives its penumbrae as many samples again (default: Settings'; 0: never)")
-    pr.add_argument("--hard", action="store_true",
-                    help="every light hard: one ray to its centre, sizes ignored (as compare's references)")
-    pr.add_argument("--transparency-samples", type=int, default=None, metavar="N", help=TRANSPARENCY_HELP)
+    settings = pr.add_argument_group("settings", "how shadows are made (defaults: the core Settings')")
+    pr.set_defaults(setting_names=add_arguments(settings))
     pr.set_defaults(func=cmd_render)
 
     modes_help = ("variants to run, space or comma separated: raytrace-high, raytrace-medium, raytrace-low, "

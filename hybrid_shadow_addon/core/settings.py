@@ -3,18 +3,66 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 
 from .bake.structures import DEFAULT_STRUCTURE
 from .bake.structures import STRUCTURES as STRUCTURE_CLASSES
 
-MODES = ("raytrace", "shadowmap", "none")
-QUALITIES = ("high", "medium", "low")
 QUALITY_SCALE = {"high": 1, "medium": 2, "low": 4}  # mask resolution = full / scale
-UPSAMPLE_FILTERS = ("bilateral", "nearest")
-CONSERVATIVE_MAPS = ("off", "sun", "all")
-STRUCTURES = tuple(STRUCTURE_CLASSES)  # acceleration structures the bake can build
-TRACE_PATHS = ("auto", "compute", "fragment")
+
+
+@dataclass(frozen=True)
+class Choice:
+    """One value of a setting with choices: what the Blender property and the command line show."""
+
+    value: str | int
+    label: str
+    help: str
+    icon: str = "NONE"
+
+
+def setting(default, label: str, help: str, *, choices: tuple = (), low=None, high=None, soft_max=None,
+            optional: bool = False, blender: dict | None = None, cli: str | None = "", metavar: str | None = None):
+    """A :class:`Settings` field and its one declaration: ``label`` and ``help`` (what an artist
+    reads in Blender and on the command line), ``choices`` (:class:`Choice`) or the range ``low``
+    .. ``high`` its value is checked against (``soft_max``: the UI slider's end), ``optional``:
+    None allowed (all). ``blender``: the scene property it comes from (``name``, default the
+    field's; ``invert``, a switch shown the other way round, with its own ``label`` and ``help``;
+    ``choices``, the values a property of an integer field offers; ``redraw``: a change redraws
+    rendered viewports; ``subtype``, ``unit``, ``precision``, ``step``: the property's own), None: no
+    property. ``cli``: the command line's option (default ``--field-name``; a ``--no-`` option for
+    a switch on by default), None: none."""
+    meta = {"label": label, "help": help, "choices": tuple(choices), "low": low, "high": high,
+            "soft_max": soft_max, "optional": optional, "blender": blender, "cli": cli, "metavar": metavar}
+    return field(default=default, metadata=meta)
+
+
+def kind(f) -> str:
+    """``bool``, ``int``, ``float`` or ``str``: a field's type, from its declaration."""
+    return str(f.type).split(" | ")[0]
+
+
+def choice_values(name: str) -> tuple:
+    """The values setting ``name`` may take."""
+    return tuple(c.value for c in FIELDS[name].metadata["choices"])
+
+
+def check(f, v) -> None:
+    """Raise ``ValueError`` if ``v`` is not a value field ``f`` may take."""
+    m, name = f.metadata, f.name
+    if m["choices"]:
+        values = tuple(c.value for c in m["choices"])
+        if v not in values:
+            raise ValueError(f"{name} must be one of {', '.join(map(str, values))}, not {v!r}")
+    elif kind(f) == "bool":
+        if not isinstance(v, bool):
+            raise ValueError(f"{name} must be True or False, not {v!r}")
+    elif v is None and m["optional"]:
+        return
+    elif kind(f) == "int":
+        _integer(v, f"{name} (or None for all)" if m["optional"] else name, low=m["low"], high=m["high"])
+    else:
+        _number(v, name, low=m["low"])
 
 
 @dataclass(frozen=True)
@@ -83,29 +131,116 @@ class Settings:
       one frame.
     """
 
-    mode: str = "raytrace"
-    quality: str = "high"
-    max_distance: float = 0.0
-    max_shadowed_lights: int | None = None
-    interlace: bool = False
-    shadowmap_size: int = 2048
-    pcf: int = 1
-    shadow_bias: float = 1.0
-    slope_bias: float = 2.0
-    normal_offset: float = 1.5
-    pcss_samples: int = 32
-    upsample: str = "bilateral"
-    specular: bool = True
-    conservative: str = "off"
-    structure: str = DEFAULT_STRUCTURE
-    light_grid: bool = True
-    samples: int = 64
-    noise_target: float = 0.003
-    hard: bool = False
-    accumulate: bool = False
-    frame_samples: int = 4
-    transparency_samples: int = 16
-    trace_path: str = "auto"
+    mode: str = setting(
+        "raytrace", "Shadow Mode", "How shadows are made: ray traced, shadow maps or none",
+        choices=(Choice("raytrace", "Ray Traced", "Shadow rays through the baked scene: soft shadows from the "
+                        "lights' sizes (Soft Shadows on), else one ray per pixel towards each light's centre",
+                        "SHADING_RENDERED"),
+                 Choice("shadowmap", "Shadow Map", "Rasterised shadow maps filtered with PCF, softened by the "
+                        "lights' sizes (PCSS) with Soft Shadows on (fast, may alias or leak)", "LIGHT_SUN"),
+                 Choice("none", "None", "No shadows: every light reaches every surface", "LIGHT")),
+        blender={"redraw": True})
+    quality: str = setting(
+        "high", "Quality", "Resolution of the ray-traced shadow masks in final renders",
+        choices=(Choice("high", "High", "Shadow rays at every pixel, for each light"),
+                 Choice("medium", "Medium", "Ray-traced: rays at every 2nd pixel per side, and a ray of its own "
+                        "for each pixel they cannot stand for (shadow edges, creases, thin or grazing surfaces): "
+                        "nearly High's masks. On a software rasteriser it costs more than High. Shadow maps: "
+                        "half-resolution masks"),
+                 Choice("low", "Low", "Ray-traced: rays at every 4th pixel per side, refined as Medium. On a "
+                        "software rasteriser it costs more than High. Shadow maps: quarter-resolution masks")),
+        blender={"redraw": True})
+    max_distance: float = setting(
+        0.0, "Max Distance", "Shadows only within this distance of the camera, in metres (0 = no limit)",
+        low=0.0, soft_max=1000.0, blender={"redraw": True, "subtype": "DISTANCE", "unit": "LENGTH"},
+        metavar="M")
+    max_shadowed_lights: int | None = setting(
+        None, "Max Shadowed Lights", "Shadow only the N nearest shadow-casting lights, suns first (0 in "
+        "Blender: every one)", low=0, soft_max=64, optional=True,
+        blender={"redraw": False}, metavar="N")
+    interlace: bool = setting(
+        False, "Interlacing", "Trace a quarter of the shadow rays per frame and keep the rest from the frames "
+        "before; after a change the pixels without an up-to-date ray are refined, and a still view is exact "
+        "after four frames (the viewport's Interlacing)", cli=None)
+    shadowmap_size: int = setting(
+        2048, "Shadow Map Resolution", "Texels per side of each shadow map (cube face for point lights)",
+        low=16, high=16384, blender={"redraw": True, "choices": (512, 1024, 2048, 4096, 8192)}, metavar="N")
+    pcf: int = setting(
+        1, "PCF Radius", "Shadow-map filter kernel radius in texels (0 = one tap, hard and aliased)",
+        low=0, high=8, blender={"redraw": True}, metavar="N")
+    shadow_bias: float = setting(
+        1.0, "Bias", "Constant shadow-map depth bias in texels", low=0.0, soft_max=10.0,
+        blender={"redraw": True}, metavar="TEXELS")
+    slope_bias: float = setting(
+        2.0, "Slope Bias", "Slope-scaled shadow-map depth bias", low=0.0, soft_max=10.0, blender={"redraw": True},
+        metavar="K")
+    normal_offset: float = setting(
+        1.5, "Normal Offset", "Offset of the receiver along its normal, in shadow-map texels", low=0.0,
+        soft_max=10.0, blender={"redraw": True}, metavar="TEXELS")
+    pcss_samples: int = setting(
+        32, "Soft Filter Taps", "Shadow maps of lights with a size: percentage-closer soft shadow filter taps "
+        "(the blocker search takes half as many)", low=1, high=1024, soft_max=128, blender={"redraw": False},
+        metavar="N")
+    upsample: str = setting(
+        "bilateral", "Upsampling", "How reduced-resolution shadow masks are brought to full resolution",
+        choices=(Choice("bilateral", "Bilateral", "Depth and normal aware upsampling of reduced-resolution masks"),
+                 Choice("nearest", "Nearest", "Blocky nearest-texel upsampling (the thesis' look)")),
+        blender={"redraw": True})
+    specular: bool = setting(
+        True, "Specular", "Add the specular lobe of the materials to the lighting",
+        blender={"name": "use_specular", "redraw": True}, cli="--no-specular")
+    conservative: str = setting(
+        "off", "Conservative Maps", "Ray traced: skip or shorten shadow rays with conservative light-space "
+        "occupancy maps; exact, it only changes the work",
+        choices=(Choice("off", "Off", "Trace every shadow ray in full"),
+                 Choice("sun", "Suns", "Conservative occupancy maps for suns: receivers no caster can reach take no "
+                        "ray, the others stop at the first possible caster (the masks do not change)"),
+                 Choice("all", "All Lights", "Conservative occupancy maps for every light (a cube of six maps "
+                        "around point, spot and area lights)")),
+        blender={"name": "conservative_maps", "redraw": True}, cli="--conservative-maps")
+    structure: str = setting(
+        DEFAULT_STRUCTURE, "Structure", "Ray traced: acceleration structure the shadow rays walk (the masks are "
+        "the same; changing it re-bakes the scene)",
+        choices=tuple(Choice(name, cls.label, cls.description) for name, cls in STRUCTURE_CLASSES.items()),
+        blender={"redraw": True})
+    light_grid: bool = setting(
+        True, "Light Grids", "Ray traced, BVH: a hard light's shadow rays look up a grid of the casters laid out "
+        "around that light instead of walking the tree (faster; rebuilt when the light moves; scenes with "
+        "alpha-cut casters keep the tree)", blender={"name": "use_light_grid", "redraw": True},
+        cli="--no-light-grids")
+    samples: int = setting(
+        64, "Shadow Samples", "Final render: shadow rays per pixel towards each light with a size (pixels away "
+        "from any penumbra take 1)", low=1, high=4096, soft_max=256, blender={"redraw": False}, metavar="N")
+    noise_target: float = setting(
+        0.003, "Noise Target", "Final render: a light whose shadow mask's noise is estimated above this (mean "
+        "error of its shares) gives its penumbrae as many samples again (0: never)", low=0.0, soft_max=0.02,
+        blender={"redraw": False, "precision": 4, "step": 0.01}, metavar="E")
+    hard: bool = setting(
+        False, "Hard Shadows", "Every light hard: one ray to its centre, sizes ignored (as compare's references)",
+        blender={"name": "use_soft_shadows", "invert": True, "label": "Soft Shadows", "redraw": False,
+                 "help": "Honour the lights' sizes (sun angle, point and spot radius, area light size) with "
+                         "several shadow rays per pixel; off: every light is hard, one ray to its centre"})
+    accumulate: bool = setting(
+        False, "Accumulate", "Each frame adds its soft samples to those of the frames before (the viewport)",
+        cli=None)
+    frame_samples: int = setting(
+        4, "Samples per Frame", "Accumulating: shadow rays per pixel and soft light each frame adds",
+        low=1, high=4096, cli=None)
+    transparency_samples: int = setting(
+        16, "See-Through Samples", "Where the camera sees see-through surfaces (blended materials with an alpha "
+        "between 0 and 1): frames of stochastic transparency averaged, so that each shows alpha x itself + "
+        "(1 - alpha) x what lies behind, as in Cycles. A final render renders them all, a still viewport one per "
+        "redraw; scenes without such surfaces render one frame. 1: a surface shows where its alpha is at least "
+        "0.5", low=1, high=4096, soft_max=64, blender={"redraw": False}, metavar="N")
+    trace_path: str = setting(
+        "auto", "Trace Path", "Ray traced: how the hard shadow masks are traced (the masks are the same)",
+        choices=(Choice("auto", "Automatic", "Compute shaders where the GPU offers OpenGL 4.3, fragment shaders "
+                        "elsewhere"),
+                 Choice("compute", "Compute", "Compute shaders over compact queues of the shadow rays: the time "
+                        "follows the rays traced (OpenGL 4.3)"),
+                 Choice("fragment", "Fragment", "Full-screen fragment shaders, one ray per pixel (what OpenGL "
+                        "4.1, macOS, offers)")),
+        blender={"redraw": True})
 
     def __post_init__(self):
         self.validate()
@@ -136,41 +271,9 @@ class Settings:
 
     # -- validation ------------------------------------------------------------------------------
     def validate(self) -> None:
-        if self.mode not in MODES:
-            raise ValueError(f"mode must be one of {', '.join(MODES)}, not {self.mode!r}")
-        if self.quality not in QUALITIES:
-            raise ValueError(f"quality must be one of {', '.join(QUALITIES)}, not {self.quality!r}")
-        if self.conservative not in CONSERVATIVE_MAPS:
-            raise ValueError(f"conservative must be one of {', '.join(CONSERVATIVE_MAPS)}, not {self.conservative!r}")
-        if self.structure not in STRUCTURES:
-            raise ValueError(f"structure must be one of {', '.join(STRUCTURES)}, not {self.structure!r}")
-        if self.trace_path not in TRACE_PATHS:
-            raise ValueError(f"trace_path must be one of {', '.join(TRACE_PATHS)}, not {self.trace_path!r}")
-        if self.upsample not in UPSAMPLE_FILTERS:
-            raise ValueError(f"upsample must be one of {', '.join(UPSAMPLE_FILTERS)}, not {self.upsample!r}")
-        _number(self.max_distance, "max_distance", low=0.0)
-        if self.max_shadowed_lights is not None:
-            _integer(self.max_shadowed_lights, "max_shadowed_lights (or None for all)", low=0)
-        if not isinstance(self.interlace, bool):
-            raise ValueError(f"interlace must be True or False, not {self.interlace!r}")
-        if not isinstance(self.light_grid, bool):
-            raise ValueError(f"light_grid must be True or False, not {self.light_grid!r}")
-        if not isinstance(self.hard, bool):
-            raise ValueError(f"hard must be True or False, not {self.hard!r}")
-        _integer(self.samples, "samples", low=1, high=4096)
-        _number(self.noise_target, "noise_target", low=0.0)
-        _integer(self.frame_samples, "frame_samples", low=1, high=4096)
-        _integer(self.transparency_samples, "transparency_samples", low=1, high=4096)
-        if not isinstance(self.accumulate, bool):
-            raise ValueError(f"accumulate must be True or False, not {self.accumulate!r}")
-        if not isinstance(self.specular, bool):
-            raise ValueError(f"specular must be True or False, not {self.specular!r}")
-        _integer(self.shadowmap_size, "shadowmap_size", low=16, high=16384)
-        _integer(self.pcf, "pcf", low=0, high=8)
-        _number(self.shadow_bias, "shadow_bias", low=0.0)
-        _number(self.slope_bias, "slope_bias", low=0.0)
-        _number(self.normal_offset, "normal_offset", low=0.0)
-        _integer(self.pcss_samples, "pcss_samples", low=1, high=1024)
+        """Raise ``ValueError`` naming the first field out of its declared choices or range."""
+        for f in fields(self):
+            check(f, getattr(self, f.name))
 
 
 def _integer(v, name, low=None, high=None):
@@ -186,3 +289,55 @@ def _number(v, name, low=None):
         raise ValueError(f"{name} must be a finite number, not {v!r}")
     if low is not None and v < low:
         raise ValueError(f"{name} must be at least {low}, not {v}")
+
+
+#: each setting's field (its declaration: :func:`setting`), by name
+FIELDS = {f.name: f for f in fields(Settings)}
+MODES = choice_values("mode")
+QUALITIES = choice_values("quality")
+UPSAMPLE_FILTERS = choice_values("upsample")
+CONSERVATIVE_MAPS = choice_values("conservative")
+STRUCTURES = choice_values("structure")  # acceleration structures the bake can build
+TRACE_PATHS = choice_values("trace_path")
+
+
+def option_name(f) -> str | None:
+    """The command line's option of setting field ``f`` (None: none)."""
+    cli = f.metadata["cli"]
+    if cli is None or cli:
+        return cli
+    name = f.name.replace("_", "-")
+    return f"--no-{name}" if kind(f) == "bool" and f.default else f"--{name}"
+
+
+def add_arguments(parser) -> list[str]:
+    """An option on ``parser`` for each setting declared with one (:func:`setting`): its help,
+    choices and range from the declaration, its default left to :class:`Settings` (None). The
+    names of the settings added."""
+    names = []
+    for f in FIELDS.values():
+        opt = option_name(f)
+        if opt is None:
+            continue
+        m = f.metadata
+        text = m["help"].replace("%", "%%")
+        if kind(f) == "bool":
+            off = opt.startswith("--no-")
+            parser.add_argument(opt, dest=f.name, action="store_const", const=not off, default=None,
+                                help=f"{text} (on unless this is given)" if off else text)
+        else:
+            values = tuple(c.value for c in m["choices"])
+            default = "all" if f.default is None else f.default
+            parser.add_argument(opt, dest=f.name, type=type(f.default) if f.default is not None else int,
+                                choices=values or None, default=None, metavar=None if values else m["metavar"],
+                                help=f"{text} (default: {default})")
+        names.append(f.name)
+    return names
+
+
+def from_arguments(args, names, **fixed) -> Settings:
+    """The :class:`Settings` of parsed command-line ``args``: the settings ``names``
+    (:func:`add_arguments`) that were given, ``fixed`` ones, defaults for the rest; a value out
+    of range raises ``ValueError`` naming the setting."""
+    given = {name: getattr(args, name) for name in names if getattr(args, name) is not None}
+    return Settings(**given, **fixed)

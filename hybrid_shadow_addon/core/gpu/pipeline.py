@@ -427,12 +427,10 @@ class Pipeline:
         shadow = self.shadow_pass(settings.mode)
         lights = select_shadowed_lights(scene, settings)
         step = _Steps(progress, 4 + len(lights))
-        if hasattr(shadow, "reuse"):
-            if self.reuse_choice not in ("auto", "always"):
-                raise ValueError(f"reuse_choice must be 'auto' or 'always', not {self.reuse_choice!r}")
-            shadow.reuse.enabled = self.reuse
-            shadow.reuse.choice.auto = self.reuse_choice == "auto"
-            shadow.reuse.exact, self._retrace = self._retrace, False
+        if self.reuse_choice not in ("auto", "always"):
+            raise ValueError(f"reuse_choice must be 'auto' or 'always', not {self.reuse_choice!r}")
+        if shadow.configure_reuse(self.reuse, self.reuse_choice == "auto", self._retrace):
+            self._retrace = False
         if shadow.needs_bake and (self.baked is None or self.baked.structure != settings.structure):
             self.set_scene(scene, settings.structure, step.within if progress is not None else None)
         self._reset_gl_state()  # (a frame aborted by its progress callback may have left any)

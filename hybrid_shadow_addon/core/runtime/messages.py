@@ -2,8 +2,8 @@
 
 Each is a frozen dataclass with named fields, pickled across the channel (:mod:`.channel`). A
 message that coalesces with unsent ones says so itself: :meth:`Message.supersedes` (which
-unsent messages it replaces) and, for moves, :meth:`MoveInstances.merged` (one message for the
-ones it replaced). The server dispatches each on its class (``Server.handlers``).
+unsent messages it replaces) and :meth:`Message.merged` (what is queued for them: itself, or for
+moves one message of every moved instance). The server dispatches each on its class (``Server.handlers``).
 """
 from __future__ import annotations
 
@@ -24,6 +24,10 @@ class Message:
     def supersedes(self, other: Message) -> bool:
         """Whether ``other``, posted earlier and still unsent, is dropped when this one is posted."""
         return self.merge_key is not None and getattr(other, "merge_key", None) == self.merge_key
+
+    def merged(self, dropped: list[Message]) -> Message:
+        """What is queued in place of ``dropped`` (the unsent messages it superseded) and itself."""
+        return self
 
 
 # -- the caller's: the viewport's scene commands ---------------------------------------------------

@@ -206,8 +206,7 @@ _DROPPED_ON_EXIT = tuple(c for c in SCENE_COMMANDS if c is not Bake) + (RenderVi
 def post(proc, msg: Message, rewrite=None) -> tuple:
     """Queue ``msg`` on ``proc`` in place of the unsent messages it supersedes (merged into it
     where it merges); ``rewrite``: :meth:`.renderer_process.RendererProcess.post`'s."""
-    merge = (lambda dropped, m: m.merged(dropped)) if hasattr(msg, "merged") else None
-    return proc.post(msg, replace=msg.supersedes, merge=merge, rewrite=rewrite)
+    return proc.post(msg, replace=msg.supersedes, merge=lambda dropped, m: m.merged(dropped), rewrite=rewrite)
 
 
 def stage_deadline_s() -> float:

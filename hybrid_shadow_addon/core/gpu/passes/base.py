@@ -54,6 +54,13 @@ class ShadowPass(Pass):
     #: whether the pass traces the baked scene (the pipeline bakes before the first frame)
     needs_bake: bool = False
 
+    def configure_reuse(self, enabled: bool, auto: bool, exact: bool) -> bool:
+        """How the next frame may reuse visibility from earlier frames: ``enabled`` (else it
+        forgets), ``auto`` (light by light where that is timed cheaper; else always) and ``exact``
+        (this frame traces its hard masks whole and keeps them). Whether this mode reuses (one
+        that does not ignores it)."""
+        return False
+
     def stats(self, job, counts: bool = True) -> dict:
         """``mask_resolution``, ``rays`` (the rays a full trace of the mask would take),
         ``rays_traced`` (the rays actually traced), ``pixels`` (pixels with geometry x shadowed

@@ -91,6 +91,10 @@ class RaytracePass(ShadowPass):
         """The hard lights' :class:`.light_grid.LightGridCache`."""
         return self.hard.light_grids
 
+    def configure_reuse(self, enabled: bool, auto: bool, exact: bool) -> bool:
+        self.reuse.enabled, self.reuse.choice.auto, self.reuse.exact = enabled, auto, exact
+        return True
+
     def reset_history(self) -> None:
         """Forget interlacing, accumulation and reuse history."""
         self.hard.reset_history()
