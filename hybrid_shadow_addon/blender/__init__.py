@@ -4,9 +4,10 @@
 - :mod:`.load`: a scene script, built-in test scene or ``.blend`` file → a loaded bpy scene or a
   core ``Scene``.
 - :mod:`.engine` (the ``HYBRID_SHADOWS`` render engine) with :mod:`.final_render`,
-  :mod:`.viewport_engine` (the viewport, rendering on a
-  :class:`~hybrid_shadow_addon.core.runtime.worker.RenderWorker` thread shared by the viewports of a
-  scene), :mod:`.viewport` and :mod:`.gl` (its OpenGL contexts);
+  :mod:`.viewport_engine` (the viewport, rendered in a renderer process shared by the viewports
+  of a scene: :class:`~hybrid_shadow_addon.core.runtime.remote.RemoteWorker`; in-process, a
+  :class:`~hybrid_shadow_addon.core.runtime.worker.RenderWorker` thread), :mod:`.viewport` and
+  :mod:`.gl` (its OpenGL contexts);
   :mod:`.properties`, :mod:`.ui`, :mod:`.compare_operator` ("Compare with Cycles"): the add-on.
 """
 

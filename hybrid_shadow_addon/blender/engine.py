@@ -1,7 +1,7 @@
 """The ``HYBRID_SHADOWS`` render engine: the ``RenderEngine`` class, forwarding to
 :mod:`.final_render` (final renders and their passes) and :mod:`.viewport_engine` (the rendered
-viewport, rendered by a worker thread shared by the viewports of a scene). OpenGL contexts:
-:mod:`.gl`.
+viewport, rendered in a renderer process shared by the viewports of a scene: a
+:class:`~..core.runtime.remote.RemoteWorker`). OpenGL contexts: :mod:`.gl`.
 """
 from __future__ import annotations
 

@@ -183,7 +183,7 @@ def view_draw(engine, context, depsgraph) -> None:
 def report_error(engine, exc) -> None:
     """Report a viewport error once (the same message again stays quiet) and show it in the
     stats line; a traceback on the console for anything but a user-facing error (also for one
-    raised in the worker thread)."""
+    raised where the frame was rendered: the renderer process or the worker's thread)."""
     known = isinstance(exc, (HybridShadowError, ValueError))
     msg = str(exc) if known else f"{type(exc).__name__}: {exc}"
     if not known:
