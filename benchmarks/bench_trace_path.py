@@ -25,7 +25,7 @@ Configurations (hard lights, as the hard Cycles references; mode ``raytrace``):
   beyond the RGBA32F image of one of its timed frames (the tree before: not counted).
 
 ``--layouts`` adds this tree on both paths with its single rays walking 4-wide nodes and binary
-nodes (``BakeConfig.bvh_wide`` True and False; "compute" and "fragment" take the context's
+nodes (``BVHConfig.wide`` True and False; "compute" and "fragment" take the context's
 default: binary on a software rasteriser), as four more subjects.
 
 ``--soft`` adds ``soft lanes`` and ``soft packets``: lights with their sizes at high, 64 samples,
@@ -82,7 +82,7 @@ out = {}
 for name, (kw, eager) in configs.items():
     pipe = Pipeline()
     if layout:
-        pipe.bake_options["bvh_wide"] = layout == "wide"
+        pipe.bake_options["bvh"] = {"wide": layout == "wide"}
     pipe.set_scene(scene)
     rt = pipe.shadow_pass("raytrace")
     rt.options = dataclasses.replace(rt.options, eager_light_grids=eager)
@@ -137,7 +137,7 @@ def main(argv=None) -> int:
     ap.add_argument("--alternations", type=int, default=2)
     ap.add_argument("--soft", action="store_true", help="add soft lights at high (64 samples)")
     ap.add_argument("--layouts", action="store_true",
-                    help="also this tree with its single rays on 4-wide and on binary nodes (BakeConfig.bvh_wide)")
+                    help="also this tree with its single rays on 4-wide and on binary nodes (BVHConfig.wide)")
     ap.add_argument("--json", default=None)
     ap.add_argument("--configs", nargs="+", default=None, help=f"a subset of {list(CONFIGS)} (and soft)")
     a = ap.parse_args(argv)

@@ -188,7 +188,7 @@ def main(argv=None) -> int:
         tlas.TLAS_SPATIAL_MIN = args.tlas_spatial_min
     w, h = (int(v) for v in args.size.lower().split("x"))
     pipe = Pipeline()
-    pipe.bake_options["bvh_wide"] = True  # (the packed 4-wide walk reads [wide])
+    pipe.bake_options["bvh"] = {"wide": True}  # (the packed 4-wide walk reads [wide])
     for spec in args.scenes:
         scene = load_scene(spec)
         pipe.set_scene(scene, "bvh")

@@ -1,6 +1,6 @@
 """Crowded grid nodes: object BVHs over the node's objects ("teapot in a stadium").
 
-Nodes with more than ``BakeConfig.object_bvh_threshold`` objects carry a stackless object BVH in
+Nodes with more than ``GridConfig.object_bvh_threshold`` objects carry a stackless object BVH in
 the [bvh] texture (grid texel .w = root + 1), walked instead of the flat list. Checked here:
 structured tracer == brute force (fresh bakes and after incremental moves that rebuild, create
 and drop object BVHs), GLSL == numpy on such scenes, and the per-ray work in a crowded node being
@@ -9,7 +9,7 @@ logarithmic-ish instead of linear.
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+from hybrid_shadow_addon.core.bake import BakeConfig, GridConfig, bake_scene
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 from tests.helpers.bake import assert_equal_tracers, assert_report_covers, snapshot
@@ -99,12 +99,12 @@ def test_crowded_node_gets_object_bvh_and_matches_brute():
     assert st["object_bvh_objects"] >= 3900
     for n in _obvh_nodes(baked):
         _check_tree(baked, n)
-        assert baked.textures["grid"].linear()[n, 1] > baked.config.object_bvh_threshold
+        assert baked.textures["grid"].linear()[n, 1] > baked.config.grid.object_bvh_threshold
     o, d, t = crowd_rays(rng, scene, 2500, clusters)
     hit = assert_equal_tracers(scene, baked, o, d, t)
     assert 0.05 < hit.mean() < 0.95
     # the flat-list bake agrees ray for ray
-    flat = bake_scene(scene, BakeConfig(structure="grid", object_bvh_threshold=10 ** 9))
+    flat = bake_scene(scene, BakeConfig(structure="grid", grid=GridConfig(object_bvh_threshold=10 ** 9)))
     assert flat.stats["object_bvh_nodes"] == 0
     assert (trace_structured(flat, o, d, t) == hit).all()
 
@@ -113,7 +113,8 @@ def test_crowded_node_gets_object_bvh_and_matches_brute():
 def test_leaf_sizes_and_thresholds(leaf, threshold):
     rng = np.random.default_rng(10 + leaf)
     scene = crowded_scene(rng, 1500)
-    baked = bake_scene(scene, BakeConfig(structure="grid", object_leaf_size=leaf, object_bvh_threshold=threshold))
+    grid = GridConfig(object_leaf_size=leaf, object_bvh_threshold=threshold)
+    baked = bake_scene(scene, BakeConfig(structure="grid", grid=grid))
     counts = baked.accel.grid.count
     assert ((counts > threshold) == (baked.accel.grid.obvh >= 0)).all()
     for n in _obvh_nodes(baked):
@@ -175,7 +176,8 @@ def test_incremental_moves_rebuild_object_bvhs():
 def test_overflow_relocation_and_regrid_with_object_bvhs():
     rng = np.random.default_rng(2)
     scene = crowded_scene(rng, 1200, n_far=600)
-    baked = bake_scene(scene, BakeConfig(structure="grid", index_reserve=1.0, outside_rebake_fraction=0.5))
+    grid = GridConfig(index_reserve=1.0, outside_rebake_fraction=0.5)
+    baked = bake_scene(scene, BakeConfig(structure="grid", grid=grid))
     n = len(scene.instances)
     node = int(np.argmax(baked.accel.grid.count))
     # pile far boxes into the crowded node: its list overflows -> tail, the tree moves too
@@ -257,7 +259,7 @@ def test_objects_per_ray_in_a_crowded_node_is_logarithmic():
     for n in (512, 8192):
         scene = _cloud_scene(rng, n)
         tree = bake_scene(scene, BakeConfig(structure="grid"))
-        flat = bake_scene(scene, BakeConfig(structure="grid", object_bvh_threshold=10 ** 9))
+        flat = bake_scene(scene, BakeConfig(structure="grid", grid=GridConfig(object_bvh_threshold=10 ** 9)))
         assert tree.stats["max_objects_per_node"] >= n and tree.stats["object_bvh_nodes"] >= 1
         k = 400
         o = np.column_stack([rng.uniform(-0.5, 0.5, (k, 2)), np.full(k, 2.0)])
@@ -282,7 +284,7 @@ def test_glsl_matches_structured_on_crowded_scenes(gl_ctx):
     rng = np.random.default_rng(5)
     clusters = ((0.0, 0.0), (20.0, 10.0))
     scene = crowded_scene(rng, 3000, clusters)
-    baked = bake_scene(scene, BakeConfig(structure="grid", object_leaf_size=3))
+    baked = bake_scene(scene, BakeConfig(structure="grid", grid=GridConfig(object_leaf_size=3)))
     assert baked.stats["object_bvh_nodes"] >= 2
     o, d, t = crowd_rays(rng, scene, 12000, clusters)
     ref = trace_structured(baked, o, d, t)

@@ -1,7 +1,7 @@
 """Grid, texture packing and layout invariants."""
 import numpy as np
 
-from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+from hybrid_shadow_addon.core.bake import BakeConfig, GridConfig, bake_scene
 from hybrid_shadow_addon.core.bake.grid import MARGIN_CELLS, place, plan_grid
 from hybrid_shadow_addon.core.bake.textures import MAX_TEX_SIZE, OBJECT_TEXELS
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
@@ -20,7 +20,7 @@ def _node_lists(baked):
 def test_every_caster_in_exactly_one_node_at_its_lowest_level():
     rng = np.random.default_rng(1)
     scene, *_ = adversarial_scene(rng)
-    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
+    baked = bake_scene(scene, BakeConfig(structure="grid", grid=GridConfig(base_node_size=1.0)))
     lay = baked.accel.layout
     lists = _node_lists(baked)
     seen = np.concatenate([np.array(v) for v in lists.values()])
@@ -102,7 +102,7 @@ def test_nodes_at_agrees_with_place():
     m[:, :3, 3] = c + (2e5, -3e5, 0)
     scene = Scene(models=[tet],
                   instances=Instances(names=[f"t{i}" for i in range(n)], model_ids=np.zeros(n), matrices=m))
-    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
+    baked = bake_scene(scene, BakeConfig(structure="grid", grid=GridConfig(base_node_size=1.0)))
     assert np.abs(baked.origin).max() > 0
     wc, _ = scene.instance_spheres()
     held = baked.accel.instances.node
@@ -145,7 +145,7 @@ def test_crowded_node_thousands_of_objects():
     sphere = rng.random(n) < 0.5
     model = Model("t", [[0, 0, 0], [1, 0, 0], [0, 1, 1]], [[0, 1, 2]])
     scene = Scene(models=[model], instances=Instances(names=[f"o{i}" for i in range(n)], matrices=M, sphere=sphere))
-    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=64.0))
+    baked = bake_scene(scene, BakeConfig(structure="grid", grid=GridConfig(base_node_size=64.0)))
     assert baked.stats["max_objects_per_node"] >= 3000
     o = rng.uniform(-1, 3, (400, 3))
     d = rng.normal(size=(400, 3))

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+from hybrid_shadow_addon.core.bake import BakeConfig, GridConfig, bake_scene
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.scene import Scene
 from tests.helpers.bake import assert_equal_tracers
@@ -26,7 +26,7 @@ def test_random_scenes_structured_equals_brute(seed):
 def test_adversarial_scene():
     rng = np.random.default_rng(42)
     scene, o, d, t = adversarial_scene(rng)
-    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
+    baked = bake_scene(scene, BakeConfig(structure="grid", grid=GridConfig(base_node_size=1.0)))
     assert baked.stats["max_objects_per_node"] >= 1000
     assert baked.accel.layout.levels >= 4
     hit = assert_equal_tracers(scene, baked, o, d, t)
@@ -37,7 +37,7 @@ def test_axis_rays_on_every_border():
     """Axis-aligned rays (two components exactly 0) starting exactly on node borders and corners."""
     rng = np.random.default_rng(3)
     scene = random_scene(rng, n_inst=120, area=10)
-    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
+    baked = bake_scene(scene, BakeConfig(structure="grid", grid=GridConfig(base_node_size=1.0)))
     o, d, t = border_rays(rng, baked.accel.layout, 300)
     hit = assert_equal_tracers(scene, baked, o, d, t)
     assert hit.any()

@@ -3,7 +3,7 @@ against brute force, the GLSL walk against the numpy walk, and incremental updat
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+from hybrid_shadow_addon.core.bake import BakeConfig, BVHConfig, bake_scene
 from hybrid_shadow_addon.core.bake.sah import build_sah, sah_cost
 from hybrid_shadow_addon.core.bake.structures.blas import LEAF_FLAG, build_blas
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
@@ -247,7 +247,7 @@ def test_structure_setting_and_config():
     with pytest.raises(ValueError, match="structure"):
         BakeConfig(structure="octree")
     with pytest.raises(ValueError):
-        BakeConfig(structure="bvh", bvh_leaf_size=5)
+        BakeConfig(structure="bvh", bvh=BVHConfig(leaf_size=5))
 
 
 # ------------------------------------------------------------------------------------ GLSL --
@@ -258,7 +258,7 @@ def test_glsl_bvh_matches_numpy(gl_ctx, seed, leaf):
 
     rng = np.random.default_rng(100 + seed)
     scene = random_scene(rng, n_inst=300, spheres=0.3)
-    baked = bake_scene(scene, BakeConfig(structure="bvh", bvh_leaf_size=leaf))
+    baked = bake_scene(scene, BakeConfig(structure="bvh", bvh=BVHConfig(leaf_size=leaf)))
     o, d, t = random_rays(rng, scene, 20000)
     ref = trace_structured(baked, o, d, t)
     gl = gl_trace(gl_ctx, baked, o, d, t)

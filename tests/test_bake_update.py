@@ -1,7 +1,7 @@
 """Incremental updates: moved instances and edited meshes."""
 import numpy as np
 
-from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+from hybrid_shadow_addon.core.bake import BakeConfig, GridConfig, bake_scene
 from hybrid_shadow_addon.core.oracle.tracer import trace_structured
 from hybrid_shadow_addon.core.scene import Model
 from tests.helpers.bake import assert_equal_tracers, assert_report_covers, snapshot
@@ -38,7 +38,7 @@ def test_move_instances_matches_brute_and_touches_only_moved():
 def test_crowding_relocates_to_tail_and_leaving_grid_goes_outside():
     rng = np.random.default_rng(1)
     scene = random_scene(rng, n_inst=300, area=20, tri_counts=(1, 12, 40))
-    baked = bake_scene(scene, BakeConfig(structure="grid", outside_rebake_fraction=0.5))
+    baked = bake_scene(scene, BakeConfig(structure="grid", grid=GridConfig(outside_rebake_fraction=0.5)))
     n = len(scene.instances)
     # pile 60 instances onto one spot: their node overflows its capacity -> tail
     idx = rng.choice(n, 60, replace=False)
@@ -84,7 +84,7 @@ def test_regrid_when_many_leave():
 def test_caster_flag_and_many_updates_exhaust_tail():
     rng = np.random.default_rng(3)
     scene = random_scene(rng, n_inst=150, area=15)
-    baked = bake_scene(scene, BakeConfig(structure="grid", index_reserve=0.0))
+    baked = bake_scene(scene, BakeConfig(structure="grid", grid=GridConfig(index_reserve=0.0)))
     for _ in range(30):
         idx = rng.choice(150, 20, replace=False)
         M = scene.instances.matrices[idx].copy()

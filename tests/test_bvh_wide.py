@@ -1,4 +1,4 @@
-"""The two-level BVH's 4-wide layout ([wide], ``BakeConfig.bvh_wide``): the packed walk of the
+"""The two-level BVH's 4-wide layout ([wide], ``BVHConfig.wide``): the packed walk of the
 numpy oracle against the binary walk and brute force, its blocks through moves and model edits,
 the GLSL walk (stack overflow included) against the oracle, and the masks of both trace paths
 against the binary layout's, bit for bit."""
@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+from hybrid_shadow_addon.core.bake import BakeConfig, BVHConfig, bake_scene
 from hybrid_shadow_addon.core.bake.structures.wide import STRIDE, WIDTH, WideIndex
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
 from hybrid_shadow_addon.core.oracle.tracer.wide import trace_wide, trace_wide_packed
@@ -19,7 +19,7 @@ from tests.helpers.scenes import adversarial_scene, blob_model, random_scene, te
 
 pytestmark = [pytest.mark.gpu]
 
-WIDE = BakeConfig(structure="bvh", bvh_wide=True)
+WIDE = BakeConfig(structure="bvh", bvh=BVHConfig(wide=True))
 
 
 def test_packed_walk_answers_as_binary_and_brute_with_fewer_fetches():
@@ -31,7 +31,7 @@ def test_packed_walk_answers_as_binary_and_brute_with_fewer_fetches():
     scene = random_scene(rng, n_inst=150)
     baked = bake_scene(scene, WIDE)
     assert "HS_BVH_WIDE" in baked.defines and "wide" in baked.textures
-    assert "HS_BVH_WIDE" not in bake_scene(scene, BakeConfig(structure="bvh", bvh_wide=False)).defines
+    assert "HS_BVH_WIDE" not in bake_scene(scene, BakeConfig(structure="bvh", bvh=BVHConfig(wide=False))).defines
     o, d, t = random_rays(rng, scene, 3000)
     st = {}
     occ = trace_wide_packed(baked, o, d, t, stats=st)
@@ -149,7 +149,7 @@ def layouts(gl_ctx):
     pipes = {}
     for name in ("wide", "binary"):
         pipes[name] = Pipeline(gl_ctx)
-        pipes[name].bake_options["bvh_wide"] = name == "wide"
+        pipes[name].bake_options["bvh"] = {"wide": name == "wide"}
     yield pipes
     for p in pipes.values():
         p.release()

@@ -131,7 +131,7 @@ def test_two_pipelines_with_their_own_contexts_on_one_thread(loaded, gl_ctx):
     context: its frames took 100x as long, with the other's objects.)"""
     import time
 
-    from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+    from hybrid_shadow_addon.core.bake import BakeConfig, BVHConfig, bake_scene
     from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
     from hybrid_shadow_addon.core.settings import Settings
 
@@ -143,7 +143,7 @@ def test_two_pipelines_with_their_own_contexts_on_one_thread(loaded, gl_ctx):
         return f.image.copy(), [f.mask_array(li) for li in f.lights]
 
     pa = Pipeline()
-    pa.baked = bake_scene(a, BakeConfig(structure="bvh", bvh_leaf_size=1))  # (other defines than pb's)
+    pa.baked = bake_scene(a, BakeConfig(structure="bvh", bvh=BVHConfig(leaf_size=1)))  # (other defines than pb's)
     pa.scene_textures.upload(pa.baked)
     alone = frame(pa, a)
     pb = Pipeline()

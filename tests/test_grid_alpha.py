@@ -14,7 +14,7 @@ moves and mesh edits must give what a fresh bake gives; opaque scenes must compi
 import numpy as np
 import pytest
 
-from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+from hybrid_shadow_addon.core.bake import BakeConfig, GridConfig, bake_scene
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.oracle.rays import shadow_rays
 from hybrid_shadow_addon.core.oracle.tracer import visibility_brute
@@ -380,7 +380,7 @@ def crowded_scene(rng, n=160):
 def test_glsl_visibility_through_crowded_grid(gl_ctx, structure):
     rng = np.random.default_rng(11)
     scene = crowded_scene(rng).validate(require_camera=False)
-    cfg = BakeConfig(structure=structure, object_bvh_threshold=3, object_leaf_size=2)
+    cfg = BakeConfig(structure=structure, grid=GridConfig(object_bvh_threshold=3, object_leaf_size=2))
     b = bake_scene(scene, cfg)
     assert b.has_alpha
     if structure == "grid":

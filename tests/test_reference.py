@@ -3,7 +3,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+from hybrid_shadow_addon.core.bake import BakeConfig, GridConfig, bake_scene
 from hybrid_shadow_addon.core.oracle.tracer import sphere_hit, trace_brute, trace_structured, woop_hit, woop_setup
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 from tests.helpers.rays import random_triangle_rays
@@ -70,7 +70,7 @@ def test_property_structured_equals_brute(seed, n, base, spheres, axis):
                      matrices=random_matrices(rng, n, area=rng.uniform(1, 20)), sphere=rng.random(n) < spheres,
                      casts_shadow=rng.random(n) < 0.9)
     scene = Scene(models=models, instances=inst)
-    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=base))
+    baked = bake_scene(scene, BakeConfig(structure="grid", grid=GridConfig(base_node_size=base)))
     o, d, t = random_rays(rng, scene, 300, axis=axis)
     # snap some origins onto node borders of level 0
     s = baked.accel.layout.node_sizes[0]
@@ -110,5 +110,6 @@ def _fixed_scene():
 
 def _fixed_baked(structure="grid"):
     if structure not in _CACHE:
-        _CACHE[structure] = bake_scene(_fixed_scene(), BakeConfig(base_node_size=1.0, structure=structure))
+        config = BakeConfig(structure=structure, grid=GridConfig(base_node_size=1.0))
+        _CACHE[structure] = bake_scene(_fixed_scene(), config)
     return _CACHE[structure]

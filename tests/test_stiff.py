@@ -33,7 +33,7 @@ import stiff_table  # noqa: E402
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene  # noqa: E402
+from hybrid_shadow_addon.core.bake import BakeConfig, GridConfig, bake_scene  # noqa: E402
 from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured  # noqa: E402
 from hybrid_shadow_addon.core.scene import Instances, Model, Scene  # noqa: E402
 
@@ -286,7 +286,7 @@ def test_origins_on_node_borders_numpy(seed, level_pick):
 
     rng = np.random.default_rng(seed)
     scene = random_scene(rng, n_inst=60, area=8)
-    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
+    baked = bake_scene(scene, BakeConfig(structure="grid", grid=GridConfig(base_node_size=1.0)))
     lay = baked.accel.layout
     lvl = level_pick % lay.levels
     s = lay.node_sizes[lvl]
@@ -333,7 +333,7 @@ def test_axis_and_border_rays_glsl(gl_ctx, glsl):
 
     rng = np.random.default_rng(5)
     scene = random_scene(rng, n_inst=100, area=10)
-    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
+    baked = bake_scene(scene, BakeConfig(structure="grid", grid=GridConfig(base_node_size=1.0)))
     o, d, t = border_rays(rng, baked.accel.layout, 200)
     ref = trace_structured(baked, o, d, t)
     gl = glsl.gl_trace(gl_ctx, baked, o, d, t)

@@ -80,10 +80,14 @@ def test_default_defined_once():
     src = REPO / "hybrid_shadow_addon"
     hits = [p for p in src.rglob("*.py") if re.search(r"^DEFAULT_STRUCTURE\s*=", p.read_text(), re.M)]
     assert [p.relative_to(src).as_posix() for p in hits] == ["core/bake/structures/__init__.py"]
-    props = (src / "blender" / "properties.py").read_text()
-    assert "default=DEFAULT_STRUCTURE.upper()" in props
-    cli = (src / "__main__.py").read_text()
-    assert 'add_argument("--structure", choices=STRUCTURES, default=None' in cli
+    # Blender's property and the command line take the default from the setting's declaration
+    from hybrid_shadow_addon.__main__ import build_parser
+    from hybrid_shadow_addon.core.settings import FIELDS, from_arguments
+
+    assert FIELDS["structure"].default == DEFAULT_STRUCTURE
+    assert "DEFAULT_STRUCTURE" not in (src / "blender" / "properties.py").read_text()
+    args = build_parser().parse_args(["render", "forest", "--output", "x.png"])
+    assert args.structure is None and from_arguments(args, args.setting_names).structure == DEFAULT_STRUCTURE
 
 
 @pytest.mark.parametrize("seed", range(2))

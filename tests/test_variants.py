@@ -113,8 +113,8 @@ def test_bvh_structure_compiles_only_what_the_scene_has(gl_ctx, meshes, spheres)
 
 
 def test_bvh_leaf_size_define_follows_the_config():
-    from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+    from hybrid_shadow_addon.core.bake import BakeConfig, BVHConfig, bake_scene
 
     for k in (1, 3):
-        d = bake_scene(variant_scene(), BakeConfig(structure="bvh", bvh_leaf_size=k)).defines
+        d = bake_scene(variant_scene(), BakeConfig(structure="bvh", bvh=BVHConfig(leaf_size=k))).defines
         assert d["HS_BVH_LEAF_SIZE"] == k

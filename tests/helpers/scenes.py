@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 
-from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+from hybrid_shadow_addon.core.bake import BakeConfig, GridConfig, bake_scene
 from hybrid_shadow_addon.core.scene import Camera, Image, Instances, Light, Material, Model, Scene
 
 
@@ -254,7 +254,7 @@ def adversarial_scene(rng):
     parts.append(Instances(names=[f"b{i}" for i in range(6)], model_ids=np.ones(6), matrices=M3,
                            sphere=np.array([0, 1, 0, 1, 0, 1], bool)))
     scene = Scene(models=models, instances=Instances.concatenate(parts))
-    baked = bake_scene(scene, BakeConfig(structure="grid", base_node_size=1.0))
+    baked = bake_scene(scene, BakeConfig(structure="grid", grid=GridConfig(base_node_size=1.0)))
     lay = baked.accel.layout
     n = 6000
     o = rng.uniform(-10, 10, (n, 3))

@@ -18,7 +18,7 @@ structure's ``glsl_include``), the one description packer and shader follow.
 """
 from .baked import BakedScene, bake_scene
 from .report import UpdateReport
-from .state import BakeConfig
+from .state import BakeConfig, BVHConfig, GridConfig
 from .textures import TextureData
 
-__all__ = ["BakeConfig", "BakedScene", "TextureData", "UpdateReport", "bake_scene"]
+__all__ = ["BVHConfig", "BakeConfig", "BakedScene", "GridConfig", "TextureData", "UpdateReport", "bake_scene"]

@@ -138,7 +138,7 @@ class _SharedBake:
     def __init__(self):
         self.baked = None
         self.bake_ms = 0.0
-        self.options: dict = {}  # BakeConfig fields beside the structure (e.g. {"bvh_wide": False})
+        self.options: dict = {}  # structure -> options of its own config (e.g. {"bvh": {"wide": False}})
         self.generation = 0
         self.edits: list = []  # (generation, bake-space boxes it invalidates; None: everything)
         self.boxes = None  # (n, 2, 3) world boxes of the baked instances
@@ -209,9 +209,10 @@ class Pipeline:
 
     @property
     def bake_options(self) -> dict:
-        """:class:`BakeConfig` fields the bakes take beside the structure (shared with the views;
-        benchmarks and tests compare layouts with them, e.g. ``{"bvh_wide": True}``: the bake
-        otherwise chooses ``bvh_wide`` by the context, 4-wide nodes on a GPU only)."""
+        """Options of each structure's own config (:meth:`BakeConfig.of`) the bakes take, by
+        structure (shared with the views; benchmarks and tests compare layouts with them, e.g.
+        ``{"bvh": {"wide": True}}``: the bake otherwise chooses ``wide`` by the context, 4-wide
+        nodes on a GPU only)."""
         return self._bake.options
 
     @property
@@ -241,8 +242,9 @@ class Pipeline:
         # single rays walk 4-wide nodes on a GPU (a third of the dependent fetches), binary nodes
         # on a software rasteriser, whose private arrays (the wide walk's stack) cost more than
         # the fetches they save
-        options = {"bvh_wide": not software_context(self.ctx), **self._bake.options}
-        baked = bake_scene(scene, BakeConfig(structure=structure, **options), progress=progress)
+        options = {"wide": not software_context(self.ctx)} if structure == "bvh" else {}
+        options.update(self._bake.options.get(structure, {}))
+        baked = bake_scene(scene, BakeConfig.of(structure, **options), progress=progress)
         self.baked = baked
         try:
             self.scene_textures.upload(baked)

@@ -39,8 +39,8 @@ NAMES = tuple(FORMATS)
 
 
 def leaf_size(config) -> int:
-    """Triangles per model leaf (``BakeConfig.bvh_leaf_size``, 1..4)."""
-    return int(min(max(int(config.bvh_leaf_size), 1), 4))
+    """Triangles per model leaf (``BVHConfig.leaf_size``, 1..4)."""
+    return int(min(max(int(config.bvh.leaf_size), 1), 4))
 
 
 def tri_texels(count) -> np.ndarray:

@@ -3,7 +3,7 @@ bounding spheres, each node listing its casters (crowded nodes with an object BV
 over per-model BVHs and de-indexed triangles. Texel layouts: ``shaders/common/scene_grid.glsl``,
 section names cited below as [grid], [grid_index], [object], [model], [bvh], [tri].
 
-Crowded grid nodes (more than ``BakeConfig.object_bvh_threshold`` objects) also get an *object BVH*
+Crowded grid nodes (more than ``GridConfig.object_bvh_threshold`` objects) also get an *object BVH*
 in [bvh] (after the model BVHs): a stackless tree over the bake-space boxes of their objects'
 stored spheres, leaves of ``object_leaf_size`` consecutive [grid_index] entries (the node's list is
 kept in the tree's Morton leaf order). ``place_object_bvhs`` (:mod:`.grid_update`) builds them,
@@ -78,7 +78,7 @@ class HierarchicalGrid(GridUpdates, AccelerationStructure):
 
         # models: BVH + triangles, once per model ---------------------------------------------
         t_models = time.perf_counter()
-        build = build_bvhs(models, cfg.leaf_size)
+        build = build_bvhs(models, cfg.grid.leaf_size)
         structure.models = GridModels.from_build(build)
         tex.bvh_tail = int(build.node_count.sum())
         tex.tri_tail = int(build.tri_count.sum())
@@ -145,7 +145,7 @@ class HierarchicalGrid(GridUpdates, AccelerationStructure):
             "HS_TEX_WIDTH": int(w),
             "HS_TEX_WIDTH_LOG2": int(w).bit_length() - 1,
             "HS_TEX_ROWS_LOG2": MAX_ROWS_LOG2,
-            "HS_BVH_LEAF_SIZE": int(self.config.leaf_size),
+            "HS_BVH_LEAF_SIZE": int(self.config.grid.leaf_size),
         }
         if self.has_meshes:
             d["HS_HAS_MESHES"] = 1
@@ -290,7 +290,7 @@ class HierarchicalGrid(GridUpdates, AccelerationStructure):
             tc = int(self.models.tri_count[m])
             if not tc:
                 continue
-            src = build_bvhs([scene.models[m]], self.config.leaf_size).tri_src
+            src = build_bvhs([scene.models[m]], self.config.grid.leaf_size).tri_src
             t0 = int(self.models.tri_start[m])
             self.write_model_uvs(scene, m, src, t0)
             ranges += texel_rows("uv", t0 * UV_TEXELS, (t0 + tc) * UV_TEXELS, w)
@@ -346,12 +346,12 @@ class HierarchicalGrid(GridUpdates, AccelerationStructure):
         """(Re)build the grid and its index list from the instance spheres."""
         cfg, objects, tex = self.config, self.instances, self.tex
         casters = np.nonzero(scene.instances.casts_shadow)[0] if len(scene.instances) else np.zeros(0, np.int64)
-        lay = _grid.plan_grid(objects.center[casters], objects.radius[casters], cfg.base_node_size,
-                              cfg.max_level0_nodes)
+        lay = _grid.plan_grid(objects.center[casters], objects.radius[casters], cfg.grid.base_node_size,
+                              cfg.grid.max_level0_nodes)
         node = _grid.place(lay, objects.center[casters], objects.radius[casters])
         n_nodes = lay.n_nodes
         counts = np.bincount(node, minlength=n_nodes).astype(np.int64)
-        cap = _grid.node_capacity(counts, cfg.index_slack)
+        cap = _grid.node_capacity(counts, cfg.grid.index_slack)
         offset = np.concatenate([[0], np.cumsum(cap)[:-1]]).astype(np.int64)
         used = int(cap.sum())
         order = np.argsort(node, kind="stable")
@@ -379,12 +379,12 @@ class HierarchicalGrid(GridUpdates, AccelerationStructure):
             obvh_cap=np.zeros(n_nodes, np.int64), level_count=level_count, index_tail=used)
         obj = casters[order]
         obj, _, grid.bvh_grown = self.place_object_bvhs(np.arange(n_nodes), first, counts, obj,
-                                                     reserve=cfg.index_reserve)
+                                                     reserve=cfg.grid.index_reserve)
         grid.bvh_range = (region0, tex.bvh_tail)  # [bvh] records written (for regrid reports)
         tex.bvh.used = tex.bvh_tail * BVH_TEXELS
         if obj.size:
             objects.slot[obj] = slot
-        reserve = max(1024, int(used * cfg.index_reserve))
+        reserve = max(1024, int(used * cfg.grid.index_reserve))
         tex.grid = new_texture("grid", n_nodes * GRID_TEXELS, cfg.tex_width)
         tex.grid_index = new_texture("grid_index", (used + reserve) * INDEX_TEXELS, cfg.tex_width)
         tex.grid_index.used = used

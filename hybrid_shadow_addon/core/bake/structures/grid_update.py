@@ -94,7 +94,7 @@ class GridUpdates:
             ok = self.move_casters(idx[moving], old[moving], new[moving], rep)
             n_casters = int((objects.node >= 0).sum())
             outside = int(self.grid.count[lay.outside_node])
-            if not ok or outside > max(16, self.config.outside_rebake_fraction * n_casters):
+            if not ok or outside > max(16, self.config.grid.outside_rebake_fraction * n_casters):
                 self.build_grid(scene)
                 self.report_regrid(rep)
         if (self.has_meshes, self.has_spheres) != old_level_defs:
@@ -123,7 +123,7 @@ class GridUpdates:
         # relocate nodes that overflow their capacity to the tail
         over = cnt > grid.cap[aff]
         if over.any():
-            need = _grid.node_capacity(cnt[over], self.config.index_slack)
+            need = _grid.node_capacity(cnt[over], self.config.grid.index_slack)
             starts = grid.index_tail + np.concatenate([[0], np.cumsum(need)[:-1]])
             end = grid.index_tail + int(need.sum())
             if end > tex.grid_index.capacity:
@@ -176,7 +176,7 @@ class GridUpdates:
     def rebuild_model(self, scene, m: int, rep: UpdateReport) -> None:
         w = self.config.tex_width
         slots, tex = self.models, self.tex
-        build = build_bvhs([scene.models[m]], self.config.leaf_size)
+        build = build_bvhs([scene.models[m]], self.config.grid.leaf_size)
         nc, tc = int(build.node_count[0]), int(build.tri_count[0])
         node_base, tri_base, at_tail = slots.place(m, nc, tc, tex.bvh_tail, tex.tri_tail)
         if at_tail:
@@ -206,7 +206,7 @@ class GridUpdates:
 
     def obvh_nodes_for(self, n) -> np.ndarray:
         """Object-BVH tree nodes for ``n`` objects (balanced tree over ceil(n / leaf) leaves)."""
-        leaves = -(-np.asarray(n, np.int64) // int(self.config.object_leaf_size))
+        leaves = -(-np.asarray(n, np.int64) // int(self.config.grid.object_leaf_size))
         return np.where(leaves > 0, 2 * leaves - 1, 0)
 
     def place_object_bvhs(self, nodes, first, cnt, ent_obj, reserve: float = 0.25):
@@ -220,7 +220,7 @@ class GridUpdates:
         ``reserve``: when the texture grows, spare records as a fraction of the new trees."""
         grid, tex = self.grid, self.tex
         nodes = np.asarray(nodes, np.int64)
-        crowd = np.asarray(cnt) > int(self.config.object_bvh_threshold)
+        crowd = np.asarray(cnt) > int(self.config.grid.object_bvh_threshold)
         grid.obvh[nodes[~crowd]] = -1
         none = (np.zeros(0, np.int64), np.zeros(0, np.int64))
         if not crowd.any():
@@ -241,7 +241,7 @@ class GridUpdates:
         r = rec[:, 15:16].astype(np.float64)
         lo, hi = f32_down(c - r), f32_up(c + r)
         nmin, nmax, esc, lstart, lcount, nstart, ncount, _ = build_trees(
-            lo, hi, istart, cc, int(self.config.object_leaf_size))
+            lo, hi, istart, cc, int(self.config.grid.object_leaf_size))
         # allocation: in place when the node's previous allocation is large enough
         fits = ncount <= grid.obvh_cap[cn]
         grown = False

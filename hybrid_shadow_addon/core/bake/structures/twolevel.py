@@ -7,7 +7,7 @@ corners, padded by ``TLAS_PAD`` relative, quantised on one grid over the scene. 
 top level: the moved leaves and their ancestors only, re-packing just those texels (rebuild when
 the boxes leave the grid, membership changes or the SAH area doubles); a model edit rebuilds that
 model's tree (in place when it fits) and refits. The bake builds the top-level tree on a second
-thread while the model trees build (it needs only the model boxes). With ``BakeConfig.bvh_wide``
+thread while the model trees build (it needs only the model boxes). With ``BVHConfig.wide``
 the trees are also packed as 4-wide nodes ([wide], :mod:`.wide`) for the single rays' walk: a
 refit copies the changed boxes there, a rebuilt tree packs its blocks again.
 """
@@ -107,7 +107,7 @@ class TwoLevelBVH(AccelerationStructure):
         self.box_lo = np.zeros((0, 3))  # padded world box, bake space
         self.box_hi = np.zeros((0, 3))
         self.uv_models: np.ndarray | None = None  # (M,) bool: models whose UVs are in "uv"
-        self.wide: WideIndex | None = None  # where [wide] copies each [node] texel (config.bvh_wide)
+        self.wide: WideIndex | None = None  # where [wide] copies each [node] texel (``config.bvh.wide``)
 
     def _new_texture(self, name, n) -> TextureData:
         comps, fmt = FORMATS[name]
@@ -316,9 +316,9 @@ class TwoLevelBVH(AccelerationStructure):
         self.wide.fit(cap)
 
     def pack_wide(self, roots, ends, rep=None, refits=False) -> None:
-        """[wide] blocks of the trees at [node] ``[roots[k], ends[k])`` (``config.bvh_wide``;
+        """[wide] blocks of the trees at [node] ``[roots[k], ends[k])`` (``config.bvh.wide``;
         ``refits``: the top level, which :meth:`refit_wide` follows)."""
-        if not self.config.bvh_wide:
+        if not self.config.bvh.wide:
             return
         self.fit_wide(rep)
         at = self.wide.pack(self.tex["node"].linear(), self.tex["wide"].linear(), roots, ends, refits)
