@@ -1,4 +1,5 @@
-# Two commands a user needs: `make demo` and `make test`. Both set everything up first.
+# Two commands a user needs: `make demo` and `make test`. Both set everything up first (the add-on
+# package installed editable into the environments); the tools and benchmarks run as modules from here.
 PY := .venv/bin/python
 export PYTHONDONTWRITEBYTECODE := 1
 
@@ -16,7 +17,7 @@ demo: setup
 		--masks-dir out/demo --stats out/demo/stats.json
 	$(PY) -m hybrid_shadow_addon --blender-log $(DEMO_LOG) compare forest --resolution 320x180 --repeats 3 \
 		--warmup 1 --output-dir out/demo/compare
-	$(PY) tools/demo_blender.py --log $(DEMO_LOG)
+	$(PY) -m tools.demo_blender --log $(DEMO_LOG)
 	@echo "Blender's and Cycles' own output: $(DEMO_LOG)"
 
 # the tests that run a second time on bpy 5.x (CPython 3.13, numpy 2): export, pipeline, add-on
@@ -38,24 +39,24 @@ test: setup lint
 	@if [ -f .venv-bpy5/.requirements.sha256 ]; then \
 		echo "$(BPY5) -m pytest -q $(BPY5_TESTS)"; $(BPY5) -m pytest -q $(BPY5_TESTS); \
 	else echo "bpy 5 tests skipped: python3.13 not found (see tools/setup.sh)"; fi
-	$(PY) tools/shader_check.py --recorded $(SHADER_DEFINES)
+	$(PY) -m tools.shader_check --recorded $(SHADER_DEFINES)
 
 # the inner loop: everything but the slow tests and the Cycles renders (markers: pyproject.toml)
 test-fast: setup
 	$(PY) -m pytest -q -n auto --dist loadfile -m "not slow and not cycles" tests
 
 extension: setup
-	$(PY) tools/build_extension.py
+	$(PY) -m tools.build_extension
 
 bench: setup
 	$(PY) -m pip install -q --disable-pip-version-check -r requirements-bench.txt
-	$(PY) benchmarks/bench_export.py
-	$(PY) benchmarks/bench_bake.py
-	$(PY) benchmarks/bench_pipeline.py
-	$(PY) benchmarks/bench_mitsuba.py
-	$(PY) benchmarks/bench_scaling.py
-	$(PY) benchmarks/stiff_table.py --modes raytrace-high,raytrace-medium,shadowmap
-	$(PY) benchmarks/bench_variants.py
+	$(PY) -m benchmarks.bench_export
+	$(PY) -m benchmarks.bench_bake
+	$(PY) -m benchmarks.bench_pipeline
+	$(PY) -m benchmarks.bench_mitsuba
+	$(PY) -m benchmarks.bench_scaling
+	$(PY) -m benchmarks.stiff_table --modes raytrace-high,raytrace-medium,shadowmap
+	$(PY) -m benchmarks.bench_variants
 
 clean:
-	rm -rf .venv .venv-bpy5 dist build out .pytest_cache
+	rm -rf .venv .venv-bpy5 dist build out .pytest_cache *.egg-info

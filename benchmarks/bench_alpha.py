@@ -18,7 +18,7 @@ valid pixels of all lights together, worst light in brackets). For the alpha sce
 mismatch over the pixels whose camera ray crosses no surface of fractional alpha (where Cycles
 does not blend two surfaces into one pixel; tests/test_alpha_cycles.py explains why).
 
-    .venv/bin/python benchmarks/bench_alpha.py [--size 640x360] [--repeats 5] [--warmup 2]
+    .venv/bin/python -m benchmarks.bench_alpha [--size 640x360] [--repeats 5] [--warmup 2]
         [--structures bvh grid] [--json out.json]
 
 Cycles references are cached on disk (``tools/reference.py``: ``$XDG_CACHE_HOME/hybrid_shadows``).
@@ -36,9 +36,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
 
 VARIANTS = ("alpha", "binary", "one cut", "opaque", "no images")
 LABELS = {"alpha": "alpha_cards", "binary": "alpha_cards:closest=1", "one cut": "alpha_cards, one card cut",
@@ -66,8 +63,8 @@ def only_one_cut(scene, name: str):
 
 def load(arg: str, size):
     import bpy
-    from bench_quality import reference
 
+    from benchmarks.bench_quality import reference
     from hybrid_shadow_addon.blender.export import export_depsgraph
     from hybrid_shadow_addon.blender.load import open_scene
 

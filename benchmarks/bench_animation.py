@@ -5,23 +5,20 @@ render did), in the same run and process: two pipelines (programs compiled by a 
 by frame interleaved, alternating which goes first, so that load on the machine hits both alike.
 Each frame: export from bpy, bake or update, G-buffer, shadows, lighting, PNG write.
 
-    .venv/bin/python benchmarks/bench_animation.py [--scene forest] [--frames 1-24]
+    .venv/bin/python -m benchmarks.bench_animation [--scene forest] [--frames 1-24]
         [--resolution 640x360] [--mode raytrace] [--quality high] [--repeats 1] [--json OUT]
 """
 import argparse
 import json
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hybrid_shadow_addon.__main__ import parse_resolution  # noqa: E402
-from hybrid_shadow_addon.core.scene_sync import sync_scene  # noqa: E402
-from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
-from hybrid_shadow_addon.tools.render import frame_path, frame_stats, parse_frames, render_to_files, write_outputs  # noqa: E402
+from hybrid_shadow_addon.__main__ import parse_resolution
+from hybrid_shadow_addon.core.scene_sync import sync_scene
+from hybrid_shadow_addon.core.settings import Settings
+from hybrid_shadow_addon.tools.render import frame_path, frame_stats, parse_frames, render_to_files, write_outputs
 
 
 def frame_step(source, f, settings, out, pipe, prev, persist):

@@ -2,24 +2,20 @@
 triangles, 1e9 instanced triangles). Prints full-bake time, texture memory, and the time to move 1%
 of the instances (incremental update) with its ratio to the full bake.
 
-    .venv/bin/python benchmarks/bench_bake.py [--structure bvh|grid] [--models 100] [--tris 10000]
+    .venv/bin/python -m benchmarks.bench_bake [--structure bvh|grid] [--models 100] [--tris 10000]
         [--per-model 1000] [--repeat 3]
 
 ``--structure`` picks the acceleration structure (default ``bvh``, the add-on's default; ``grid``
 for the hierarchical grid). Times: the best and the median of ``--repeat`` runs.
 """
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene  # noqa: E402
-from hybrid_shadow_addon.core.bake.structures import DEFAULT_STRUCTURE, STRUCTURES  # noqa: E402
-from hybrid_shadow_addon.core.scene import Instances, Model, Scene  # noqa: E402
+from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
+from hybrid_shadow_addon.core.bake.structures import DEFAULT_STRUCTURE, STRUCTURES
+from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 
 
 def make_scene(n_models, n_tris, per_model, seed=0):

@@ -12,7 +12,7 @@ triangles, 100k instances), ``forest``, ``clusters``, ``city``... (``load_scene`
 Blender is), or a pickled core scene (``NAME.pkl.gz``, ``tools/pickle_scenes.py``).
 
     rm -rf /tmp/peer && mkdir /tmp/peer && git archive <commit> | tar -x -C /tmp/peer
-    .venv/bin/python benchmarks/bench_bake_peer.py --peer /tmp/peer [--scenes forest synthetic]
+    .venv/bin/python -m benchmarks.bench_bake_peer --peer /tmp/peer [--scenes forest synthetic]
         [--repeat 5] [--alternations 2]
 """
 from __future__ import annotations
@@ -22,21 +22,21 @@ import gzip
 import json
 import pickle
 import statistics
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from benchmarks.trees import run_in_tree
 
 REPO = Path(__file__).resolve().parents[1]
 
 CHILD = r"""
 import gzip, hashlib, json, pickle, sys, time
 import numpy as np
-root = sys.argv[1]; sys.path.insert(0, root)
 from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
-with gzip.open(sys.argv[2], "rb") as fh:
+with gzip.open(sys.argv[1], "rb") as fh:
     scene = pickle.load(fh)
-repeat = int(sys.argv[3])
+repeat = int(sys.argv[2])
 cfg = BakeConfig()
 baked = bake_scene(scene, cfg)
 h = hashlib.sha1()
@@ -63,10 +63,8 @@ def scene_file(spec: str, tmp: Path) -> Path:
     """A pickled core scene for ``spec`` (written once into ``tmp``)."""
     if spec.endswith(".pkl.gz"):
         return Path(spec)
-    sys.path.insert(0, str(REPO))
     if spec == "synthetic":
-        sys.path.insert(0, str(REPO / "benchmarks"))
-        from bench_bake import make_scene
+        from benchmarks.bench_bake import make_scene
 
         scene, _ = make_scene(100, 10000, 1000)
     else:
@@ -80,8 +78,7 @@ def scene_file(spec: str, tmp: Path) -> Path:
 
 
 def measure(tree: Path, path: Path, repeat: int) -> dict:
-    out = subprocess.run([sys.executable, "-c", CHILD, str(tree), str(path), str(repeat)], capture_output=True,
-                         text=True, cwd=str(tree))
+    out = run_in_tree(tree, ["-c", CHILD, path, repeat])
     if out.returncode != 0:
         raise SystemExit(f"{tree}: {path.name} failed:\n{out.stderr[-3000:]}")
     line = [x for x in out.stdout.splitlines() if x.startswith("HS_BAKE ")][-1]

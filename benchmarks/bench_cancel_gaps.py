@@ -3,7 +3,7 @@ the longest interval between two progress calls during a bake (each structure), 
 grids' builds (in the frame, ``eager_light_grids``) and a tiled final render, and the longest
 tile of that render.
 
-    .venv/bin/python benchmarks/bench_cancel_gaps.py [--scene forest] [--size 1280x720]
+    .venv/bin/python -m benchmarks.bench_cancel_gaps [--scene forest] [--size 1280x720]
         [--max-draw-ms 100] [--json out.json]
 
 Each case: its wall time, the number of progress calls, and the longest gap (ms) with the labels
@@ -18,8 +18,6 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
 
 
 class Gaps:

@@ -1,7 +1,7 @@
 """Our whole frame against Cycles' 1-sample shadowed renders of the same scene and lights,
 alternating in one process, same run (a script, not a test).
 
-    .venv/bin/python benchmarks/bench_cycles_frame.py [--scenes forest clusters] [--size 320x180]
+    .venv/bin/python -m benchmarks.bench_cycles_frame [--scenes forest clusters] [--size 320x180]
         [--alternations 3] [--frames 5] [--peer-settings light_grid=False]
 
 Ours: ``raytrace`` at ``high``, hard lights (as the hard Cycles reference renders them), every
@@ -22,9 +22,6 @@ import argparse
 import statistics
 import sys
 from dataclasses import replace
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def _value(text: str):

@@ -1,6 +1,6 @@
 """Time export_depsgraph: 100k instances (< 2 s) and 1M triangles (< 3 s), then every test scene.
 
-Run from the repository root: ``.venv/bin/python benchmarks/bench_export.py``.
+Run from the repository root: ``.venv/bin/python -m benchmarks.bench_export``.
 Each case: one warm-up export, then the median of 3.
 """
 import os
@@ -8,13 +8,11 @@ import statistics
 import sys
 import tempfile
 import time
-from pathlib import Path
 
 for var in ("BLENDER_USER_RESOURCES", "XDG_CONFIG_HOME", "XDG_CACHE_HOME"):
     os.environ.setdefault(var, tempfile.mkdtemp(prefix="hs-bench-"))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import bpy  # noqa: E402
+import bpy  # noqa: E402  (after the variables above: bpy reads them when it starts)
 
 from hybrid_shadow_addon.blender.export import export_depsgraph  # noqa: E402
 from hybrid_shadow_addon.blender.load import builtin_scenes, open_scene  # noqa: E402

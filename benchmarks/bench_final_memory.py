@@ -3,7 +3,7 @@ final-render process and, with ``--peer DIR``, in another tree's pipeline (an ea
 checked out there) whose context is counted the same way (this tree's ``core/gpu/memory.py``
 wraps its allocations), in the same run.
 
-    .venv/bin/python benchmarks/bench_final_memory.py [--scene forest] [--size 3840x2160]
+    .venv/bin/python -m benchmarks.bench_final_memory [--scene forest] [--size 3840x2160]
         [--samples 4] [--peer DIR] [--json OUT] [--renders N]
 
 With ``--renders N`` it measures instead of counting: N final renders of the scene in one
@@ -19,20 +19,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import sys
 import time
 from pathlib import Path
 
+from benchmarks.trees import run_in_tree
+
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
 
 MB = float(1 << 20)
 
 _PEER = """
 import importlib.util, json, sys, time
-sys.path.insert(0, {peer!r})
 spec = importlib.util.spec_from_file_location("hs_memory", {memory!r})
 memory = importlib.util.module_from_spec(spec); spec.loader.exec_module(memory)
 from hybrid_shadow_addon.blender.load import load_scene
@@ -70,9 +67,9 @@ def ours(scene_arg: str, w: int, h: int, samples: int) -> dict:
 
 
 def peer(peer_dir: str, scene_arg: str, w: int, h: int, samples: int) -> dict:
-    code = _PEER.format(peer=str(Path(peer_dir).resolve()), memory=str(REPO / "hybrid_shadow_addon/core/gpu/memory.py"),
-                        scene=scene_arg, samples=samples, w=w, h=h, MB=MB)
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=peer_dir)
+    code = _PEER.format(memory=str(REPO / "hybrid_shadow_addon/core/gpu/memory.py"), scene=scene_arg, samples=samples,
+                        w=w, h=h, MB=MB)
+    p = run_in_tree(peer_dir, ["-c", code])
     if p.returncode != 0:
         raise SystemExit(p.stderr[-3000:])
     return json.loads(p.stdout.strip().splitlines()[-1])
@@ -80,7 +77,6 @@ def peer(peer_dir: str, scene_arg: str, w: int, h: int, samples: int) -> dict:
 
 _SERIES = """
 import json, sys, time
-sys.path.insert(0, {tree!r})
 from hybrid_shadow_addon.blender.load import load_scene
 from hybrid_shadow_addon.core.runtime.remote import FinalRenderer
 from hybrid_shadow_addon.core.settings import Settings
@@ -109,8 +105,8 @@ print(json.dumps(out))
 def series(tree: Path, scene_arg: str, w: int, h: int, samples: int, n: int) -> list:
     """``n`` final renders in one renderer process of ``tree``: after each, the process's RSS,
     the driver's used video memory (None where it reports none) and the objects dropped."""
-    code = _SERIES.format(tree=str(tree.resolve()), scene=scene_arg, samples=samples, w=w, h=h, n=n)
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(tree))
+    code = _SERIES.format(scene=scene_arg, samples=samples, w=w, h=h, n=n)
+    p = run_in_tree(tree, ["-c", code])
     if p.returncode != 0:
         raise SystemExit(p.stderr[-3000:])
     return json.loads(p.stdout.strip().splitlines()[-1])

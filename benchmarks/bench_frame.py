@@ -8,7 +8,7 @@ reporting the median of each pass. Trees alternate (peer, this, peer, this, ...)
 the alternations and ``peer / this``.
 
     rm -rf /tmp/framepeer && mkdir /tmp/framepeer && git archive <commit> | tar -x -C /tmp/framepeer
-    .venv/bin/python benchmarks/bench_frame.py --peer /tmp/framepeer [--scenes forest clusters city]
+    .venv/bin/python -m benchmarks.bench_frame --peer /tmp/framepeer [--scenes forest clusters city]
         [--size 320x180] [--soft] [--frames 7] [--alternations 2]
 
 A scene may also be a core ``Scene`` pickled with gzip (``NAME.pkl.gz``, an absolute path), for a
@@ -23,20 +23,20 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import subprocess
 import sys
 from pathlib import Path
+
+from benchmarks.trees import run_in_tree
 
 REPO = Path(__file__).resolve().parents[1]
 PASSES = ("gbuffer_ms", "shadow_ms", "lighting_ms", "total_ms")
 
 CHILD = r"""
-import json, os, statistics, sys
-root = sys.argv[1]; sys.path.insert(0, root); os.chdir(root)
+import json, statistics, sys
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.settings import Settings
-scene_arg, size, soft, mode, frames = sys.argv[2], sys.argv[3], sys.argv[4] == "1", sys.argv[5], int(sys.argv[6])
-interlace = sys.argv[7] == "1"
+scene_arg, size, soft, mode, frames = sys.argv[1], sys.argv[2], sys.argv[3] == "1", sys.argv[4], int(sys.argv[5])
+interlace = sys.argv[6] == "1"
 W, H = (int(v) for v in size.split("x"))
 if scene_arg.endswith(".pkl.gz"):  # a core Scene pickled where Blender is (a machine without bpy)
     import gzip, pickle
@@ -69,8 +69,7 @@ print("HS_FRAME " + json.dumps(out), flush=True)
 
 
 def measure(tree: Path, scene: str, size: str, soft: bool, mode: str, frames: int, interlace: bool = False) -> dict:
-    out = subprocess.run([sys.executable, "-c", CHILD, str(tree), scene, size, "1" if soft else "0", mode,
-                          str(frames), "1" if interlace else "0"], capture_output=True, text=True, cwd=str(tree))
+    out = run_in_tree(tree, ["-c", CHILD, scene, size, "1" if soft else "0", mode, frames, "1" if interlace else "0"])
     if out.returncode != 0:
         raise SystemExit(f"{tree}: {scene} failed:\n{out.stderr[-2000:]}")
     line = [x for x in out.stdout.splitlines() if x.startswith("HS_FRAME ")][-1]

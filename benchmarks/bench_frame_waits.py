@@ -13,7 +13,7 @@ and the median ``total_ms`` (frames after the first two): with ``passes`` the su
 times, each up to its wait; with ``frame`` the time up to the image read. Not a speed
 comparison: the two measure different spans.
 
-    .venv/bin/python benchmarks/bench_frame_waits.py [--scenes forest clusters city] [--size 640x360]
+    .venv/bin/python -m benchmarks.bench_frame_waits [--scenes forest clusters city] [--size 640x360]
         [--frames 8] [--json OUT]
 """
 from __future__ import annotations
@@ -25,12 +25,10 @@ import statistics
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks.bench_reuse import orbit_cameras  # noqa: E402
-from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
-from hybrid_shadow_addon.core.gpu.pipeline import TIMINGS, Pipeline  # noqa: E402
-from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+from benchmarks.bench_reuse import orbit_cameras
+from hybrid_shadow_addon.blender.load import load_scene
+from hybrid_shadow_addon.core.gpu.pipeline import TIMINGS, Pipeline
+from hybrid_shadow_addon.core.settings import Settings
 
 
 def measure(scene, model: str, path: str, timing: str, w: int, h: int, frames: int) -> dict:

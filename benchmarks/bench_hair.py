@@ -2,21 +2,17 @@
 exported as tubes. Prints export ms, bake ms, triangles, texture memory and the shadow pass ms
 (ray traced, high quality, hard lights; and a 2048 shadow map) at ``--size``.
 
-    .venv/bin/python benchmarks/bench_hair.py [--strands 100000] [--size 640x360] [--frames 5]
+    .venv/bin/python -m benchmarks.bench_hair [--strands 100000] [--size 640x360] [--frames 5]
 """
 import argparse
 import statistics
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import bpy
 
-import bpy  # noqa: E402
-
-from hybrid_shadow_addon.blender.export import export_depsgraph  # noqa: E402
-from hybrid_shadow_addon.blender.load import open_scene  # noqa: E402
-from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene  # noqa: E402
+from hybrid_shadow_addon.blender.export import export_depsgraph
+from hybrid_shadow_addon.blender.load import open_scene
+from hybrid_shadow_addon.core.bake import BakeConfig, bake_scene
 
 
 def _ms(t0: float) -> float:

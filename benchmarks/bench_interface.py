@@ -22,7 +22,7 @@ Per case it prints:
 The viewport runs after a warm-up (the first export, bake and frame are not measured) until
 ``--frames`` frames were shown.
 
-    .venv/bin/python benchmarks/bench_interface.py [--scenes forest scaling:...] [--size 1280x720]
+    .venv/bin/python -m benchmarks.bench_interface [--scenes forest scaling:...] [--size 1280x720]
         [--frames 3] [--json OUT]
 """
 from __future__ import annotations
@@ -38,8 +38,6 @@ import sys
 import threading
 import time
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 DEFAULT_SCENES = ["forest", "scaling:triangles=1000000,instances=1000"]
 GL_NVX_AVAILABLE_KB = 0x9049  # GL_GPU_MEMORY_INFO_CURRENT_AVAILABLE_VIDMEM_NVX

@@ -2,7 +2,7 @@
 triangles, same machine, same run (a script, not a test).
 
     .venv/bin/python -m pip install -r requirements-bench.txt
-    .venv/bin/python benchmarks/bench_mitsuba.py [--scenes forest,scaling:triangles=1000,...]
+    .venv/bin/python -m benchmarks.bench_mitsuba [--scenes forest,scaling:triangles=1000,...]
         [--size 640x360] [--reps 3] [--variant llvm_ad_rgb]
 
 Ours: the default settings, hard: the sun's light grid (built up front, its build not timed: once
@@ -18,19 +18,15 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
-from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
-from hybrid_shadow_addon.core.oracle.rays import shadow_rays  # noqa: E402
-from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+from hybrid_shadow_addon.blender.load import load_scene
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.oracle.rays import shadow_rays
+from hybrid_shadow_addon.core.settings import Settings
 
 DEFAULT = "scaling:triangles=1000,instances=1;scaling:triangles=10000,instances=10;" \
           "scaling:triangles=100000,instances=100;forest"

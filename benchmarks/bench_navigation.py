@@ -11,7 +11,7 @@ rasteriser (this machine's llvmpipe), where ``low`` costs more than ``high``. Ti
 request: the first image, the first full-quality frame and the last frame (the worker idle);
 medians over ``--repeats`` changes, the two choices alternating.
 
-    .venv/bin/python benchmarks/bench_navigation.py [forest clusters city] [--size 640x360] [--repeats 3] [--soft]
+    .venv/bin/python -m benchmarks.bench_navigation [forest clusters city] [--size 640x360] [--repeats 3] [--soft]
 """
 from __future__ import annotations
 
@@ -19,15 +19,12 @@ import argparse
 import dataclasses
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
-from hybrid_shadow_addon.core.runtime.worker import RenderRequest, RenderWorker, snapshot  # noqa: E402
-from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+from hybrid_shadow_addon.blender.load import load_scene
+from hybrid_shadow_addon.core.runtime.worker import RenderRequest, RenderWorker, snapshot
+from hybrid_shadow_addon.core.settings import Settings
 
 
 def change(worker, scene, fast, full, w, h, auto: bool, view: str) -> tuple:

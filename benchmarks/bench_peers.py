@@ -16,7 +16,7 @@ pixel-centre samples), the share of pixels valid in both whose shadow differs, o
 lights. Cycles' one render is the reference's own renderer (its shadows are the reference's
 at 1 sample); EEVEE's and Workbench's shadows are not separated per light here.
 
-    .venv/bin/python benchmarks/bench_peers.py [--scenes forest clusters] [--size 320x180]
+    .venv/bin/python -m benchmarks.bench_peers [--scenes forest clusters] [--size 320x180]
         [--frames 3] [--json OUT]
 """
 from __future__ import annotations
@@ -27,8 +27,6 @@ import statistics
 import sys
 import time
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 #: EEVEE's engine name in Blender 4.x and 5.x
 EEVEE = ("BLENDER_EEVEE_NEXT", "BLENDER_EEVEE")

@@ -1,6 +1,6 @@
 """Pipeline benchmark on llvmpipe (a script, not a test): ms per pass and per mode.
 
-    .venv/bin/python benchmarks/bench_pipeline.py [--scenes forest,clusters,city] [--reps 3]
+    .venv/bin/python -m benchmarks.bench_pipeline [--scenes forest,clusters,city] [--reps 3]
         [--size 640x360] [--scaling 1000,10000,100000,1000000] [--no-scaling] [--maps]
 
 Tables (warm: the first frame of every configuration compiles shaders and is discarded; median
@@ -14,14 +14,10 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
-from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
-from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+from hybrid_shadow_addon.blender.load import load_scene
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.settings import Settings
 
 SCENES = {"forest": "forest", "clusters": "clusters", "city": "city"}
 PASSES = ("gbuffer_ms", "shadow_ms", "upsample_ms", "lighting_ms", "total_ms")

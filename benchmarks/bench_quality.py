@@ -3,7 +3,7 @@ shadow pass's ms (median of warm frames, the qualities interleaved in each repea
 per pixel (``Frame.stats``: ``rays_traced / pixels``) and the mismatch against the Cycles
 per-light visibility (% of valid pixels, all lights together, and the worst light).
 
-    .venv/bin/python benchmarks/bench_quality.py [--scenes forest,clusters,city,stiff/*] \
+    .venv/bin/python -m benchmarks.bench_quality [--scenes forest,clusters,city,stiff/*] \
         [--size 320x180] [--repeats 3] [--variants high,medium,low] [--json out.json] [--plot out.png]
 
 Scenes under ``stiff/`` render at their own size (200x150); the others at ``--size``. Cycles
@@ -26,8 +26,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
 
 SCENES = ("forest", "clusters", "city")
 

@@ -18,7 +18,7 @@ reaches once they pay back); ``--no-grid`` traces the tree (lights that move, al
 ``--orbit`` orbits every scene; ``--no-group`` leaves the refinement's group rule (llvmpipe's
 default) off in the reusing pipelines, as on a GPU.
 
-    .venv/bin/python benchmarks/bench_reuse.py [forest city clusters smooth_shapes] [--size 640x360]
+    .venv/bin/python -m benchmarks.bench_reuse [forest city clusters smooth_shapes] [--size 640x360]
         [--frames 10] [--range A-B] [--orbit] [--orbit-step 0.02] [--no-grid] [--no-group]
         [--trace-path auto|compute|fragment] [--json OUT]
 """
@@ -27,17 +27,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
-from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
-from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
-from hybrid_shadow_addon.tools.metrics import frame_mismatch  # noqa: E402
+from hybrid_shadow_addon.blender.load import load_scene
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.settings import Settings
+from hybrid_shadow_addon.tools.metrics import frame_mismatch
 
 HARD = Settings(mode="raytrace", quality="high", hard=True)
 

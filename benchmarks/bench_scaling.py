@@ -2,7 +2,7 @@
 triangle count (1k -> 1M, at 100 instances) and the instance count (10 -> 100k, at 100k
 triangles in all) grow. Prints a table; writes ``scaling.json`` and ``scaling.png``.
 
-    .venv/bin/python benchmarks/bench_scaling.py [--resolution 320x180] [--repeats 3]
+    .venv/bin/python -m benchmarks.bench_scaling [--resolution 320x180] [--repeats 3]
         [--triangles 1000 10000 100000 1000000] [--instances 10 100 1000 10000 100000]
         [--modes raytrace-high shadowmap-2048 none] [--output-dir out/bench_scaling]
 
@@ -23,10 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hybrid_shadow_addon.__main__ import blender_output_to_stderr, parse_resolution  # noqa: E402
-from hybrid_shadow_addon.tools.variants import resolve_variants  # noqa: E402
+from hybrid_shadow_addon.__main__ import blender_output_to_stderr, parse_resolution
+from hybrid_shadow_addon.tools.variants import resolve_variants
 
 
 def measure(pipe, arg, variants, resolution, repeats, warmup):

@@ -2,7 +2,7 @@
 against the same scene with every flat model given corner normals (its face normals: the stage
 runs, the lift is zero), alternated in one process; median G-buffer ms of each.
 
-    .venv/bin/python benchmarks/bench_smooth_gbuffer.py forest --size 640x360 --repeats 6
+    .venv/bin/python -m benchmarks.bench_smooth_gbuffer forest --size 640x360 --repeats 6
 """
 from __future__ import annotations
 
@@ -15,8 +15,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
 
 
 def smooth_copy(scene):

@@ -14,7 +14,7 @@ Scenes: ``soft`` (the test suite's hand-made scene: a 15° sun, a 0.4 m sphere l
 rectangle and disk area lights over a cube and a box, 160x120 by default) and any SCENE spec
 ``load_scene`` accepts (``soft_lights``, ``forest``...).
 
-    .venv/bin/python benchmarks/bench_soft.py soft --size 320x240
+    .venv/bin/python -m benchmarks.bench_soft soft --size 320x240
 """
 from __future__ import annotations
 
@@ -25,12 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.oracle.soft import soft_visibility
+from hybrid_shadow_addon.core.settings import Settings
 
-from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
-from hybrid_shadow_addon.core.oracle.soft import soft_visibility  # noqa: E402
-from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 
 def load(spec, size):

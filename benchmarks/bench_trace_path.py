@@ -34,7 +34,7 @@ packets (a software rasteriser's default; ``RaytraceOptions.soft_lanes``); the p
 fragment path take no such choice, so they run the same work twice.
 
     rm -rf /tmp/peer && mkdir /tmp/peer && git archive <commit> | tar -x -C /tmp/peer
-    .venv/bin/python benchmarks/bench_trace_path.py --peer /tmp/peer [--scenes forest clusters city]
+    .venv/bin/python -m benchmarks.bench_trace_path --peer /tmp/peer [--scenes forest clusters city]
         [--size 640x360] [--frames 5] [--alternations 2] [--soft] [--json OUT]
 
 A scene may be a core ``Scene`` pickled with gzip (``NAME.pkl.gz``, an absolute path; see
@@ -45,9 +45,10 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import subprocess
 import sys
 from pathlib import Path
+
+from benchmarks.trees import run_in_tree
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -62,12 +63,11 @@ SOFT = {f"soft {k}": ({"quality": "high", "hard": False, "samples": 64, "light_g
         for k, v in (("lanes", True), ("packets", False))}
 
 CHILD = r"""
-import dataclasses, hashlib, json, os, statistics, sys
-root = sys.argv[1]; sys.path.insert(0, root); os.chdir(root)
+import dataclasses, hashlib, json, statistics, sys
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.settings import Settings
-scene_arg, size, frames, path = sys.argv[2], sys.argv[3], int(sys.argv[4]), sys.argv[5]
-configs = json.loads(sys.argv[6])
+scene_arg, size, frames, path = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
+configs = json.loads(sys.argv[5])
 path, _, layout = path.partition(" ")
 W, H = (int(v) for v in size.split("x"))
 if scene_arg.endswith(".pkl.gz"):
@@ -120,8 +120,7 @@ print("HS_PATHS " + json.dumps(out), flush=True)
 
 
 def measure(tree: Path, scene: str, size: str, frames: int, path: str, configs: dict) -> dict:
-    out = subprocess.run([sys.executable, "-c", CHILD, str(tree), scene, size, str(frames), path,
-                          json.dumps(configs)], capture_output=True, text=True, cwd=str(tree))
+    out = run_in_tree(tree, ["-c", CHILD, scene, size, frames, path, json.dumps(configs)])
     if out.returncode != 0:
         raise SystemExit(f"{tree} ({path}): {scene} failed:\n{out.stderr[-3000:]}")
     line = [x for x in out.stdout.splitlines() if x.startswith("HS_PATHS ")][-1]

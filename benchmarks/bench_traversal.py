@@ -6,7 +6,7 @@ tree, ours once per ``--structure``. Runs are interleaved (peer, grid, bvh, peer
 the table shows median shadow ms (the ray pass, shader compilation included, as the CLI reports
 it), the ratio peer / ours, and how many mask pixels equal the peer's (NaN = NaN).
 
-    .venv/bin/python benchmarks/bench_traversal.py [--peer /tmp/peer12] [--repeats 3]
+    .venv/bin/python -m benchmarks.bench_traversal [--peer /tmp/peer12] [--repeats 3]
         [--scenes forest clusters city scaling:triangles=1000000,instances=1000]
         [--structures grid bvh] [--markdown out.md]
 """

@@ -4,19 +4,15 @@ optional path compiled in (local-light code is a separate program, so the 'all' 
 spheres, max distance and interlace-free local-light defines on), and the lighting pass of the
 sun-only scene against the same scene plus unshadowed lights of every other type at zero power.
 
-    .venv/bin/python benchmarks/bench_variants.py [--size 640x360] [--repeats 15]
+    .venv/bin/python -m benchmarks.bench_variants [--size 640x360] [--repeats 15]
 """
 import argparse
-import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
-from hybrid_shadow_addon.core.scene import Light  # noqa: E402
-from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.scene import Light
+from hybrid_shadow_addon.core.settings import Settings
 
 
 def scene_with_blocks(n=400, seed=0):

@@ -1,7 +1,7 @@
 """The largest scenes this machine renders: the GL limits of its context, then synthetic scenes
 of growing size, each rendered in a process of its own, and a markdown table of what happened.
 
-    .venv/bin/python benchmarks/find_limits.py [--sweeps gl triangles instances lights resolution]
+    .venv/bin/python -m benchmarks.find_limits [--sweeps gl triangles instances lights resolution]
         [--triangles 1000000 4000000 16000000] [--instances 100000 1000000 4000000]
         [--lights 100 1000 max max+1] [--resolutions 3840x2160 7680x4320 16384x8192]
         [--size 320x180] [--timeout 600] [--memory-limit-gb G] [--json OUT]
@@ -53,8 +53,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
 
 RESULT = "RESULT "
 
@@ -337,8 +335,8 @@ def spawn(case: dict, timeout: float, memory_limit: int) -> dict:
 
     with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
         t0 = time.perf_counter()
-        proc = subprocess.Popen([sys.executable, __file__, "--case", json.dumps(case)], stdout=out, stderr=err,
-                                preexec_fn=limit, cwd=str(REPO))
+        proc = subprocess.Popen([sys.executable, "-m", "benchmarks.find_limits", "--case", json.dumps(case)],
+                                stdout=out, stderr=err, preexec_fn=limit, cwd=str(REPO))
         status, usage, timed_out = None, None, False
         while True:
             pid, status, usage = os.wait4(proc.pid, os.WNOHANG)

@@ -28,22 +28,22 @@ for s in forest clusters city scaling_triangles_1000000; do
     [ -f "$scenes/$s.pkl.gz" ] && hard+=("$scenes/$s.pkl.gz")
 done
 echo "## hard lights, $size"
-$py benchmarks/bench_trace_path.py --peer "$peer" --scenes "${hard[@]}" --size "$size" --frames 5 \
+$py -m benchmarks.bench_trace_path --peer "$peer" --scenes "${hard[@]}" --size "$size" --frames 5 \
     --alternations 1 --layouts --configs "high cold" "high grids" --json "$out/paths_hard.json" | sed "s#$scenes/##g; s#.pkl.gz##g" | tee "$out/paths_hard.md"
 if [ -f "$scenes/soft_lights.pkl.gz" ]; then
     echo "## soft lights, $size"
-    $py benchmarks/bench_trace_path.py --peer "$peer" --scenes "$scenes/soft_lights.pkl.gz" "$scenes/forest.pkl.gz" \
+    $py -m benchmarks.bench_trace_path --peer "$peer" --scenes "$scenes/soft_lights.pkl.gz" "$scenes/forest.pkl.gz" \
         --size "$size" --frames 3 --alternations 1 --soft --configs "soft lanes" "soft packets" \
         --json "$out/paths_soft.json" \
         | sed "s#$scenes/##g; s#.pkl.gz##g" | tee "$out/paths_soft.md"
 fi
 all=$(ls "$scenes"/*.pkl.gz | grep -v 1000000 | paste -sd ';')
-$py tools/mask_digest.py --tree "$peer" --scenes "$all" --resolution 320x180 --output "$out/digest_peer.json" >/dev/null
+$py -m tools.mask_digest --tree "$peer" --scenes "$all" --resolution 320x180 --output "$out/digest_peer.json" >/dev/null
 # (differing digests are reported, not fatal: the Cycles peer below still runs)
-$py tools/mask_digest.py --scenes "$all" --resolution 320x180 --output "$out/digest_this.json" \
+$py -m tools.mask_digest --scenes "$all" --resolution 320x180 --output "$out/digest_this.json" \
     --against "$out/digest_peer.json" | tail -n 20 || echo "digests: some variants differ from the peer's (above)"
 if $py -c "import bpy" 2>/dev/null; then
-    $py benchmarks/bench_cycles_frame.py --scenes forest clusters --size "$size" --alternations 1 --frames 3 \
+    $py -m benchmarks.bench_cycles_frame --scenes forest clusters --size "$size" --alternations 1 --frames 3 \
         | tee "$out/cycles.md"
 else
     echo "Cycles peer: no bpy in $py on this machine (not measured)" | tee "$out/cycles.md"

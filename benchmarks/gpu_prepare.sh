@@ -25,7 +25,7 @@ for n in 28 27 17; do plat+=(--platform "manylinux_2_${n}_x86_64"); done
 python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
     "${plat[@]}" --platform manylinux2014_x86_64 -d .whl \
     "$(grep -E '^moderngl==' requirements.txt | cut -d' ' -f1)" "$(grep -E '^glcontext==' requirements.txt | cut -d' ' -f1)"
-.venv/bin/python tools/pickle_scenes.py --output-dir out/gpu/scenes forest clusters city \
+.venv/bin/python -m tools.pickle_scenes --output-dir out/gpu/scenes forest clusters city \
     "scaling:triangles=1000000" soft_lights >/dev/null
 git archive "$rev" | tar -x -C out/gpu/peer
 echo "prepared: $(du -sh .gl .whl out/gpu | awk '{printf "%s %s  ", $2, $1}')(peer ${rev:0:7})"

@@ -24,23 +24,20 @@ BVH's are rounded outward: a ray leaving a flat ground enters the ground's own t
 column is the most the grid could save of the whole walk (top level and model trees, one fetch
 a step), were its count exact.
 
-    .venv/bin/python benchmarks/model_loose_grid.py [forest clusters city "scaling:..."] [--rays 1500]
+    .venv/bin/python -m benchmarks.model_loose_grid [forest clusters city "scaling:..."] [--rays 1500]
 """
 from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
-from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
-from hybrid_shadow_addon.core.oracle import tracer  # noqa: E402
-from hybrid_shadow_addon.core.oracle.rays import shadow_rays  # noqa: E402
-from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+from hybrid_shadow_addon.blender.load import load_scene
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.oracle import tracer
+from hybrid_shadow_addon.core.oracle.rays import shadow_rays
+from hybrid_shadow_addon.core.settings import Settings
 
 
 def instance_boxes(scene) -> tuple:

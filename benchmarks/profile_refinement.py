@@ -20,24 +20,21 @@ read from the depth buffer. Printed per scene and quality:
 
 Deterministic (no timing).
 
-    .venv/bin/python benchmarks/profile_refinement.py [forest clusters city] [--size 320x180]
+    .venv/bin/python -m benchmarks.profile_refinement [forest clusters city] [--size 320x180]
 """
 from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
-from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
-from hybrid_shadow_addon.core.gpu.targets import read_texture  # noqa: E402
-from hybrid_shadow_addon.core.oracle import tracer  # noqa: E402
-from hybrid_shadow_addon.core.oracle.rays import shadow_rays  # noqa: E402
-from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+from hybrid_shadow_addon.blender.load import load_scene
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.gpu.targets import read_texture
+from hybrid_shadow_addon.core.oracle import tracer
+from hybrid_shadow_addon.core.oracle.rays import shadow_rays
+from hybrid_shadow_addon.core.settings import Settings
 
 BW, BH = 4, 2  # llvmpipe's lock-step block (columns, rows from the bottom of the image)
 

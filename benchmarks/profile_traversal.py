@@ -18,25 +18,22 @@ boxes first, larger boxes first. Deterministic (no timing): step counts are what
 executes, whatever the machine. With ``--wide`` the same trees are walked as 4- and 8-wide nodes
 with a stack (``core/oracle/tracer/wide.py``): the dependent fetches such a layout would take.
 
-    .venv/bin/python benchmarks/profile_traversal.py [forest clusters city scaling:triangles=1000000]
+    .venv/bin/python -m benchmarks.profile_traversal [forest clusters city scaling:triangles=1000000]
         [--size 320x180] [--orders] [--wide]
 """
 from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hybrid_shadow_addon.blender.load import load_scene  # noqa: E402
-from hybrid_shadow_addon.core.gpu.lights import light_ray_uniforms  # noqa: E402
-from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
-from hybrid_shadow_addon.core.oracle import tracer  # noqa: E402
-from hybrid_shadow_addon.core.oracle.rays import shadow_rays  # noqa: E402
-from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+from hybrid_shadow_addon.blender.load import load_scene
+from hybrid_shadow_addon.core.gpu.lights import light_ray_uniforms
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.oracle import tracer
+from hybrid_shadow_addon.core.oracle.rays import shadow_rays
+from hybrid_shadow_addon.core.settings import Settings
 
 LEAF = np.uint32(0x80000000)
 

@@ -3,7 +3,7 @@ Cycles: one markdown table of every scene x light with the mismatch (% of valid 
 |ours - Cycles| > 0.5), how many of those we shadow where Cycles lights ("false") and the reverse
 ("missed"), and the set's total, as BENCHMARKS.md records it.
 
-    .venv/bin/python benchmarks/real_meshes_table.py [--scenes normals/custom_split,models/avocado]
+    .venv/bin/python -m benchmarks.real_meshes_table [--scenes normals/custom_split,models/avocado]
         [--mode raytrace-high]
 
 The scenes are ``test_scenes/normals/*.py`` and ``test_scenes/models/*.py``; the references are
@@ -22,8 +22,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
 
 SCENES = ("normals/smooth_primitives", "normals/weighted_normals", "normals/custom_split", "normals/flipped_faces",
           "normals/gltf_roundtrip", "normals/obj_roundtrip", "models/avocado", "models/lantern", "models/waterbottle")

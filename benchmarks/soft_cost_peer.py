@@ -7,7 +7,7 @@ medians. Trees alternate (peer, this, peer, this, ...) ``--alternations`` times,
 same machine load.
 
     rm -rf /tmp/softpeer && mkdir /tmp/softpeer && git archive <commit> | tar -x -C /tmp/softpeer
-    .venv/bin/python benchmarks/soft_cost_peer.py --peer /tmp/softpeer [--scenes soft soft_lights:width=320,height=240]
+    .venv/bin/python -m benchmarks.soft_cost_peer --peer /tmp/softpeer [--scenes soft soft_lights:width=320,height=240]
         [--size 320x240] [--samples 32] [--alternations 3] [--viewport]
 
 Scene ``soft`` is the test suite's hand-made scene (``soft_scene`` in ``tests/helpers/scenes.py``). With
@@ -19,30 +19,30 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import subprocess
 import sys
 from pathlib import Path
+
+from benchmarks.trees import run_in_tree
 
 REPO = Path(__file__).resolve().parents[1]
 
 CHILD = r"""
-import json, os, statistics, sys
-root = sys.argv[1]; sys.path.insert(0, root); os.chdir(root)
+import json, statistics, sys
 from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 from hybrid_shadow_addon.core.settings import Settings
-spec, size, samples = sys.argv[2], sys.argv[3], int(sys.argv[4])
+spec, size, samples = sys.argv[1], sys.argv[2], int(sys.argv[3])
 W, H = (int(v) for v in size.split("x"))
 if spec == "soft":
     try:
         from tests.helpers.scenes import soft_scene
-    except ImportError:  # a peer tree without tests/helpers
-        sys.path.insert(0, os.path.join(root, "tests"))
-        from test_soft_shadows import soft_scene
+    except ImportError:  # a peer tree without tests/helpers (the working directory: the tree)
+        import runpy
+        soft_scene = runpy.run_path("tests/test_soft_shadows.py")["soft_scene"]
     scene = soft_scene(); scene.resolution = (W, H)
 else:
     from hybrid_shadow_addon.blender.load import load_scene
     scene = load_scene(spec)
-viewport = sys.argv[5] == "viewport"
+viewport = sys.argv[4] == "viewport"
 pipe = Pipeline(); ms = {True: [], False: []}
 for hard in (True, False) * 4:
     pipe.reset_history()
@@ -56,8 +56,7 @@ print(json.dumps({"hard": statistics.median(ms[True][1:]), "soft": statistics.me
 
 
 def measure(root: Path, spec: str, size: str, samples: int, what: str = "final") -> dict:
-    p = subprocess.run([sys.executable, "-c", CHILD, str(root), spec, size, str(samples), what],
-                       capture_output=True, text=True)
+    p = run_in_tree(root, ["-c", CHILD, spec, size, samples, what])
     if p.returncode != 0:
         raise RuntimeError(f"{root}: {p.stderr[-2000:]}")
     # (the last JSON line: Blender may print its own lines at exit, e.g. about unfreed memory)

@@ -9,7 +9,7 @@ rays per pixel and light) for each of ``--samples``, and the viewport's mask on 
 after a change, the second and the eighth (``--viewport``; 4 samples per frame). Every valid
 pixel counts (no subset).
 
-    .venv/bin/python benchmarks/soft_per_light.py soft_lights --size 160x120 --samples 16 32 64 128 --viewport
+    .venv/bin/python -m benchmarks.soft_per_light soft_lights --size 160x120 --samples 16 32 64 128 --viewport
 """
 from __future__ import annotations
 
@@ -19,12 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.settings import Settings
+from hybrid_shadow_addon.tools.metrics import mask_error
 
-from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
-from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
-from hybrid_shadow_addon.tools.metrics import mask_error  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 
 def reference(spec: str, size, samples: int, cache: Path) -> dict:

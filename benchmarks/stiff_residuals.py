@@ -17,7 +17,7 @@ mask, then every pixel where we differ from Cycles (1 sample) with its class:
 - ``cycles hit point``: we equal the exact answer, Cycles differs from it on its own vertices
   too: its hit point (the Position pass) is off the exact one, or its samples disagree.
 
-    .venv/bin/python benchmarks/stiff_residuals.py [--cases far_away,stadium]
+    .venv/bin/python -m benchmarks.stiff_residuals [--cases far_away,stadium]
 
 Small scenes only (every ray against every triangle); ``crowd`` takes minutes.
 """
@@ -30,11 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "benchmarks"))
+from benchmarks import stiff_table
 
-import stiff_table  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 CASES = ("far_away", "stadium", "axis_aligned", "grazing", "clip_range", "ortho", "cards", "instance_scales")
 

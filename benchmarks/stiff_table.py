@@ -2,7 +2,7 @@
 mode with the mismatch (% of valid pixels where |ours - Cycles| > 0.5), the MAE and the shadow
 time, worst light per case first. The lead pastes the output into BENCHMARKS.md.
 
-    .venv/bin/python benchmarks/stiff_table.py [--cases grazing,far_away] [--modes raytrace-high,shadowmap]
+    .venv/bin/python -m benchmarks.stiff_table [--cases grazing,far_away] [--modes raytrace-high,shadowmap]
 
 Metrics come from ``hybrid_shadow_addon.tools.metrics`` (the ``compare`` tool's) when present.
 ``evaluate_case`` is also what ``tests/test_stiff.py`` runs.
@@ -19,8 +19,6 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
 
 CASES = ("grazing", "axis_aligned", "far_away", "stadium", "cards", "degenerate", "crowd", "instance_scales",
          "point_in_box", "spot_touching", "ortho", "clip_range")

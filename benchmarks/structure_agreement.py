@@ -1,16 +1,13 @@
 """Agreement of the two acceleration structures: for every stiff scene (200x150) and forest and
 clusters (320x180), the share of pixels whose ray-traced `high` mask differs between `grid` and
-`bvh` (worst light). Usage: ``.venv/bin/python benchmarks/structure_agreement.py``"""
+`bvh` (worst light). Usage: ``.venv/bin/python -m benchmarks.structure_agreement``"""
 import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hybrid_shadow_addon.blender.load import builtin_scenes, load_scene  # noqa: E402
-from hybrid_shadow_addon.core.gpu.pipeline import Pipeline  # noqa: E402
-from hybrid_shadow_addon.core.settings import Settings  # noqa: E402
+from hybrid_shadow_addon.blender.load import builtin_scenes, load_scene
+from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
+from hybrid_shadow_addon.core.settings import Settings
 
 
 def main() -> int:

@@ -4,17 +4,13 @@ import sys
 import tempfile
 from pathlib import Path
 
+import pytest
+
+from tests.helpers.blender_env import TEST_SCENES
+
 _tmp = Path(tempfile.mkdtemp(prefix="hs-blender-user-"))
 for var in ("BLENDER_USER_RESOURCES", "XDG_CONFIG_HOME", "XDG_CACHE_HOME"):
     os.environ.setdefault(var, str(_tmp / var.lower()))
-
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
-
-import pytest  # noqa: E402
-
-from tests.helpers.blender_env import TEST_SCENES  # noqa: E402
 
 _EXIT = pytest.StashKey[int]()  # pytest's exit status, kept for pytest_unconfigure
 

@@ -22,7 +22,6 @@ FRAMES = (1, 2, 3, 4)
 
 
 def driver(out_dir: str) -> None:
-    sys.path.insert(0, str(REPO))
     import bpy
 
     import hybrid_shadow_addon

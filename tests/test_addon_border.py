@@ -18,7 +18,6 @@ W, H = 96, 64
 
 
 def driver(out_dir: str) -> None:
-    sys.path.insert(0, str(REPO))
     import bpy
 
     import hybrid_shadow_addon
@@ -114,8 +113,11 @@ def driver(out_dir: str) -> None:
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
+    from tests.helpers.blender_env import checkout_env
+
     tmp = tmp_path_factory.mktemp("border")
-    proc = subprocess.run([sys.executable, __file__, str(tmp)], capture_output=True, text=True, timeout=600)
+    proc = subprocess.run([sys.executable, __file__, str(tmp)], env=checkout_env(), capture_output=True, text=True,
+                          timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return tmp, json.loads((tmp / "report.json").read_text())
 

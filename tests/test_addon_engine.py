@@ -61,7 +61,6 @@ def engine_selectable(scene) -> bool:
 
 
 def driver(out_dir: str, zip_path: str) -> None:
-    sys.path.insert(0, str(REPO))
     import bpy
 
     from hybrid_shadow_addon.blender.load import open_scene
@@ -155,7 +154,7 @@ def run(tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("addon")
     env = isolated_env(tmp)
-    build = subprocess.run([PY, str(REPO / "tools/build_extension.py"), "--platform", "linux-x64"],
+    build = subprocess.run([PY, "-m", "tools.build_extension", "--platform", "linux-x64"],
                            cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
     assert build.returncode == 0, build.stdout + build.stderr
     zip_path = REPO / "dist/hybrid_shadows-0.1.0-linux_x64.zip"

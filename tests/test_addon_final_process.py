@@ -58,7 +58,6 @@ class Stand:
 
 
 def driver(out_dir: str) -> None:
-    sys.path.insert(0, str(REPO))
     import bpy
 
     import hybrid_shadow_addon

@@ -44,7 +44,7 @@ class StubLayout:
     def template_list(self, *a, **kw):
         self.drawn.append(("template_list", a[0]))
 
-    def template_ID(self, data, name, **kw):
+    def template_ID(self, data, name, **kw):  # noqa: N802 - Blender's UILayout method
         self.drawn.append(("template_ID", name))
 
 

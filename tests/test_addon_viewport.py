@@ -30,7 +30,6 @@ SCENE = "forest:trees=12,spheres=4,variants=2,terrain=32,width=160,height=120"
 
 
 def driver(out_dir: str) -> None:  # noqa: C901 - one scripted session
-    sys.path.insert(0, str(REPO))
     import bpy
     import numpy as np
 

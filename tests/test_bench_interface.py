@@ -19,7 +19,7 @@ def cases(tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("bench_interface")
     out = tmp / "interface.json"
-    r = subprocess.run([sys.executable, "benchmarks/bench_interface.py", "--scenes", "cube_on_plane",
+    r = subprocess.run([sys.executable, "-m", "benchmarks.bench_interface", "--scenes", "cube_on_plane",
                         "--size", "64x36", "--frames", "1", "--json", str(out)],
                        cwd=REPO, env=isolated_env(tmp), capture_output=True, text=True, timeout=240)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]

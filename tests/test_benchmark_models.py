@@ -1,20 +1,14 @@
 """The models behind figures in BENCHMARKS.md that are counted, not timed: the refinement's
 lock-step cost (``benchmarks/profile_refinement.py``) and the loose grid's work
 (``benchmarks/model_loose_grid.py``)."""
-import sys
-from pathlib import Path
-
 import numpy as np
-
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))
 
 
 def test_refinement_profile_cost_model():
     """benchmarks/profile_refinement.py's lock-step model (BENCHMARKS.md's bound on what the
     refinement can save): a 4x2 block costs its slowest traced lane; a list costs 8 rays at a
     time in llvmpipe's shading order."""
-    import profile_refinement as pr
+    from benchmarks import profile_refinement as pr
 
     steps = np.arange(1, 33, dtype=np.int64).reshape(4, 8)  # row 0 the top row
     everything = np.ones_like(steps, bool)
@@ -38,7 +32,7 @@ def test_loose_grid_model_reaches_exactly_the_boxes_a_ray_crosses():
     """The loose grid files each box by its centre in a level whose grown cells hold it, so a
     walk over the grown cells a ray crosses finds every box the ray crosses (a brute-force
     slab test over all boxes), and tests at least those."""
-    import model_loose_grid as lg
+    from benchmarks import model_loose_grid as lg
 
     rng = np.random.default_rng(3)
     n = 400

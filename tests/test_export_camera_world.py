@@ -120,8 +120,7 @@ def _sky_node(scene, sky_type):
 def _cycles_world_mean(scene):
     """Cycles' (CPU) view of the world: the solid-angle-weighted mean of an equirectangular
     panorama (``tools/measure_sky.py``'s, as the tables are measured)."""
-    sys.path.insert(0, str(REPO / "tools"))
-    import measure_sky
+    from tools import measure_sky
 
     measure_sky.panorama(scene)
     return measure_sky.render_mean(scene)
@@ -202,7 +201,7 @@ def test_measure_sky_checks_the_table(scene, tmp_path):
     sky_type = _world_with(scene, "ShaderNodeTexSky").sky_type  # a new node's
     table = tmp_path / "sky.json"
     shutil.copy(SKY_TABLE_PATH, table)
-    cmd = [sys.executable, str(REPO / "tools/measure_sky.py"), "--check", "--quiet", "--table", str(table),
+    cmd = [sys.executable, "-m", "tools.measure_sky", "--check", "--quiet", "--table", str(table),
            "--types", sky_type, "--elevations", "30,12.5"]  # (12.5°'s cubic does not reach to 30°)
     r = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr

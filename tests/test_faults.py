@@ -43,7 +43,6 @@ ARGS = ["animated", "--frames", FRAMES, "--resolution", "96x72", "--quality", "h
 # the CLI, with the process ended (signal ``sig``) as it is about to make its ``at``-th rename
 _KILLED_AT_RENAME = """
 import os, runpy, signal, sys
-sys.path.insert(0, {repo!r})
 real, n = os.replace, [0]
 def replace(a, b):
     n[0] += 1
@@ -90,7 +89,6 @@ def _check_same(out: Path, want: dict) -> None:
 # the CLI, with the disk full from the ``at``-th image on
 _DISK_FULL = """
 import errno, runpy, sys
-sys.path.insert(0, {repo!r})
 from hybrid_shadow_addon.tools import render
 real, n = render.write_image, [0]
 def write_image(path, rgba):
@@ -109,7 +107,6 @@ sys.exit(__import__("hybrid_shadow_addon.__main__", fromlist=["main"]).main(sys.
 # the CLI, with its renderer process sent ``sig`` at the first "Baking" of frame ``frame``
 _CLI_RENDERER_FAULT = """
 import os, runpy, signal, sys
-sys.path.insert(0, {repo!r})
 from hybrid_shadow_addon.core.runtime import remote
 real, calls, hit = remote.FinalRenderer.render, [0], []
 def render(self, *a, on_progress=None, **k):
@@ -148,7 +145,7 @@ def test_frames_killed_between_a_frames_renames_resume_to_the_same_files(tmp_pat
     for at in (per_frame + 1, 2 * per_frame - 1, 2 * per_frame, 3 * per_frame):
         out = tmp_path / f"at{at}"
         out.mkdir()
-        code = _KILLED_AT_RENAME.format(repo=str(REPO), at=at, sig=int(sig), args=_args(out))
+        code = _KILLED_AT_RENAME.format(at=at, sig=int(sig), args=_args(out))
         p = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300)
         assert p.returncode == -int(sig), (at, p.returncode, p.stderr[-2000:])
         done = (at - 1) // per_frame  # frames whose image was put in place
@@ -164,7 +161,7 @@ def test_frames_whose_renderer_dies_or_hangs_render_that_frame_again(tmp_path, u
     want = uninterrupted[0]
     out = tmp_path / "cli"
     out.mkdir()
-    code = _CLI_RENDERER_FAULT.format(repo=str(REPO), frame=2, sig=int(sig), args=_args(out))
+    code = _CLI_RENDERER_FAULT.format(frame=2, sig=int(sig), args=_args(out))
     env = dict(os.environ, HYBRID_SHADOWS_DEADLINE_S="4")
     p = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300, env=env)
     assert p.returncode == 0, p.stderr[-2000:]
@@ -177,7 +174,7 @@ def test_a_disk_that_fills_during_frames_is_one_line_and_a_rerun_finishes(tmp_pa
     want = uninterrupted[0]
     out = tmp_path / "full"
     out.mkdir()
-    code = _DISK_FULL.format(repo=str(REPO), at=3, args=_args(out))
+    code = _DISK_FULL.format(at=3, args=_args(out))
     p = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert p.returncode == 74, p.stderr[-2000:]
     last = p.stderr.strip().splitlines()[-1]
@@ -344,7 +341,6 @@ def test_a_channel_closed_mid_message_ends_the_child_and_the_next_render_starts_
 
 _PARENT = """
 import os, sys, time
-sys.path.insert(0, {repo!r})
 from hybrid_shadow_addon.blender.load import load_scene
 from hybrid_shadow_addon.core.runtime.remote import FinalRenderer
 from hybrid_shadow_addon.core.settings import Settings
@@ -357,7 +353,7 @@ time.sleep(600)
 
 def test_no_child_outlives_its_parent():
     """The caller killed (SIGKILL: no clean-up runs): its renderer sees its channel close and ends."""
-    parent = subprocess.Popen([sys.executable, "-c", _PARENT.format(repo=str(REPO))], cwd=REPO,
+    parent = subprocess.Popen([sys.executable, "-c", _PARENT], cwd=REPO,
                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     try:
         child = int(parent.stdout.readline())

@@ -184,14 +184,14 @@ def test_progress_steps_and_cancel(pipeline, loaded):
     assert [done for _, done, _ in seen] == list(range(len(seen)))
     assert all(total == len(seen) for _, _, total in seen)
 
-    class Stop(Exception):
+    class StopError(Exception):
         pass
 
     def cancel(done, total, label):
         if label.startswith("Shadow map"):
-            raise Stop
+            raise StopError
 
-    with pytest.raises(Stop):
+    with pytest.raises(StopError):
         pipeline.render(scene, Settings(hard=True, mode="shadowmap"), 40, 30, progress=cancel)
 
 

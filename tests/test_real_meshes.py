@@ -15,19 +15,16 @@ and importers (``test_scenes/normals/``), and third-party glTF models with their
    pixels and shadows on the ground and on the shapes.
 """
 import json
-import sys
 from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from benchmarks import real_meshes_table
+from hybrid_shadow_addon.tools.metrics import MaskError
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-import real_meshes_table  # noqa: E402
-
-from hybrid_shadow_addon.tools.metrics import MaskError  # noqa: E402
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 

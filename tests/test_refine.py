@@ -16,7 +16,6 @@ coarse answer cannot stand for a pixel, traced under a depth mask.
    ``nearest`` option still gives the blocky coarse masks; interlacing converges to high and
    its first frame after a change is refined, not blocky.
 """
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -286,8 +285,7 @@ def test_interlacing_refines_its_first_frame_and_converges(quality, size, pipeli
 @pytest.mark.cycles
 def test_thin_scene_high_matches_cycles(gl_ctx):
     """The sub-pixel casters scene is a stiff scene like the others: high within 0.1% of Cycles."""
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    import stiff_table
+    from benchmarks import stiff_table
 
     r = stiff_table.evaluate_case("thin", ("raytrace-high",), ctx=gl_ctx, repeats=1)
     res = r["raytrace-high"]

@@ -1,20 +1,14 @@
 """tools/shader_check.py: it finds programs and their defines, reports a broken shader with its
 program, stage, define set and file:line, and rejects what strict GLSL 4.10 rejects."""
-import importlib.util
 import json
 import os
-import sys
 from pathlib import Path
 
 import pytest
 
 from hybrid_shadow_addon.core.gpu import programs
 from hybrid_shadow_addon.core.gpu.programs import ProgramCache
-
-_SPEC = importlib.util.spec_from_file_location(
-    "shader_check", Path(__file__).resolve().parents[1] / "tools" / "shader_check.py")
-shader_check = sys.modules.setdefault("shader_check", importlib.util.module_from_spec(_SPEC))
-_SPEC.loader.exec_module(shader_check)
+from tools import shader_check
 
 needs_glslang = pytest.mark.skipif(shader_check.find_validator() is None,
                                    reason="glslangValidator not installed (glslang-tools)")

@@ -20,22 +20,19 @@ adversarial rays.
    slip through (numpy structured and brute-force tracers, and the GLSL tracer); axis-aligned
    rays; origins exactly on node borders agree between the tracers.
 """
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from benchmarks import stiff_table
+from hybrid_shadow_addon.core.bake import BakeConfig, GridConfig, bake_scene
+from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured
+from hybrid_shadow_addon.core.scene import Instances, Model, Scene
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))
-
-import stiff_table  # noqa: E402
-from hypothesis import HealthCheck, given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-
-from hybrid_shadow_addon.core.bake import BakeConfig, GridConfig, bake_scene  # noqa: E402
-from hybrid_shadow_addon.core.oracle.tracer import trace_brute, trace_structured  # noqa: E402
-from hybrid_shadow_addon.core.scene import Instances, Model, Scene  # noqa: E402
 
 pytestmark = [pytest.mark.blender, pytest.mark.gpu]
 

@@ -490,7 +490,6 @@ def test_snapshot_is_not_reached_by_later_edits(base):
 
 EXIT_SCRIPT = """
 import sys, threading, time
-sys.path.insert(0, {repo!r})
 from hybrid_shadow_addon.core.runtime import worker
 if {blocked!r}:
     w = worker.RenderWorker(create=lambda: time.sleep(3600))  # stuck in its first command
@@ -513,7 +512,7 @@ def test_exit_does_not_hang_with_a_live_worker(blocked):
 
     repo = str(Path(__file__).resolve().parents[1])
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-c", EXIT_SCRIPT.format(repo=repo, blocked=blocked)],
+    proc = subprocess.run([sys.executable, "-c", EXIT_SCRIPT.format(blocked=blocked)], cwd=repo,
                           capture_output=True, text=True, timeout=120)
     dt = time.perf_counter() - t0
     assert proc.returncode == 0 and "exiting True" in proc.stdout, proc.stderr[-2000:]

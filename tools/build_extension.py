@@ -7,7 +7,7 @@ plus the moderngl and glcontext wheels of each platform and Python version (cp31
 ``build/wheels``). Tests, test scenes and the numpy oracles (``core/oracle``) stay out. Each zip is validated with the
 ``blender_ext.py`` that ships inside bpy.
 
-Usage: ``.venv/bin/python tools/build_extension.py [--platform linux-x64 ...] [--offline]``
+Usage: ``.venv/bin/python -m tools.build_extension [--platform linux-x64 ...] [--offline]``
 """
 from __future__ import annotations
 

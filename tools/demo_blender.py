@@ -5,7 +5,7 @@ into a temporary Blender user folder (BLENDER_USER_RESOURCES, XDG_CONFIG_HOME, X
 nothing touches $HOME), loads the forest scene, renders it with the Hybrid Shadows engine and
 saves a PNG. The bpy work runs in a child process so those variables are set before bpy starts.
 
-Usage: ``.venv/bin/python tools/demo_blender.py [--scene forest:...] [--mode raytrace] [--output out/demo_blender.png]
+Usage: ``.venv/bin/python -m tools.demo_blender [--scene forest:...] [--mode raytrace] [--output out/demo_blender.png]
 [--log FILE]`` (``--log``: the extension build's and Blender's own output go to FILE, appended).
 """
 from __future__ import annotations
@@ -23,7 +23,6 @@ EXT_MODULE = "bl_ext.user_default.hybrid_shadows"
 
 
 def child(zip_path: str, scene_arg: str, mode: str, output: str) -> None:
-    sys.path.insert(0, str(REPO))
     import bpy
 
     from hybrid_shadow_addon.blender.load import open_scene
@@ -54,7 +53,7 @@ def main(argv=None) -> int:
     sink = {"stdout": log, "stderr": subprocess.STDOUT} if log else {}
     print(f"demo_blender: building the extension and rendering {args.scene} through it"
           + (f" (Blender's output: {args.log})" if log else ""), flush=True)
-    subprocess.run([sys.executable, str(REPO / "tools/build_extension.py"), "--platform", args.platform],
+    subprocess.run([sys.executable, "-m", "tools.build_extension", "--platform", args.platform],
                    check=True, cwd=REPO, **sink)
     version = next(line.split('"')[1] for line in (REPO / "blender_manifest.toml").read_text().splitlines()
                    if line.startswith("version"))
@@ -63,8 +62,8 @@ def main(argv=None) -> int:
         env = dict(os.environ)
         for var in ("BLENDER_USER_RESOURCES", "XDG_CONFIG_HOME", "XDG_CACHE_HOME"):
             env[var] = str(Path(tmp) / var.lower())
-        proc = subprocess.run([sys.executable, __file__, "--child", str(zip_path), args.scene, args.mode, str(out)],
-                              env=env, cwd=REPO, **sink)
+        proc = subprocess.run([sys.executable, "-m", "tools.demo_blender", "--child", str(zip_path), args.scene,
+                               args.mode, str(out)], env=env, cwd=REPO, **sink)
     if log:
         log.close()
     if proc.returncode != 0 or not out.is_file():

@@ -3,8 +3,8 @@
 A refactor that must not change behaviour is checked by running this before and after and
 comparing the two files: every mask and image must be bit-identical.
 
-    .venv/bin/python tools/mask_digest.py --output before.json
-    .venv/bin/python tools/mask_digest.py --output after.json --against before.json
+    .venv/bin/python -m tools.mask_digest --output before.json
+    .venv/bin/python -m tools.mask_digest --output after.json --against before.json
 
 Each scene is rendered at a small size under a list of settings variants (every shadow mode and
 quality, both acceleration structures, light grids on and off, hard and soft lights, interlacing
@@ -16,14 +16,17 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import importlib.machinery
+import importlib.util
 import json
 import sys
 import time
 from pathlib import Path
 
-from pickle_scenes import load_pickled
+from tools.pickle_scenes import load_pickled
 
 REPO = Path(__file__).resolve().parents[1]
+PACKAGE = "hybrid_shadow_addon"
 
 SCENES = [
     "cube_on_plane", "forest", "clusters", "city:blocks=4", "scaling:triangles=20000,instances=200",
@@ -52,6 +55,20 @@ VARIANTS = {
     "shadowmap-512-hard": ({"mode": "shadowmap", "shadowmap_size": 512, "hard": True}, 1),
     "none": ({"mode": "none"}, 1),
 }
+
+
+def use_tree(tree: Path) -> None:
+    """Import the add-on package of checkout ``tree`` (its ``shaders/`` and ``test_scenes/`` beside
+    it) for the rest of this process, in place of the installed one: ``tree``'s folder becomes
+    ``hybrid_shadow_addon``'s, so its submodules and pickled scenes load from there too."""
+    if PACKAGE in sys.modules:
+        raise RuntimeError(f"{PACKAGE} is imported already")
+    spec = importlib.machinery.PathFinder.find_spec(PACKAGE, [str(tree.resolve())])
+    if spec is None:
+        raise SystemExit(f"--tree {tree}: not a checkout of this project (no {PACKAGE}/)")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[PACKAGE] = module
+    spec.loader.exec_module(module)
 
 
 def _sha(a) -> str:
@@ -98,7 +115,7 @@ def main(argv=None) -> int:
     ap.add_argument("--resolution", default="96x64")
     ap.add_argument("--tree", type=Path, default=REPO, help="the checkout whose code renders (default: this one)")
     a = ap.parse_args(argv)
-    sys.path.insert(0, str(a.tree.resolve()))
+    use_tree(a.tree)
     from hybrid_shadow_addon.core.gpu.pipeline import Pipeline
 
     def load_scene(spec):

@@ -11,7 +11,7 @@ render takes about a second: all the types' tables, 1.5 to 2.5 minutes on two co
 
 Usage (with the bpy venv whose Blender the table is for)::
 
-    .venv/bin/python tools/measure_sky.py [--check | --write] [--types NISHITA,...] [--elevations 0,15,...]
+    .venv/bin/python -m tools.measure_sky [--check | --write] [--types NISHITA,...] [--elevations 0,15,...]
         [--size 64x32] [--samples 16] [--tolerance 0.02]
 
 Without ``--check`` or ``--write`` it prints the measured means and where they differ from the
@@ -34,20 +34,19 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+import bpy
+import numpy as np
 
-import bpy  # noqa: E402
-import numpy as np  # noqa: E402
-
-from hybrid_shadow_addon.blender.export.world import (  # noqa: E402
+from hybrid_shadow_addon.blender.export.world import (
     SKY_TABLE_PATH,
     equirect_mean,
     set_sun_elevation,
     sky_mean,
     sky_settings,
 )
-from hybrid_shadow_addon.tools.exr import read_exr  # noqa: E402
+from hybrid_shadow_addon.tools.exr import read_exr
+
+REPO = Path(__file__).resolve().parents[1]
 
 #: sun elevations (degrees) of a new table: denser near the horizon, where the sky changes fastest
 DEFAULT_ELEVATIONS = (-10.0, -7.5, -5.0, -3.5, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0, 5.0, 7.5, 10.0, 15.0, 20.0, 30.0,

@@ -1,7 +1,7 @@
 """Pickle core scenes (gzip) for a machine without Blender: the GPU benchmarks and the mask
 digests read ``NAME.pkl.gz`` where a scene argument is expected.
 
-    .venv/bin/python tools/pickle_scenes.py --output-dir gpu/scenes forest clusters "city:blocks=4"
+    .venv/bin/python -m tools.pickle_scenes --output-dir gpu/scenes forest clusters "city:blocks=4"
 
 A pickle is read by the same tree (or one whose scene classes keep their names and fields).
 """
@@ -13,8 +13,6 @@ import pickle
 import re
 import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def pickle_name(spec: str) -> str:

@@ -2,7 +2,8 @@
 # Sets up everything `make demo` and `make test` need, on a fresh Debian/Ubuntu machine:
 # python3.11, the Mesa EGL libraries, glslang-tools (the shader check's reference compiler),
 # Node.js (a test of the Flamenco job type), a .venv with the pinned requirements (bpy 4.5 LTS,
-# ruff) and, where python3.13 is found, .venv-bpy5 (bpy 5.x).
+# ruff) and, where python3.13 is found, .venv-bpy5 (bpy 5.x); the add-on package is installed
+# editable into each (`pip install -e .`), so that the tools and benchmarks import it wherever they run.
 # A second run only checks (a few hundred milliseconds): nothing is reinstalled.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -59,12 +60,16 @@ if ! command -v node >/dev/null && ! command -v nodejs >/dev/null; then
 fi
 
 # 4. the virtual environments with the pinned requirements: .venv (bpy 4.5 LTS, CPython 3.11)
-#    and .venv-bpy5 (bpy 5.x, CPython 3.13: a second run of the export, pipeline and add-on tests)
+#    and .venv-bpy5 (bpy 5.x, CPython 3.13: a second run of the export, pipeline and add-on tests),
+#    each with the project installed editable (its setuptools pinned with the requirements: the
+#    build runs without isolation, so nothing else is fetched). The stamp covers both the
+#    requirements and pyproject.toml; a missing install (its .dist-info) is found without Python.
 quiet() { "$@" 2> >(grep -v 'is ignored: it is neither a file nor a directory' >&2); }  # (local mirror noise)
 make_venv() {  # make_venv DIR PYTHON REQUIREMENTS
     local dir=$1 py=$2 reqs=$3 stamp="$1/.requirements.sha256" want
-    want=$(sha256sum "$reqs" | cut -d' ' -f1)
-    if [ -x "$dir/bin/python" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
+    want=$(cat "$reqs" pyproject.toml | sha256sum | cut -d' ' -f1)
+    if [ -x "$dir/bin/python" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] \
+        && compgen -G "$dir/lib/python3*/site-packages/hybrid_shadows-*.dist-info" >/dev/null; then
         return 0
     fi
     if [ ! -x "$dir/bin/python" ]; then
@@ -84,6 +89,15 @@ make_venv() {  # make_venv DIR PYTHON REQUIREMENTS
     echo "setup: installing $reqs into $dir (bpy is a ~400 MB download the first time)"
     quiet "$dir/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip >/dev/null
     quiet "$dir/bin/python" -m pip install -q --disable-pip-version-check -r "$reqs"
+    echo "setup: installing the project into $dir (pip install -e .)"
+    local log  # (setuptools' notes on an editable install: shown only when it fails)
+    log=$(mktemp)
+    if ! "$dir/bin/python" -m pip install -q --disable-pip-version-check --no-build-isolation --no-deps -e . \
+        >"$log" 2>&1; then
+        cat "$log" >&2; rm -f "$log"
+        die "'pip install -e .' into $dir failed (above)"
+    fi
+    rm -f "$log"
     echo "$want" > "$stamp"
     echo "setup: $dir done"
 }

@@ -12,7 +12,7 @@ includes; a file with both is checked as each. Sources are assembled by :class:`
 exactly as the add-on does. A failure names the program, the
 stage, the define set and ``file:line``; the exit status is 1 when any compile fails.
 
-    .venv/bin/python tools/shader_check.py [--recorded out/test/shader_defines.jsonl]
+    .venv/bin/python -m tools.shader_check [--recorded out/test/shader_defines.jsonl]
 """
 from __future__ import annotations
 
@@ -27,11 +27,9 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
+from hybrid_shadow_addon.core.gpu import programs as _programs
 
-from hybrid_shadow_addon.core.gpu import programs as _programs  # noqa: E402
+REPO = Path(__file__).resolve().parents[1]
 
 #: Numeric defines the shaders use as numbers (array sizes, shifts, loop bounds): the code always
 #: gives one to a program that reads it, so every define set lacking it gets this value, the one

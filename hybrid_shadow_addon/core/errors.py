@@ -21,5 +21,5 @@ class GPUError(HybridShadowError):
     """No usable OpenGL context, or a request beyond the GPU's limits."""
 
 
-class Cancelled(HybridShadowError):
+class Cancelled(HybridShadowError):  # noqa: N818 - a user's choice, not an error; a public name
     """The user cancelled (Esc in Blender, a progress callback that raises it)."""

@@ -3,12 +3,13 @@ fallback where it is installed), so that reading Cycles' multilayer EXRs needs n
 to Blender's Python.
 
 Blender puts OpenImageIO on ``sys.path``; the ``bpy`` wheel keeps it in its own
-``<version>/python/lib/python3.x/site-packages``, which :func:`open_image_io` adds when the plain
-import fails."""
+``<version>/python/lib/python3.x/site-packages``, where :func:`open_image_io` loads it from when the
+plain import fails."""
 from __future__ import annotations
 
 import glob
 import importlib
+import importlib.machinery
 import importlib.util
 import os
 import sys
@@ -40,14 +41,20 @@ def open_image_io():
     try:
         return importlib.import_module("OpenImageIO")
     except ImportError:
-        pass
+        if "OpenImageIO" in sys.modules:  # None there: the import is blocked (as for a package not installed)
+            return None
     for folder in _bundled_site_packages():
-        if os.path.isdir(os.path.join(folder, "OpenImageIO")) and folder not in sys.path:
-            sys.path.append(folder)
-            try:
-                return importlib.import_module("OpenImageIO")
-            except ImportError:
-                continue
+        spec = importlib.machinery.PathFinder.find_spec("OpenImageIO", [folder])
+        if spec is None:
+            continue
+        module = importlib.util.module_from_spec(spec)
+        sys.modules["OpenImageIO"] = module  # (its extension module imports as a submodule)
+        try:
+            spec.loader.exec_module(module)
+        except ImportError:
+            del sys.modules["OpenImageIO"]
+            continue
+        return module
     return None
 
 

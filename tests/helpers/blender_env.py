@@ -34,10 +34,20 @@ TEST_SCENES = {
 }
 
 
+def checkout_env(env: dict | None = None) -> dict:
+    """``env`` (this process's environment by default) with this checkout first on ``PYTHONPATH``:
+    a subprocess imports the ``hybrid_shadow_addon`` under test, not another checkout's that the
+    environment may have installed."""
+    env = dict(os.environ if env is None else env)
+    rest = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p and Path(p).resolve() != REPO]
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO), *rest])
+    return env
+
+
 def isolated_env(tmp: Path) -> dict:
     """This process's environment with Blender's user folders under ``tmp``, for a subprocess
-    that runs ``bpy``."""
-    env = dict(os.environ)
+    that runs ``bpy`` (this checkout first on its import path: :func:`checkout_env`)."""
+    env = checkout_env()
     for var in ("BLENDER_USER_RESOURCES", "XDG_CONFIG_HOME", "XDG_CACHE_HOME"):
         env[var] = str(tmp / var.lower())
     env["PYTHONDONTWRITEBYTECODE"] = "1"
@@ -133,7 +143,6 @@ def bake_counts(frames: list) -> dict:
 
 
 def main(argv: list) -> int:
-    sys.path.insert(0, str(REPO))
     import bpy  # noqa: F401
 
     if argv[:1] == ["--make-blend"]:
