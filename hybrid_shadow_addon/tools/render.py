@@ -292,12 +292,15 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
     earlier = _read_stats(stats_file) if stats_file is not None and stats_file.exists() else {}
     entries = {f: earlier.get(f, {"frame": f, "bake": "none", "output": str(paths[f])}) | {"skipped": True}
                for f in frames if f not in todo}
-    pipe = None if remote is not None else (pipeline or Pipeline())
+    own = remote is None and pipeline is None
+    base = None if remote is not None else (pipeline or Pipeline())
     key = ("frames", id(source), time.time_ns())  # (the renderer's bake of this run, updated frame to frame)
+    # the frames render through a view of the caller's pipeline (its bake, their own history and
+    # reuse), which is left as it was
+    pipe = None if base is None else base.view()
     if pipe is not None:
-        was_reusing, pipe.reuse = pipe.reuse, bool(reuse)
-        # (every light reuses, whatever it costs here: the same frames give the same masks on any machine)
-        was_choice, pipe.reuse_choice = pipe.reuse_choice, "always"
+        pipe.reuse = bool(reuse)
+        pipe.reuse_choice = "always"  # (every light, whatever it costs here: the same frames on any machine)
     raytrace = settings.mode == "raytrace"
     prev = None
     warned = False
@@ -342,8 +345,9 @@ def render_frames(source, frames, settings, *, output: str, resolution=None, mas
                           files=files)
     finally:
         if pipe is not None:
-            pipe.reuse = was_reusing
-            pipe.reuse_choice = was_choice
+            pipe.release()
+        if own:
+            base.release()
     if progress is not None:
         progress(len(todo), max(len(todo), 1), f"{len(todo)} frames rendered{note}")
     if stats_file is not None and not todo:
