@@ -13,10 +13,12 @@ from pathlib import Path
 
 
 def tree_env(tree, env: dict | None = None) -> dict:
-    """``env`` (this process's environment by default) with ``tree`` first on ``PYTHONPATH``."""
+    """``env`` (this process's environment by default) with ``tree`` first on ``PYTHONPATH`` (and
+    there once)."""
+    tree = Path(tree).resolve()
     env = dict(os.environ if env is None else env)
-    rest = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]
-    env["PYTHONPATH"] = os.pathsep.join([str(Path(tree).resolve()), *rest])
+    rest = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p and Path(p).resolve() != tree]
+    env["PYTHONPATH"] = os.pathsep.join([str(tree), *rest])
     return env
 
 

@@ -42,11 +42,6 @@ def kind(f) -> str:
     return str(f.type).split(" | ")[0]
 
 
-def choice_values(name: str) -> tuple:
-    """The values setting ``name`` may take."""
-    return tuple(c.value for c in FIELDS[name].metadata["choices"])
-
-
 def check(f, v) -> None:
     """Raise ``ValueError`` if ``v`` is not a value field ``f`` may take."""
     m, name = f.metadata, f.name
@@ -293,12 +288,6 @@ def _number(v, name, low=None):
 
 #: each setting's field (its declaration: :func:`setting`), by name
 FIELDS = {f.name: f for f in fields(Settings)}
-MODES = choice_values("mode")
-QUALITIES = choice_values("quality")
-UPSAMPLE_FILTERS = choice_values("upsample")
-CONSERVATIVE_MAPS = choice_values("conservative")
-STRUCTURES = choice_values("structure")  # acceleration structures the bake can build
-TRACE_PATHS = choice_values("trace_path")
 
 
 def option_name(f) -> str | None:

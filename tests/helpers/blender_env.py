@@ -17,7 +17,6 @@ the frames rendered and the engine's bakes by kind.
 from __future__ import annotations
 
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -38,10 +37,9 @@ def checkout_env(env: dict | None = None) -> dict:
     """``env`` (this process's environment by default) with this checkout first on ``PYTHONPATH``:
     a subprocess imports the ``hybrid_shadow_addon`` under test, not another checkout's that the
     environment may have installed."""
-    env = dict(os.environ if env is None else env)
-    rest = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p and Path(p).resolve() != REPO]
-    env["PYTHONPATH"] = os.pathsep.join([str(REPO), *rest])
-    return env
+    from benchmarks.trees import tree_env
+
+    return tree_env(REPO, env)
 
 
 def isolated_env(tmp: Path) -> dict:

@@ -69,6 +69,15 @@ class _Walk:
             q[r] = t[r]
         self.in_model[r] = False
 
+    def pop(self, stack, top, act, ret):
+        """Each active ray ``act`` pops its stack's top entry; those that pop ``ret`` (a model
+        tree done) go back to the top level. The other rays and their entries."""
+        top[act] -= 1
+        e = stack[act, top[act]]
+        back = e == ret
+        self.leave(act[back])
+        return act[~back], e[~back]
+
     def enter(self, ids, r):
         """Rays ``r`` at instance records ``ids`` (:func:`.twolevel.enter_instances`)."""
         return enter_instances(self.leafd, ids, r, self.o, self.d, self.tm, self.occ, self.q, self.om, self.dm)
@@ -95,11 +104,7 @@ def trace_wide(baked, origins, dirs, tmax=np.inf, levels: int = 2, order: str = 
     K = 2 ** levels
     act = np.nonzero(top > 0)[0]
     while act.size:
-        top[act] -= 1
-        e = stack[act, top[act]]
-        back = e == RETURN
-        s.leave(act[back])
-        act, e = act[~back], e[~back]
+        act, e = s.pop(stack, top, act, RETURN)
         w = node[np.maximum(e, 0), 3]
         leaf = (w & LEAF_FLAG) != 0
         inside = s.in_model[act]  # (before this step enters a model tree)
@@ -174,11 +179,7 @@ def trace_wide_packed(baked, origins, dirs, tmax=np.inf, stack: int = 32, stats:
     deepest = int(top.max()) if N else 0
     act = np.nonzero(top > 0)[0]
     while act.size:
-        top[act] -= 1
-        e = stk[act, top[act]]
-        back = e == RETURN_WORD
-        s.leave(act[back])
-        act, e = act[~back], e[~back]
+        act, e = s.pop(stk, top, act, RETURN_WORD)
         inner = (e & int(LEAF_FLAG)) == 0
         inside = s.in_model[act]  # (before this step enters a model tree)
         fetches[act] += 1
